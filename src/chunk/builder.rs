@@ -1,0 +1,164 @@
+//! [`ChunkBuilder`]: builds a chunk row by row, the way a logger produces data.
+
+use std::sync::Arc;
+
+use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+use arrow_array::{Array, ArrayRef, ListArray, PrimitiveArray};
+use arrow_buffer::{NullBuffer, OffsetBuffer};
+use arrow_schema::{DataType, Field};
+
+use super::Chunk;
+use crate::error::ChunkError;
+use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeType, Timeline};
+
+/// Builds a [`Chunk`] one row at a time.
+///
+/// A row names its times (one per timeline; every row must name the same timelines) and
+/// its cells (the instances of each component it logs; a component a row leaves out gets a
+/// null cell there). A chunk whose rows name no timeline is static.
+///
+/// ```
+/// use std::sync::Arc;
+/// use arrow_array::{ArrayRef, Float64Array};
+/// use chunkstore::{ChunkBuilder, ChunkId, EntityPath, RowId, Timeline};
+///
+/// let frame = Timeline::sequence("frame");
+/// let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/robot/speed").unwrap())
+///     .with_row(RowId::new(), [(frame.clone(), 1)], [("scalar", Arc::new(Float64Array::from(vec![0.5])) as ArrayRef)])
+///     .with_row(RowId::new(), [(frame, 2)], [("scalar", Arc::new(Float64Array::from(vec![0.7])) as ArrayRef)])
+///     .build()
+///     .unwrap();
+/// assert_eq!(chunk.num_rows(), 2);
+/// ```
+#[derive(Debug)]
+pub struct ChunkBuilder {
+    id: ChunkId,
+    entity_path: EntityPath,
+    row_ids: Vec<RowId>,
+    timelines: Vec<(Timeline, Vec<Option<i64>>)>,
+    components: Vec<(ComponentDescriptor, Vec<Option<ArrayRef>>)>,
+}
+
+impl ChunkBuilder {
+    /// An empty builder for a chunk of `entity_path`.
+    pub fn new(id: ChunkId, entity_path: EntityPath) -> Self {
+        Self { id, entity_path, row_ids: Vec::new(), timelines: Vec::new(), components: Vec::new() }
+    }
+
+    /// Appends a row: its id, its time on each timeline, and its cells.
+    #[must_use]
+    pub fn with_row<C: Into<ComponentDescriptor>>(
+        mut self,
+        row_id: RowId,
+        times: impl IntoIterator<Item = (Timeline, i64)>,
+        cells: impl IntoIterator<Item = (C, ArrayRef)>,
+    ) -> Self {
+        let row = self.row_ids.len();
+        self.row_ids.push(row_id);
+        for (timeline, time) in times {
+            let index = match self.timelines.iter().position(|(t, _)| *t == timeline) {
+                Some(index) => index,
+                None => {
+                    self.timelines.push((timeline, vec![None; row]));
+                    self.timelines.len() - 1
+                }
+            };
+            let column = &mut self.timelines[index].1;
+            column.resize(row, None);
+            column.push(Some(time));
+        }
+        for (descriptor, cell) in cells {
+            let descriptor = descriptor.into();
+            let index = match self.components.iter().position(|(d, _)| d.name == descriptor.name)
+            {
+                Some(index) => index,
+                None => {
+                    self.components.push((descriptor, vec![None; row]));
+                    self.components.len() - 1
+                }
+            };
+            let column = &mut self.components[index].1;
+            column.resize(row, None);
+            column.push(Some(cell));
+        }
+        self
+    }
+
+    /// Appends a static row (no times).
+    #[must_use]
+    pub fn with_static_row<C: Into<ComponentDescriptor>>(
+        self,
+        row_id: RowId,
+        cells: impl IntoIterator<Item = (C, ArrayRef)>,
+    ) -> Self {
+        self.with_row(row_id, [], cells)
+    }
+
+    /// Builds the chunk.
+    ///
+    /// # Errors
+    /// Everything [`Chunk::try_new`] rejects, plus rows that miss a timeline others have
+    /// ([`ChunkError::NullTimes`]) and cells of one component with different element types
+    /// ([`ChunkError::CellTypeMismatch`]).
+    pub fn build(self) -> Result<Chunk, ChunkError> {
+        let Self { id, entity_path, row_ids, timelines, components } = self;
+        let num_rows = row_ids.len();
+        let time_columns = timelines
+            .into_iter()
+            .map(|(timeline, mut times)| {
+                times.resize(num_rows, None);
+                let null_count = times.iter().filter(|t| t.is_none()).count();
+                if null_count > 0 {
+                    return Err(ChunkError::NullTimes {
+                        timeline: timeline.name().to_owned(),
+                        null_count,
+                    });
+                }
+                let times: Vec<i64> = times.into_iter().flatten().collect();
+                let array = time_array(timeline.time_type(), times);
+                Ok((timeline, array))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let components = components
+            .into_iter()
+            .map(|(descriptor, mut cells)| {
+                cells.resize(num_rows, None);
+                let list = list_from_cells(descriptor.name.as_str(), &cells)?;
+                Ok((descriptor, Arc::new(list) as ArrayRef))
+            })
+            .collect::<Result<Vec<_>, ChunkError>>()?;
+        Chunk::try_new(id, entity_path, row_ids, time_columns, components)
+    }
+}
+
+/// An Arrow time column of the given type.
+pub(crate) fn time_array(time_type: TimeType, times: Vec<i64>) -> ArrayRef {
+    match time_type {
+        TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(times)),
+        TimeType::DurationNs => Arc::new(PrimitiveArray::<DurationNanosecondType>::from(times)),
+        TimeType::TimestampNs => Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(times)),
+    }
+}
+
+/// One list array from optional cells; `None` cells become nulls.
+fn list_from_cells(component: &str, cells: &[Option<ArrayRef>]) -> Result<ListArray, ChunkError> {
+    let present: Vec<&dyn Array> = cells.iter().flatten().map(AsRef::as_ref).collect();
+    let element_type: DataType = present.first().map_or(DataType::Null, |a| a.data_type().clone());
+    if let Some(other) = present.iter().find(|a| *a.data_type() != element_type) {
+        return Err(ChunkError::CellTypeMismatch {
+            component: component.to_owned(),
+            expected: element_type,
+            found: other.data_type().clone(),
+        });
+    }
+    let values = if present.is_empty() {
+        arrow_array::new_empty_array(&element_type)
+    } else {
+        arrow_select::concat::concat(&present)?
+    };
+    let offsets = OffsetBuffer::from_lengths(cells.iter().map(|c| c.as_ref().map_or(0, |a| a.len())));
+    let nulls = NullBuffer::from_iter(cells.iter().map(Option::is_some));
+    let nulls = (nulls.null_count() > 0).then_some(nulls);
+    let field = Arc::new(Field::new_list_field(element_type, true));
+    Ok(ListArray::try_new(field, offsets, values, nulls)?)
+}

@@ -1,0 +1,586 @@
+//! The [`Chunk`]: an immutable batch of rows of one entity, its validation, and everything
+//! the store's indices need from it, computed once at construction (sort orders, time
+//! ranges per timeline and per component, static winners).
+
+mod builder;
+mod transport;
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use arrow_array::{Array, ArrayRef, ListArray};
+use arrow_buffer::ScalarBuffer;
+use arrow_schema::{DataType, FieldRef};
+use smallvec::SmallVec;
+
+use crate::error::ChunkError;
+use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeInt, Timeline};
+
+pub use builder::ChunkBuilder;
+
+/// An immutable batch of rows of one entity: a row-id column, zero or more time columns
+/// (none: the chunk is *static*), and one or more component columns (Arrow `List` arrays,
+/// one cell per row; a null cell means "no data for this component in this row").
+///
+/// ```
+/// use std::sync::Arc;
+/// use arrow_array::{builder::{Float64Builder, ListBuilder}, ArrayRef, Int64Array};
+/// use chunkstore::{Chunk, ChunkId, EntityPath, RowId, Timeline};
+///
+/// let mut scalars = ListBuilder::new(Float64Builder::new());
+/// for value in [1.0, 2.0] {
+///     scalars.values().append_value(value);
+///     scalars.append(true);
+/// }
+/// let chunk = Chunk::try_new(
+///     ChunkId::new(),
+///     EntityPath::parse("/sensors/temperature").unwrap(),
+///     vec![RowId::new(), RowId::new()],
+///     vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(vec![7, 3])) as ArrayRef)],
+///     vec![("scalar".into(), Arc::new(scalars.finish()) as ArrayRef)],
+/// )
+/// .unwrap();
+/// assert_eq!(chunk.num_rows(), 2);
+/// assert!(!chunk.time_column("frame").unwrap().is_sorted());
+/// ```
+#[derive(Debug)]
+pub struct Chunk {
+    id: ChunkId,
+    entity_path: EntityPath,
+    row_ids: Box<[RowId]>,
+    is_sorted_by_row_id: bool,
+    time_columns: SmallVec<[TimeColumn; 2]>,
+    components: Vec<ComponentColumn>,
+    /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
+    /// transport.
+    extra_metadata: HashMap<String, String>,
+    heap_size_bytes: u64,
+}
+
+/// One timeline's times in a chunk.
+#[derive(Debug)]
+pub struct TimeColumn {
+    timeline: Timeline,
+    times: ScalarBuffer<i64>,
+    /// The column's Arrow type as given (a timestamp may carry a timezone).
+    data_type: DataType,
+    /// Field metadata as given, for lossless transport.
+    field_metadata: HashMap<String, String>,
+    is_sorted: bool,
+    /// Row positions in ascending `(time, row id)` order; `None` when the rows already are.
+    index_order: Option<Box<[u32]>>,
+    time_range: (TimeInt, TimeInt),
+}
+
+/// The greatest and least index of a component's non-null cells on one timeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ComponentTimeBounds {
+    /// Least time of a non-null cell.
+    pub min_time: TimeInt,
+    /// Greatest time of a non-null cell.
+    pub max_time: TimeInt,
+    /// Greatest row id among the non-null cells at `max_time`.
+    pub max_row_id: RowId,
+    /// The row holding that cell.
+    pub max_row: u32,
+}
+
+/// One component's column in a chunk.
+#[derive(Debug)]
+pub struct ComponentColumn {
+    descriptor: ComponentDescriptor,
+    list: ListArray,
+    /// The column's field as given (its name and metadata), for lossless transport.
+    field: FieldRef,
+    /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
+    /// every cell is null.
+    bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 2]>,
+    /// For every chunk: the non-null cell with the greatest row id, as `(row id, row)`.
+    /// It is the static winner of a static chunk.
+    max_row_id_cell: Option<(RowId, u32)>,
+}
+
+impl Chunk {
+    /// Builds a chunk from columns, validating everything SEMANTICS.md section 2 asks.
+    ///
+    /// `time_columns` pairs a timeline with an `Int64`, `Duration(ns)` or `Timestamp(ns)`
+    /// array (the timeline's [`crate::TimeType`] must match the array's type);
+    /// `components` pairs a descriptor with a `List` array. All have one value per row id.
+    ///
+    /// # Errors
+    /// A [`ChunkError`] naming the offending column.
+    pub fn try_new(
+        id: ChunkId,
+        entity_path: EntityPath,
+        row_ids: Vec<RowId>,
+        time_columns: Vec<(Timeline, ArrayRef)>,
+        components: Vec<(ComponentDescriptor, ArrayRef)>,
+    ) -> Result<Self, ChunkError> {
+        let time_columns = time_columns
+            .into_iter()
+            .map(|(timeline, array)| {
+                let actual = crate::TimeType::from_arrow(array.data_type());
+                if actual != Some(timeline.time_type()) {
+                    return Err(ChunkError::BadTimeType {
+                        timeline: timeline.name().to_owned(),
+                        data_type: array.data_type().clone(),
+                    });
+                }
+                Ok(RawTimeColumn { timeline, array, field_metadata: HashMap::new() })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let components = components
+            .into_iter()
+            .map(|(descriptor, array)| {
+                let field = default_component_field(&descriptor, array.data_type());
+                RawComponentColumn { descriptor, array, field }
+            })
+            .collect();
+        Self::from_raw(id, entity_path, row_ids, time_columns, components, HashMap::new())
+    }
+
+    /// Like [`Chunk::try_new`], for data known to be valid.
+    ///
+    /// # Panics
+    /// If the columns are invalid (see [`Chunk::try_new`]).
+    #[expect(clippy::expect_used, reason = "documented panicking constructor")]
+    pub fn new(
+        id: ChunkId,
+        entity_path: EntityPath,
+        row_ids: Vec<RowId>,
+        time_columns: Vec<(Timeline, ArrayRef)>,
+        components: Vec<(ComponentDescriptor, ArrayRef)>,
+    ) -> Self {
+        Self::try_new(id, entity_path, row_ids, time_columns, components)
+            .expect("Chunk::new was given invalid columns")
+    }
+
+    fn from_raw(
+        id: ChunkId,
+        entity_path: EntityPath,
+        row_ids: Vec<RowId>,
+        raw_times: Vec<RawTimeColumn>,
+        raw_components: Vec<RawComponentColumn>,
+        extra_metadata: HashMap<String, String>,
+    ) -> Result<Self, ChunkError> {
+        let num_rows = row_ids.len();
+        if num_rows == 0 {
+            return Err(ChunkError::NoRows);
+        }
+        if u32::try_from(num_rows).is_err() {
+            return Err(ChunkError::TooManyRows { num_rows });
+        }
+        if raw_components.is_empty() {
+            return Err(ChunkError::NoComponents);
+        }
+        let is_sorted_by_row_id = row_ids.is_sorted();
+
+        let mut time_columns = SmallVec::<[TimeColumn; 2]>::new();
+        for raw in raw_times {
+            if raw.timeline.name().is_empty() {
+                return Err(ChunkError::EmptyName { kind: "timeline" });
+            }
+            if time_columns.iter().any(|c: &TimeColumn| c.timeline.name() == raw.timeline.name())
+            {
+                return Err(ChunkError::DuplicateTimeline {
+                    timeline: raw.timeline.name().to_owned(),
+                });
+            }
+            time_columns.push(TimeColumn::try_new(raw, &row_ids)?);
+        }
+
+        let mut components: Vec<ComponentColumn> = Vec::with_capacity(raw_components.len());
+        for raw in raw_components {
+            let name = raw.descriptor.name.as_str();
+            if name.is_empty() {
+                return Err(ChunkError::EmptyName { kind: "component" });
+            }
+            if components.iter().any(|c| c.descriptor.name.as_str() == name) {
+                return Err(ChunkError::DuplicateComponent { component: name.to_owned() });
+            }
+            components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
+        }
+
+        let mut chunk = Self {
+            id,
+            entity_path,
+            row_ids: row_ids.into_boxed_slice(),
+            is_sorted_by_row_id,
+            time_columns,
+            components,
+            extra_metadata,
+            heap_size_bytes: 0,
+        };
+        chunk.heap_size_bytes = chunk.compute_heap_size_bytes();
+        debug_assert!(chunk.sanity_check().is_ok(), "{:?}", chunk.sanity_check());
+        Ok(chunk)
+    }
+
+    fn compute_heap_size_bytes(&self) -> u64 {
+        let row_ids = self.row_ids.len() * size_of::<RowId>();
+        let times: usize = self
+            .time_columns
+            .iter()
+            .map(|c| {
+                c.times.inner().capacity() + c.index_order.as_ref().map_or(0, |o| o.len() * 4)
+            })
+            .sum();
+        let components: usize =
+            self.components.iter().map(|c| c.list.get_buffer_memory_size()).sum();
+        (row_ids + times + components) as u64
+    }
+
+    /// The chunk's id.
+    pub fn id(&self) -> ChunkId {
+        self.id
+    }
+
+    /// The entity all rows belong to.
+    pub fn entity_path(&self) -> &EntityPath {
+        &self.entity_path
+    }
+
+    /// Number of rows.
+    pub fn num_rows(&self) -> usize {
+        self.row_ids.len()
+    }
+
+    /// A chunk without time columns holds static data.
+    pub fn is_static(&self) -> bool {
+        self.time_columns.is_empty()
+    }
+
+    /// The row ids, in row order.
+    pub fn row_ids(&self) -> &[RowId] {
+        &self.row_ids
+    }
+
+    /// Are the row ids ascending?
+    pub fn is_sorted_by_row_id(&self) -> bool {
+        self.is_sorted_by_row_id
+    }
+
+    /// The time columns, in the order given.
+    pub fn time_columns(&self) -> &[TimeColumn] {
+        &self.time_columns
+    }
+
+    /// The time column of a timeline, by name.
+    pub fn time_column(&self, timeline: &str) -> Option<&TimeColumn> {
+        self.time_columns.iter().find(|c| c.timeline.name() == timeline)
+    }
+
+    /// The component columns, in the order given.
+    pub fn components(&self) -> &[ComponentColumn] {
+        &self.components
+    }
+
+    /// A component column, by name.
+    pub fn component(&self, name: &str) -> Option<&ComponentColumn> {
+        self.components.iter().find(|c| c.descriptor.name.as_str() == name)
+    }
+
+    /// The cell of `component` at `row`: `None` if the column is absent, the row out of
+    /// bounds or the cell null. The slice shares the chunk's buffers (no copy).
+    pub fn cell(&self, component: &str, row: usize) -> Option<ArrayRef> {
+        self.component(component).and_then(|c| c.cell(row))
+    }
+
+    /// Bytes of heap this chunk's arrays and indices occupy.
+    pub fn heap_size_bytes(&self) -> u64 {
+        self.heap_size_bytes
+    }
+
+    /// Checks every invariant of the chunk; construction guarantees them, so an error here
+    /// is a bug in this crate.
+    ///
+    /// # Errors
+    /// A description of the first broken invariant.
+    pub fn sanity_check(&self) -> Result<(), String> {
+        let Self {
+            id: _,
+            entity_path: _,
+            row_ids,
+            is_sorted_by_row_id,
+            time_columns,
+            components,
+            extra_metadata,
+            heap_size_bytes: _,
+        } = self;
+        let n = row_ids.len();
+        if n == 0 || components.is_empty() {
+            return Err("a chunk has rows and components".into());
+        }
+        if *is_sorted_by_row_id != row_ids.is_sorted() {
+            return Err("is_sorted_by_row_id matches the row ids".into());
+        }
+        if extra_metadata.contains_key(transport::META_ID)
+            || extra_metadata.contains_key(transport::META_ENTITY_PATH)
+        {
+            return Err("id and entity path are not duplicated in extra metadata".into());
+        }
+        for column in time_columns {
+            column.sanity_check(row_ids)?;
+        }
+        for column in components {
+            if column.list.len() != n {
+                return Err(format!("component {} has one cell per row", column.descriptor.name));
+            }
+            if column.bounds_per_timeline.len() != time_columns.len() {
+                return Err("component bounds exist for every timeline".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+struct RawTimeColumn {
+    timeline: Timeline,
+    array: ArrayRef,
+    field_metadata: HashMap<String, String>,
+}
+
+struct RawComponentColumn {
+    descriptor: ComponentDescriptor,
+    array: ArrayRef,
+    field: FieldRef,
+}
+
+fn default_component_field(descriptor: &ComponentDescriptor, data_type: &DataType) -> FieldRef {
+    Arc::new(arrow_schema::Field::new(descriptor.name.as_str(), data_type.clone(), true))
+}
+
+impl TimeColumn {
+    fn try_new(raw: RawTimeColumn, row_ids: &[RowId]) -> Result<Self, ChunkError> {
+        let RawTimeColumn { timeline, array, field_metadata } = raw;
+        let name = || timeline.name().to_owned();
+        if array.len() != row_ids.len() {
+            return Err(ChunkError::LengthMismatch {
+                column: name(),
+                expected: row_ids.len(),
+                actual: array.len(),
+            });
+        }
+        if array.null_count() > 0 {
+            return Err(ChunkError::NullTimes { timeline: name(), null_count: array.null_count() });
+        }
+        let data = array.to_data();
+        // All three timeline types are 64-bit primitives: one buffer of i64, sliced.
+        let times = ScalarBuffer::<i64>::new(data.buffers()[0].clone(), data.offset(), data.len());
+        if let Some(row) = times.iter().position(|&t| t == i64::MIN) {
+            return Err(ChunkError::ReservedTime { timeline: name(), row });
+        }
+        let is_sorted = times.is_sorted();
+        let in_index_order = is_sorted
+            && times.windows(2).zip(row_ids.windows(2)).all(|(t, r)| t[0] < t[1] || r[0] <= r[1]);
+        let index_order = (!in_index_order).then(|| {
+            let mut order: Vec<u32> = (0..row_ids.len() as u32).collect();
+            order.sort_by_key(|&i| (times[i as usize], row_ids[i as usize]));
+            order.into_boxed_slice()
+        });
+        let (min, max) = times
+            .iter()
+            .fold((i64::MAX, i64::MIN + 1), |(lo, hi), &t| (lo.min(t), hi.max(t)));
+        Ok(Self {
+            timeline,
+            data_type: array.data_type().clone(),
+            times,
+            field_metadata,
+            is_sorted,
+            index_order,
+            time_range: (TimeInt::saturating(min), TimeInt::saturating(max)),
+        })
+    }
+
+    fn sanity_check(&self, row_ids: &[RowId]) -> Result<(), String> {
+        let Self { timeline, times, data_type, field_metadata: _, is_sorted, index_order, time_range } =
+            self;
+        let name = timeline.name();
+        if times.len() != row_ids.len() {
+            return Err(format!("time column {name} has one time per row"));
+        }
+        if crate::TimeType::from_arrow(data_type) != Some(timeline.time_type()) {
+            return Err(format!("time column {name}'s Arrow type matches its timeline"));
+        }
+        if *is_sorted != times.is_sorted() {
+            return Err(format!("time column {name}'s is_sorted flag matches its times"));
+        }
+        let (lo, hi) = (times.iter().min(), times.iter().max());
+        if (lo.copied(), hi.copied()) != (Some(time_range.0.as_i64()), Some(time_range.1.as_i64()))
+        {
+            return Err(format!("time column {name}'s range matches its times"));
+        }
+        let key = |i: usize| (times[i], row_ids[i]);
+        let ordered = match index_order {
+            Some(order) => {
+                order.len() == times.len()
+                    && order.windows(2).all(|w| key(w[0] as usize) <= key(w[1] as usize))
+            }
+            None => (1..times.len()).all(|i| key(i - 1) <= key(i)),
+        };
+        if !ordered {
+            return Err(format!("time column {name}'s index order sorts by (time, row id)"));
+        }
+        Ok(())
+    }
+
+    /// The timeline.
+    pub fn timeline(&self) -> &Timeline {
+        &self.timeline
+    }
+
+    /// The times, in row order.
+    pub fn times(&self) -> &[i64] {
+        &self.times
+    }
+
+    /// The Arrow type of the column as it was given.
+    pub fn data_type(&self) -> &DataType {
+        &self.data_type
+    }
+
+    /// Are the times non-decreasing in row order?
+    pub fn is_sorted(&self) -> bool {
+        self.is_sorted
+    }
+
+    /// Least and greatest time.
+    pub fn time_range(&self) -> (TimeInt, TimeInt) {
+        self.time_range
+    }
+
+    /// The row at position `pos` of ascending `(time, row id)` order.
+    #[inline]
+    pub(crate) fn row_at(&self, pos: usize) -> usize {
+        match &self.index_order {
+            Some(order) => order[pos] as usize,
+            None => pos,
+        }
+    }
+
+    /// Number of positions whose time is `<= t` (a partition point in index order).
+    pub(crate) fn num_positions_at_or_before(&self, t: i64) -> usize {
+        match &self.index_order {
+            Some(order) => order.partition_point(|&r| self.times[r as usize] <= t),
+            None => self.times.partition_point(|&time| time <= t),
+        }
+    }
+
+    /// Number of positions whose time is `< t`.
+    pub(crate) fn num_positions_before(&self, t: i64) -> usize {
+        match &self.index_order {
+            Some(order) => order.partition_point(|&r| self.times[r as usize] < t),
+            None => self.times.partition_point(|&time| time < t),
+        }
+    }
+}
+
+impl ComponentColumn {
+    fn try_new(
+        raw: RawComponentColumn,
+        row_ids: &[RowId],
+        time_columns: &[TimeColumn],
+    ) -> Result<Self, ChunkError> {
+        let RawComponentColumn { descriptor, array, field } = raw;
+        let name = || descriptor.name.as_str().to_owned();
+        let Some(list) = array.as_any().downcast_ref::<ListArray>() else {
+            return Err(ChunkError::NotAList { component: name(), data_type: array.data_type().clone() });
+        };
+        if list.len() != row_ids.len() {
+            return Err(ChunkError::LengthMismatch {
+                column: name(),
+                expected: row_ids.len(),
+                actual: list.len(),
+            });
+        }
+        let list = list.clone();
+        let valid = |row: usize| list.is_valid(row);
+
+        let mut max_row_id_cell: Option<(RowId, u32)> = None;
+        for (row, &row_id) in row_ids.iter().enumerate() {
+            if valid(row) && max_row_id_cell.is_none_or(|(best, _)| row_id >= best) {
+                max_row_id_cell = Some((row_id, row as u32));
+            }
+        }
+
+        let bounds_per_timeline = time_columns
+            .iter()
+            .map(|column| {
+                let mut bounds: Option<ComponentTimeBounds> = None;
+                for (row, (&time, &row_id)) in column.times.iter().zip(row_ids).enumerate() {
+                    if !valid(row) {
+                        continue;
+                    }
+                    let time = TimeInt::saturating(time);
+                    let b = bounds.get_or_insert(ComponentTimeBounds {
+                        min_time: time,
+                        max_time: time,
+                        max_row_id: row_id,
+                        max_row: row as u32,
+                    });
+                    b.min_time = b.min_time.min(time);
+                    if (time, row_id) >= (b.max_time, b.max_row_id) {
+                        (b.max_time, b.max_row_id, b.max_row) = (time, row_id, row as u32);
+                    }
+                }
+                bounds
+            })
+            .collect();
+
+        Ok(Self { descriptor, list, field, bounds_per_timeline, max_row_id_cell })
+    }
+
+    /// The descriptor (name and metadata).
+    pub fn descriptor(&self) -> &ComponentDescriptor {
+        &self.descriptor
+    }
+
+    /// The component's name.
+    pub fn name(&self) -> &ComponentName {
+        &self.descriptor.name
+    }
+
+    /// The whole column.
+    pub fn list_array(&self) -> &ListArray {
+        &self.list
+    }
+
+    /// The Arrow type of one element of a cell.
+    pub fn element_type(&self) -> &DataType {
+        self.list.value_type_ref()
+    }
+
+    /// The cell at `row`, or `None` if out of bounds or null. Zero-copy.
+    pub fn cell(&self, row: usize) -> Option<ArrayRef> {
+        (row < self.list.len() && self.list.is_valid(row)).then(|| self.list.value(row))
+    }
+
+    /// Is the cell at `row` non-null?
+    #[inline]
+    pub fn is_valid(&self, row: usize) -> bool {
+        self.list.is_valid(row)
+    }
+
+    /// Bounds of the non-null cells on the chunk's `timeline_position`-th time column.
+    pub(crate) fn bounds(&self, timeline_position: usize) -> Option<ComponentTimeBounds> {
+        self.bounds_per_timeline.get(timeline_position).copied().flatten()
+    }
+
+    /// The non-null cell with the greatest row id, as `(row id, row)`.
+    pub(crate) fn max_row_id_cell(&self) -> Option<(RowId, u32)> {
+        self.max_row_id_cell
+    }
+}
+
+trait ListValueTypeRef {
+    fn value_type_ref(&self) -> &DataType;
+}
+
+impl ListValueTypeRef for ListArray {
+    fn value_type_ref(&self) -> &DataType {
+        match self.data_type() {
+            DataType::List(field) => field.data_type(),
+            other => other,
+        }
+    }
+}

@@ -1,0 +1,335 @@
+//! Entity paths: `/`-separated names that form a tree (`world` ⊃ `world/robot`).
+//!
+//! An [`EntityPath`] is an `Arc` around its parts and a hash computed once, so cloning is a
+//! reference-count bump, hashing feeds one `u64`, and equality usually settles on the hash.
+
+use std::fmt::{self, Write as _};
+use std::hash::{BuildHasher, Hash, Hasher};
+use std::sync::Arc;
+
+use crate::error::EntityPathError;
+
+/// A path in the entity tree, e.g. `/world/robot/camera`. The root is `/` (no parts).
+///
+/// ```
+/// use chunkstore::EntityPath;
+/// let path: EntityPath = "/paths/with\\ space/a\\/b".parse().unwrap();
+/// assert_eq!(path.parts().collect::<Vec<_>>(), ["paths", "with space", "a/b"]);
+/// assert_eq!(path.to_string(), "/paths/with\\ space/a\\/b");
+/// assert!(EntityPath::parse("paths").unwrap().is_ancestor_of(&path));
+/// ```
+#[derive(Clone)]
+pub struct EntityPath(Arc<Inner>);
+
+struct Inner {
+    parts: Box<[Arc<str>]>,
+    hash: u64,
+}
+
+/// Fixed seeds: a path hashes the same in every store and every run, so orders built on
+/// hashes are reproducible.
+const PATH_HASH_STATE: ahash::RandomState = ahash::RandomState::with_seeds(
+    0x243f_6a88_85a3_08d3,
+    0x1319_8a2e_0370_7344,
+    0xa409_3822_299f_31d0,
+    0x082e_fa98_ec4e_6c89,
+);
+
+impl EntityPath {
+    /// The root path `/`.
+    pub fn root() -> Self {
+        Self::from_parts(Vec::<Arc<str>>::new())
+    }
+
+    /// A path from already unescaped parts. Parts may contain any character, `/` included.
+    ///
+    /// # Errors
+    /// [`EntityPathError::EmptyPart`] if a part is empty.
+    pub fn try_from_parts<S: Into<Arc<str>>>(
+        parts: impl IntoIterator<Item = S>,
+    ) -> Result<Self, EntityPathError> {
+        let parts: Vec<Arc<str>> = parts.into_iter().map(Into::into).collect();
+        if let Some(index) = parts.iter().position(|p| p.is_empty()) {
+            return Err(EntityPathError::EmptyPart { path: join_for_error(&parts), index });
+        }
+        Ok(Self::from_parts(parts))
+    }
+
+    fn from_parts(parts: Vec<Arc<str>>) -> Self {
+        let mut hasher = PATH_HASH_STATE.build_hasher();
+        parts.len().hash(&mut hasher);
+        for part in &parts {
+            part.hash(&mut hasher);
+        }
+        Self(Arc::new(Inner { parts: parts.into_boxed_slice(), hash: hasher.finish() }))
+    }
+
+    /// Parses the text form: optional leading `/`, parts separated by `/`, `\` escaping the
+    /// next character (`\n`, `\t` and `\u{XXXX}` are special; any other escaped character
+    /// stands for itself).
+    ///
+    /// # Errors
+    /// Empty parts (`a//b`, a trailing `/`), an empty string, a trailing `\`, or a bad
+    /// `\u{...}` escape, each as its own [`EntityPathError`] variant.
+    pub fn parse(text: &str) -> Result<Self, EntityPathError> {
+        if text.is_empty() {
+            return Err(EntityPathError::Empty);
+        }
+        let body = text.strip_prefix('/').unwrap_or(text);
+        if body.is_empty() {
+            return Ok(Self::root());
+        }
+        let mut parts = Vec::new();
+        let mut current = String::new();
+        let mut chars = body.chars();
+        while let Some(c) = chars.next() {
+            match c {
+                '/' => {
+                    if current.is_empty() {
+                        return Err(EntityPathError::EmptyPart {
+                            path: text.to_owned(),
+                            index: parts.len(),
+                        });
+                    }
+                    parts.push(Arc::<str>::from(std::mem::take(&mut current)));
+                }
+                '\\' => current.push(unescape(&mut chars, text)?),
+                c => current.push(c),
+            }
+        }
+        if current.is_empty() {
+            return Err(EntityPathError::EmptyPart { path: text.to_owned(), index: parts.len() });
+        }
+        parts.push(current.into());
+        Ok(Self::from_parts(parts))
+    }
+
+    /// The unescaped parts, root first.
+    pub fn parts(&self) -> impl ExactSizeIterator<Item = &str> + '_ {
+        self.0.parts.iter().map(|p| &**p)
+    }
+
+    /// The shared parts, for building derived paths without copying strings.
+    pub(crate) fn part_arcs(&self) -> &[Arc<str>] {
+        &self.0.parts
+    }
+
+    /// Number of parts (0 for the root).
+    pub fn len(&self) -> usize {
+        self.0.parts.len()
+    }
+
+    /// Is this the root `/`?
+    pub fn is_root(&self) -> bool {
+        self.0.parts.is_empty()
+    }
+
+    /// The parent, or `None` for the root.
+    pub fn parent(&self) -> Option<Self> {
+        let parts = &self.0.parts;
+        (!parts.is_empty()).then(|| Self::from_parts(parts[..parts.len() - 1].to_vec()))
+    }
+
+    /// The strict ancestors, nearest first, ending with the root.
+    pub fn ancestors(&self) -> impl Iterator<Item = Self> + '_ {
+        (0..self.len()).rev().map(|n| Self::from_parts(self.0.parts[..n].to_vec()))
+    }
+
+    /// Is `self` a strict ancestor of `other`?
+    pub fn is_ancestor_of(&self, other: &Self) -> bool {
+        self.len() < other.len() && other.0.parts.starts_with(&self.0.parts)
+    }
+
+    /// Is `self` equal to `other` or inside its subtree?
+    pub fn starts_with(&self, other: &Self) -> bool {
+        self.0.parts.starts_with(&other.0.parts)
+    }
+
+    /// The path one level below this one.
+    #[must_use]
+    pub fn join(&self, part: impl Into<Arc<str>>) -> Self {
+        let mut parts = self.0.parts.to_vec();
+        parts.push(part.into());
+        Self::from_parts(parts)
+    }
+}
+
+fn join_for_error(parts: &[Arc<str>]) -> String {
+    parts.iter().map(|p| &**p).collect::<Vec<_>>().join("/")
+}
+
+/// Reads the character(s) after a `\`.
+fn unescape(chars: &mut std::str::Chars<'_>, text: &str) -> Result<char, EntityPathError> {
+    let bad = |reason: &'static str| EntityPathError::BadEscape { path: text.to_owned(), reason };
+    match chars.next() {
+        None => Err(bad("the path ends with a lone `\\`")),
+        Some('n') => Ok('\n'),
+        Some('t') => Ok('\t'),
+        Some('u') => {
+            if chars.next() != Some('{') {
+                return Err(bad("`\\u` must be followed by `{hex}`"));
+            }
+            let mut hex = String::new();
+            loop {
+                match chars.next() {
+                    Some('}') => break,
+                    Some(c) if c.is_ascii_hexdigit() && hex.len() < 6 => hex.push(c),
+                    _ => return Err(bad("`\\u{...}` needs 1 to 6 hex digits and a closing `}`")),
+                }
+            }
+            u32::from_str_radix(&hex, 16)
+                .ok()
+                .and_then(char::from_u32)
+                .ok_or_else(|| bad("`\\u{...}` is not a Unicode scalar value"))
+        }
+        Some(c) => Ok(c),
+    }
+}
+
+/// Writes one part so that [`EntityPath::parse`] reads it back: ASCII letters, digits, `_`,
+/// `-`, `.` and non-ASCII printable characters stay as they are; `\n` and `\t` get their
+/// short escapes, other punctuation and space a `\`, other control characters `\u{..}`.
+fn write_escaped(out: &mut fmt::Formatter<'_>, part: &str) -> fmt::Result {
+    for c in part.chars() {
+        match c {
+            c if c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.') => out.write_char(c)?,
+            '\n' => out.write_str("\\n")?,
+            '\t' => out.write_str("\\t")?,
+            c if c.is_ascii_punctuation() || c == ' ' => {
+                out.write_char('\\')?;
+                out.write_char(c)?;
+            }
+            c if c.is_control() || c.is_whitespace() => write!(out, "\\u{{{:x}}}", u32::from(c))?,
+            c => out.write_char(c)?,
+        }
+    }
+    Ok(())
+}
+
+impl fmt::Display for EntityPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.is_root() {
+            return f.write_char('/');
+        }
+        for part in self.parts() {
+            f.write_char('/')?;
+            write_escaped(f, part)?;
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Debug for EntityPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{self}")
+    }
+}
+
+impl std::str::FromStr for EntityPath {
+    type Err = EntityPathError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::parse(s)
+    }
+}
+
+impl PartialEq for EntityPath {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+            || (self.0.hash == other.0.hash && self.0.parts == other.0.parts)
+    }
+}
+
+impl Eq for EntityPath {}
+
+impl Hash for EntityPath {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        state.write_u64(self.0.hash);
+    }
+}
+
+impl PartialOrd for EntityPath {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// Orders part by part, so a parent sorts right before its subtree.
+impl Ord for EntityPath {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        if Arc::ptr_eq(&self.0, &other.0) {
+            return std::cmp::Ordering::Equal;
+        }
+        self.0.parts.cmp(&other.0.parts)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parts(p: &EntityPath) -> Vec<&str> {
+        p.parts().collect()
+    }
+
+    #[test]
+    fn leading_slash_is_optional_and_root_is_slash() {
+        assert_eq!(EntityPath::parse("/a/b").unwrap(), EntityPath::parse("a/b").unwrap());
+        assert!(EntityPath::parse("/").unwrap().is_root());
+        assert_eq!(EntityPath::root().to_string(), "/");
+    }
+
+    #[test]
+    fn empty_parts_are_errors() {
+        for bad in ["a//b", "a/", "//", "/a/b/"] {
+            assert!(
+                matches!(EntityPath::parse(bad), Err(EntityPathError::EmptyPart { .. })),
+                "{bad:?}"
+            );
+        }
+        assert_eq!(EntityPath::parse(""), Err(EntityPathError::Empty));
+        assert!(EntityPath::try_from_parts(["a", ""]).is_err());
+    }
+
+    #[test]
+    fn escapes_follow_rerun() {
+        let p = EntityPath::parse(r"/paths/with\ space/a\/b").unwrap();
+        assert_eq!(parts(&p), ["paths", "with space", "a/b"]);
+        let p = EntityPath::parse(r"x\\y/\n\t/\u{1F600}/\:").unwrap();
+        assert_eq!(parts(&p), ["x\\y", "\n\t", "😀", ":"]);
+        for bad in [r"a\", r"\u{}", r"\u{110000}", r"\u1234", r"\u{12"] {
+            assert!(
+                matches!(EntityPath::parse(bad), Err(EntityPathError::BadEscape { .. })),
+                "{bad:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn display_round_trips_any_part() {
+        let weird = ["a b", "a/b", "\\", "\n", "\u{7}", "ünï", "x.y-z_w", "#$%", "\u{2028}"];
+        let p = EntityPath::try_from_parts(weird).unwrap();
+        let text = p.to_string();
+        assert_eq!(EntityPath::parse(&text).unwrap(), p, "{text}");
+    }
+
+    #[test]
+    fn tree_relations() {
+        let abc = EntityPath::parse("a/b/c").unwrap();
+        let ancestors: Vec<String> = abc.ancestors().map(|p| p.to_string()).collect();
+        assert_eq!(ancestors, ["/a/b", "/a", "/"]);
+        assert!(EntityPath::root().is_ancestor_of(&abc));
+        assert!(!abc.is_ancestor_of(&abc));
+        assert!(abc.starts_with(&abc));
+        assert!(!EntityPath::parse("a/bc").unwrap().starts_with(&EntityPath::parse("a/b").unwrap()));
+        assert_eq!(abc.parent().unwrap().join("c"), abc);
+    }
+
+    #[test]
+    fn order_is_part_by_part() {
+        let mut v: Vec<EntityPath> =
+            ["a-b", "a/b", "a", "/"].iter().map(|s| EntityPath::parse(s).unwrap()).collect();
+        v.sort();
+        let text: Vec<String> = v.iter().map(ToString::to_string).collect();
+        assert_eq!(text, ["/", "/a", "/a/b", "/a-b"]);
+    }
+}

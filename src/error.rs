@@ -1,0 +1,338 @@
+//! Error types, one `#[non_exhaustive]` enum per family: entity paths, chunk construction
+//! (including transport decoding), insertion, and IO. Every variant names the offending
+//! column, timeline, component or path in a typed field.
+
+use std::fmt;
+
+use arrow_schema::{ArrowError, DataType};
+
+use crate::{ChunkId, EntityPath, TimeType};
+
+/// An entity path's text could not be parsed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum EntityPathError {
+    /// The empty string is not a path (the root is `/`).
+    Empty,
+    /// A part between two `/` is empty (`a//b`, or a trailing `/`).
+    EmptyPart {
+        /// The path as given.
+        path: String,
+        /// Which part (0-based) is empty.
+        index: usize,
+    },
+    /// A `\` escape is malformed.
+    BadEscape {
+        /// The path as given.
+        path: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for EntityPathError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Empty => write!(f, "empty entity path (the root is `/`)"),
+            Self::EmptyPart { path, index } => {
+                write!(f, "entity path {path:?} has an empty part at position {index}")
+            }
+            Self::BadEscape { path, reason } => write!(f, "entity path {path:?}: {reason}"),
+        }
+    }
+}
+
+impl std::error::Error for EntityPathError {}
+
+/// A chunk could not be built: from arrays, from a builder, or from a transport
+/// `RecordBatch`.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum ChunkError {
+    /// A chunk must have at least one row.
+    NoRows,
+    /// A chunk must have at least one component column.
+    NoComponents,
+    /// More rows than a chunk can index (`u32::MAX`).
+    TooManyRows {
+        /// The number of rows given.
+        num_rows: usize,
+    },
+    /// The builder was given cells of different element types for one component.
+    CellTypeMismatch {
+        /// The component.
+        component: String,
+        /// The element type of its first cell.
+        expected: DataType,
+        /// The element type of a later cell.
+        found: DataType,
+    },
+    /// A column's length differs from the number of row ids.
+    LengthMismatch {
+        /// The column (timeline or component name, or the row-id column).
+        column: String,
+        /// Number of rows (row ids).
+        expected: usize,
+        /// The column's length.
+        actual: usize,
+    },
+    /// The row-id column has the wrong Arrow type.
+    BadRowIdType {
+        /// The type found.
+        data_type: DataType,
+    },
+    /// The row-id column contains nulls.
+    NullRowIds {
+        /// How many.
+        null_count: usize,
+    },
+    /// A time column has a type that is not a timeline type.
+    BadTimeType {
+        /// The timeline.
+        timeline: String,
+        /// The type found.
+        data_type: DataType,
+    },
+    /// A time column contains nulls.
+    NullTimes {
+        /// The timeline.
+        timeline: String,
+        /// How many.
+        null_count: usize,
+    },
+    /// A time column contains the reserved `i64::MIN`.
+    ReservedTime {
+        /// The timeline.
+        timeline: String,
+        /// The first row holding it.
+        row: usize,
+    },
+    /// A component column is not an Arrow `List` array.
+    NotAList {
+        /// The component.
+        component: String,
+        /// The type found.
+        data_type: DataType,
+    },
+    /// Two time columns share a timeline name.
+    DuplicateTimeline {
+        /// The timeline.
+        timeline: String,
+    },
+    /// Two component columns share a component name.
+    DuplicateComponent {
+        /// The component.
+        component: String,
+    },
+    /// A component or timeline name is empty.
+    EmptyName {
+        /// Which kind of column.
+        kind: &'static str,
+    },
+    /// The transport batch has no `rerun.controls.RowId` column.
+    MissingRowIds,
+    /// The transport batch lacks a required schema metadata key.
+    MissingMetadata {
+        /// The key, e.g. `rerun:entity_path`.
+        key: &'static str,
+    },
+    /// The `rerun:id` metadata is not a chunk id.
+    BadChunkId(crate::ids::ParseChunkIdError),
+    /// The entity path is invalid.
+    BadEntityPath(EntityPathError),
+    /// A transport column's `rerun:kind` metadata is not `control`, `index` or `data`.
+    UnknownColumnKind {
+        /// The column.
+        column: String,
+        /// The kind found.
+        kind: String,
+    },
+    /// Arrow rejected the data.
+    Arrow(ArrowError),
+}
+
+impl fmt::Display for ChunkError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::NoRows => write!(f, "a chunk needs at least one row"),
+            Self::NoComponents => write!(f, "a chunk needs at least one component column"),
+            Self::TooManyRows { num_rows } => {
+                write!(f, "{num_rows} rows is more than a chunk can index (u32::MAX)")
+            }
+            Self::CellTypeMismatch { component, expected, found } => write!(
+                f,
+                "component {component:?} has cells of type {expected} and of type {found}"
+            ),
+            Self::LengthMismatch { column, expected, actual } => write!(
+                f,
+                "column {column:?} has {actual} rows but the row-id column has {expected}"
+            ),
+            Self::BadRowIdType { data_type } => {
+                write!(f, "row-id column must be FixedSizeBinary(16), found {data_type}")
+            }
+            Self::NullRowIds { null_count } => {
+                write!(f, "row-id column has {null_count} null values")
+            }
+            Self::BadTimeType { timeline, data_type } => write!(
+                f,
+                "time column {timeline:?} must be Int64, Duration(ns) or Timestamp(ns), \
+                 found {data_type}"
+            ),
+            Self::NullTimes { timeline, null_count } => {
+                write!(f, "time column {timeline:?} has {null_count} null values")
+            }
+            Self::ReservedTime { timeline, row } => {
+                write!(f, "time column {timeline:?} holds the reserved i64::MIN at row {row}")
+            }
+            Self::NotAList { component, data_type } => {
+                write!(f, "component column {component:?} must be a List array, found {data_type}")
+            }
+            Self::DuplicateTimeline { timeline } => {
+                write!(f, "timeline {timeline:?} appears twice in one chunk")
+            }
+            Self::DuplicateComponent { component } => {
+                write!(f, "component {component:?} appears twice in one chunk")
+            }
+            Self::EmptyName { kind } => write!(f, "a {kind} name must not be empty"),
+            Self::MissingRowIds => write!(f, "batch has no `rerun.controls.RowId` column"),
+            Self::MissingMetadata { key } => write!(f, "batch schema lacks metadata {key:?}"),
+            Self::BadChunkId(e) => write!(f, "{e}"),
+            Self::BadEntityPath(e) => write!(f, "{e}"),
+            Self::UnknownColumnKind { column, kind } => {
+                write!(f, "column {column:?} has unknown rerun:kind {kind:?}")
+            }
+            Self::Arrow(e) => write!(f, "arrow: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for ChunkError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::BadChunkId(e) => Some(e),
+            Self::BadEntityPath(e) => Some(e),
+            Self::Arrow(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<ArrowError> for ChunkError {
+    fn from(e: ArrowError) -> Self {
+        Self::Arrow(e)
+    }
+}
+
+impl From<EntityPathError> for ChunkError {
+    fn from(e: EntityPathError) -> Self {
+        Self::BadEntityPath(e)
+    }
+}
+
+/// A valid chunk could not be inserted because it conflicts with the store's contents.
+/// The store is left unchanged.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub enum InsertError {
+    /// The chunk uses a timeline name with another type than the store knows it by.
+    TimelineTypeConflict {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The timeline.
+        timeline: String,
+        /// The type the store knows.
+        existing: TimeType,
+        /// The type in the chunk.
+        incoming: TimeType,
+    },
+    /// The chunk's data for a component has another Arrow type than that entity's earlier
+    /// data for it.
+    ComponentTypeConflict {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The entity.
+        entity_path: EntityPath,
+        /// The component.
+        component: String,
+        /// The element type the store knows.
+        existing: DataType,
+        /// The element type in the chunk.
+        incoming: DataType,
+    },
+    /// A `Clear:is_recursive` column whose elements are not booleans.
+    ClearNotBoolean {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The element type found.
+        data_type: DataType,
+    },
+}
+
+impl fmt::Display for InsertError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::TimelineTypeConflict { chunk_id, timeline, existing, incoming } => write!(
+                f,
+                "{chunk_id}: timeline {timeline:?} is {incoming:?} here but {existing:?} in the store"
+            ),
+            Self::ComponentTypeConflict { chunk_id, entity_path, component, existing, incoming } => {
+                write!(
+                    f,
+                    "{chunk_id}: component {component:?} of {entity_path} has element type \
+                     {incoming} here but {existing} in the store"
+                )
+            }
+            Self::ClearNotBoolean { chunk_id, data_type } => write!(
+                f,
+                "{chunk_id}: `Clear:is_recursive` must hold booleans, found {data_type}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for InsertError {}
+
+/// Reading chunks from Arrow IPC failed.
+#[cfg(feature = "ipc")]
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum IoError {
+    /// The file could not be read.
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The bytes are not Arrow IPC (file or stream format).
+    Ipc(ArrowError),
+    /// A batch decoded but is not a valid chunk.
+    Chunk {
+        /// Which batch of the input (0-based).
+        batch: usize,
+        /// Why.
+        source: ChunkError,
+    },
+}
+
+#[cfg(feature = "ipc")]
+impl fmt::Display for IoError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Ipc(e) => write!(f, "not Arrow IPC: {e}"),
+            Self::Chunk { batch, source } => write!(f, "batch {batch}: {source}"),
+        }
+    }
+}
+
+#[cfg(feature = "ipc")]
+impl std::error::Error for IoError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Io { source, .. } => Some(source),
+            Self::Ipc(e) => Some(e),
+            Self::Chunk { source, .. } => Some(source),
+        }
+    }
+}

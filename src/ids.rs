@@ -1,0 +1,169 @@
+//! Row and chunk identifiers: 128-bit ids, totally ordered as unsigned integers, and the
+//! process-wide generator that hands out strictly increasing ones.
+
+use std::fmt;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use parking_lot::Mutex;
+
+/// The last id handed out by [`next_id`], shared by [`RowId`] and [`ChunkId`].
+///
+/// One generator for both keeps every id of the process unique, so a row id can never
+/// collide with a chunk id in a log a person reads.
+static LAST_ID: Mutex<u128> = Mutex::new(0);
+
+/// A strictly increasing 128-bit id: high 64 bits are nanoseconds since the Unix epoch,
+/// low 64 bits a counter that absorbs clock ties and clock steps backwards.
+fn next_id() -> u128 {
+    let now_ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
+    let from_clock = u128::from(now_ns) << 64;
+    let mut last = LAST_ID.lock();
+    let id = if from_clock > *last { from_clock } else { last.wrapping_add(1) };
+    *last = id;
+    id
+}
+
+macro_rules! define_id {
+    ($(#[$doc:meta])* $name:ident) => {
+        $(#[$doc])*
+        #[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+        pub struct $name(u128);
+
+        impl $name {
+            /// The smallest id.
+            pub const ZERO: Self = Self(0);
+            /// The greatest id.
+            pub const MAX: Self = Self(u128::MAX);
+
+            /// A new id, strictly greater than every id this process generated before.
+            #[expect(clippy::new_without_default, reason = "Default is the zero id, not a fresh one")]
+            pub fn new() -> Self {
+                Self(next_id())
+            }
+
+            /// Wraps a raw 128-bit value.
+            pub const fn from_u128(value: u128) -> Self {
+                Self(value)
+            }
+
+            /// The raw 128-bit value.
+            pub const fn as_u128(self) -> u128 {
+                self.0
+            }
+
+            /// The 16 big-endian bytes used in Arrow (`FixedSizeBinary(16)`).
+            pub const fn to_be_bytes(self) -> [u8; 16] {
+                self.0.to_be_bytes()
+            }
+
+            /// Reads 16 big-endian bytes.
+            pub const fn from_be_bytes(bytes: [u8; 16]) -> Self {
+                Self(u128::from_be_bytes(bytes))
+            }
+
+            /// The id right after this one (saturating), e.g. for the next row of a batch.
+            #[must_use]
+            pub const fn next(self) -> Self {
+                Self(self.0.saturating_add(1))
+            }
+        }
+
+        impl fmt::Debug for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                fmt::Display::fmt(self, f)
+            }
+        }
+    };
+}
+
+define_id!(
+    /// Identifies one row. Rows with equal time are ordered by row id.
+    RowId
+);
+define_id!(
+    /// Identifies one chunk; text form `chunk_` followed by 32 hex digits.
+    ChunkId
+);
+
+impl fmt::Display for RowId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:032x}", self.0)
+    }
+}
+
+impl fmt::Display for ChunkId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "chunk_{:032x}", self.0)
+    }
+}
+
+/// The text was not `chunk_` followed by exactly 32 hex digits.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ParseChunkIdError {
+    /// The text that failed to parse.
+    pub text: String,
+}
+
+impl fmt::Display for ParseChunkIdError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "invalid chunk id {:?}: expected `chunk_` and 32 hex digits", self.text)
+    }
+}
+
+impl std::error::Error for ParseChunkIdError {}
+
+impl std::str::FromStr for ChunkId {
+    type Err = ParseChunkIdError;
+
+    /// Parses `chunk_` + 32 hex digits, case-insensitively (Rerun writes mixed case).
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let err = || ParseChunkIdError { text: text.to_owned() };
+        let hex = text
+            .get(..6)
+            .filter(|prefix| prefix.eq_ignore_ascii_case("chunk_"))
+            .and_then(|_| text.get(6..))
+            .ok_or_else(err)?;
+        if hex.len() != 32 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(err());
+        }
+        u128::from_str_radix(hex, 16).map(Self).map_err(|_| err())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generated_ids_strictly_increase() {
+        let mut previous = RowId::new();
+        for _ in 0..10_000 {
+            let id = RowId::new();
+            assert!(id > previous, "generator must be strictly increasing");
+            previous = id;
+        }
+        assert!(ChunkId::new().as_u128() > previous.as_u128(), "one generator serves both kinds");
+    }
+
+    #[test]
+    fn chunk_id_text_round_trips_case_insensitively() {
+        let id: ChunkId = "chunk_18EA10AFD776AA1F6deffa92d8abe82a".parse().unwrap();
+        assert_eq!(id.as_u128(), 0x18EA_10AF_D776_AA1F_6DEF_FA92_D8AB_E82A);
+        assert_eq!(id.to_string(), "chunk_18ea10afd776aa1f6deffa92d8abe82a");
+        assert_eq!(id.to_string().parse::<ChunkId>().unwrap(), id);
+        assert!("CHUNK_18EA10AFD776AA1F6deffa92d8abe82a".parse::<ChunkId>().is_ok());
+        for bad in ["", "chunk_", "chunk_123", "row_18EA10AFD776AA1F6deffa92d8abe82a", "chunk_18EA10AFD776AA1F6deffa92d8abe82g"] {
+            assert!(bad.parse::<ChunkId>().is_err(), "{bad:?} must not parse");
+        }
+    }
+
+    #[test]
+    fn be_bytes_round_trip_and_order() {
+        let a = RowId::from_u128(1 << 70);
+        let b = RowId::from_u128((1 << 70) + 1);
+        assert_eq!(RowId::from_be_bytes(a.to_be_bytes()), a);
+        assert!(a.to_be_bytes() < b.to_be_bytes(), "big-endian bytes sort like the integers");
+    }
+}

@@ -1,0 +1,188 @@
+//! The temporal index of one (entity, timeline, component): which chunks hold non-null
+//! cells of the component, arranged so that latest-at and range find their chunks in
+//! O(log n) plus the chunks that really matter, whatever the order chunks arrived in.
+//!
+//! Three views of the same set of chunks:
+//! - by **greatest index** `(max time, row id)`: the predecessor of `(t, ∞)` is the best
+//!   answer among all chunks that end at or before `t`;
+//! - by **least time**: range queries take every chunk starting inside `[min, max]`;
+//! - chunks whose cells **span** more than one time, bucketed by `⌊log2(span)⌋` and keyed by
+//!   least time: a chunk of bucket `L` that contains `t` starts in `(t − 2^(L+1), t]`, so the
+//!   chunks straddling a time are found without scanning older ones. (This is what keeps one
+//!   long chunk from slowing every query down, unlike bounding a walk by the longest span.)
+
+use std::collections::BTreeMap;
+use std::ops::Bound;
+use std::sync::Arc;
+
+use crate::chunk::ComponentTimeBounds;
+use crate::{Chunk, ChunkId, RowId, TimeInt};
+
+/// A chunk as the index sees it: the chunk, where its time column and component column are,
+/// and the component's bounds on this timeline.
+#[derive(Clone, Debug)]
+pub(crate) struct IndexedChunk {
+    pub chunk: Arc<Chunk>,
+    pub time_column: u32,
+    pub component_column: u32,
+    pub bounds: ComponentTimeBounds,
+}
+
+type MaxIndexKey = (TimeInt, RowId, ChunkId);
+type MinTimeKey = (TimeInt, ChunkId);
+
+#[derive(Clone, Debug, Default)]
+pub(crate) struct TemporalComponentIndex {
+    chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
+    chunk_ids_by_min_time: BTreeMap<MinTimeKey, ()>,
+    /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
+    /// 2^(L+1)`. Empty classes cost nothing but an empty map.
+    spanning_chunk_ids_by_min_time_per_span_class: Vec<BTreeMap<MinTimeKey, TimeInt>>,
+    /// Every indexed chunk by id, for the other views to resolve theirs.
+    chunks_by_id: ahash::HashMap<ChunkId, MaxIndexKey>,
+}
+
+fn span_class(min: TimeInt, max: TimeInt) -> Option<usize> {
+    let span = max.as_i64().abs_diff(min.as_i64());
+    (span > 0).then(|| (63 - span.leading_zeros()) as usize)
+}
+
+fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
+    (entry.bounds.max_time, entry.bounds.max_row_id, entry.chunk.id())
+}
+
+impl TemporalComponentIndex {
+    pub fn insert(&mut self, entry: IndexedChunk) {
+        let id = entry.chunk.id();
+        let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
+        let key = max_index_key(&entry);
+        if self.chunks_by_id.insert(id, key).is_some() {
+            return; // already indexed: a store never inserts a chunk id twice
+        }
+        self.chunk_ids_by_min_time.insert((min, id), ());
+        if let Some(class) = span_class(min, max) {
+            let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;
+            if classes.len() <= class {
+                classes.resize_with(class + 1, BTreeMap::new);
+            }
+            classes[class].insert((min, id), max);
+        }
+        self.chunks_by_max_index.insert(key, entry);
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.chunks_by_id.is_empty()
+    }
+
+    fn get(&self, id: ChunkId) -> Option<&IndexedChunk> {
+        self.chunks_by_id.get(&id).and_then(|key| self.chunks_by_max_index.get(key))
+    }
+
+    /// The chunk whose greatest index is the greatest at or before `t`.
+    pub fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
+        self.chunks_by_max_index
+            .range(..=(t, RowId::MAX, ChunkId::MAX))
+            .next_back()
+            .map(|(_, entry)| entry)
+    }
+
+    /// Spanning chunks with `min ≤ t < max`: those whose latest-at answer at `t` is not their
+    /// greatest index, and so needs a search inside the chunk.
+    pub fn for_each_straddling<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+        self.for_each_spanning(t, Bound::Included(t), |max| max > t, f);
+    }
+
+    /// Spanning chunks with `min < t ≤ max`: those that start before a range beginning at
+    /// `t` and reach into it.
+    pub fn for_each_reaching_into<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+        self.for_each_spanning(t, Bound::Excluded(t), |max| max >= t, f);
+    }
+
+    /// Spanning chunks with `min` up to `min_end` and `max` accepted by `reaches`, where every
+    /// accepted `max` is at least `t`.
+    fn for_each_spanning<'a>(
+        &'a self,
+        t: TimeInt,
+        min_end: Bound<TimeInt>,
+        reaches: impl Fn(TimeInt) -> bool,
+        mut f: impl FnMut(&'a IndexedChunk),
+    ) {
+        let classes = &self.spanning_chunk_ids_by_min_time_per_span_class;
+        for (class, chunks) in classes.iter().enumerate().filter(|(_, c)| !c.is_empty()) {
+            // span < 2^(class+1) and max ≥ t  ⇒  min > t − 2^(class+1).
+            let lowest = i128::from(t.as_i64()) - (1i128 << (class + 1)) + 1;
+            let lowest = TimeInt::saturating(i64::try_from(lowest).unwrap_or(i64::MIN));
+            let end = match min_end {
+                Bound::Included(t) => Bound::Included((t, ChunkId::MAX)),
+                Bound::Excluded(t) => Bound::Excluded((t, ChunkId::ZERO)),
+                Bound::Unbounded => Bound::Unbounded,
+            };
+            for (&(_, id), &max) in chunks.range((Bound::Included((lowest, ChunkId::ZERO)), end)) {
+                if reaches(max)
+                    && let Some(entry) = self.get(id)
+                {
+                    f(entry);
+                }
+            }
+        }
+    }
+
+    /// Every chunk starting in `[min, max]`.
+    pub fn for_each_starting_in<'a>(&'a self, min: TimeInt, max: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
+        for &(_, id) in self.chunk_ids_by_min_time.range((min, ChunkId::ZERO)..=(max, ChunkId::MAX)).map(|(k, ())| k) {
+            if let Some(entry) = self.get(id) {
+                f(entry);
+            }
+        }
+    }
+
+    /// Every chunk, in no particular order.
+    pub fn chunks(&self) -> impl Iterator<Item = &IndexedChunk> {
+        self.chunks_by_max_index.values()
+    }
+
+    pub fn sanity_check(&self) -> Result<(), String> {
+        let Self {
+            chunks_by_max_index,
+            chunk_ids_by_min_time,
+            spanning_chunk_ids_by_min_time_per_span_class,
+            chunks_by_id,
+        } = self;
+        let n = chunks_by_id.len();
+        if chunks_by_max_index.len() != n || chunk_ids_by_min_time.len() != n {
+            return Err(format!(
+                "every view indexes the same chunks ({n} by id, {} by max index, {} by min time)",
+                chunks_by_max_index.len(),
+                chunk_ids_by_min_time.len()
+            ));
+        }
+        let mut num_spanning = 0;
+        for (class, chunks) in spanning_chunk_ids_by_min_time_per_span_class.iter().enumerate() {
+            for (&(min, id), &max) in chunks {
+                num_spanning += 1;
+                if span_class(min, max) != Some(class) {
+                    return Err(format!("{id} sits in the span class of its span"));
+                }
+            }
+        }
+        for (key, entry) in chunks_by_max_index {
+            let b = entry.bounds;
+            if *key != max_index_key(entry) || chunks_by_id.get(&entry.chunk.id()) != Some(key) {
+                return Err(format!("{} is keyed by its greatest index", entry.chunk.id()));
+            }
+            if !chunk_ids_by_min_time.contains_key(&(b.min_time, entry.chunk.id())) {
+                return Err(format!("{} is keyed by its least time", entry.chunk.id()));
+            }
+            let component = entry.chunk.components().get(entry.component_column as usize);
+            if component.and_then(|c| c.bounds(entry.time_column as usize)) != Some(b) {
+                return Err(format!("{} has the bounds its chunk computed", entry.chunk.id()));
+            }
+        }
+        let expected_spanning =
+            chunks_by_max_index.values().filter(|e| e.bounds.min_time < e.bounds.max_time).count();
+        if num_spanning != expected_spanning {
+            return Err("exactly the chunks spanning several times are in span classes".into());
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,85 @@
+//! # chunkstore
+//!
+//! A columnar chunk store for spatiotemporal data: immutable Apache Arrow chunks in,
+//! exact latest-at and range answers out, fast. Embedded by viewers, telemetry servers and
+//! analytics tools; it does no I/O of its own (see the `ipc` feature for helpers).
+//!
+//! ## Concepts
+//! - An [`EntityPath`] names a thing in a tree (`world/robot/camera`).
+//! - A [`Timeline`] is a named axis of time ([`TimeType`]: sequence, duration, timestamp).
+//! - A [`Chunk`] holds rows of one entity: a [`RowId`] column, one time column per
+//!   timeline (none: *static* data), and component columns (Arrow `List` arrays, one cell
+//!   per row). Chunks convert losslessly to and from Rerun's transport `RecordBatch`.
+//! - The [`ChunkStore`] indexes chunks and answers [`LatestAtQuery`] ("value as of `t`")
+//!   and [`RangeQuery`] ("every value in `[a, b]`"). Static data shadows temporal data;
+//!   Clears (component [`ComponentName::CLEAR_IS_RECURSIVE`]) hide older data at query
+//!   time. The exact rules are SEMANTICS.md's, summarised in `docs/ARCHITECTURE.md`.
+//!
+//! ## Example
+//! ```
+//! use std::sync::Arc;
+//! use arrow_array::{ArrayRef, BooleanArray, Float64Array};
+//! use chunkstore::*;
+//!
+//! let frame = Timeline::sequence("frame");
+//! let robot = EntityPath::parse("/world/robot").unwrap();
+//! let scalar = |v: f64| Arc::new(Float64Array::from(vec![v])) as ArrayRef;
+//!
+//! // Two rows of a speed reading, at frames 10 and 20.
+//! let chunk = ChunkBuilder::new(ChunkId::new(), robot.clone())
+//!     .with_row(RowId::new(), [(frame.clone(), 10)], [("speed", scalar(1.5))])
+//!     .with_row(RowId::new(), [(frame.clone(), 20)], [("speed", scalar(2.5))])
+//!     .build()?;
+//! let mut store = ChunkStore::new();
+//! store.insert(chunk)?;
+//!
+//! // Latest-at: the value as of frame 15 is the one logged at frame 10.
+//! let at_15 = store.latest_at(&LatestAtQuery::new("frame", TimeInt::new(15).unwrap()), &robot, "speed");
+//! assert_eq!(at_15.unwrap().time(), TimeInt::new(10));
+//!
+//! // Range: both rows, in time order.
+//! let all = store.range(&RangeQuery::everything("frame"), &robot, "speed");
+//! assert_eq!(all.iter().map(|r| r.time().unwrap().as_i64()).collect::<Vec<_>>(), [10, 20]);
+//!
+//! // A recursive Clear on `/world` at frame 30 hides the robot's speed from then on.
+//! let clear = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/world").unwrap())
+//!     .with_row(RowId::new(), [(frame, 30)], [(ComponentName::CLEAR_IS_RECURSIVE, Arc::new(BooleanArray::from(vec![true])) as ArrayRef)])
+//!     .build()?;
+//! store.insert(clear)?;
+//! assert!(store.latest_at(&LatestAtQuery::new("frame", TimeInt::new(30).unwrap()), &robot, "speed").is_none());
+//! assert!(store.latest_at(&LatestAtQuery::new("frame", TimeInt::new(29).unwrap()), &robot, "speed").is_some());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! ## Crate features
+//! - `ipc` (default): [`io`], reading chunks from Arrow IPC files and streams and writing
+//!   them. Needs `arrow-ipc`.
+
+mod chunk;
+mod clear;
+mod component;
+mod entity_path;
+mod error;
+mod ids;
+mod index;
+#[cfg(feature = "ipc")]
+pub mod io;
+mod query;
+mod store;
+mod time;
+
+pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, ComponentTimeBounds, TimeColumn};
+pub use component::{ComponentDescriptor, ComponentName};
+pub use entity_path::EntityPath;
+#[cfg(feature = "ipc")]
+pub use error::IoError;
+pub use error::{ChunkError, EntityPathError, InsertError};
+pub use ids::{ChunkId, ParseChunkIdError, RowId};
+pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow};
+pub use store::{ChunkStore, DeletionReason, StoreEvent, StoreStats};
+pub use time::{TimeInt, TimeType, Timeline};
+
+/// The README's example, compiled and run as a doctest so it cannot go stale.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -1,0 +1,258 @@
+//! Range: every cell of a component at an entity within a time range, in ascending
+//! `(time, row id)` order across all chunks.
+//!
+//! Each contributing chunk gives one run of positions in its `(time, row id)` order. Runs
+//! are sorted by their first index and swept into clusters of really overlapping runs; a
+//! lone run is taken as it is, only a cluster pays for a k-way merge.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::sync::Arc;
+
+use arrow_array::ArrayRef;
+
+use crate::index::IndexedChunk;
+use crate::{Chunk, ChunkStore, ComponentColumn, EntityPath, RowId, TimeColumn, TimeInt};
+
+/// "Everything in `[min, max]` (inclusive) on `timeline`".
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RangeQuery {
+    timeline: Arc<str>,
+    min: TimeInt,
+    max: TimeInt,
+}
+
+impl RangeQuery {
+    /// A query on the named timeline over `[min, max]`, both ends included.
+    pub fn new(timeline: impl Into<Arc<str>>, min: TimeInt, max: TimeInt) -> Self {
+        Self { timeline: timeline.into(), min, max }
+    }
+
+    /// Everything ever logged on the timeline.
+    pub fn everything(timeline: impl Into<Arc<str>>) -> Self {
+        Self::new(timeline, TimeInt::MIN, TimeInt::MAX)
+    }
+
+    /// The timeline's name.
+    pub fn timeline(&self) -> &str {
+        &self.timeline
+    }
+
+    /// The inclusive bounds.
+    pub fn bounds(&self) -> (TimeInt, TimeInt) {
+        (self.min, self.max)
+    }
+}
+
+/// A chunk contributing to a range result.
+#[derive(Debug)]
+struct Source {
+    chunk: Arc<Chunk>,
+    /// `None` for the static answer: positions are then rows.
+    time_column: Option<u32>,
+    component_column: u32,
+}
+
+/// Consecutive positions `start..end` of one source, in its `(time, row id)` order.
+#[derive(Clone, Copy, Debug)]
+struct Run {
+    source: u32,
+    start: u32,
+    end: u32,
+}
+
+/// The rows a range query answered with, in ascending `(time, row id)` order. Rows whose
+/// cell is null are skipped while iterating. Holds the chunks it points into alive.
+#[derive(Debug, Default)]
+pub struct RangeResult {
+    sources: Vec<Source>,
+    runs: Vec<Run>,
+}
+
+/// One row of a range result.
+#[derive(Clone, Copy, Debug)]
+pub struct RangeRow<'a> {
+    chunk: &'a Arc<Chunk>,
+    column: &'a ComponentColumn,
+    row: usize,
+    time: Option<TimeInt>,
+    row_id: RowId,
+}
+
+impl<'a> RangeRow<'a> {
+    /// The chunk holding the row.
+    pub fn chunk(&self) -> &'a Arc<Chunk> {
+        self.chunk
+    }
+
+    /// The row within its chunk.
+    pub fn row(&self) -> usize {
+        self.row
+    }
+
+    /// Its time on the queried timeline; `None` for static data.
+    pub fn time(&self) -> Option<TimeInt> {
+        self.time
+    }
+
+    /// Its row id.
+    pub fn row_id(&self) -> RowId {
+        self.row_id
+    }
+
+    /// The component column.
+    pub fn column(&self) -> &'a ComponentColumn {
+        self.column
+    }
+
+    /// The cell's instances, sharing the chunk's buffers.
+    pub fn cell(&self) -> ArrayRef {
+        self.column.list_array().value(self.row)
+    }
+}
+
+impl RangeResult {
+    /// The rows, in ascending `(time, row id)` order.
+    pub fn iter(&self) -> impl Iterator<Item = RangeRow<'_>> + '_ {
+        self.runs.iter().flat_map(move |run| {
+            let source = &self.sources[run.source as usize];
+            let times: Option<&TimeColumn> =
+                source.time_column.map(|t| &source.chunk.time_columns()[t as usize]);
+            let column = &source.chunk.components()[source.component_column as usize];
+            (run.start as usize..run.end as usize).filter_map(move |pos| {
+                let row = times.map_or(pos, |t| t.row_at(pos));
+                column.is_valid(row).then(|| RangeRow {
+                    chunk: &source.chunk,
+                    column,
+                    row,
+                    time: times.map(|t| TimeInt::saturating(t.times()[row])),
+                    row_id: source.chunk.row_ids()[row],
+                })
+            })
+        })
+    }
+
+    /// Number of rows (counts by iterating: null cells are skipped lazily).
+    pub fn num_rows(&self) -> usize {
+        self.iter().count()
+    }
+
+    /// Are there no rows?
+    pub fn is_empty(&self) -> bool {
+        self.iter().next().is_none()
+    }
+}
+
+/// A run plus the indices of its first and last positions, while building.
+struct PendingRun {
+    run: Run,
+    first: (TimeInt, RowId),
+    last: (TimeInt, RowId),
+}
+
+impl ChunkStore {
+    /// Every non-null cell of `component` at `entity` with a time in the query's range, in
+    /// ascending `(time, row id)` order across all chunks; or, if the entity has static
+    /// data for the component, exactly the static winner. Clears do not filter ranges.
+    pub fn range(&self, query: &RangeQuery, entity: &EntityPath, component: &str) -> RangeResult {
+        let mut result = RangeResult::default();
+        let Some(entity_index) = self.entities.get(entity) else { return result };
+        if let Some(winner) = entity_index.static_winners.get(component) {
+            result.sources.push(Source {
+                chunk: Arc::clone(&winner.chunk),
+                time_column: None,
+                component_column: winner.component_column,
+            });
+            result.runs.push(Run { source: 0, start: winner.row, end: winner.row + 1 });
+            return result;
+        }
+        let (min, max) = query.bounds();
+        if min > max {
+            return result;
+        }
+        let Some(index) = entity_index
+            .temporal_per_timeline_per_component
+            .get(query.timeline())
+            .and_then(|per_component| per_component.get(component))
+        else {
+            return result;
+        };
+
+        let mut pending = Vec::new();
+        let mut add = |entry: &IndexedChunk| {
+            let source = result.sources.len() as u32;
+            if let Some(run) = run_in_chunk(entry, source, min, max) {
+                result.sources.push(Source {
+                    chunk: Arc::clone(&entry.chunk),
+                    time_column: Some(entry.time_column),
+                    component_column: entry.component_column,
+                });
+                pending.push(run);
+            }
+        };
+        index.for_each_reaching_into(min, &mut add);
+        index.for_each_starting_in(min, max, &mut add);
+
+        pending.sort_by_key(|p| p.first);
+        let mut cluster_start = 0;
+        let mut cluster_last = None;
+        for i in 0..pending.len() {
+            if cluster_last.is_some_and(|last| pending[i].first > last) {
+                emit_cluster(&result.sources, &pending[cluster_start..i], &mut result.runs);
+                cluster_start = i;
+                cluster_last = None;
+            }
+            cluster_last = cluster_last.max(Some(pending[i].last));
+        }
+        emit_cluster(&result.sources, &pending[cluster_start..], &mut result.runs);
+        result
+    }
+}
+
+fn run_in_chunk(entry: &IndexedChunk, source: u32, min: TimeInt, max: TimeInt) -> Option<PendingRun> {
+    let chunk = &entry.chunk;
+    let times = &chunk.time_columns()[entry.time_column as usize];
+    let start = times.num_positions_before(min.as_i64());
+    let end = times.num_positions_at_or_before(max.as_i64());
+    let index_at = |pos: usize| {
+        let row = times.row_at(pos);
+        (TimeInt::saturating(times.times()[row]), chunk.row_ids()[row])
+    };
+    (start < end).then(|| PendingRun {
+        run: Run { source, start: start as u32, end: end as u32 },
+        first: index_at(start),
+        last: index_at(end - 1),
+    })
+}
+
+/// Appends a cluster's runs in global order: as they are for a lone run, merged otherwise.
+fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) {
+    if let [lone] = cluster {
+        out.push(lone.run);
+        return;
+    }
+    let index_at = |run: &Run, pos: u32| {
+        let source = &sources[run.source as usize];
+        let chunk = &source.chunk;
+        let times = source.time_column.map(|t| &chunk.time_columns()[t as usize]);
+        let row = times.map_or(pos as usize, |t| t.row_at(pos as usize));
+        let time = times.map_or(TimeInt::MIN, |t| TimeInt::saturating(t.times()[row]));
+        (time, chunk.row_ids()[row])
+    };
+    // Ties on the index (only possible with duplicated row ids) go to the earlier run.
+    let mut heap: BinaryHeap<Reverse<((TimeInt, RowId), usize, u32)>> = cluster
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Reverse((p.first, i, p.run.start)))
+        .collect();
+    while let Some(Reverse((_, i, pos))) = heap.pop() {
+        let run = cluster[i].run;
+        match out.last_mut() {
+            Some(last) if last.source == run.source && last.end == pos => last.end += 1,
+            _ => out.push(Run { source: run.source, start: pos, end: pos + 1 }),
+        }
+        if pos + 1 < run.end {
+            heap.push(Reverse((index_at(&run, pos + 1), i, pos + 1)));
+        }
+    }
+}
