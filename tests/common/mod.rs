@@ -1,0 +1,99 @@
+//! Helpers shared by the integration tests: terse chunk construction.
+#![allow(dead_code, reason = "each test file uses a different subset")]
+
+use std::sync::Arc;
+
+use arrow_array::builder::{BooleanBuilder, Float64Builder, ListBuilder};
+use arrow_array::{Array, ArrayRef, Float64Array, Int64Array};
+use chunkstore::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, Timeline};
+
+pub fn path(text: &str) -> EntityPath {
+    EntityPath::parse(text).unwrap()
+}
+
+pub fn t(value: i64) -> TimeInt {
+    TimeInt::new(value).unwrap()
+}
+
+pub fn rid(value: u128) -> RowId {
+    RowId::from_u128(value)
+}
+
+/// A `List<Float64>` column: `None` is a null cell, `Some(vec![])` an empty list.
+pub fn f64_list(cells: &[Option<Vec<f64>>]) -> ArrayRef {
+    let mut builder = ListBuilder::new(Float64Builder::new());
+    for cell in cells {
+        match cell {
+            Some(values) => {
+                builder.values().append_slice(values);
+                builder.append(true);
+            }
+            None => builder.append(false),
+        }
+    }
+    Arc::new(builder.finish())
+}
+
+/// A `List<Boolean>` column of one-instance cells (`Clear:is_recursive`).
+pub fn bool_list(cells: &[Option<bool>]) -> ArrayRef {
+    let mut builder = ListBuilder::new(BooleanBuilder::new());
+    for cell in cells {
+        match cell {
+            Some(value) => {
+                builder.values().append_value(*value);
+                builder.append(true);
+            }
+            None => builder.append(false),
+        }
+    }
+    Arc::new(builder.finish())
+}
+
+/// A temporal chunk on one sequence timeline `frame` with one `List<Float64>` component.
+/// Rows: `(time, row id, cell)`.
+pub fn scalars(entity: &str, component: &str, rows: &[(i64, u128, Option<Vec<f64>>)]) -> Chunk {
+    Chunk::try_new(
+        ChunkId::new(),
+        path(entity),
+        rows.iter().map(|r| rid(r.1)).collect(),
+        vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(rows.iter().map(|r| r.0).collect::<Vec<_>>())) as ArrayRef)],
+        vec![(component.into(), f64_list(&rows.iter().map(|r| r.2.clone()).collect::<Vec<_>>()))],
+    )
+    .unwrap()
+}
+
+/// A one-row scalar chunk at `frame = time`.
+pub fn scalar(entity: &str, component: &str, time: i64, row_id: u128, value: f64) -> Chunk {
+    scalars(entity, component, &[(time, row_id, Some(vec![value]))])
+}
+
+/// A static chunk with one row of one `List<Float64>` component.
+pub fn static_scalar(entity: &str, component: &str, row_id: u128, value: f64) -> Chunk {
+    Chunk::try_new(ChunkId::new(), path(entity), vec![rid(row_id)], vec![], vec![(component.into(), f64_list(&[Some(vec![value])]))])
+        .unwrap()
+}
+
+/// A one-row Clear at `frame = time`, or static when `time` is `None`.
+pub fn clear(entity: &str, time: Option<i64>, row_id: u128, recursive: bool) -> Chunk {
+    let times = time
+        .map(|time| vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(vec![time])) as ArrayRef)])
+        .unwrap_or_default();
+    Chunk::try_new(
+        ChunkId::new(),
+        path(entity),
+        vec![rid(row_id)],
+        times,
+        vec![(ComponentName::CLEAR_IS_RECURSIVE.into(), bool_list(&[Some(recursive)]))],
+    )
+    .unwrap()
+}
+
+/// The first `f64` of a cell.
+pub fn first_f64(cell: &ArrayRef) -> f64 {
+    cell.as_any().downcast_ref::<Float64Array>().unwrap().value(0)
+}
+
+/// Length of a cell (number of instances).
+pub fn cell_len(cell: &ArrayRef) -> usize {
+    cell.len()
+}
