@@ -20,7 +20,8 @@ use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
 use chunkstore::{ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, TimeInt};
 
-const USAGE: &str = "usage: query <DIR> latest-at <TIMELINE> <TIME> | range <TIMELINE> <MIN> <MAX> | stats";
+const USAGE: &str =
+    "usage: query <DIR> latest-at <TIMELINE> <TIME> | range <TIMELINE> <MIN> <MAX> | stats";
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -34,22 +35,33 @@ fn main() -> ExitCode {
 }
 
 enum Command {
-    LatestAt { timeline: String, at: TimeInt },
-    Range { timeline: String, min: TimeInt, max: TimeInt },
+    LatestAt {
+        timeline: String,
+        at: TimeInt,
+    },
+    Range {
+        timeline: String,
+        min: TimeInt,
+        max: TimeInt,
+    },
     Stats,
 }
 
 fn parse_time(text: &str, what: &str) -> Result<TimeInt, String> {
-    let value: i64 = text.parse().map_err(|_| format!("{what} {text:?} is not an i64"))?;
-    TimeInt::new(value).ok_or_else(|| format!("{what} {value} is reserved (i64::MIN is never a valid time)"))
+    let value: i64 = text
+        .parse()
+        .map_err(|_| format!("{what} {text:?} is not an i64"))?;
+    TimeInt::new(value)
+        .ok_or_else(|| format!("{what} {value} is reserved (i64::MIN is never a valid time)"))
 }
 
 fn parse_command(args: &[String]) -> Result<Command, String> {
     let strs: Vec<&str> = args.iter().map(String::as_str).collect();
     match strs.as_slice() {
-        ["latest-at", timeline, time] => {
-            Ok(Command::LatestAt { timeline: (*timeline).to_owned(), at: parse_time(time, "time")? })
-        }
+        ["latest-at", timeline, time] => Ok(Command::LatestAt {
+            timeline: (*timeline).to_owned(),
+            at: parse_time(time, "time")?,
+        }),
         ["range", timeline, min, max] => Ok(Command::Range {
             timeline: (*timeline).to_owned(),
             min: parse_time(min, "range start")?,
@@ -65,7 +77,9 @@ fn parse_command(args: &[String]) -> Result<Command, String> {
 }
 
 fn run(args: &[String]) -> Result<(), String> {
-    let [dir, rest @ ..] = args else { return Err(format!("missing <DIR>; {USAGE}")) };
+    let [dir, rest @ ..] = args else {
+        return Err(format!("missing <DIR>; {USAGE}"));
+    };
     if dir == "-h" || dir == "--help" {
         println!("{USAGE}");
         return Ok(());
@@ -74,8 +88,12 @@ fn run(args: &[String]) -> Result<(), String> {
     let store = load(Path::new(dir))?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     match command {
-        Command::LatestAt { timeline, at } => latest_at(&store, &LatestAtQuery::new(timeline, at), &mut out),
-        Command::Range { timeline, min, max } => range(&store, &RangeQuery::new(timeline, min, max), &mut out),
+        Command::LatestAt { timeline, at } => {
+            latest_at(&store, &LatestAtQuery::new(timeline, at), &mut out)
+        }
+        Command::Range { timeline, min, max } => {
+            range(&store, &RangeQuery::new(timeline, min, max), &mut out)
+        }
         Command::Stats => stats(&store, &mut out),
     }
 }
@@ -95,7 +113,10 @@ fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
     }
     files.sort();
     if files.is_empty() {
-        return Err(format!("{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)", dir.display()));
+        return Err(format!(
+            "{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)",
+            dir.display()
+        ));
     }
     Ok(files)
 }
@@ -104,7 +125,8 @@ fn load(dir: &Path) -> Result<ChunkStore, String> {
     let mut store = ChunkStore::new();
     for file in chunk_files(dir)? {
         let name = file.display();
-        let chunks = chunkstore::io::read_chunks_from_path(&file).map_err(|e| format!("{name}: {e}"))?;
+        let chunks =
+            chunkstore::io::read_chunks_from_path(&file).map_err(|e| format!("{name}: {e}"))?;
         for chunk in chunks {
             store.insert(chunk).map_err(|e| format!("{name}: {e}"))?;
         }
@@ -141,7 +163,8 @@ fn answer_line(
 fn render_cell(column: &ComponentColumn, row: usize) -> Result<String, String> {
     let list: ListArray = column.list_array().slice(row, 1);
     let schema = Schema::new(vec![Field::new("v", list.data_type().clone(), true)]);
-    let batch = RecordBatch::try_new(Arc::new(schema), vec![Arc::new(list)]).map_err(|e| e.to_string())?;
+    let batch =
+        RecordBatch::try_new(Arc::new(schema), vec![Arc::new(list)]).map_err(|e| e.to_string())?;
     let mut buffer = Vec::new();
     let mut writer = arrow_json::LineDelimitedWriter::new(&mut buffer);
     writer.write(&batch).map_err(|e| e.to_string())?;
@@ -158,9 +181,18 @@ fn latest_at(store: &ChunkStore, query: &LatestAtQuery, out: &mut Out<'_>) -> Re
     for entity in store.entity_paths() {
         let entity_text = entity.to_string();
         for component in store.component_names(&entity) {
-            let Some(answer) = store.latest_at(query, &entity, component.as_str()) else { continue };
+            let Some(answer) = store.latest_at(query, &entity, component.as_str()) else {
+                continue;
+            };
             let value = render_cell(answer.component(), answer.row())?;
-            let line = answer_line(&entity_text, component.as_str(), answer.time(), answer.row_id(), answer.chunk_id(), &value);
+            let line = answer_line(
+                &entity_text,
+                component.as_str(),
+                answer.time(),
+                answer.row_id(),
+                answer.chunk_id(),
+                &value,
+            );
             write_line(out, &line)?;
         }
     }
@@ -173,7 +205,14 @@ fn range(store: &ChunkStore, query: &RangeQuery, out: &mut Out<'_>) -> Result<()
         for component in store.component_names(&entity) {
             for row in store.range(query, &entity, component.as_str()).iter() {
                 let value = render_cell(row.column(), row.row())?;
-                let line = answer_line(&entity_text, component.as_str(), row.time(), row.row_id(), row.chunk().id(), &value);
+                let line = answer_line(
+                    &entity_text,
+                    component.as_str(),
+                    row.time(),
+                    row.row_id(),
+                    row.chunk().id(),
+                    &value,
+                );
                 write_line(out, &line)?;
             }
         }

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use arrow_array::{Array, BooleanArray};
+use arrow_buffer::ArrowNativeType;
 
 use crate::{Chunk, EntityPath, RowId, TimeInt};
 
@@ -40,12 +41,12 @@ fn clear_rows(chunk: &Chunk) -> Vec<(usize, bool)> {
     let Some(flags) = list.values().as_any().downcast_ref::<BooleanArray>() else {
         return Vec::new(); // the store rejects such chunks before indexing them
     };
-    let offsets = list.value_offsets();
+    let offsets = list.offsets();
     (0..list.len())
-        .filter(|&row| list.is_valid(row) && offsets[row + 1] > offsets[row])
+        .filter(|&row| list.is_valid(row) && list.value_length(row) > 0)
         .map(|row| {
             // A Clear holds one instance; a null flag is read as flat.
-            let first = offsets[row] as usize;
+            let first = offsets[row].as_usize();
             (row, flags.is_valid(first) && flags.value(first))
         })
         .collect()
@@ -80,7 +81,12 @@ impl ClearIndex {
             for column in chunk.time_columns() {
                 let name = column.timeline().name_arc();
                 let key = (TimeInt::saturating(column.times()[row]), row_id);
-                *clears.any_per_timeline.entry(Arc::clone(name)).or_default().entry(key).or_default() += 1;
+                *clears
+                    .any_per_timeline
+                    .entry(Arc::clone(name))
+                    .or_default()
+                    .entry(key)
+                    .or_default() += 1;
                 if recursive {
                     *clears
                         .recursive_per_timeline
@@ -123,19 +129,29 @@ impl ClearIndex {
     pub fn sanity_check(&self) -> Result<(), String> {
         let Self { clears, children } = self;
         if let Some(clears) = clears {
-            let EntityClears { any_per_timeline, recursive_per_timeline, static_any, static_recursive } =
-                &**clears;
+            let EntityClears {
+                any_per_timeline,
+                recursive_per_timeline,
+                static_any,
+                static_recursive,
+            } = &**clears;
             let counts_positive = any_per_timeline
                 .values()
                 .chain(recursive_per_timeline.values())
                 .all(|set| !set.is_empty() && set.values().all(|&n| n > 0))
-                && static_any.values().chain(static_recursive.values()).all(|&n| n > 0);
+                && static_any
+                    .values()
+                    .chain(static_recursive.values())
+                    .all(|&n| n > 0);
             if !counts_positive {
                 return Err("clear multisets hold positive counts and no empty sets".into());
             }
             for (timeline, recursive) in recursive_per_timeline {
                 let any = any_per_timeline.get(timeline);
-                if !recursive.keys().all(|k| any.is_some_and(|a| a.contains_key(k))) {
+                if !recursive
+                    .keys()
+                    .all(|k| any.is_some_and(|a| a.contains_key(k)))
+                {
                     return Err("every recursive Clear is also among all Clears".into());
                 }
             }
@@ -151,7 +167,14 @@ impl ClearIndex {
 }
 
 impl EntityClears {
-    fn hides(&self, is_self: bool, timeline: &str, at: TimeInt, time: Option<TimeInt>, row_id: RowId) -> bool {
+    fn hides(
+        &self,
+        is_self: bool,
+        timeline: &str,
+        at: TimeInt,
+        time: Option<TimeInt>,
+        row_id: RowId,
+    ) -> bool {
         let (statics, per_timeline) = if is_self {
             (&self.static_any, &self.any_per_timeline)
         } else {

@@ -66,7 +66,11 @@ pub struct ComponentDescriptor {
 impl ComponentDescriptor {
     /// A descriptor with only a name.
     pub fn new(name: impl Into<ComponentName>) -> Self {
-        Self { name: name.into(), archetype: None, component_type: None }
+        Self {
+            name: name.into(),
+            archetype: None,
+            component_type: None,
+        }
     }
 }
 

@@ -50,7 +50,10 @@ impl EntityPath {
     ) -> Result<Self, EntityPathError> {
         let parts: Vec<Arc<str>> = parts.into_iter().map(Into::into).collect();
         if let Some(index) = parts.iter().position(|p| p.is_empty()) {
-            return Err(EntityPathError::EmptyPart { path: join_for_error(&parts), index });
+            return Err(EntityPathError::EmptyPart {
+                path: join_for_error(&parts),
+                index,
+            });
         }
         Ok(Self::from_parts(parts))
     }
@@ -61,7 +64,10 @@ impl EntityPath {
         for part in &parts {
             part.hash(&mut hasher);
         }
-        Self(Arc::new(Inner { parts: parts.into_boxed_slice(), hash: hasher.finish() }))
+        Self(Arc::new(Inner {
+            parts: parts.into_boxed_slice(),
+            hash: hasher.finish(),
+        }))
     }
 
     /// Parses the text form: optional leading `/`, parts separated by `/`, `\` escaping the
@@ -98,7 +104,10 @@ impl EntityPath {
             }
         }
         if current.is_empty() {
-            return Err(EntityPathError::EmptyPart { path: text.to_owned(), index: parts.len() });
+            return Err(EntityPathError::EmptyPart {
+                path: text.to_owned(),
+                index: parts.len(),
+            });
         }
         parts.push(current.into());
         Ok(Self::from_parts(parts))
@@ -115,7 +124,7 @@ impl EntityPath {
     }
 
     /// Number of parts (0 for the root).
-    pub fn len(&self) -> usize {
+    pub fn num_parts(&self) -> usize {
         self.0.parts.len()
     }
 
@@ -132,12 +141,14 @@ impl EntityPath {
 
     /// The strict ancestors, nearest first, ending with the root.
     pub fn ancestors(&self) -> impl Iterator<Item = Self> + '_ {
-        (0..self.len()).rev().map(|n| Self::from_parts(self.0.parts[..n].to_vec()))
+        (0..self.num_parts())
+            .rev()
+            .map(|n| Self::from_parts(self.0.parts[..n].to_vec()))
     }
 
     /// Is `self` a strict ancestor of `other`?
     pub fn is_ancestor_of(&self, other: &Self) -> bool {
-        self.len() < other.len() && other.0.parts.starts_with(&self.0.parts)
+        self.num_parts() < other.num_parts() && other.0.parts.starts_with(&self.0.parts)
     }
 
     /// Is `self` equal to `other` or inside its subtree?
@@ -160,7 +171,10 @@ fn join_for_error(parts: &[Arc<str>]) -> String {
 
 /// Reads the character(s) after a `\`.
 fn unescape(chars: &mut std::str::Chars<'_>, text: &str) -> Result<char, EntityPathError> {
-    let bad = |reason: &'static str| EntityPathError::BadEscape { path: text.to_owned(), reason };
+    let bad = |reason: &'static str| EntityPathError::BadEscape {
+        path: text.to_owned(),
+        reason,
+    };
     match chars.next() {
         None => Err(bad("the path ends with a lone `\\`")),
         Some('n') => Ok('\n'),
@@ -273,7 +287,10 @@ mod tests {
 
     #[test]
     fn leading_slash_is_optional_and_root_is_slash() {
-        assert_eq!(EntityPath::parse("/a/b").unwrap(), EntityPath::parse("a/b").unwrap());
+        assert_eq!(
+            EntityPath::parse("/a/b").unwrap(),
+            EntityPath::parse("a/b").unwrap()
+        );
         assert!(EntityPath::parse("/").unwrap().is_root());
         assert_eq!(EntityPath::root().to_string(), "/");
     }
@@ -282,7 +299,10 @@ mod tests {
     fn empty_parts_are_errors() {
         for bad in ["a//b", "a/", "//", "/a/b/"] {
             assert!(
-                matches!(EntityPath::parse(bad), Err(EntityPathError::EmptyPart { .. })),
+                matches!(
+                    EntityPath::parse(bad),
+                    Err(EntityPathError::EmptyPart { .. })
+                ),
                 "{bad:?}"
             );
         }
@@ -298,7 +318,10 @@ mod tests {
         assert_eq!(parts(&p), ["x\\y", "\n\t", "😀", ":"]);
         for bad in [r"a\", r"\u{}", r"\u{110000}", r"\u1234", r"\u{12"] {
             assert!(
-                matches!(EntityPath::parse(bad), Err(EntityPathError::BadEscape { .. })),
+                matches!(
+                    EntityPath::parse(bad),
+                    Err(EntityPathError::BadEscape { .. })
+                ),
                 "{bad:?}"
             );
         }
@@ -306,7 +329,9 @@ mod tests {
 
     #[test]
     fn display_round_trips_any_part() {
-        let weird = ["a b", "a/b", "\\", "\n", "\u{7}", "ünï", "x.y-z_w", "#$%", "\u{2028}"];
+        let weird = [
+            "a b", "a/b", "\\", "\n", "\u{7}", "ünï", "x.y-z_w", "#$%", "\u{2028}",
+        ];
         let p = EntityPath::try_from_parts(weird).unwrap();
         let text = p.to_string();
         assert_eq!(EntityPath::parse(&text).unwrap(), p, "{text}");
@@ -320,14 +345,20 @@ mod tests {
         assert!(EntityPath::root().is_ancestor_of(&abc));
         assert!(!abc.is_ancestor_of(&abc));
         assert!(abc.starts_with(&abc));
-        assert!(!EntityPath::parse("a/bc").unwrap().starts_with(&EntityPath::parse("a/b").unwrap()));
+        assert!(
+            !EntityPath::parse("a/bc")
+                .unwrap()
+                .starts_with(&EntityPath::parse("a/b").unwrap())
+        );
         assert_eq!(abc.parent().unwrap().join("c"), abc);
     }
 
     #[test]
     fn order_is_part_by_part() {
-        let mut v: Vec<EntityPath> =
-            ["a-b", "a/b", "a", "/"].iter().map(|s| EntityPath::parse(s).unwrap()).collect();
+        let mut v: Vec<EntityPath> = ["a-b", "a/b", "a", "/"]
+            .iter()
+            .map(|s| EntityPath::parse(s).unwrap())
+            .collect();
         v.sort();
         let text: Vec<String> = v.iter().map(ToString::to_string).collect();
         assert_eq!(text, ["/", "/a", "/a/b", "/a-b"]);

@@ -35,7 +35,10 @@ impl fmt::Display for EntityPathError {
         match self {
             Self::Empty => write!(f, "empty entity path (the root is `/`)"),
             Self::EmptyPart { path, index } => {
-                write!(f, "entity path {path:?} has an empty part at position {index}")
+                write!(
+                    f,
+                    "entity path {path:?} has an empty part at position {index}"
+                )
             }
             Self::BadEscape { path, reason } => write!(f, "entity path {path:?}: {reason}"),
         }
@@ -157,35 +160,64 @@ impl fmt::Display for ChunkError {
             Self::NoRows => write!(f, "a chunk needs at least one row"),
             Self::NoComponents => write!(f, "a chunk needs at least one component column"),
             Self::TooManyRows { num_rows } => {
-                write!(f, "{num_rows} rows is more than a chunk can index (u32::MAX)")
+                write!(
+                    f,
+                    "{num_rows} rows is more than a chunk can index (u32::MAX)"
+                )
             }
-            Self::CellTypeMismatch { component, expected, found } => write!(
+            Self::CellTypeMismatch {
+                component,
+                expected,
+                found,
+            } => write!(
                 f,
                 "component {component:?} has cells of type {expected} and of type {found}"
             ),
-            Self::LengthMismatch { column, expected, actual } => write!(
+            Self::LengthMismatch {
+                column,
+                expected,
+                actual,
+            } => write!(
                 f,
                 "column {column:?} has {actual} rows but the row-id column has {expected}"
             ),
             Self::BadRowIdType { data_type } => {
-                write!(f, "row-id column must be FixedSizeBinary(16), found {data_type}")
+                write!(
+                    f,
+                    "row-id column must be FixedSizeBinary(16), found {data_type}"
+                )
             }
             Self::NullRowIds { null_count } => {
                 write!(f, "row-id column has {null_count} null values")
             }
-            Self::BadTimeType { timeline, data_type } => write!(
+            Self::BadTimeType {
+                timeline,
+                data_type,
+            } => write!(
                 f,
                 "time column {timeline:?} must be Int64, Duration(ns) or Timestamp(ns), \
                  found {data_type}"
             ),
-            Self::NullTimes { timeline, null_count } => {
+            Self::NullTimes {
+                timeline,
+                null_count,
+            } => {
                 write!(f, "time column {timeline:?} has {null_count} null values")
             }
             Self::ReservedTime { timeline, row } => {
-                write!(f, "time column {timeline:?} holds the reserved i64::MIN at row {row}")
+                write!(
+                    f,
+                    "time column {timeline:?} holds the reserved i64::MIN at row {row}"
+                )
             }
-            Self::NotAList { component, data_type } => {
-                write!(f, "component column {component:?} must be a List array, found {data_type}")
+            Self::NotAList {
+                component,
+                data_type,
+            } => {
+                write!(
+                    f,
+                    "component column {component:?} must be a List array, found {data_type}"
+                )
             }
             Self::DuplicateTimeline { timeline } => {
                 write!(f, "timeline {timeline:?} appears twice in one chunk")
@@ -271,18 +303,32 @@ pub enum InsertError {
 impl fmt::Display for InsertError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::TimelineTypeConflict { chunk_id, timeline, existing, incoming } => write!(
+            Self::TimelineTypeConflict {
+                chunk_id,
+                timeline,
+                existing,
+                incoming,
+            } => write!(
                 f,
                 "{chunk_id}: timeline {timeline:?} is {incoming:?} here but {existing:?} in the store"
             ),
-            Self::ComponentTypeConflict { chunk_id, entity_path, component, existing, incoming } => {
+            Self::ComponentTypeConflict {
+                chunk_id,
+                entity_path,
+                component,
+                existing,
+                incoming,
+            } => {
                 write!(
                     f,
                     "{chunk_id}: component {component:?} of {entity_path} has element type \
                      {incoming} here but {existing} in the store"
                 )
             }
-            Self::ClearNotBoolean { chunk_id, data_type } => write!(
+            Self::ClearNotBoolean {
+                chunk_id,
+                data_type,
+            } => write!(
                 f,
                 "{chunk_id}: `Clear:is_recursive` must hold booleans, found {data_type}"
             ),

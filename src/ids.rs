@@ -20,7 +20,11 @@ fn next_id() -> u128 {
         .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
     let from_clock = u128::from(now_ns) << 64;
     let mut last = LAST_ID.lock();
-    let id = if from_clock > *last { from_clock } else { last.wrapping_add(1) };
+    let id = if from_clock > *last {
+        from_clock
+    } else {
+        last.wrapping_add(1)
+    };
     *last = id;
     id
 }
@@ -38,7 +42,6 @@ macro_rules! define_id {
             pub const MAX: Self = Self(u128::MAX);
 
             /// A new id, strictly greater than every id this process generated before.
-            #[expect(clippy::new_without_default, reason = "Default is the zero id, not a fresh one")]
             pub fn new() -> Self {
                 Self(next_id())
             }
@@ -108,7 +111,11 @@ pub struct ParseChunkIdError {
 
 impl fmt::Display for ParseChunkIdError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "invalid chunk id {:?}: expected `chunk_` and 32 hex digits", self.text)
+        write!(
+            f,
+            "invalid chunk id {:?}: expected `chunk_` and 32 hex digits",
+            self.text
+        )
     }
 }
 
@@ -119,7 +126,9 @@ impl std::str::FromStr for ChunkId {
 
     /// Parses `chunk_` + 32 hex digits, case-insensitively (Rerun writes mixed case).
     fn from_str(text: &str) -> Result<Self, Self::Err> {
-        let err = || ParseChunkIdError { text: text.to_owned() };
+        let err = || ParseChunkIdError {
+            text: text.to_owned(),
+        };
         let hex = text
             .get(..6)
             .filter(|prefix| prefix.eq_ignore_ascii_case("chunk_"))
@@ -144,7 +153,10 @@ mod tests {
             assert!(id > previous, "generator must be strictly increasing");
             previous = id;
         }
-        assert!(ChunkId::new().as_u128() > previous.as_u128(), "one generator serves both kinds");
+        assert!(
+            ChunkId::new().as_u128() > previous.as_u128(),
+            "one generator serves both kinds"
+        );
     }
 
     #[test]
@@ -153,8 +165,18 @@ mod tests {
         assert_eq!(id.as_u128(), 0x18EA_10AF_D776_AA1F_6DEF_FA92_D8AB_E82A);
         assert_eq!(id.to_string(), "chunk_18ea10afd776aa1f6deffa92d8abe82a");
         assert_eq!(id.to_string().parse::<ChunkId>().unwrap(), id);
-        assert!("CHUNK_18EA10AFD776AA1F6deffa92d8abe82a".parse::<ChunkId>().is_ok());
-        for bad in ["", "chunk_", "chunk_123", "row_18EA10AFD776AA1F6deffa92d8abe82a", "chunk_18EA10AFD776AA1F6deffa92d8abe82g"] {
+        assert!(
+            "CHUNK_18EA10AFD776AA1F6deffa92d8abe82a"
+                .parse::<ChunkId>()
+                .is_ok()
+        );
+        for bad in [
+            "",
+            "chunk_",
+            "chunk_123",
+            "row_18EA10AFD776AA1F6deffa92d8abe82a",
+            "chunk_18EA10AFD776AA1F6deffa92d8abe82g",
+        ] {
             assert!(bad.parse::<ChunkId>().is_err(), "{bad:?} must not parse");
         }
     }
@@ -164,6 +186,9 @@ mod tests {
         let a = RowId::from_u128(1 << 70);
         let b = RowId::from_u128((1 << 70) + 1);
         assert_eq!(RowId::from_be_bytes(a.to_be_bytes()), a);
-        assert!(a.to_be_bytes() < b.to_be_bytes(), "big-endian bytes sort like the integers");
+        assert!(
+            a.to_be_bytes() < b.to_be_bytes(),
+            "big-endian bytes sort like the integers"
+        );
     }
 }

@@ -11,7 +11,7 @@
 //!   chunks straddling a time are found without scanning older ones. (This is what keeps one
 //!   long chunk from slowing every query down, unlike bounding a walk by the longest span.)
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Bound;
 use std::sync::Arc;
 
@@ -34,7 +34,7 @@ type MinTimeKey = (TimeInt, ChunkId);
 #[derive(Clone, Debug, Default)]
 pub(crate) struct TemporalComponentIndex {
     chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
-    chunk_ids_by_min_time: BTreeMap<MinTimeKey, ()>,
+    chunk_ids_by_min_time: BTreeSet<MinTimeKey>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
     /// 2^(L+1)`. Empty classes cost nothing but an empty map.
     spanning_chunk_ids_by_min_time_per_span_class: Vec<BTreeMap<MinTimeKey, TimeInt>>,
@@ -44,11 +44,15 @@ pub(crate) struct TemporalComponentIndex {
 
 fn span_class(min: TimeInt, max: TimeInt) -> Option<usize> {
     let span = max.as_i64().abs_diff(min.as_i64());
-    (span > 0).then(|| (63 - span.leading_zeros()) as usize)
+    (span > 0).then(|| span.ilog2() as usize)
 }
 
 fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
-    (entry.bounds.max_time, entry.bounds.max_row_id, entry.chunk.id())
+    (
+        entry.bounds.max_time,
+        entry.bounds.max_row_id,
+        entry.chunk.id(),
+    )
 }
 
 impl TemporalComponentIndex {
@@ -59,7 +63,7 @@ impl TemporalComponentIndex {
         if self.chunks_by_id.insert(id, key).is_some() {
             return; // already indexed: a store never inserts a chunk id twice
         }
-        self.chunk_ids_by_min_time.insert((min, id), ());
+        self.chunk_ids_by_min_time.insert((min, id));
         if let Some(class) = span_class(min, max) {
             let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;
             if classes.len() <= class {
@@ -75,7 +79,9 @@ impl TemporalComponentIndex {
     }
 
     fn get(&self, id: ChunkId) -> Option<&IndexedChunk> {
-        self.chunks_by_id.get(&id).and_then(|key| self.chunks_by_max_index.get(key))
+        self.chunks_by_id
+            .get(&id)
+            .and_then(|key| self.chunks_by_max_index.get(key))
     }
 
     /// The chunk whose greatest index is the greatest at or before `t`.
@@ -128,8 +134,16 @@ impl TemporalComponentIndex {
     }
 
     /// Every chunk starting in `[min, max]`.
-    pub fn for_each_starting_in<'a>(&'a self, min: TimeInt, max: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
-        for &(_, id) in self.chunk_ids_by_min_time.range((min, ChunkId::ZERO)..=(max, ChunkId::MAX)).map(|(k, ())| k) {
+    pub fn for_each_starting_in<'a>(
+        &'a self,
+        min: TimeInt,
+        max: TimeInt,
+        mut f: impl FnMut(&'a IndexedChunk),
+    ) {
+        for &(_, id) in self
+            .chunk_ids_by_min_time
+            .range((min, ChunkId::ZERO)..=(max, ChunkId::MAX))
+        {
             if let Some(entry) = self.get(id) {
                 f(entry);
             }
@@ -157,7 +171,10 @@ impl TemporalComponentIndex {
             ));
         }
         let mut num_spanning = 0;
-        for (class, chunks) in spanning_chunk_ids_by_min_time_per_span_class.iter().enumerate() {
+        for (class, chunks) in spanning_chunk_ids_by_min_time_per_span_class
+            .iter()
+            .enumerate()
+        {
             for (&(min, id), &max) in chunks {
                 num_spanning += 1;
                 if span_class(min, max) != Some(class) {
@@ -168,18 +185,29 @@ impl TemporalComponentIndex {
         for (key, entry) in chunks_by_max_index {
             let b = entry.bounds;
             if *key != max_index_key(entry) || chunks_by_id.get(&entry.chunk.id()) != Some(key) {
-                return Err(format!("{} is keyed by its greatest index", entry.chunk.id()));
+                return Err(format!(
+                    "{} is keyed by its greatest index",
+                    entry.chunk.id()
+                ));
             }
-            if !chunk_ids_by_min_time.contains_key(&(b.min_time, entry.chunk.id())) {
+            if !chunk_ids_by_min_time.contains(&(b.min_time, entry.chunk.id())) {
                 return Err(format!("{} is keyed by its least time", entry.chunk.id()));
             }
-            let component = entry.chunk.components().get(entry.component_column as usize);
+            let component = entry
+                .chunk
+                .components()
+                .get(entry.component_column as usize);
             if component.and_then(|c| c.bounds(entry.time_column as usize)) != Some(b) {
-                return Err(format!("{} has the bounds its chunk computed", entry.chunk.id()));
+                return Err(format!(
+                    "{} has the bounds its chunk computed",
+                    entry.chunk.id()
+                ));
             }
         }
-        let expected_spanning =
-            chunks_by_max_index.values().filter(|e| e.bounds.min_time < e.bounds.max_time).count();
+        let expected_spanning = chunks_by_max_index
+            .values()
+            .filter(|e| e.bounds.min_time < e.bounds.max_time)
+            .count();
         if num_spanning != expected_spanning {
             return Err("exactly the chunks spanning several times are in span classes".into());
         }

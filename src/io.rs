@@ -26,7 +26,8 @@ pub fn read_chunks_from_bytes(bytes: &[u8]) -> Result<Vec<Chunk>, IoError> {
         .iter()
         .enumerate()
         .map(|(batch, record_batch)| {
-            Chunk::from_record_batch(record_batch).map_err(|source| IoError::Chunk { batch, source })
+            Chunk::from_record_batch(record_batch)
+                .map_err(|source| IoError::Chunk { batch, source })
         })
         .collect()
 }
@@ -37,7 +38,10 @@ pub fn read_chunks_from_bytes(bytes: &[u8]) -> Result<Vec<Chunk>, IoError> {
 /// [`IoError::Io`] if the file cannot be read, otherwise as [`read_chunks_from_bytes`].
 pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|source| IoError::Io { path: path.to_owned(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
     read_chunks_from_bytes(&bytes)
 }
 

@@ -12,6 +12,10 @@ use crate::error::InsertError;
 use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeType};
 
+/// Debug builds check the whole store after an insert while it holds at most this many
+/// chunks.
+const DEBUG_SANITY_CHECK_MAX_CHUNKS: usize = 1024;
+
 /// Why a chunk left the store.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[non_exhaustive]
@@ -83,12 +87,24 @@ pub struct StoreStats {
 impl StoreStats {
     fn add(&mut self, chunk: &Chunk, sign: i64) {
         let apply = |total: &mut u64, amount: u64| {
-            *total = if sign > 0 { *total + amount } else { total.saturating_sub(amount) };
+            *total = if sign > 0 {
+                *total + amount
+            } else {
+                total.saturating_sub(amount)
+            };
         };
         let (chunks, rows, bytes) = if chunk.is_static() {
-            (&mut self.num_static_chunks, &mut self.num_static_rows, &mut self.static_heap_bytes)
+            (
+                &mut self.num_static_chunks,
+                &mut self.num_static_rows,
+                &mut self.static_heap_bytes,
+            )
         } else {
-            (&mut self.num_temporal_chunks, &mut self.num_temporal_rows, &mut self.temporal_heap_bytes)
+            (
+                &mut self.num_temporal_chunks,
+                &mut self.num_temporal_rows,
+                &mut self.temporal_heap_bytes,
+            )
         };
         apply(chunks, 1);
         apply(rows, chunk.num_rows() as u64);
@@ -130,9 +146,14 @@ impl ChunkStore {
 
         for column in chunk.time_columns() {
             let timeline = column.timeline();
-            self.time_types.entry(Arc::clone(timeline.name_arc())).or_insert(timeline.time_type());
+            self.time_types
+                .entry(Arc::clone(timeline.name_arc()))
+                .or_insert(timeline.time_type());
         }
-        let entity = self.entities.entry(chunk.entity_path().clone()).or_default();
+        let entity = self
+            .entities
+            .entry(chunk.entity_path().clone())
+            .or_default();
         for column in chunk.components() {
             entity
                 .element_types
@@ -148,12 +169,19 @@ impl ChunkStore {
             for overwritten in entity.insert_static(&chunk) {
                 self.chunks.remove(&overwritten.id());
                 self.stats.add(&overwritten, -1);
-                events.push(StoreEvent::Deletion { chunk: overwritten, reason: DeletionReason::Overwrite });
+                events.push(StoreEvent::Deletion {
+                    chunk: overwritten,
+                    reason: DeletionReason::Overwrite,
+                });
             }
         } else {
             entity.insert_temporal(&chunk);
         }
-        debug_assert!(self.sanity_check().is_ok(), "{:?}", self.sanity_check());
+        // The full check costs O(store): debug builds run it while the store is small, which
+        // is where unit tests live; the model test calls it after every step regardless.
+        if cfg!(debug_assertions) && self.chunks.len() <= DEBUG_SANITY_CHECK_MAX_CHUNKS {
+            debug_assert!(self.sanity_check().is_ok(), "{:?}", self.sanity_check());
+        }
         Ok(events)
     }
 
@@ -176,7 +204,10 @@ impl ChunkStore {
         for column in chunk.components() {
             let incoming = column.element_type();
             if column.name().is_clear() && *incoming != DataType::Boolean {
-                return Err(InsertError::ClearNotBoolean { chunk_id: chunk.id(), data_type: incoming.clone() });
+                return Err(InsertError::ClearNotBoolean {
+                    chunk_id: chunk.id(),
+                    data_type: incoming.clone(),
+                });
             }
             if let Some(existing) = entity.and_then(|e| e.element_types.get(column.name()))
                 && !existing.equals_datatype(incoming)
@@ -227,12 +258,17 @@ impl ChunkStore {
 
     /// The components an entity has data for (static or temporal), sorted by name.
     pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
-        self.entities.get(entity).map(|e| e.element_types.keys().cloned().collect()).unwrap_or_default()
+        self.entities
+            .get(entity)
+            .map(|e| e.element_types.keys().cloned().collect())
+            .unwrap_or_default()
     }
 
     /// The Arrow type of one element of a component's cells at an entity.
     pub fn element_type(&self, entity: &EntityPath, component: &str) -> Option<&DataType> {
-        self.entities.get(entity).and_then(|e| e.element_types.get(component))
+        self.entities
+            .get(entity)
+            .and_then(|e| e.element_types.get(component))
     }
 
     /// Checks every invariant of the store and its indices. Cheap enough for tests to call
@@ -241,7 +277,13 @@ impl ChunkStore {
     /// # Errors
     /// A description of the first broken invariant: a bug in this crate.
     pub fn sanity_check(&self) -> Result<(), String> {
-        let Self { chunks, time_types, entities, clears, stats } = self;
+        let Self {
+            chunks,
+            time_types,
+            entities,
+            clears,
+            stats,
+        } = self;
         let mut expected = StoreStats::default();
         for chunk in chunks.values() {
             chunk.sanity_check()?;
@@ -249,7 +291,11 @@ impl ChunkStore {
             for column in chunk.time_columns() {
                 let timeline = column.timeline();
                 if time_types.get(timeline.name()) != Some(&timeline.time_type()) {
-                    return Err(format!("{}: timeline {:?} has the store's type", chunk.id(), timeline));
+                    return Err(format!(
+                        "{}: timeline {:?} has the store's type",
+                        chunk.id(),
+                        timeline
+                    ));
                 }
             }
             if !entities.contains_key(chunk.entity_path()) {
@@ -257,7 +303,9 @@ impl ChunkStore {
             }
         }
         if expected != *stats {
-            return Err(format!("stats match the chunks: kept {stats:?}, counted {expected:?}"));
+            return Err(format!(
+                "stats match the chunks: kept {stats:?}, counted {expected:?}"
+            ));
         }
         for (path, entity) in entities {
             entity.sanity_check(path, chunks)?;
@@ -269,11 +317,17 @@ impl ChunkStore {
 impl EntityIndex {
     /// Makes `chunk`'s cells the static winners where their row ids are the greatest, and
     /// returns the static chunks left answering for nothing (possibly `chunk` itself).
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
     fn insert_static(&mut self, chunk: &Arc<Chunk>) -> Vec<Arc<Chunk>> {
         let mut num_won = 0;
         let mut losers = Vec::new();
         for (position, column) in chunk.components().iter().enumerate() {
-            let Some((row_id, row)) = column.max_row_id_cell() else { continue };
+            let Some((row_id, row)) = column.max_row_id_cell() else {
+                continue;
+            };
             let winner = StaticWinner {
                 row_id,
                 chunk: Arc::clone(chunk),
@@ -290,10 +344,13 @@ impl EntityIndex {
             }
             num_won += 1;
         }
-        self.static_chunks.insert(chunk.id(), (Arc::clone(chunk), num_won));
+        self.static_chunks
+            .insert(chunk.id(), (Arc::clone(chunk), num_won));
         let mut removed = Vec::new();
         for id in losers.into_iter().chain(std::iter::once(chunk.id())) {
-            let Some((_, num_won)) = self.static_chunks.get_mut(&id) else { continue };
+            let Some((_, num_won)) = self.static_chunks.get_mut(&id) else {
+                continue;
+            };
             if id != chunk.id() {
                 *num_won -= 1;
             }
@@ -306,6 +363,10 @@ impl EntityIndex {
         removed
     }
 
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
     fn insert_temporal(&mut self, chunk: &Arc<Chunk>) {
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let per_component = self
@@ -313,46 +374,76 @@ impl EntityIndex {
                 .entry(Arc::clone(time_column.timeline().name_arc()))
                 .or_default();
             for (component_position, column) in chunk.components().iter().enumerate() {
-                let Some(bounds) = column.bounds(time_position) else { continue };
-                per_component.entry(column.name().clone()).or_default().insert(IndexedChunk {
-                    chunk: Arc::clone(chunk),
-                    time_column: time_position as u32,
-                    component_column: component_position as u32,
-                    bounds,
-                });
+                let Some(bounds) = column.bounds(time_position) else {
+                    continue;
+                };
+                per_component
+                    .entry(column.name().clone())
+                    .or_default()
+                    .insert(IndexedChunk {
+                        chunk: Arc::clone(chunk),
+                        time_column: time_position as u32,
+                        component_column: component_position as u32,
+                        bounds,
+                    });
             }
         }
     }
 
-    fn sanity_check(&self, path: &EntityPath, chunks: &ahash::HashMap<ChunkId, Arc<Chunk>>) -> Result<(), String> {
-        let Self { element_types, static_winners, static_chunks, temporal_per_timeline_per_component } = self;
+    fn sanity_check(
+        &self,
+        path: &EntityPath,
+        chunks: &ahash::HashMap<ChunkId, Arc<Chunk>>,
+    ) -> Result<(), String> {
+        let Self {
+            element_types,
+            static_winners,
+            static_chunks,
+            temporal_per_timeline_per_component,
+        } = self;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
         for (component, winner) in static_winners {
             *wins.entry(winner.chunk.id()).or_default() += 1;
-            let column = winner.chunk.components().get(winner.component_column as usize);
-            if column.map(|c| c.name()) != Some(component)
-                || column.and_then(crate::ComponentColumn::max_row_id_cell) != Some((winner.row_id, winner.row))
+            let column = winner
+                .chunk
+                .components()
+                .get(winner.component_column as usize);
+            if column.map(crate::ComponentColumn::name) != Some(component)
+                || column.and_then(crate::ComponentColumn::max_row_id_cell)
+                    != Some((winner.row_id, winner.row))
             {
-                return Err(format!("{path}: static winner of {component} is its chunk's best cell"));
+                return Err(format!(
+                    "{path}: static winner of {component} is its chunk's best cell"
+                ));
             }
         }
         for (id, (chunk, num_won)) in static_chunks {
             if wins.get(id).copied().unwrap_or(0) != *num_won || *num_won == 0 {
-                return Err(format!("{path}: static chunk {id} answers for the components it is counted for"));
+                return Err(format!(
+                    "{path}: static chunk {id} answers for the components it is counted for"
+                ));
             }
             if !chunks.contains_key(id) || !chunk.is_static() || chunk.entity_path() != path {
-                return Err(format!("{path}: static chunk {id} is a static chunk of the store"));
+                return Err(format!(
+                    "{path}: static chunk {id} is a static chunk of the store"
+                ));
             }
         }
         for (timeline, per_component) in temporal_per_timeline_per_component {
             for (component, index) in per_component {
                 index.sanity_check()?;
                 if !element_types.contains_key(component) || index.is_empty() {
-                    return Err(format!("{path}: index of {component} on {timeline} is typed and non-empty"));
+                    return Err(format!(
+                        "{path}: index of {component} on {timeline} is typed and non-empty"
+                    ));
                 }
                 for entry in index.chunks() {
-                    if !chunks.contains_key(&entry.chunk.id()) || entry.chunk.entity_path() != path {
-                        return Err(format!("{path}: indexed chunk {} is the store's", entry.chunk.id()));
+                    if !chunks.contains_key(&entry.chunk.id()) || entry.chunk.entity_path() != path
+                    {
+                        return Err(format!(
+                            "{path}: indexed chunk {} is the store's",
+                            entry.chunk.id()
+                        ));
                     }
                 }
             }
@@ -369,12 +460,22 @@ impl fmt::Display for ChunkStore {
         chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
         writeln!(f, "ChunkStore: {} chunks", chunks.len())?;
         for chunk in chunks {
-            write!(f, "  {} {} rows={}", chunk.entity_path(), chunk.id(), chunk.num_rows())?;
+            write!(
+                f,
+                "  {} {} rows={}",
+                chunk.entity_path(),
+                chunk.id(),
+                chunk.num_rows()
+            )?;
             for column in chunk.time_columns() {
                 let (lo, hi) = column.time_range();
                 write!(f, " {}=[{lo}, {hi}]", column.timeline().name())?;
             }
-            let names: Vec<&str> = chunk.components().iter().map(|c| c.name().as_str()).collect();
+            let names: Vec<&str> = chunk
+                .components()
+                .iter()
+                .map(|c| c.name().as_str())
+                .collect();
             writeln!(f, " components={names:?}")?;
         }
         Ok(())

@@ -17,13 +17,21 @@ impl TimeInt {
 
     /// A time, or `None` for the reserved `i64::MIN`.
     pub const fn new(value: i64) -> Option<Self> {
-        if value == i64::MIN { None } else { Some(Self(value)) }
+        if value == i64::MIN {
+            None
+        } else {
+            Some(Self(value))
+        }
     }
 
     /// A time, clamping the reserved `i64::MIN` to [`TimeInt::MIN`]: for query bounds,
     /// where "from the very beginning" is what a caller passing `i64::MIN` means.
     pub const fn saturating(value: i64) -> Self {
-        if value == i64::MIN { Self::MIN } else { Self(value) }
+        if value == i64::MIN {
+            Self::MIN
+        } else {
+            Self(value)
+        }
     }
 
     /// The raw value.
@@ -88,7 +96,10 @@ pub struct Timeline {
 impl Timeline {
     /// A timeline of the given name and type.
     pub fn new(name: impl Into<Arc<str>>, time_type: TimeType) -> Self {
-        Self { name: name.into(), time_type }
+        Self {
+            name: name.into(),
+            time_type,
+        }
     }
 
     /// A sequence timeline (Arrow `Int64`).
@@ -131,12 +142,19 @@ mod tests {
 
     #[test]
     fn arrow_types_map_both_ways() {
-        for t in [TimeType::Sequence, TimeType::DurationNs, TimeType::TimestampNs] {
+        for t in [
+            TimeType::Sequence,
+            TimeType::DurationNs,
+            TimeType::TimestampNs,
+        ] {
             assert_eq!(TimeType::from_arrow(&t.to_arrow()), Some(t));
         }
         let with_tz = DataType::Timestamp(TimeUnit::Nanosecond, Some("+02:00".into()));
         assert_eq!(TimeType::from_arrow(&with_tz), Some(TimeType::TimestampNs));
         assert_eq!(TimeType::from_arrow(&DataType::Int32), None);
-        assert_eq!(TimeType::from_arrow(&DataType::Duration(TimeUnit::Millisecond)), None);
+        assert_eq!(
+            TimeType::from_arrow(&DataType::Duration(TimeUnit::Millisecond)),
+            None
+        );
     }
 }

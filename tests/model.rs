@@ -4,13 +4,21 @@
 //! entity tree) interleaved with latest-at and range queries, run against the store and
 //! against a deliberately naive model that scans every row. Answers must be identical,
 //! and `sanity_check()` must pass after every insert.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::float_cmp,
+    reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
+)]
 
 mod common;
 
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, Float64Array, Int64Array};
-use chunkstore::{Chunk, ChunkId, ChunkStore, ComponentName, LatestAtQuery, RangeQuery, RowId, TimeInt, Timeline};
+use chunkstore::{
+    Chunk, ChunkId, ChunkStore, ComponentName, LatestAtQuery, RangeQuery, RowId, TimeInt, Timeline,
+};
 use common::{bool_list, f64_list, path};
 use proptest::prelude::*;
 
@@ -32,11 +40,33 @@ struct Row {
 #[derive(Clone, Debug)]
 enum Op {
     /// A temporal chunk: which timelines it has (bit 0: t1, bit 1: t2) and its rows.
-    Temporal { entity: usize, timelines: u8, rows: Vec<([i64; 2], [Cell; 2])> },
-    Static { entity: usize, rows: Vec<[Cell; 2]> },
-    Clear { entity: usize, time: Option<[i64; 2]>, recursive: bool },
-    LatestAt { entity: usize, component: usize, timeline: usize, at: i64 },
-    Range { entity: usize, component: usize, timeline: usize, min: i64, max: i64 },
+    Temporal {
+        entity: usize,
+        timelines: u8,
+        rows: Vec<([i64; 2], [Cell; 2])>,
+    },
+    Static {
+        entity: usize,
+        rows: Vec<[Cell; 2]>,
+    },
+    Clear {
+        entity: usize,
+        time: Option<[i64; 2]>,
+        recursive: bool,
+    },
+    LatestAt {
+        entity: usize,
+        component: usize,
+        timeline: usize,
+        at: i64,
+    },
+    Range {
+        entity: usize,
+        component: usize,
+        timeline: usize,
+        min: i64,
+        max: i64,
+    },
 }
 
 fn cell() -> impl Strategy<Value = Cell> {
@@ -51,28 +81,68 @@ fn cell() -> impl Strategy<Value = Cell> {
 fn op() -> impl Strategy<Value = Op> {
     let entity = 0..ENTITIES.len();
     let times = [0..=MAX_TIME, 0..=MAX_TIME];
-    let temporal = (entity.clone(), 1u8..=3, prop::collection::vec((times.clone(), [cell(), cell()]), 1..8))
-        .prop_map(|(entity, timelines, rows)| Op::Temporal { entity, timelines, rows });
-    let statics = (entity.clone(), prop::collection::vec([cell(), cell()], 1..3))
+    let temporal = (
+        entity.clone(),
+        1u8..=3,
+        prop::collection::vec((times.clone(), [cell(), cell()]), 1..8),
+    )
+        .prop_map(|(entity, timelines, rows)| Op::Temporal {
+            entity,
+            timelines,
+            rows,
+        });
+    let statics = (
+        entity.clone(),
+        prop::collection::vec([cell(), cell()], 1..3),
+    )
         .prop_map(|(entity, rows)| Op::Static { entity, rows });
-    let clear = (entity.clone(), prop::option::weighted(0.85, times), any::<bool>())
-        .prop_map(|(entity, time, recursive)| Op::Clear { entity, time, recursive });
-    let latest = (entity.clone(), 0..2usize, 0..2usize, -1..=MAX_TIME + 1)
-        .prop_map(|(entity, component, timeline, at)| Op::LatestAt { entity, component, timeline, at });
-    let range = (entity, 0..2usize, 0..2usize, -1..=MAX_TIME + 1, 0..=MAX_TIME)
-        .prop_map(|(entity, component, timeline, min, len)| Op::Range { entity, component, timeline, min, max: min + len });
+    let clear = (
+        entity.clone(),
+        prop::option::weighted(0.85, times),
+        any::<bool>(),
+    )
+        .prop_map(|(entity, time, recursive)| Op::Clear {
+            entity,
+            time,
+            recursive,
+        });
+    let latest = (entity.clone(), 0..2usize, 0..2usize, -1..=MAX_TIME + 1).prop_map(
+        |(entity, component, timeline, at)| Op::LatestAt {
+            entity,
+            component,
+            timeline,
+            at,
+        },
+    );
+    let range = (
+        entity,
+        0..2usize,
+        0..2usize,
+        -1..=MAX_TIME + 1,
+        0..=MAX_TIME,
+    )
+        .prop_map(|(entity, component, timeline, min, len)| Op::Range {
+            entity,
+            component,
+            timeline,
+            min,
+            max: min + len,
+        });
     prop_oneof![6 => temporal, 1 => statics, 2 => clear, 4 => latest, 2 => range]
 }
 
 /// What a query answers: `(time, row id, cell)` (time `None` for static).
 type Answer = (Option<i64>, u128, Vec<f64>);
 
+/// A Clear as the model keeps it: `(entity, row id, times, recursive)`; `times` is `None`
+/// for a static Clear.
+type ModelClear = (usize, u128, Option<[Option<i64>; 2]>, bool);
+
 #[derive(Default)]
 struct Model {
     /// `(entity, row id, row, is_static)`
     rows: Vec<(usize, u128, Row, bool)>,
-    /// `(entity, row id, times, recursive)`; `times` `None` for a static Clear.
-    clears: Vec<(usize, u128, Option<[Option<i64>; 2]>, bool)>,
+    clears: Vec<ModelClear>,
 }
 
 fn is_strict_ancestor(ancestor: usize, of: usize) -> bool {
@@ -81,14 +151,26 @@ fn is_strict_ancestor(ancestor: usize, of: usize) -> bool {
 }
 
 impl Model {
-    fn latest_at(&self, entity: usize, component: usize, timeline: usize, at: i64) -> Option<Answer> {
+    fn latest_at(
+        &self,
+        entity: usize,
+        component: usize,
+        timeline: usize,
+        at: i64,
+    ) -> Option<Answer> {
         let static_winner = self
             .rows
             .iter()
-            .filter(|(e, _, row, is_static)| *e == entity && *is_static && row.cells[component].is_some())
+            .filter(|(e, _, row, is_static)| {
+                *e == entity && *is_static && row.cells[component].is_some()
+            })
             .max_by_key(|(_, row_id, ..)| *row_id);
         let answer = match static_winner {
-            Some((_, row_id, row, _)) => (None, *row_id, row.cells[component].clone().unwrap_or_default()),
+            Some((_, row_id, row, _)) => (
+                None,
+                *row_id,
+                row.cells[component].clone().unwrap_or_default(),
+            ),
             None => self
                 .rows
                 .iter()
@@ -99,37 +181,68 @@ impl Model {
                         && row.times[timeline].is_some_and(|time| time <= at)
                 })
                 .max_by_key(|(_, row_id, row, _)| (row.times[timeline], *row_id))
-                .map(|(_, row_id, row, _)| (row.times[timeline], *row_id, row.cells[component].clone().unwrap_or_default()))?,
+                .map(|(_, row_id, row, _)| {
+                    (
+                        row.times[timeline],
+                        *row_id,
+                        row.cells[component].clone().unwrap_or_default(),
+                    )
+                })?,
         };
         (!self.is_hidden(entity, timeline, at, answer.0, answer.1)).then_some(answer)
     }
 
-    fn is_hidden(&self, entity: usize, timeline: usize, at: i64, time: Option<i64>, row_id: u128) -> bool {
-        self.clears.iter().any(|&(clear_entity, clear_row_id, clear_times, recursive)| {
-            let applies = clear_entity == entity || (recursive && is_strict_ancestor(clear_entity, entity));
-            if !applies {
-                return false;
-            }
-            match (clear_times, time) {
-                (None, None) => row_id <= clear_row_id,
-                (None, Some(_)) => true,
-                (Some(_), None) => false,
-                (Some(times), Some(time)) => match times[timeline] {
-                    Some(clear_time) => clear_time <= at && (time, row_id) <= (clear_time, clear_row_id),
-                    None => false,
-                },
-            }
-        })
+    fn is_hidden(
+        &self,
+        entity: usize,
+        timeline: usize,
+        at: i64,
+        time: Option<i64>,
+        row_id: u128,
+    ) -> bool {
+        self.clears
+            .iter()
+            .any(|&(clear_entity, clear_row_id, clear_times, recursive)| {
+                let applies = clear_entity == entity
+                    || (recursive && is_strict_ancestor(clear_entity, entity));
+                if !applies {
+                    return false;
+                }
+                match (clear_times, time) {
+                    (None, None) => row_id <= clear_row_id,
+                    (None, Some(_)) => true,
+                    (Some(_), None) => false,
+                    (Some(times), Some(time)) => match times[timeline] {
+                        Some(clear_time) => {
+                            clear_time <= at && (time, row_id) <= (clear_time, clear_row_id)
+                        }
+                        None => false,
+                    },
+                }
+            })
     }
 
-    fn range(&self, entity: usize, component: usize, timeline: usize, min: i64, max: i64) -> Vec<Answer> {
+    fn range(
+        &self,
+        entity: usize,
+        component: usize,
+        timeline: usize,
+        min: i64,
+        max: i64,
+    ) -> Vec<Answer> {
         let static_winner = self
             .rows
             .iter()
-            .filter(|(e, _, row, is_static)| *e == entity && *is_static && row.cells[component].is_some())
+            .filter(|(e, _, row, is_static)| {
+                *e == entity && *is_static && row.cells[component].is_some()
+            })
             .max_by_key(|(_, row_id, ..)| *row_id);
         if let Some((_, row_id, row, _)) = static_winner {
-            return vec![(None, *row_id, row.cells[component].clone().unwrap_or_default())];
+            return vec![(
+                None,
+                *row_id,
+                row.cells[component].clone().unwrap_or_default(),
+            )];
         }
         let mut rows: Vec<Answer> = self
             .rows
@@ -140,7 +253,13 @@ impl Model {
                     && row.cells[component].is_some()
                     && row.times[timeline].is_some_and(|time| min <= time && time <= max)
             })
-            .map(|(_, row_id, row, _)| (row.times[timeline], *row_id, row.cells[component].clone().unwrap_or_default()))
+            .map(|(_, row_id, row, _)| {
+                (
+                    row.times[timeline],
+                    *row_id,
+                    row.cells[component].clone().unwrap_or_default(),
+                )
+            })
             .collect();
         rows.sort_by_key(|(time, row_id, _)| (*time, *row_id));
         rows
@@ -152,7 +271,11 @@ fn cells_column(cells: &[Cell]) -> ArrayRef {
 }
 
 fn values(cell: &ArrayRef) -> Vec<f64> {
-    cell.as_any().downcast_ref::<Float64Array>().unwrap().values().to_vec()
+    cell.as_any()
+        .downcast_ref::<Float64Array>()
+        .unwrap()
+        .values()
+        .to_vec()
 }
 
 /// Unique row ids in random order: a random high part, a counter low part.
@@ -167,6 +290,10 @@ impl RowIds {
     }
 }
 
+#[expect(
+    clippy::too_many_lines,
+    reason = "one match arm per operation, side by side with the model's"
+)]
 fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
     let mut store = ChunkStore::new();
     let mut model = Model::default();
@@ -176,25 +303,57 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
 
     for op in ops {
         match op {
-            Op::Temporal { entity, timelines, rows } => {
+            Op::Temporal {
+                entity,
+                timelines,
+                rows,
+            } => {
                 let ids: Vec<u128> = rows.iter().map(|_| next_row_id()).collect();
                 let mut time_columns = Vec::new();
                 for (i, name) in TIMELINES.iter().enumerate() {
                     if timelines & (1 << i) != 0 {
                         let times: Vec<i64> = rows.iter().map(|(times, _)| times[i]).collect();
-                        time_columns.push((Timeline::sequence(*name), Arc::new(Int64Array::from(times)) as ArrayRef));
+                        time_columns.push((
+                            Timeline::sequence(*name),
+                            Arc::new(Int64Array::from(times)) as ArrayRef,
+                        ));
                     }
                 }
                 let components = COMPONENTS
                     .iter()
                     .enumerate()
-                    .map(|(c, name)| ((*name).into(), cells_column(&rows.iter().map(|(_, cells)| cells[c].clone()).collect::<Vec<_>>())))
+                    .map(|(c, name)| {
+                        (
+                            (*name).into(),
+                            cells_column(
+                                &rows
+                                    .iter()
+                                    .map(|(_, cells)| cells[c].clone())
+                                    .collect::<Vec<_>>(),
+                            ),
+                        )
+                    })
                     .collect();
-                let chunk = Chunk::try_new(ChunkId::new(), path(ENTITIES[*entity]), ids.iter().map(|&r| RowId::from_u128(r)).collect(), time_columns, components).unwrap();
+                let chunk = Chunk::try_new(
+                    ChunkId::new(),
+                    path(ENTITIES[*entity]),
+                    ids.iter().map(|&r| RowId::from_u128(r)).collect(),
+                    time_columns,
+                    components,
+                )
+                .unwrap();
                 store.insert(chunk).unwrap();
                 for (&row_id, (times, cells)) in ids.iter().zip(rows) {
                     let times = [0, 1].map(|i| (timelines & (1 << i) != 0).then_some(times[i]));
-                    model.rows.push((*entity, row_id, Row { times, cells: cells.clone() }, false));
+                    model.rows.push((
+                        *entity,
+                        row_id,
+                        Row {
+                            times,
+                            cells: cells.clone(),
+                        },
+                        false,
+                    ));
                 }
             }
             Op::Static { entity, rows } => {
@@ -202,22 +361,56 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                 let components = COMPONENTS
                     .iter()
                     .enumerate()
-                    .map(|(c, name)| ((*name).into(), cells_column(&rows.iter().map(|cells| cells[c].clone()).collect::<Vec<_>>())))
+                    .map(|(c, name)| {
+                        (
+                            (*name).into(),
+                            cells_column(
+                                &rows
+                                    .iter()
+                                    .map(|cells| cells[c].clone())
+                                    .collect::<Vec<_>>(),
+                            ),
+                        )
+                    })
                     .collect();
-                let chunk = Chunk::try_new(ChunkId::new(), path(ENTITIES[*entity]), ids.iter().map(|&r| RowId::from_u128(r)).collect(), vec![], components).unwrap();
+                let chunk = Chunk::try_new(
+                    ChunkId::new(),
+                    path(ENTITIES[*entity]),
+                    ids.iter().map(|&r| RowId::from_u128(r)).collect(),
+                    vec![],
+                    components,
+                )
+                .unwrap();
                 store.insert(chunk).unwrap();
                 for (&row_id, cells) in ids.iter().zip(rows) {
-                    model.rows.push((*entity, row_id, Row { times: [None, None], cells: cells.clone() }, true));
+                    model.rows.push((
+                        *entity,
+                        row_id,
+                        Row {
+                            times: [None, None],
+                            cells: cells.clone(),
+                        },
+                        true,
+                    ));
                 }
             }
-            Op::Clear { entity, time, recursive } => {
+            Op::Clear {
+                entity,
+                time,
+                recursive,
+            } => {
                 let row_id = next_row_id();
                 let time_columns = time
                     .map(|times| {
                         TIMELINES
                             .iter()
                             .zip(times)
-                            .map(|(name, time)| (Timeline::sequence(*name), Arc::new(Int64Array::from(vec![time])) as ArrayRef))
+                            .map(|(name, time)| {
+                                (
+                                    Timeline::sequence(*name),
+                                    Arc::new(Int64Array::from(vec![time])) as ArrayRef,
+                                )
+                            })
                             .collect()
                     })
                     .unwrap_or_default();
@@ -226,21 +419,39 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                     path(ENTITIES[*entity]),
                     vec![RowId::from_u128(row_id)],
                     time_columns,
-                    vec![(ComponentName::CLEAR_IS_RECURSIVE.into(), bool_list(&[Some(*recursive)]))],
+                    vec![(
+                        ComponentName::CLEAR_IS_RECURSIVE.into(),
+                        bool_list(&[Some(*recursive)]),
+                    )],
                 )
                 .unwrap();
                 store.insert(chunk).unwrap();
-                model.clears.push((*entity, row_id, time.map(|t| t.map(Some)), *recursive));
+                model
+                    .clears
+                    .push((*entity, row_id, time.map(|t| t.map(Some)), *recursive));
             }
-            Op::LatestAt { entity, component, timeline, at } => {
+            Op::LatestAt {
+                entity,
+                component,
+                timeline,
+                at,
+            } => {
                 check_latest_at(&store, &model, *entity, *component, *timeline, *at)?;
             }
-            Op::Range { entity, component, timeline, min, max } => {
+            Op::Range {
+                entity,
+                component,
+                timeline,
+                min,
+                max,
+            } => {
                 check_range(&store, &model, *entity, *component, *timeline, *min, *max)?;
             }
         }
         if let Err(broken) = store.sanity_check() {
-            return Err(TestCaseError::fail(format!("sanity_check after {op:?}: {broken}")));
+            return Err(TestCaseError::fail(format!(
+                "sanity_check after {op:?}: {broken}"
+            )));
         }
     }
     // A final sweep of every query, so no sequence ends without being checked.
@@ -258,25 +469,73 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-fn check_latest_at(store: &ChunkStore, model: &Model, entity: usize, component: usize, timeline: usize, at: i64) -> Result<(), TestCaseError> {
+fn check_latest_at(
+    store: &ChunkStore,
+    model: &Model,
+    entity: usize,
+    component: usize,
+    timeline: usize,
+    at: i64,
+) -> Result<(), TestCaseError> {
     let query = LatestAtQuery::new(TIMELINES[timeline], TimeInt::new(at).unwrap());
     let ours = store
         .latest_at(&query, &path(ENTITIES[entity]), COMPONENTS[component])
-        .map(|a| (a.time().map(TimeInt::as_i64), a.row_id().as_u128(), values(&a.cell())));
+        .map(|a| {
+            (
+                a.time().map(TimeInt::as_i64),
+                a.row_id().as_u128(),
+                values(&a.cell()),
+            )
+        });
     let expected = model.latest_at(entity, component, timeline, at);
-    prop_assert_eq!(ours, expected, "latest-at {}={} {}:{}", TIMELINES[timeline], at, ENTITIES[entity], COMPONENTS[component]);
+    prop_assert_eq!(
+        ours,
+        expected,
+        "latest-at {}={} {}:{}",
+        TIMELINES[timeline],
+        at,
+        ENTITIES[entity],
+        COMPONENTS[component]
+    );
     Ok(())
 }
 
-fn check_range(store: &ChunkStore, model: &Model, entity: usize, component: usize, timeline: usize, min: i64, max: i64) -> Result<(), TestCaseError> {
-    let query = RangeQuery::new(TIMELINES[timeline], TimeInt::new(min).unwrap(), TimeInt::new(max).unwrap());
+fn check_range(
+    store: &ChunkStore,
+    model: &Model,
+    entity: usize,
+    component: usize,
+    timeline: usize,
+    min: i64,
+    max: i64,
+) -> Result<(), TestCaseError> {
+    let query = RangeQuery::new(
+        TIMELINES[timeline],
+        TimeInt::new(min).unwrap(),
+        TimeInt::new(max).unwrap(),
+    );
     let ours: Vec<Answer> = store
         .range(&query, &path(ENTITIES[entity]), COMPONENTS[component])
         .iter()
-        .map(|r| (r.time().map(TimeInt::as_i64), r.row_id().as_u128(), values(&r.cell())))
+        .map(|r| {
+            (
+                r.time().map(TimeInt::as_i64),
+                r.row_id().as_u128(),
+                values(&r.cell()),
+            )
+        })
         .collect();
     let expected = model.range(entity, component, timeline, min, max);
-    prop_assert_eq!(ours, expected, "range {} [{}, {}] {}:{}", TIMELINES[timeline], min, max, ENTITIES[entity], COMPONENTS[component]);
+    prop_assert_eq!(
+        ours,
+        expected,
+        "range {} [{}, {}] {}:{}",
+        TIMELINES[timeline],
+        min,
+        max,
+        ENTITIES[entity],
+        COMPONENTS[component]
+    );
     Ok(())
 }
 
@@ -297,9 +556,17 @@ proptest! {
 #[test]
 fn wide_and_narrow_chunks_answer_like_the_model() {
     let mut ops = Vec::new();
-    for i in 0..30 {
-        let rows = vec![([i % 13, 12 - i % 13], [Some(vec![f64::from(i as i32)]), None]), ([(i * 7) % 13, i % 5], [Some(vec![]), Some(vec![1.0])])];
-        ops.push(Op::Temporal { entity: i as usize % 3, timelines: 3, rows });
+    for (i, entity) in (0..30i32).zip((0..3usize).cycle()) {
+        let i64 = i64::from(i);
+        let rows = vec![
+            ([i64 % 13, 12 - i64 % 13], [Some(vec![f64::from(i)]), None]),
+            ([(i64 * 7) % 13, i64 % 5], [Some(vec![]), Some(vec![1.0])]),
+        ];
+        ops.push(Op::Temporal {
+            entity,
+            timelines: 3,
+            rows,
+        });
     }
     run(&ops, &[7, 3, 999, 1]).unwrap();
 }

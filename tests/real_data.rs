@@ -1,6 +1,12 @@
 //! Chunks written by Rerun 0.41's own SDK, and Rerun's own answers for them
 //! (`testdata/rerun-0.41/README.md`): every latest-at probe and every range of the oracle,
 //! on all three timelines, must match cell by cell.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::float_cmp,
+    reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
+)]
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -24,7 +30,10 @@ fn load_chunks() -> Vec<Chunk> {
         .collect();
     files.sort();
     assert_eq!(files.len(), 37, "the recording has 37 chunk files");
-    files.iter().flat_map(|f| io::read_chunks_from_path(f).unwrap()).collect()
+    files
+        .iter()
+        .flat_map(|f| io::read_chunks_from_path(f).unwrap())
+        .collect()
 }
 
 fn load_store() -> ChunkStore {
@@ -98,7 +107,12 @@ fn temporal_view_columns(store: &ChunkStore) -> BTreeSet<(EntityPath, String)> {
         .entity_paths()
         .into_iter()
         .filter(|e| *e != properties)
-        .flat_map(|e| store.component_names(&e).into_iter().map(move |c| (e.clone(), c.to_string())))
+        .flat_map(|e| {
+            store
+                .component_names(&e)
+                .into_iter()
+                .map(move |c| (e.clone(), c.to_string()))
+        })
         .collect()
 }
 
@@ -109,7 +123,12 @@ fn every_chunk_loads_and_round_trips_through_transport() {
     for chunk in &files {
         let batch = chunk.to_record_batch().unwrap();
         let again = Chunk::from_record_batch(&batch).unwrap();
-        assert_eq!(again.to_record_batch().unwrap(), batch, "{} round-trips", chunk.id());
+        assert_eq!(
+            again.to_record_batch().unwrap(),
+            batch,
+            "{} round-trips",
+            chunk.id()
+        );
         assert_eq!(again.id(), chunk.id());
         assert_eq!(again.row_ids(), chunk.row_ids());
     }
@@ -125,14 +144,24 @@ fn latest_at_matches_rerun_on_every_probe_and_timeline() {
         assert_eq!(batches.len(), 1);
         let (probes, columns) = split_table(&batches[0], Some(timeline));
         assert_eq!(probes.len(), batches[0].num_rows());
-        let oracle_columns: BTreeSet<_> =
-            columns.iter().map(|c| (c.entity.clone(), c.component.clone())).collect();
-        assert_eq!(oracle_columns, expected_columns, "same columns on {timeline}");
+        let oracle_columns: BTreeSet<_> = columns
+            .iter()
+            .map(|c| (c.entity.clone(), c.component.clone()))
+            .collect();
+        assert_eq!(
+            oracle_columns, expected_columns,
+            "same columns on {timeline}"
+        );
         for (row, &t) in probes.iter().enumerate() {
             let query = LatestAtQuery::new(timeline, TimeInt::new(t).unwrap());
             for column in &columns {
-                let ours = store.latest_at(&query, &column.entity, &column.component).map(|a| a.cell());
-                let what = format!("latest-at {timeline}={t} {}:{}", column.entity, column.component);
+                let ours = store
+                    .latest_at(&query, &column.entity, &column.component)
+                    .map(|a| a.cell());
+                let what = format!(
+                    "latest-at {timeline}={t} {}:{}",
+                    column.entity, column.component
+                );
                 assert_same_cell(ours, oracle_cell(column, row), &what);
                 num_checked += 1;
             }
@@ -155,10 +184,17 @@ fn range_matches_rerun_on_every_range_and_timeline() {
         assert_eq!(batches.len(), ranges.len(), "one batch per range");
         for (spec, batch) in ranges.iter().zip(&batches) {
             let (lo, hi) = (spec["lo"].as_i64().unwrap(), spec["hi"].as_i64().unwrap());
-            let query = RangeQuery::new(timeline, TimeInt::new(lo).unwrap(), TimeInt::new(hi).unwrap());
+            let query = RangeQuery::new(
+                timeline,
+                TimeInt::new(lo).unwrap(),
+                TimeInt::new(hi).unwrap(),
+            );
             let (times, columns) = split_table(batch, Some(timeline));
             for column in &columns {
-                let what = format!("range {timeline} [{lo}, {hi}] {}:{}", column.entity, column.component);
+                let what = format!(
+                    "range {timeline} [{lo}, {hi}] {}:{}",
+                    column.entity, column.component
+                );
                 let result = store.range(&query, &column.entity, &column.component);
                 let rows: Vec<_> = result.iter().collect();
                 if rows.first().is_some_and(|r| r.time().is_none()) {
@@ -174,7 +210,10 @@ fn range_matches_rerun_on_every_range_and_timeline() {
                 let mut previous = None;
                 for row in &rows {
                     let key = (row.time().unwrap(), row.row_id());
-                    assert!(previous < Some(key), "{what}: rows ascend by (time, row id)");
+                    assert!(
+                        previous < Some(key),
+                        "{what}: rows ascend by (time, row id)"
+                    );
                     previous = Some(key);
                     ours.insert(key.0.as_i64(), (key.1, row.cell()));
                 }
@@ -189,7 +228,11 @@ fn range_matches_rerun_on_every_range_and_timeline() {
                     "{what}: same times"
                 );
                 for (t, cell) in theirs {
-                    assert_same_cell(Some(ours[&t].1.clone()), Some(cell), &format!("{what} t={t}"));
+                    assert_same_cell(
+                        Some(ours[&t].1.clone()),
+                        Some(cell),
+                        &format!("{what} t={t}"),
+                    );
                     num_checked += 1;
                 }
             }
@@ -207,9 +250,15 @@ fn static_answers_match_rerun() {
     for timeline in TIMELINES.iter().chain(&["never_used_timeline"]) {
         let query = LatestAtQuery::new(*timeline, TimeInt::new(0).unwrap());
         for column in &columns {
-            let answer = store.latest_at(&query, &column.entity, &column.component).unwrap();
+            let answer = store
+                .latest_at(&query, &column.entity, &column.component)
+                .unwrap();
             assert!(answer.is_static());
-            assert_same_cell(Some(answer.cell()), oracle_cell(column, 0), &column.component);
+            assert_same_cell(
+                Some(answer.cell()),
+                oracle_cell(column, 0),
+                &column.component,
+            );
         }
     }
 }
@@ -223,24 +272,49 @@ fn cli_answers_on_the_robot_recording() {
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let lines: Vec<serde_json::Value> = String::from_utf8(output.stdout)
         .unwrap()
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     let find = |entity: &str, component: &str| {
-        lines.iter().find(|l| l["entity"] == entity && l["component"] == component).unwrap()
+        lines
+            .iter()
+            .find(|l| l["entity"] == entity && l["component"] == component)
+            .unwrap()
     };
     let cost = find("/metrics/planner/cost", "Scalars:scalars");
     assert_eq!(cost["time"], 30);
     assert_eq!(cost["value"], serde_json::json!([2.239_023_101_159_236]));
-    assert_eq!(find("/world", "ViewCoordinates:xyz")["time"], serde_json::Value::Null);
-    assert_eq!(find("/world", "ViewCoordinates:xyz")["value"], serde_json::json!([[3, 5, 1]]));
+    assert_eq!(
+        find("/world", "ViewCoordinates:xyz")["time"],
+        serde_json::Value::Null
+    );
+    assert_eq!(
+        find("/world", "ViewCoordinates:xyz")["value"],
+        serde_json::json!([[3, 5, 1]])
+    );
     let keys: Vec<(String, String)> = lines
         .iter()
-        .map(|l| (l["entity"].as_str().unwrap().to_owned(), l["component"].as_str().unwrap().to_owned()))
+        .map(|l| {
+            (
+                l["entity"].as_str().unwrap().to_owned(),
+                l["component"].as_str().unwrap().to_owned(),
+            )
+        })
         .collect();
-    assert!(keys.is_sorted(), "lines are ordered by entity then component");
-    assert_eq!(keys.len(), 14, "every (entity, component) answers at frame 30");
+    assert!(
+        keys.is_sorted(),
+        "lines are ordered by entity then component"
+    );
+    assert_eq!(
+        keys.len(),
+        14,
+        "every (entity, component) answers at frame 30"
+    );
 }

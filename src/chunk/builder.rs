@@ -42,7 +42,13 @@ pub struct ChunkBuilder {
 impl ChunkBuilder {
     /// An empty builder for a chunk of `entity_path`.
     pub fn new(id: ChunkId, entity_path: EntityPath) -> Self {
-        Self { id, entity_path, row_ids: Vec::new(), timelines: Vec::new(), components: Vec::new() }
+        Self {
+            id,
+            entity_path,
+            row_ids: Vec::new(),
+            timelines: Vec::new(),
+            components: Vec::new(),
+        }
     }
 
     /// Appends a row: its id, its time on each timeline, and its cells.
@@ -56,12 +62,12 @@ impl ChunkBuilder {
         let row = self.row_ids.len();
         self.row_ids.push(row_id);
         for (timeline, time) in times {
-            let index = match self.timelines.iter().position(|(t, _)| *t == timeline) {
-                Some(index) => index,
-                None => {
-                    self.timelines.push((timeline, vec![None; row]));
-                    self.timelines.len() - 1
-                }
+            let index = if let Some(index) = self.timelines.iter().position(|(t, _)| *t == timeline)
+            {
+                index
+            } else {
+                self.timelines.push((timeline, vec![None; row]));
+                self.timelines.len() - 1
             };
             let column = &mut self.timelines[index].1;
             column.resize(row, None);
@@ -69,13 +75,15 @@ impl ChunkBuilder {
         }
         for (descriptor, cell) in cells {
             let descriptor = descriptor.into();
-            let index = match self.components.iter().position(|(d, _)| d.name == descriptor.name)
-            {
-                Some(index) => index,
-                None => {
-                    self.components.push((descriptor, vec![None; row]));
-                    self.components.len() - 1
-                }
+            let existing = self
+                .components
+                .iter()
+                .position(|(d, _)| d.name == descriptor.name);
+            let index = if let Some(index) = existing {
+                index
+            } else {
+                self.components.push((descriptor, vec![None; row]));
+                self.components.len() - 1
             };
             let column = &mut self.components[index].1;
             column.resize(row, None);
@@ -101,7 +109,13 @@ impl ChunkBuilder {
     /// ([`ChunkError::NullTimes`]) and cells of one component with different element types
     /// ([`ChunkError::CellTypeMismatch`]).
     pub fn build(self) -> Result<Chunk, ChunkError> {
-        let Self { id, entity_path, row_ids, timelines, components } = self;
+        let Self {
+            id,
+            entity_path,
+            row_ids,
+            timelines,
+            components,
+        } = self;
         let num_rows = row_ids.len();
         let time_columns = timelines
             .into_iter()
@@ -143,7 +157,9 @@ pub(crate) fn time_array(time_type: TimeType, times: Vec<i64>) -> ArrayRef {
 /// One list array from optional cells; `None` cells become nulls.
 fn list_from_cells(component: &str, cells: &[Option<ArrayRef>]) -> Result<ListArray, ChunkError> {
     let present: Vec<&dyn Array> = cells.iter().flatten().map(AsRef::as_ref).collect();
-    let element_type: DataType = present.first().map_or(DataType::Null, |a| a.data_type().clone());
+    let element_type: DataType = present
+        .first()
+        .map_or(DataType::Null, |a| a.data_type().clone());
     if let Some(other) = present.iter().find(|a| *a.data_type() != element_type) {
         return Err(ChunkError::CellTypeMismatch {
             component: component.to_owned(),
@@ -156,8 +172,9 @@ fn list_from_cells(component: &str, cells: &[Option<ArrayRef>]) -> Result<ListAr
     } else {
         arrow_select::concat::concat(&present)?
     };
-    let offsets = OffsetBuffer::from_lengths(cells.iter().map(|c| c.as_ref().map_or(0, |a| a.len())));
-    let nulls = NullBuffer::from_iter(cells.iter().map(Option::is_some));
+    let offsets =
+        OffsetBuffer::from_lengths(cells.iter().map(|c| c.as_ref().map_or(0, Array::len)));
+    let nulls: NullBuffer = cells.iter().map(Option::is_some).collect();
     let nulls = (nulls.null_count() > 0).then_some(nulls);
     let field = Arc::new(Field::new_list_field(element_type, true));
     Ok(ListArray::try_new(field, offsets, values, nulls)?)

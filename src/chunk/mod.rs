@@ -126,17 +126,32 @@ impl Chunk {
                         data_type: array.data_type().clone(),
                     });
                 }
-                Ok(RawTimeColumn { timeline, array, field_metadata: HashMap::new() })
+                Ok(RawTimeColumn {
+                    timeline,
+                    array,
+                    field_metadata: HashMap::new(),
+                })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let components = components
             .into_iter()
             .map(|(descriptor, array)| {
                 let field = default_component_field(&descriptor, array.data_type());
-                RawComponentColumn { descriptor, array, field }
+                RawComponentColumn {
+                    descriptor,
+                    array,
+                    field,
+                }
             })
             .collect();
-        Self::from_raw(id, entity_path, row_ids, time_columns, components, HashMap::new())
+        Self::from_raw(
+            id,
+            entity_path,
+            row_ids,
+            time_columns,
+            components,
+            HashMap::new(),
+        )
     }
 
     /// Like [`Chunk::try_new`], for data known to be valid.
@@ -170,6 +185,12 @@ impl Chunk {
         if u32::try_from(num_rows).is_err() {
             return Err(ChunkError::TooManyRows { num_rows });
         }
+        // Indices address columns by u32 too; no real batch comes near.
+        if u32::try_from(raw_times.len() + raw_components.len()).is_err() {
+            return Err(ChunkError::TooManyRows {
+                num_rows: raw_times.len() + raw_components.len(),
+            });
+        }
         if raw_components.is_empty() {
             return Err(ChunkError::NoComponents);
         }
@@ -180,7 +201,9 @@ impl Chunk {
             if raw.timeline.name().is_empty() {
                 return Err(ChunkError::EmptyName { kind: "timeline" });
             }
-            if time_columns.iter().any(|c: &TimeColumn| c.timeline.name() == raw.timeline.name())
+            if time_columns
+                .iter()
+                .any(|c: &TimeColumn| c.timeline.name() == raw.timeline.name())
             {
                 return Err(ChunkError::DuplicateTimeline {
                     timeline: raw.timeline.name().to_owned(),
@@ -195,8 +218,13 @@ impl Chunk {
             if name.is_empty() {
                 return Err(ChunkError::EmptyName { kind: "component" });
             }
-            if components.iter().any(|c| c.descriptor.name.as_str() == name) {
-                return Err(ChunkError::DuplicateComponent { component: name.to_owned() });
+            if components
+                .iter()
+                .any(|c| c.descriptor.name.as_str() == name)
+            {
+                return Err(ChunkError::DuplicateComponent {
+                    component: name.to_owned(),
+                });
             }
             components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
         }
@@ -221,12 +249,13 @@ impl Chunk {
         let times: usize = self
             .time_columns
             .iter()
-            .map(|c| {
-                c.times.inner().capacity() + c.index_order.as_ref().map_or(0, |o| o.len() * 4)
-            })
+            .map(|c| c.times.inner().capacity() + c.index_order.as_ref().map_or(0, |o| o.len() * 4))
             .sum();
-        let components: usize =
-            self.components.iter().map(|c| c.list.get_buffer_memory_size()).sum();
+        let components: usize = self
+            .components
+            .iter()
+            .map(|c| c.list.get_buffer_memory_size())
+            .sum();
         (row_ids + times + components) as u64
     }
 
@@ -267,7 +296,9 @@ impl Chunk {
 
     /// The time column of a timeline, by name.
     pub fn time_column(&self, timeline: &str) -> Option<&TimeColumn> {
-        self.time_columns.iter().find(|c| c.timeline.name() == timeline)
+        self.time_columns
+            .iter()
+            .find(|c| c.timeline.name() == timeline)
     }
 
     /// The component columns, in the order given.
@@ -277,7 +308,9 @@ impl Chunk {
 
     /// A component column, by name.
     pub fn component(&self, name: &str) -> Option<&ComponentColumn> {
-        self.components.iter().find(|c| c.descriptor.name.as_str() == name)
+        self.components
+            .iter()
+            .find(|c| c.descriptor.name.as_str() == name)
     }
 
     /// The cell of `component` at `row`: `None` if the column is absent, the row out of
@@ -324,7 +357,10 @@ impl Chunk {
         }
         for column in components {
             if column.list.len() != n {
-                return Err(format!("component {} has one cell per row", column.descriptor.name));
+                return Err(format!(
+                    "component {} has one cell per row",
+                    column.descriptor.name
+                ));
             }
             if column.bounds_per_timeline.len() != time_columns.len() {
                 return Err("component bounds exist for every timeline".into());
@@ -347,12 +383,24 @@ struct RawComponentColumn {
 }
 
 fn default_component_field(descriptor: &ComponentDescriptor, data_type: &DataType) -> FieldRef {
-    Arc::new(arrow_schema::Field::new(descriptor.name.as_str(), data_type.clone(), true))
+    Arc::new(arrow_schema::Field::new(
+        descriptor.name.as_str(),
+        data_type.clone(),
+        true,
+    ))
 }
 
 impl TimeColumn {
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "rows < 2^32, checked in Chunk::from_raw"
+    )]
     fn try_new(raw: RawTimeColumn, row_ids: &[RowId]) -> Result<Self, ChunkError> {
-        let RawTimeColumn { timeline, array, field_metadata } = raw;
+        let RawTimeColumn {
+            timeline,
+            array,
+            field_metadata,
+        } = raw;
         let name = || timeline.name().to_owned();
         if array.len() != row_ids.len() {
             return Err(ChunkError::LengthMismatch {
@@ -362,25 +410,34 @@ impl TimeColumn {
             });
         }
         if array.null_count() > 0 {
-            return Err(ChunkError::NullTimes { timeline: name(), null_count: array.null_count() });
+            return Err(ChunkError::NullTimes {
+                timeline: name(),
+                null_count: array.null_count(),
+            });
         }
         let data = array.to_data();
         // All three timeline types are 64-bit primitives: one buffer of i64, sliced.
         let times = ScalarBuffer::<i64>::new(data.buffers()[0].clone(), data.offset(), data.len());
         if let Some(row) = times.iter().position(|&t| t == i64::MIN) {
-            return Err(ChunkError::ReservedTime { timeline: name(), row });
+            return Err(ChunkError::ReservedTime {
+                timeline: name(),
+                row,
+            });
         }
         let is_sorted = times.is_sorted();
         let in_index_order = is_sorted
-            && times.windows(2).zip(row_ids.windows(2)).all(|(t, r)| t[0] < t[1] || r[0] <= r[1]);
+            && times
+                .windows(2)
+                .zip(row_ids.windows(2))
+                .all(|(t, r)| t[0] < t[1] || r[0] <= r[1]);
         let index_order = (!in_index_order).then(|| {
             let mut order: Vec<u32> = (0..row_ids.len() as u32).collect();
             order.sort_by_key(|&i| (times[i as usize], row_ids[i as usize]));
             order.into_boxed_slice()
         });
-        let (min, max) = times
-            .iter()
-            .fold((i64::MAX, i64::MIN + 1), |(lo, hi), &t| (lo.min(t), hi.max(t)));
+        let (min, max) = times.iter().fold((i64::MAX, i64::MIN + 1), |(lo, hi), &t| {
+            (lo.min(t), hi.max(t))
+        });
         Ok(Self {
             timeline,
             data_type: array.data_type().clone(),
@@ -393,17 +450,28 @@ impl TimeColumn {
     }
 
     fn sanity_check(&self, row_ids: &[RowId]) -> Result<(), String> {
-        let Self { timeline, times, data_type, field_metadata: _, is_sorted, index_order, time_range } =
-            self;
+        let Self {
+            timeline,
+            times,
+            data_type,
+            field_metadata: _,
+            is_sorted,
+            index_order,
+            time_range,
+        } = self;
         let name = timeline.name();
         if times.len() != row_ids.len() {
             return Err(format!("time column {name} has one time per row"));
         }
         if crate::TimeType::from_arrow(data_type) != Some(timeline.time_type()) {
-            return Err(format!("time column {name}'s Arrow type matches its timeline"));
+            return Err(format!(
+                "time column {name}'s Arrow type matches its timeline"
+            ));
         }
         if *is_sorted != times.is_sorted() {
-            return Err(format!("time column {name}'s is_sorted flag matches its times"));
+            return Err(format!(
+                "time column {name}'s is_sorted flag matches its times"
+            ));
         }
         let (lo, hi) = (times.iter().min(), times.iter().max());
         if (lo.copied(), hi.copied()) != (Some(time_range.0.as_i64()), Some(time_range.1.as_i64()))
@@ -414,12 +482,16 @@ impl TimeColumn {
         let ordered = match index_order {
             Some(order) => {
                 order.len() == times.len()
-                    && order.windows(2).all(|w| key(w[0] as usize) <= key(w[1] as usize))
+                    && order
+                        .windows(2)
+                        .all(|w| key(w[0] as usize) <= key(w[1] as usize))
             }
             None => (1..times.len()).all(|i| key(i - 1) <= key(i)),
         };
         if !ordered {
-            return Err(format!("time column {name}'s index order sorts by (time, row id)"));
+            return Err(format!(
+                "time column {name}'s index order sorts by (time, row id)"
+            ));
         }
         Ok(())
     }
@@ -476,15 +548,26 @@ impl TimeColumn {
 }
 
 impl ComponentColumn {
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "rows < 2^32, checked in Chunk::from_raw"
+    )]
     fn try_new(
         raw: RawComponentColumn,
         row_ids: &[RowId],
         time_columns: &[TimeColumn],
     ) -> Result<Self, ChunkError> {
-        let RawComponentColumn { descriptor, array, field } = raw;
+        let RawComponentColumn {
+            descriptor,
+            array,
+            field,
+        } = raw;
         let name = || descriptor.name.as_str().to_owned();
         let Some(list) = array.as_any().downcast_ref::<ListArray>() else {
-            return Err(ChunkError::NotAList { component: name(), data_type: array.data_type().clone() });
+            return Err(ChunkError::NotAList {
+                component: name(),
+                data_type: array.data_type().clone(),
+            });
         };
         if list.len() != row_ids.len() {
             return Err(ChunkError::LengthMismatch {
@@ -527,7 +610,13 @@ impl ComponentColumn {
             })
             .collect();
 
-        Ok(Self { descriptor, list, field, bounds_per_timeline, max_row_id_cell })
+        Ok(Self {
+            descriptor,
+            list,
+            field,
+            bounds_per_timeline,
+            max_row_id_cell,
+        })
     }
 
     /// The descriptor (name and metadata).
@@ -563,7 +652,10 @@ impl ComponentColumn {
 
     /// Bounds of the non-null cells on the chunk's `timeline_position`-th time column.
     pub(crate) fn bounds(&self, timeline_position: usize) -> Option<ComponentTimeBounds> {
-        self.bounds_per_timeline.get(timeline_position).copied().flatten()
+        self.bounds_per_timeline
+            .get(timeline_position)
+            .copied()
+            .flatten()
     }
 
     /// The non-null cell with the greatest row id, as `(row id, row)`.

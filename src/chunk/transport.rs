@@ -47,13 +47,20 @@ fn column_kind(field: &Field) -> Result<ColumnKind, ChunkError> {
 }
 
 fn row_ids_from_arrow(array: &ArrayRef) -> Result<Vec<RowId>, ChunkError> {
-    let bad_type = || ChunkError::BadRowIdType { data_type: array.data_type().clone() };
-    let array = array.as_any().downcast_ref::<FixedSizeBinaryArray>().ok_or_else(bad_type)?;
+    let bad_type = || ChunkError::BadRowIdType {
+        data_type: array.data_type().clone(),
+    };
+    let array = array
+        .as_any()
+        .downcast_ref::<FixedSizeBinaryArray>()
+        .ok_or_else(bad_type)?;
     if array.value_length() != 16 {
         return Err(bad_type());
     }
     if array.null_count() > 0 {
-        return Err(ChunkError::NullRowIds { null_count: array.null_count() });
+        return Err(ChunkError::NullRowIds {
+            null_count: array.null_count(),
+        });
     }
     Ok(array
         .iter()
@@ -80,12 +87,15 @@ impl Chunk {
     pub fn from_record_batch(batch: &RecordBatch) -> Result<Self, ChunkError> {
         let schema = batch.schema();
         let mut metadata = schema.metadata().clone();
-        let id_text =
-            metadata.remove(META_ID).ok_or(ChunkError::MissingMetadata { key: META_ID })?;
+        let id_text = metadata
+            .remove(META_ID)
+            .ok_or(ChunkError::MissingMetadata { key: META_ID })?;
         let id: ChunkId = id_text.parse().map_err(ChunkError::BadChunkId)?;
         let path_text = metadata
             .remove(META_ENTITY_PATH)
-            .ok_or(ChunkError::MissingMetadata { key: META_ENTITY_PATH })?;
+            .ok_or(ChunkError::MissingMetadata {
+                key: META_ENTITY_PATH,
+            })?;
         let entity_path = EntityPath::parse(&path_text)?;
 
         let mut row_ids = None;
@@ -95,12 +105,17 @@ impl Chunk {
             match column_kind(field)? {
                 ColumnKind::RowId => {
                     if row_ids.is_some() {
-                        return Err(ChunkError::DuplicateComponent { component: field.name().clone() });
+                        return Err(ChunkError::DuplicateComponent {
+                            component: field.name().clone(),
+                        });
                     }
                     row_ids = Some(row_ids_from_arrow(array)?);
                 }
                 ColumnKind::Time => {
-                    let name = field.metadata().get(META_INDEX_NAME).unwrap_or(field.name());
+                    let name = field
+                        .metadata()
+                        .get(META_INDEX_NAME)
+                        .unwrap_or(field.name());
                     let time_type = TimeType::from_arrow(array.data_type()).ok_or_else(|| {
                         ChunkError::BadTimeType {
                             timeline: name.clone(),
@@ -119,7 +134,9 @@ impl Chunk {
                     let descriptor = ComponentDescriptor {
                         name: ComponentName::new(name.as_str()),
                         archetype: meta.get(META_ARCHETYPE).map(|s| Arc::from(s.as_str())),
-                        component_type: meta.get(META_COMPONENT_TYPE).map(|s| Arc::from(s.as_str())),
+                        component_type: meta
+                            .get(META_COMPONENT_TYPE)
+                            .map(|s| Arc::from(s.as_str())),
                     };
                     components.push(RawComponentColumn {
                         descriptor,
@@ -139,15 +156,20 @@ impl Chunk {
     /// # Errors
     /// Only if Arrow rejects the batch, which would be a bug in this crate.
     pub fn to_record_batch(&self) -> Result<RecordBatch, ArrowError> {
-        let mut fields: Vec<FieldRef> = Vec::with_capacity(1 + self.time_columns.len() + self.components.len());
+        let mut fields: Vec<FieldRef> =
+            Vec::with_capacity(1 + self.time_columns.len() + self.components.len());
         let mut columns: Vec<ArrayRef> = Vec::with_capacity(fields.capacity());
 
         let row_id_meta = HashMap::from([
             (META_KIND.to_owned(), "control".to_owned()),
-            (META_IS_SORTED.to_owned(), self.is_sorted_by_row_id.to_string()),
+            (
+                META_IS_SORTED.to_owned(),
+                self.is_sorted_by_row_id.to_string(),
+            ),
         ]);
         fields.push(Arc::new(
-            Field::new(ROW_ID_COLUMN, DataType::FixedSizeBinary(16), false).with_metadata(row_id_meta),
+            Field::new(ROW_ID_COLUMN, DataType::FixedSizeBinary(16), false)
+                .with_metadata(row_id_meta),
         ));
         columns.push(row_ids_to_arrow(&self.row_ids));
 
@@ -161,7 +183,9 @@ impl Chunk {
             } else {
                 meta.remove(META_IS_SORTED);
             }
-            fields.push(Arc::new(Field::new(name, column.data_type.clone(), true).with_metadata(meta)));
+            fields.push(Arc::new(
+                Field::new(name, column.data_type.clone(), true).with_metadata(meta),
+            ));
             let data = arrow_data::ArrayData::builder(column.data_type.clone())
                 .len(column.times.len())
                 .add_buffer(column.times.inner().clone())
@@ -173,7 +197,10 @@ impl Chunk {
             let mut meta = column.field.metadata().clone();
             let descriptor = &column.descriptor;
             meta.insert(META_KIND.to_owned(), "data".to_owned());
-            meta.insert(META_COMPONENT.to_owned(), descriptor.name.as_str().to_owned());
+            meta.insert(
+                META_COMPONENT.to_owned(),
+                descriptor.name.as_str().to_owned(),
+            );
             for (key, value) in [
                 (META_ARCHETYPE, &descriptor.archetype),
                 (META_COMPONENT_TYPE, &descriptor.component_type),

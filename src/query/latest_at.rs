@@ -16,7 +16,10 @@ pub struct LatestAtQuery {
 impl LatestAtQuery {
     /// A query on the named timeline at `at`.
     pub fn new(timeline: impl Into<Arc<str>>, at: TimeInt) -> Self {
-        Self { timeline: timeline.into(), at }
+        Self {
+            timeline: timeline.into(),
+            at,
+        }
     }
 
     /// The timeline's name.
@@ -41,16 +44,32 @@ impl ChunkStore {
     /// Cost: O(log n) in the chunks of this (entity, timeline, component), plus one
     /// binary search in each chunk whose span strictly contains the time, plus one lookup
     /// per ancestor that ever logged a Clear.
-    pub fn latest_at(&self, query: &LatestAtQuery, entity: &EntityPath, component: &str) -> Option<QueryCell> {
+    pub fn latest_at(
+        &self,
+        query: &LatestAtQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Option<QueryCell> {
         let answer = self.latest_at_unfiltered(query, entity, component)?;
         let hidden = !self.clears.is_empty()
             && !answer.component().name().is_clear()
-            && self.clears.is_hidden(entity, query.timeline(), query.at, answer.time, answer.row_id);
+            && self.clears.is_hidden(
+                entity,
+                query.timeline(),
+                query.at,
+                answer.time,
+                answer.row_id,
+            );
         (!hidden).then_some(answer)
     }
 
     /// Latest-at before Clears are applied.
-    fn latest_at_unfiltered(&self, query: &LatestAtQuery, entity: &EntityPath, component: &str) -> Option<QueryCell> {
+    fn latest_at_unfiltered(
+        &self,
+        query: &LatestAtQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Option<QueryCell> {
         let entity_index = self.entities.get(entity)?;
         if let Some(winner) = entity_index.static_winners.get(component) {
             return Some(QueryCell {
@@ -92,13 +111,24 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
 }
 
 /// The non-null cell with the greatest index at or before `at` inside one chunk.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
 fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
     let chunk = &entry.chunk;
     let times = &chunk.time_columns()[entry.time_column as usize];
     let column = &chunk.components()[entry.component_column as usize];
     let end = times.num_positions_at_or_before(at.as_i64());
-    (0..end).rev().map(|pos| times.row_at(pos)).find(|&row| column.is_valid(row)).map(|row| {
-        let key = (TimeInt::saturating(times.times()[row]), chunk.row_ids()[row]);
-        (key, entry, row as u32)
-    })
+    (0..end)
+        .rev()
+        .map(|pos| times.row_at(pos))
+        .find(|&row| column.is_valid(row))
+        .map(|row| {
+            let key = (
+                TimeInt::saturating(times.times()[row]),
+                chunk.row_ids()[row],
+            );
+            (key, entry, row as u32)
+        })
 }

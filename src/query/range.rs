@@ -25,7 +25,11 @@ pub struct RangeQuery {
 impl RangeQuery {
     /// A query on the named timeline over `[min, max]`, both ends included.
     pub fn new(timeline: impl Into<Arc<str>>, min: TimeInt, max: TimeInt) -> Self {
-        Self { timeline: timeline.into(), min, max }
+        Self {
+            timeline: timeline.into(),
+            min,
+            max,
+        }
     }
 
     /// Everything ever logged on the timeline.
@@ -116,8 +120,9 @@ impl RangeResult {
     pub fn iter(&self) -> impl Iterator<Item = RangeRow<'_>> + '_ {
         self.runs.iter().flat_map(move |run| {
             let source = &self.sources[run.source as usize];
-            let times: Option<&TimeColumn> =
-                source.time_column.map(|t| &source.chunk.time_columns()[t as usize]);
+            let times: Option<&TimeColumn> = source
+                .time_column
+                .map(|t| &source.chunk.time_columns()[t as usize]);
             let column = &source.chunk.components()[source.component_column as usize];
             (run.start as usize..run.end as usize).filter_map(move |pos| {
                 let row = times.map_or(pos, |t| t.row_at(pos));
@@ -154,16 +159,26 @@ impl ChunkStore {
     /// Every non-null cell of `component` at `entity` with a time in the query's range, in
     /// ascending `(time, row id)` order across all chunks; or, if the entity has static
     /// data for the component, exactly the static winner. Clears do not filter ranges.
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "one source per chunk; rows < 2^32"
+    )]
     pub fn range(&self, query: &RangeQuery, entity: &EntityPath, component: &str) -> RangeResult {
         let mut result = RangeResult::default();
-        let Some(entity_index) = self.entities.get(entity) else { return result };
+        let Some(entity_index) = self.entities.get(entity) else {
+            return result;
+        };
         if let Some(winner) = entity_index.static_winners.get(component) {
             result.sources.push(Source {
                 chunk: Arc::clone(&winner.chunk),
                 time_column: None,
                 component_column: winner.component_column,
             });
-            result.runs.push(Run { source: 0, start: winner.row, end: winner.row + 1 });
+            result.runs.push(Run {
+                source: 0,
+                start: winner.row,
+                end: winner.row + 1,
+            });
             return result;
         }
         let (min, max) = query.bounds();
@@ -198,7 +213,11 @@ impl ChunkStore {
         let mut cluster_last = None;
         for i in 0..pending.len() {
             if cluster_last.is_some_and(|last| pending[i].first > last) {
-                emit_cluster(&result.sources, &pending[cluster_start..i], &mut result.runs);
+                emit_cluster(
+                    &result.sources,
+                    &pending[cluster_start..i],
+                    &mut result.runs,
+                );
                 cluster_start = i;
                 cluster_last = None;
             }
@@ -209,21 +228,40 @@ impl ChunkStore {
     }
 }
 
-fn run_in_chunk(entry: &IndexedChunk, source: u32, min: TimeInt, max: TimeInt) -> Option<PendingRun> {
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn run_in_chunk(
+    entry: &IndexedChunk,
+    source: u32,
+    min: TimeInt,
+    max: TimeInt,
+) -> Option<PendingRun> {
     let chunk = &entry.chunk;
     let times = &chunk.time_columns()[entry.time_column as usize];
     let start = times.num_positions_before(min.as_i64());
     let end = times.num_positions_at_or_before(max.as_i64());
     let index_at = |pos: usize| {
         let row = times.row_at(pos);
-        (TimeInt::saturating(times.times()[row]), chunk.row_ids()[row])
+        (
+            TimeInt::saturating(times.times()[row]),
+            chunk.row_ids()[row],
+        )
     };
     (start < end).then(|| PendingRun {
-        run: Run { source, start: start as u32, end: end as u32 },
+        run: Run {
+            source,
+            start: start as u32,
+            end: end as u32,
+        },
         first: index_at(start),
         last: index_at(end - 1),
     })
 }
+
+/// The next position of one run in a k-way merge: its index, which run, which position.
+type MergeHead = ((TimeInt, RowId), usize, u32);
 
 /// Appends a cluster's runs in global order: as they are for a lone run, merged otherwise.
 fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) {
@@ -234,13 +272,15 @@ fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) 
     let index_at = |run: &Run, pos: u32| {
         let source = &sources[run.source as usize];
         let chunk = &source.chunk;
-        let times = source.time_column.map(|t| &chunk.time_columns()[t as usize]);
+        let times = source
+            .time_column
+            .map(|t| &chunk.time_columns()[t as usize]);
         let row = times.map_or(pos as usize, |t| t.row_at(pos as usize));
         let time = times.map_or(TimeInt::MIN, |t| TimeInt::saturating(t.times()[row]));
         (time, chunk.row_ids()[row])
     };
     // Ties on the index (only possible with duplicated row ids) go to the earlier run.
-    let mut heap: BinaryHeap<Reverse<((TimeInt, RowId), usize, u32)>> = cluster
+    let mut heap: BinaryHeap<Reverse<MergeHead>> = cluster
         .iter()
         .enumerate()
         .map(|(i, p)| Reverse((p.first, i, p.run.start)))
@@ -249,7 +289,11 @@ fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) 
         let run = cluster[i].run;
         match out.last_mut() {
             Some(last) if last.source == run.source && last.end == pos => last.end += 1,
-            _ => out.push(Run { source: run.source, start: pos, end: pos + 1 }),
+            _ => out.push(Run {
+                source: run.source,
+                start: pos,
+                end: pos + 1,
+            }),
         }
         if pos + 1 < run.end {
             heap.push(Reverse((index_at(&run, pos + 1), i, pos + 1)));

@@ -1,4 +1,10 @@
 //! Helpers shared by the integration tests: terse chunk construction.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::float_cmp,
+    reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
+)]
 #![allow(dead_code, reason = "each test file uses a different subset")]
 
 use std::sync::Arc;
@@ -56,8 +62,16 @@ pub fn scalars(entity: &str, component: &str, rows: &[(i64, u128, Option<Vec<f64
         ChunkId::new(),
         path(entity),
         rows.iter().map(|r| rid(r.1)).collect(),
-        vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(rows.iter().map(|r| r.0).collect::<Vec<_>>())) as ArrayRef)],
-        vec![(component.into(), f64_list(&rows.iter().map(|r| r.2.clone()).collect::<Vec<_>>()))],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(
+                rows.iter().map(|r| r.0).collect::<Vec<_>>(),
+            )) as ArrayRef,
+        )],
+        vec![(
+            component.into(),
+            f64_list(&rows.iter().map(|r| r.2.clone()).collect::<Vec<_>>()),
+        )],
     )
     .unwrap()
 }
@@ -69,28 +83,45 @@ pub fn scalar(entity: &str, component: &str, time: i64, row_id: u128, value: f64
 
 /// A static chunk with one row of one `List<Float64>` component.
 pub fn static_scalar(entity: &str, component: &str, row_id: u128, value: f64) -> Chunk {
-    Chunk::try_new(ChunkId::new(), path(entity), vec![rid(row_id)], vec![], vec![(component.into(), f64_list(&[Some(vec![value])]))])
-        .unwrap()
+    Chunk::try_new(
+        ChunkId::new(),
+        path(entity),
+        vec![rid(row_id)],
+        vec![],
+        vec![(component.into(), f64_list(&[Some(vec![value])]))],
+    )
+    .unwrap()
 }
 
 /// A one-row Clear at `frame = time`, or static when `time` is `None`.
 pub fn clear(entity: &str, time: Option<i64>, row_id: u128, recursive: bool) -> Chunk {
     let times = time
-        .map(|time| vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(vec![time])) as ArrayRef)])
+        .map(|time| {
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(Int64Array::from(vec![time])) as ArrayRef,
+            )]
+        })
         .unwrap_or_default();
     Chunk::try_new(
         ChunkId::new(),
         path(entity),
         vec![rid(row_id)],
         times,
-        vec![(ComponentName::CLEAR_IS_RECURSIVE.into(), bool_list(&[Some(recursive)]))],
+        vec![(
+            ComponentName::CLEAR_IS_RECURSIVE.into(),
+            bool_list(&[Some(recursive)]),
+        )],
     )
     .unwrap()
 }
 
 /// The first `f64` of a cell.
 pub fn first_f64(cell: &ArrayRef) -> f64 {
-    cell.as_any().downcast_ref::<Float64Array>().unwrap().value(0)
+    cell.as_any()
+        .downcast_ref::<Float64Array>()
+        .unwrap()
+        .value(0)
 }
 
 /// Length of a cell (number of instances).

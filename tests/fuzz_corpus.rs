@@ -1,0 +1,41 @@
+//! Replays the fuzz corpus (`fuzz/corpus/ipc_insert/`) and every crash ever found
+//! (`tests/fuzz_crashes/`) through the fuzz target's own body, as an ordinary test.
+
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "the harness asserts with expect, like the fuzz target; a replay fails loudly"
+)]
+
+#[path = "../fuzz/harness/ipc_insert.rs"]
+mod harness;
+
+use std::path::Path;
+
+fn replay(dir: &str) -> usize {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(dir);
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return 0;
+    };
+    let mut count = 0;
+    for entry in entries {
+        let path = entry.unwrap().path();
+        if path.is_file() && path.extension().is_none_or(|e| e != "md") {
+            let bytes = std::fs::read(&path).unwrap();
+            harness::ipc_insert(&bytes);
+            count += 1;
+        }
+    }
+    count
+}
+
+#[test]
+fn fuzz_corpus_replays_without_panics() {
+    let count = replay("fuzz/corpus/ipc_insert");
+    assert!(count >= 10, "the corpus holds seeds ({count} found)");
+}
+
+#[test]
+fn fuzz_crashes_stay_fixed() {
+    replay("tests/fuzz_crashes");
+}
