@@ -352,6 +352,12 @@ pub enum IoError {
     },
     /// The bytes are not Arrow IPC (file or stream format).
     Ipc(ArrowError),
+    /// Arrow's IPC decoder panicked on malformed bytes instead of returning an error (a
+    /// known arrow-ipc weakness); the panic was contained and the input rejected.
+    DecoderPanicked {
+        /// The panic's message.
+        message: String,
+    },
     /// A batch decoded but is not a valid chunk.
     Chunk {
         /// Which batch of the input (0-based).
@@ -367,6 +373,9 @@ impl fmt::Display for IoError {
         match self {
             Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::Ipc(e) => write!(f, "not Arrow IPC: {e}"),
+            Self::DecoderPanicked { message } => {
+                write!(f, "malformed Arrow IPC (the decoder panicked: {message})")
+            }
             Self::Chunk { batch, source } => write!(f, "batch {batch}: {source}"),
         }
     }
@@ -379,6 +388,7 @@ impl std::error::Error for IoError {
             Self::Io { source, .. } => Some(source),
             Self::Ipc(e) => Some(e),
             Self::Chunk { source, .. } => Some(source),
+            Self::DecoderPanicked { .. } => None,
         }
     }
 }

@@ -47,15 +47,35 @@ pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoErr
 
 /// Decodes the record batches of an Arrow IPC file or stream.
 ///
+/// arrow-ipc 58 panics on some malformed inputs instead of returning an error (e.g. a
+/// buffer offset past the end of the body, or schema fields it does not expect; see
+/// apache/arrow-rs#10437). Decoding therefore runs under `catch_unwind`, so a bad file
+/// is an [`IoError::DecoderPanicked`] rather than a crash of the embedding process. The
+/// closure owns only a reader over the caller's bytes, dropped whole on a panic, so no
+/// half-updated state can be observed afterwards. (The process's panic hook still runs
+/// and, by default, prints the message.)
+///
 /// # Errors
-/// [`IoError::Ipc`] if the bytes are not valid Arrow IPC.
+/// [`IoError::Ipc`] or [`IoError::DecoderPanicked`] if the bytes are not valid Arrow IPC.
 pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IoError> {
-    let batches: Result<Vec<RecordBatch>, ArrowError> = if bytes.starts_with(FILE_MAGIC) {
-        FileReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
-    } else {
-        StreamReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
+    let decode = || -> Result<Vec<RecordBatch>, ArrowError> {
+        if bytes.starts_with(FILE_MAGIC) {
+            FileReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
+        } else {
+            StreamReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
+        }
     };
-    batches.map_err(IoError::Ipc)
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)) {
+        Ok(batches) => batches.map_err(IoError::Ipc),
+        Err(payload) => {
+            let message = payload
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_owned()))
+                .unwrap_or_else(|| "unknown panic".to_owned());
+            Err(IoError::DecoderPanicked { message })
+        }
+    }
 }
 
 /// Writes one chunk as an Arrow IPC file in the transport layout.

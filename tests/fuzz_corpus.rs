@@ -39,3 +39,17 @@ fn fuzz_corpus_replays_without_panics() {
 fn fuzz_crashes_stay_fixed() {
     replay("tests/fuzz_crashes");
 }
+
+/// arrow-ipc panics on this input (a buffer offset past the message body); the library
+/// must turn that into an error.
+#[test]
+fn regression_ipc_decoder_panic_is_an_error() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_crashes/ipc_buffer_offset_past_body");
+    let bytes = std::fs::read(path).unwrap();
+    let result = chunkstore::io::read_chunks_from_bytes(&bytes);
+    assert!(
+        matches!(result, Err(chunkstore::IoError::DecoderPanicked { .. })),
+        "{result:?}"
+    );
+}

@@ -151,6 +151,23 @@ fn is_strict_ancestor(ancestor: usize, of: usize) -> bool {
 }
 
 impl Model {
+    /// The static row with the greatest row id and a non-null cell, as an answer.
+    fn static_winner(&self, entity: usize, component: usize) -> Option<Answer> {
+        self.rows
+            .iter()
+            .filter(|(e, _, row, is_static)| {
+                *e == entity && *is_static && row.cells[component].is_some()
+            })
+            .max_by_key(|(_, row_id, ..)| *row_id)
+            .map(|(_, row_id, row, _)| {
+                (
+                    None,
+                    *row_id,
+                    row.cells[component].clone().unwrap_or_default(),
+                )
+            })
+    }
+
     fn latest_at(
         &self,
         entity: usize,
@@ -158,19 +175,8 @@ impl Model {
         timeline: usize,
         at: i64,
     ) -> Option<Answer> {
-        let static_winner = self
-            .rows
-            .iter()
-            .filter(|(e, _, row, is_static)| {
-                *e == entity && *is_static && row.cells[component].is_some()
-            })
-            .max_by_key(|(_, row_id, ..)| *row_id);
-        let answer = match static_winner {
-            Some((_, row_id, row, _)) => (
-                None,
-                *row_id,
-                row.cells[component].clone().unwrap_or_default(),
-            ),
+        let answer = match self.static_winner(entity, component) {
+            Some(winner) => winner,
             None => self
                 .rows
                 .iter()
@@ -230,19 +236,8 @@ impl Model {
         min: i64,
         max: i64,
     ) -> Vec<Answer> {
-        let static_winner = self
-            .rows
-            .iter()
-            .filter(|(e, _, row, is_static)| {
-                *e == entity && *is_static && row.cells[component].is_some()
-            })
-            .max_by_key(|(_, row_id, ..)| *row_id);
-        if let Some((_, row_id, row, _)) = static_winner {
-            return vec![(
-                None,
-                *row_id,
-                row.cells[component].clone().unwrap_or_default(),
-            )];
+        if let Some(winner) = self.static_winner(entity, component) {
+            return vec![winner];
         }
         let mut rows: Vec<Answer> = self
             .rows
