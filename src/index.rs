@@ -5,13 +5,14 @@
 //! Three views of the same set of chunks:
 //! - by **greatest index** `(max time, row id)`: the predecessor of `(t, ∞)` is the best
 //!   answer among all chunks that end at or before `t`;
-//! - by **least time**: range queries take every chunk starting inside `[min, max]`;
+//! - by **least time**: range queries take every chunk starting inside `[min, max]` (the
+//!   entry is stored here too, so a range pays no lookup per chunk);
 //! - chunks whose cells **span** more than one time, bucketed by `⌊log2(span)⌋` and keyed by
 //!   least time: a chunk of bucket `L` that contains `t` starts in `(t − 2^(L+1), t]`, so the
 //!   chunks straddling a time are found without scanning older ones. (This is what keeps one
 //!   long chunk from slowing every query down, unlike bounding a walk by the longest span.)
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::ops::Bound;
 use std::sync::Arc;
 
@@ -34,7 +35,7 @@ type MinTimeKey = (TimeInt, ChunkId);
 #[derive(Clone, Debug, Default)]
 pub(crate) struct TemporalComponentIndex {
     chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
-    chunk_ids_by_min_time: BTreeSet<MinTimeKey>,
+    chunks_by_min_time: BTreeMap<MinTimeKey, IndexedChunk>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
     /// 2^(L+1)`. Empty classes cost nothing but an empty map.
     spanning_chunk_ids_by_min_time_per_span_class: Vec<BTreeMap<MinTimeKey, TimeInt>>,
@@ -63,7 +64,7 @@ impl TemporalComponentIndex {
         if self.chunks_by_id.insert(id, key).is_some() {
             return; // already indexed: a store never inserts a chunk id twice
         }
-        self.chunk_ids_by_min_time.insert((min, id));
+        self.chunks_by_min_time.insert((min, id), entry.clone());
         if let Some(class) = span_class(min, max) {
             let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;
             if classes.len() <= class {
@@ -140,13 +141,12 @@ impl TemporalComponentIndex {
         max: TimeInt,
         mut f: impl FnMut(&'a IndexedChunk),
     ) {
-        for &(_, id) in self
-            .chunk_ids_by_min_time
+        for entry in self
+            .chunks_by_min_time
             .range((min, ChunkId::ZERO)..=(max, ChunkId::MAX))
+            .map(|(_, e)| e)
         {
-            if let Some(entry) = self.get(id) {
-                f(entry);
-            }
+            f(entry);
         }
     }
 
@@ -158,16 +158,16 @@ impl TemporalComponentIndex {
     pub fn sanity_check(&self) -> Result<(), String> {
         let Self {
             chunks_by_max_index,
-            chunk_ids_by_min_time,
+            chunks_by_min_time,
             spanning_chunk_ids_by_min_time_per_span_class,
             chunks_by_id,
         } = self;
         let n = chunks_by_id.len();
-        if chunks_by_max_index.len() != n || chunk_ids_by_min_time.len() != n {
+        if chunks_by_max_index.len() != n || chunks_by_min_time.len() != n {
             return Err(format!(
                 "every view indexes the same chunks ({n} by id, {} by max index, {} by min time)",
                 chunks_by_max_index.len(),
-                chunk_ids_by_min_time.len()
+                chunks_by_min_time.len()
             ));
         }
         let mut num_spanning = 0;
@@ -190,7 +190,8 @@ impl TemporalComponentIndex {
                     entry.chunk.id()
                 ));
             }
-            if !chunk_ids_by_min_time.contains(&(b.min_time, entry.chunk.id())) {
+            let by_min = chunks_by_min_time.get(&(b.min_time, entry.chunk.id()));
+            if by_min.is_none_or(|e| !Arc::ptr_eq(&e.chunk, &entry.chunk)) {
                 return Err(format!("{} is keyed by its least time", entry.chunk.id()));
             }
             let component = entry
