@@ -352,6 +352,12 @@ pub enum IoError {
     },
     /// The bytes are not Arrow IPC (file or stream format).
     Ipc(ArrowError),
+    /// The IPC framing claims more bytes than the input holds (or negative sizes); rejected
+    /// before decoding, because arrow-ipc would allocate the claimed size first.
+    MalformedFraming {
+        /// What is wrong.
+        reason: String,
+    },
     /// Arrow's IPC decoder panicked on malformed bytes instead of returning an error (a
     /// known arrow-ipc weakness); the panic was contained and the input rejected.
     DecoderPanicked {
@@ -373,6 +379,7 @@ impl fmt::Display for IoError {
         match self {
             Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::Ipc(e) => write!(f, "not Arrow IPC: {e}"),
+            Self::MalformedFraming { reason } => write!(f, "malformed Arrow IPC framing: {reason}"),
             Self::DecoderPanicked { message } => {
                 write!(f, "malformed Arrow IPC (the decoder panicked: {message})")
             }
@@ -388,7 +395,7 @@ impl std::error::Error for IoError {
             Self::Io { source, .. } => Some(source),
             Self::Ipc(e) => Some(e),
             Self::Chunk { source, .. } => Some(source),
-            Self::DecoderPanicked { .. } => None,
+            Self::DecoderPanicked { .. } | Self::MalformedFraming { .. } => None,
         }
     }
 }

@@ -47,6 +47,10 @@ pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoErr
 
 /// Decodes the record batches of an Arrow IPC file or stream.
 ///
+/// The framing is checked first ([`IoError::MalformedFraming`]): arrow-ipc allocates
+/// whatever size a message or footer block claims before reading it, so a few hostile
+/// bytes could otherwise request terabytes, which aborts the process.
+///
 /// arrow-ipc 58 panics on some malformed inputs instead of returning an error (e.g. a
 /// buffer offset past the end of the body, or schema fields it does not expect; see
 /// apache/arrow-rs#10437). Decoding therefore runs under `catch_unwind`, so a bad file
@@ -58,6 +62,7 @@ pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoErr
 /// # Errors
 /// [`IoError::Ipc`] or [`IoError::DecoderPanicked`] if the bytes are not valid Arrow IPC.
 pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IoError> {
+    check_framing(bytes)?;
     let decode = || -> Result<Vec<RecordBatch>, ArrowError> {
         if bytes.starts_with(FILE_MAGIC) {
             FileReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
@@ -87,4 +92,117 @@ pub fn write_chunk_ipc_file(chunk: &Chunk, writer: impl Write) -> Result<(), IoE
     let mut writer = FileWriter::try_new(writer, &batch.schema()).map_err(IoError::Ipc)?;
     writer.write(&batch).map_err(IoError::Ipc)?;
     writer.finish().map_err(IoError::Ipc)
+}
+
+/// Checks that every size the IPC framing claims fits in `bytes`, so that no decoder
+/// allocation can exceed the input.
+fn check_framing(bytes: &[u8]) -> Result<(), IoError> {
+    if bytes.starts_with(FILE_MAGIC) {
+        check_file_footer(bytes)
+    } else {
+        check_stream_messages(bytes)
+    }
+}
+
+fn malformed(reason: String) -> IoError {
+    IoError::MalformedFraming { reason }
+}
+
+/// Does `start + lengths...` stay within `total`, with no negative part?
+fn fits(total: usize, parts: &[i64]) -> bool {
+    parts.iter().all(|&p| p >= 0)
+        && parts.iter().map(|&p| i128::from(p)).sum::<i128>() <= total as i128
+}
+
+/// File format: the footer's blocks (schema, dictionaries, record batches) must lie inside
+/// the file.
+fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
+    let len = bytes.len();
+    let trailer = len
+        .checked_sub(FILE_MAGIC.len() + 4)
+        .filter(|_| bytes.ends_with(FILE_MAGIC));
+    let Some(trailer) = trailer else {
+        return Err(malformed(
+            "file does not end with the ARROW1 trailer".into(),
+        ));
+    };
+    let footer_len = i32::from_le_bytes([
+        bytes[trailer],
+        bytes[trailer + 1],
+        bytes[trailer + 2],
+        bytes[trailer + 3],
+    ]);
+    let footer_start = usize::try_from(footer_len)
+        .ok()
+        .and_then(|n| trailer.checked_sub(n));
+    let Some(footer_start) = footer_start else {
+        return Err(malformed(format!(
+            "footer length {footer_len} does not fit the file"
+        )));
+    };
+    let footer = arrow_ipc::root_as_footer(&bytes[footer_start..trailer])
+        .map_err(|e| malformed(format!("footer: {e}")))?;
+    let blocks = footer
+        .recordBatches()
+        .into_iter()
+        .chain(footer.dictionaries())
+        .flatten();
+    for block in blocks {
+        let parts = [
+            block.offset(),
+            i64::from(block.metaDataLength()),
+            block.bodyLength(),
+        ];
+        if !fits(len, &parts) {
+            return Err(malformed(format!(
+                "block {parts:?} (offset, metadata, body) exceeds the {len}-byte file"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Stream format: each message's metadata and body must lie inside the input.
+fn check_stream_messages(bytes: &[u8]) -> Result<(), IoError> {
+    let len = bytes.len();
+    let mut pos = 0usize;
+    let read_i32 = |at: usize| {
+        bytes
+            .get(at..at + 4)
+            .map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    while pos < len {
+        let Some(mut meta_len) = read_i32(pos) else {
+            return Err(malformed(format!("truncated message length at byte {pos}")));
+        };
+        pos += 4;
+        if meta_len == -1 {
+            // Continuation marker; the length follows.
+            meta_len = read_i32(pos)
+                .ok_or_else(|| malformed(format!("truncated message length at byte {pos}")))?;
+            pos += 4;
+        }
+        if meta_len == 0 {
+            return Ok(()); // end-of-stream marker
+        }
+        let meta_end = usize::try_from(meta_len)
+            .ok()
+            .and_then(|n| pos.checked_add(n))
+            .filter(|&end| end <= len);
+        let Some(meta_end) = meta_end else {
+            return Err(malformed(format!(
+                "message metadata of {meta_len} bytes at byte {pos} exceeds the input"
+            )));
+        };
+        let message = arrow_ipc::root_as_message(&bytes[pos..meta_end])
+            .map_err(|e| malformed(format!("message at byte {pos}: {e}")))?;
+        let body = message.bodyLength();
+        if !fits(len, &[i64::try_from(meta_end).unwrap_or(i64::MAX), body]) {
+            return Err(malformed(format!(
+                "message body of {body} bytes at byte {meta_end} exceeds the input"
+            )));
+        }
+        pos = meta_end + usize::try_from(body).unwrap_or(usize::MAX);
+    }
+    Ok(())
 }

@@ -53,3 +53,17 @@ fn regression_ipc_decoder_panic_is_an_error() {
         "{result:?}"
     );
 }
+
+/// arrow-ipc would allocate the body size this file's footer claims (far beyond the
+/// file); the framing check must reject it first.
+#[test]
+fn regression_ipc_claimed_body_beyond_input_is_rejected_before_allocating() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_crashes/ipc_file_block_claims_huge_body");
+    let bytes = std::fs::read(path).unwrap();
+    let result = chunkstore::io::read_chunks_from_bytes(&bytes);
+    assert!(
+        matches!(result, Err(chunkstore::IoError::MalformedFraming { .. })),
+        "{result:?}"
+    );
+}
