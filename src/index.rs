@@ -37,10 +37,9 @@ pub(crate) struct TemporalComponentIndex {
     chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
     chunks_by_min_time: BTreeMap<MinTimeKey, IndexedChunk>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
-    /// 2^(L+1)`. Empty classes cost nothing but an empty map.
+    /// 2^(L+1)`, mapped to their `max`; their key is also their key in `chunks_by_min_time`,
+    /// which resolves them. Empty classes cost nothing but an empty map.
     spanning_chunk_ids_by_min_time_per_span_class: Vec<BTreeMap<MinTimeKey, TimeInt>>,
-    /// Every indexed chunk by id, for the other views to resolve theirs.
-    chunks_by_id: ahash::HashMap<ChunkId, MaxIndexKey>,
 }
 
 fn span_class(min: TimeInt, max: TimeInt) -> Option<usize> {
@@ -60,8 +59,7 @@ impl TemporalComponentIndex {
     pub fn insert(&mut self, entry: IndexedChunk) {
         let id = entry.chunk.id();
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
-        let key = max_index_key(&entry);
-        if self.chunks_by_id.insert(id, key).is_some() {
+        if self.chunks_by_min_time.contains_key(&(min, id)) {
             return; // already indexed: a store never inserts a chunk id twice
         }
         self.chunks_by_min_time.insert((min, id), entry.clone());
@@ -72,17 +70,12 @@ impl TemporalComponentIndex {
             }
             classes[class].insert((min, id), max);
         }
-        self.chunks_by_max_index.insert(key, entry);
+        self.chunks_by_max_index
+            .insert(max_index_key(&entry), entry);
     }
 
     pub fn is_empty(&self) -> bool {
-        self.chunks_by_id.is_empty()
-    }
-
-    fn get(&self, id: ChunkId) -> Option<&IndexedChunk> {
-        self.chunks_by_id
-            .get(&id)
-            .and_then(|key| self.chunks_by_max_index.get(key))
+        self.chunks_by_min_time.is_empty()
     }
 
     /// The chunk whose greatest index is the greatest at or before `t`.
@@ -96,21 +89,21 @@ impl TemporalComponentIndex {
     /// Spanning chunks with `min ≤ t < max`: those whose latest-at answer at `t` is not their
     /// greatest index, and so needs a search inside the chunk.
     pub fn for_each_straddling<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
-        self.for_each_spanning(t, Bound::Included(t), |max| max > t, f);
+        self.for_each_spanning(t, Bound::Included((t, ChunkId::MAX)), |max| max > t, f);
     }
 
     /// Spanning chunks with `min < t ≤ max`: those that start before a range beginning at
     /// `t` and reach into it.
     pub fn for_each_reaching_into<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
-        self.for_each_spanning(t, Bound::Excluded(t), |max| max >= t, f);
+        self.for_each_spanning(t, Bound::Excluded((t, ChunkId::ZERO)), |max| max >= t, f);
     }
 
-    /// Spanning chunks with `min` up to `min_end` and `max` accepted by `reaches`, where every
-    /// accepted `max` is at least `t`.
+    /// Spanning chunks keyed up to `key_end` whose `max` is accepted by `reaches`, where
+    /// every accepted `max` is at least `t`.
     fn for_each_spanning<'a>(
         &'a self,
         t: TimeInt,
-        min_end: Bound<TimeInt>,
+        key_end: Bound<MinTimeKey>,
         reaches: impl Fn(TimeInt) -> bool,
         mut f: impl FnMut(&'a IndexedChunk),
     ) {
@@ -119,14 +112,9 @@ impl TemporalComponentIndex {
             // span < 2^(class+1) and max ≥ t  ⇒  min > t − 2^(class+1).
             let lowest = i128::from(t.as_i64()) - (1i128 << (class + 1)) + 1;
             let lowest = TimeInt::saturating(i64::try_from(lowest).unwrap_or(i64::MIN));
-            let end = match min_end {
-                Bound::Included(t) => Bound::Included((t, ChunkId::MAX)),
-                Bound::Excluded(t) => Bound::Excluded((t, ChunkId::ZERO)),
-                Bound::Unbounded => Bound::Unbounded,
-            };
-            for (&(_, id), &max) in chunks.range((Bound::Included((lowest, ChunkId::ZERO)), end)) {
+            for (key, &max) in chunks.range((Bound::Included((lowest, ChunkId::ZERO)), key_end)) {
                 if reaches(max)
-                    && let Some(entry) = self.get(id)
+                    && let Some(entry) = self.chunks_by_min_time.get(key)
                 {
                     f(entry);
                 }
@@ -160,12 +148,10 @@ impl TemporalComponentIndex {
             chunks_by_max_index,
             chunks_by_min_time,
             spanning_chunk_ids_by_min_time_per_span_class,
-            chunks_by_id,
         } = self;
-        let n = chunks_by_id.len();
-        if chunks_by_max_index.len() != n || chunks_by_min_time.len() != n {
+        if chunks_by_max_index.len() != chunks_by_min_time.len() {
             return Err(format!(
-                "every view indexes the same chunks ({n} by id, {} by max index, {} by min time)",
+                "both views index the same chunks ({} by max index, {} by min time)",
                 chunks_by_max_index.len(),
                 chunks_by_min_time.len()
             ));
@@ -175,16 +161,24 @@ impl TemporalComponentIndex {
             .iter()
             .enumerate()
         {
-            for (&(min, id), &max) in chunks {
+            for (key @ &(min, id), &max) in chunks {
                 num_spanning += 1;
                 if span_class(min, max) != Some(class) {
                     return Err(format!("{id} sits in the span class of its span"));
+                }
+                if chunks_by_min_time
+                    .get(key)
+                    .is_none_or(|e| e.bounds.max_time != max)
+                {
+                    return Err(format!(
+                        "{id}'s span class entry resolves to its own bounds"
+                    ));
                 }
             }
         }
         for (key, entry) in chunks_by_max_index {
             let b = entry.bounds;
-            if *key != max_index_key(entry) || chunks_by_id.get(&entry.chunk.id()) != Some(key) {
+            if *key != max_index_key(entry) {
                 return Err(format!(
                     "{} is keyed by its greatest index",
                     entry.chunk.id()
