@@ -319,6 +319,13 @@ impl Chunk {
         self.component(component).and_then(|c| c.cell(row))
     }
 
+    /// The index `(time, row id)` of `row` on the `time_column`-th time column.
+    #[inline]
+    pub(crate) fn index_of_row(&self, time_column: usize, row: usize) -> (TimeInt, RowId) {
+        let time = self.time_columns[time_column].times[row];
+        (TimeInt::saturating(time), self.row_ids[row])
+    }
+
     /// Bytes of heap this chunk's arrays and indices occupy.
     pub fn heap_size_bytes(&self) -> u64 {
         self.heap_size_bytes

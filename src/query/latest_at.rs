@@ -125,10 +125,7 @@ fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
         .map(|pos| times.row_at(pos))
         .find(|&row| column.is_valid(row))
         .map(|row| {
-            let key = (
-                TimeInt::saturating(times.times()[row]),
-                chunk.row_ids()[row],
-            );
+            let key = chunk.index_of_row(entry.time_column as usize, row);
             (key, entry, row as u32)
         })
 }

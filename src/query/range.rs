@@ -148,11 +148,19 @@ impl RangeResult {
     }
 }
 
-/// A run plus the indices of its first and last positions, while building.
-struct PendingRun {
+/// A run plus its chunk and the indices of its first and last positions, while building.
+struct PendingRun<'a> {
+    entry: &'a IndexedChunk,
     run: Run,
     first: (TimeInt, RowId),
     last: (TimeInt, RowId),
+}
+
+/// The index of position `pos` of a chunk's `(time, row id)` order on the indexed timeline.
+fn index_at_position(entry: &IndexedChunk, pos: usize) -> (TimeInt, RowId) {
+    let time_column = entry.time_column as usize;
+    let row = entry.chunk.time_columns()[time_column].row_at(pos);
+    entry.chunk.index_of_row(time_column, row)
 }
 
 impl ChunkStore {
@@ -194,7 +202,7 @@ impl ChunkStore {
         };
 
         let mut pending = Vec::new();
-        let mut add = |entry: &IndexedChunk| {
+        let mut add = |entry| {
             let source = result.sources.len() as u32;
             if let Some(run) = run_in_chunk(entry, source, min, max) {
                 result.sources.push(Source {
@@ -213,17 +221,13 @@ impl ChunkStore {
         let mut cluster_last = None;
         for i in 0..pending.len() {
             if cluster_last.is_some_and(|last| pending[i].first > last) {
-                emit_cluster(
-                    &result.sources,
-                    &pending[cluster_start..i],
-                    &mut result.runs,
-                );
+                emit_cluster(&pending[cluster_start..i], &mut result.runs);
                 cluster_start = i;
                 cluster_last = None;
             }
             cluster_last = cluster_last.max(Some(pending[i].last));
         }
-        emit_cluster(&result.sources, &pending[cluster_start..], &mut result.runs);
+        emit_cluster(&pending[cluster_start..], &mut result.runs);
         result
     }
 }
@@ -237,26 +241,19 @@ fn run_in_chunk(
     source: u32,
     min: TimeInt,
     max: TimeInt,
-) -> Option<PendingRun> {
-    let chunk = &entry.chunk;
-    let times = &chunk.time_columns()[entry.time_column as usize];
+) -> Option<PendingRun<'_>> {
+    let times = &entry.chunk.time_columns()[entry.time_column as usize];
     let start = times.num_positions_before(min.as_i64());
     let end = times.num_positions_at_or_before(max.as_i64());
-    let index_at = |pos: usize| {
-        let row = times.row_at(pos);
-        (
-            TimeInt::saturating(times.times()[row]),
-            chunk.row_ids()[row],
-        )
-    };
     (start < end).then(|| PendingRun {
+        entry,
         run: Run {
             source,
             start: start as u32,
             end: end as u32,
         },
-        first: index_at(start),
-        last: index_at(end - 1),
+        first: index_at_position(entry, start),
+        last: index_at_position(entry, end - 1),
     })
 }
 
@@ -264,21 +261,11 @@ fn run_in_chunk(
 type MergeHead = ((TimeInt, RowId), usize, u32);
 
 /// Appends a cluster's runs in global order: as they are for a lone run, merged otherwise.
-fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) {
+fn emit_cluster(cluster: &[PendingRun<'_>], out: &mut Vec<Run>) {
     if let [lone] = cluster {
         out.push(lone.run);
         return;
     }
-    let index_at = |run: &Run, pos: u32| {
-        let source = &sources[run.source as usize];
-        let chunk = &source.chunk;
-        let times = source
-            .time_column
-            .map(|t| &chunk.time_columns()[t as usize]);
-        let row = times.map_or(pos as usize, |t| t.row_at(pos as usize));
-        let time = times.map_or(TimeInt::MIN, |t| TimeInt::saturating(t.times()[row]));
-        (time, chunk.row_ids()[row])
-    };
     // Ties on the index (only possible with duplicated row ids) go to the earlier run.
     let mut heap: BinaryHeap<Reverse<MergeHead>> = cluster
         .iter()
@@ -296,7 +283,11 @@ fn emit_cluster(sources: &[Source], cluster: &[PendingRun], out: &mut Vec<Run>) 
             }),
         }
         if pos + 1 < run.end {
-            heap.push(Reverse((index_at(&run, pos + 1), i, pos + 1)));
+            heap.push(Reverse((
+                index_at_position(cluster[i].entry, pos as usize + 1),
+                i,
+                pos + 1,
+            )));
         }
     }
 }
