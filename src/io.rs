@@ -104,6 +104,12 @@ fn check_framing(bytes: &[u8]) -> Result<(), IoError> {
     }
 }
 
+/// The little-endian `i32` at byte `at`, if four bytes are there.
+fn read_i32_le(bytes: &[u8], at: usize) -> Option<i32> {
+    let four = bytes.get(at..at.checked_add(4)?)?;
+    Some(i32::from_le_bytes([four[0], four[1], four[2], four[3]]))
+}
+
 fn malformed(reason: String) -> IoError {
     IoError::MalformedFraming { reason }
 }
@@ -114,8 +120,8 @@ fn fits(total: usize, parts: &[i64]) -> bool {
         && parts.iter().map(|&p| i128::from(p)).sum::<i128>() <= total as i128
 }
 
-/// File format: the footer's blocks (schema, dictionaries, record batches) must lie inside
-/// the file.
+/// File format: the footer must fit before the trailer, and its dictionary and record
+/// batch blocks (the ones arrow-ipc allocates for) inside the file.
 fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
     let len = bytes.len();
     let trailer = len
@@ -126,12 +132,7 @@ fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
             "file does not end with the ARROW1 trailer".into(),
         ));
     };
-    let footer_len = i32::from_le_bytes([
-        bytes[trailer],
-        bytes[trailer + 1],
-        bytes[trailer + 2],
-        bytes[trailer + 3],
-    ]);
+    let footer_len = read_i32_le(bytes, trailer).unwrap_or(-1);
     let footer_start = usize::try_from(footer_len)
         .ok()
         .and_then(|n| trailer.checked_sub(n));
@@ -166,19 +167,14 @@ fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
 fn check_stream_messages(bytes: &[u8]) -> Result<(), IoError> {
     let len = bytes.len();
     let mut pos = 0usize;
-    let read_i32 = |at: usize| {
-        bytes
-            .get(at..at + 4)
-            .map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    };
     while pos < len {
-        let Some(mut meta_len) = read_i32(pos) else {
+        let Some(mut meta_len) = read_i32_le(bytes, pos) else {
             return Err(malformed(format!("truncated message length at byte {pos}")));
         };
         pos += 4;
         if meta_len == -1 {
             // Continuation marker; the length follows.
-            meta_len = read_i32(pos)
+            meta_len = read_i32_le(bytes, pos)
                 .ok_or_else(|| malformed(format!("truncated message length at byte {pos}")))?;
             pos += 4;
         }
