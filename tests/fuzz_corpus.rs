@@ -40,14 +40,19 @@ fn fuzz_crashes_stay_fixed() {
     replay("tests/fuzz_crashes");
 }
 
+/// Decodes one file of `tests/fuzz_crashes/` with the library's IPC reader.
+fn decode_crash(name: &str) -> Result<Vec<chunkstore::Chunk>, chunkstore::IoError> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_crashes")
+        .join(name);
+    chunkstore::io::read_chunks_from_bytes(&std::fs::read(path).unwrap())
+}
+
 /// arrow-ipc panics on this input (a buffer offset past the message body); the library
 /// must turn that into an error.
 #[test]
 fn regression_ipc_decoder_panic_is_an_error() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fuzz_crashes/ipc_buffer_offset_past_body");
-    let bytes = std::fs::read(path).unwrap();
-    let result = chunkstore::io::read_chunks_from_bytes(&bytes);
+    let result = decode_crash("ipc_buffer_offset_past_body");
     assert!(
         matches!(result, Err(chunkstore::IoError::DecoderPanicked { .. })),
         "{result:?}"
@@ -58,10 +63,7 @@ fn regression_ipc_decoder_panic_is_an_error() {
 /// file); the framing check must reject it first.
 #[test]
 fn regression_ipc_claimed_body_beyond_input_is_rejected_before_allocating() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fuzz_crashes/ipc_file_block_claims_huge_body");
-    let bytes = std::fs::read(path).unwrap();
-    let result = chunkstore::io::read_chunks_from_bytes(&bytes);
+    let result = decode_crash("ipc_file_block_claims_huge_body");
     assert!(
         matches!(result, Err(chunkstore::IoError::MalformedFraming { .. })),
         "{result:?}"

@@ -261,8 +261,16 @@ impl Model {
     }
 }
 
-fn cells_column(cells: &[Cell]) -> ArrayRef {
-    f64_list(cells)
+/// One `List<Float64>` column per component, from each row's cells.
+fn component_columns(rows: &[&[Cell; 2]]) -> Vec<(chunkstore::ComponentDescriptor, ArrayRef)> {
+    COMPONENTS
+        .iter()
+        .enumerate()
+        .map(|(c, name)| {
+            let cells: Vec<Cell> = rows.iter().map(|cells| cells[c].clone()).collect();
+            ((*name).into(), f64_list(&cells))
+        })
+        .collect()
 }
 
 fn values(cell: &ArrayRef) -> Vec<f64> {
@@ -314,21 +322,8 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                         ));
                     }
                 }
-                let components = COMPONENTS
-                    .iter()
-                    .enumerate()
-                    .map(|(c, name)| {
-                        (
-                            (*name).into(),
-                            cells_column(
-                                &rows
-                                    .iter()
-                                    .map(|(_, cells)| cells[c].clone())
-                                    .collect::<Vec<_>>(),
-                            ),
-                        )
-                    })
-                    .collect();
+                let components =
+                    component_columns(&rows.iter().map(|(_, cells)| cells).collect::<Vec<_>>());
                 let chunk = Chunk::try_new(
                     ChunkId::new(),
                     path(ENTITIES[*entity]),
@@ -353,21 +348,7 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
             }
             Op::Static { entity, rows } => {
                 let ids: Vec<u128> = rows.iter().map(|_| next_row_id()).collect();
-                let components = COMPONENTS
-                    .iter()
-                    .enumerate()
-                    .map(|(c, name)| {
-                        (
-                            (*name).into(),
-                            cells_column(
-                                &rows
-                                    .iter()
-                                    .map(|cells| cells[c].clone())
-                                    .collect::<Vec<_>>(),
-                            ),
-                        )
-                    })
-                    .collect();
+                let components = component_columns(&rows.iter().collect::<Vec<_>>());
                 let chunk = Chunk::try_new(
                     ChunkId::new(),
                     path(ENTITIES[*entity]),
