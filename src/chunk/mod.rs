@@ -3,6 +3,8 @@
 //! ranges per timeline and per component, static winners).
 
 mod builder;
+pub(crate) mod memory;
+mod rewrite;
 mod transport;
 
 use std::collections::HashMap;
@@ -17,6 +19,7 @@ use crate::error::ChunkError;
 use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeInt, Timeline};
 
 pub use builder::ChunkBuilder;
+pub(crate) use rewrite::RowSource;
 
 /// An immutable batch of rows of one entity: a row-id column, zero or more time columns
 /// (none: the chunk is *static*), and one or more component columns (Arrow `List` arrays,
@@ -54,7 +57,10 @@ pub struct Chunk {
     /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
     /// transport.
     extra_metadata: HashMap<String, String>,
-    heap_size_bytes: u64,
+    /// Least and greatest row id.
+    row_id_range: (RowId, RowId),
+    /// Heap the chunk and its Arrow buffers occupy; see [`memory`].
+    memory: memory::ChunkMemory,
 }
 
 /// One timeline's times in a chunk.
@@ -195,6 +201,11 @@ impl Chunk {
             return Err(ChunkError::NoComponents);
         }
         let is_sorted_by_row_id = row_ids.is_sorted();
+        let row_id_range = row_ids
+            .iter()
+            .fold((RowId::MAX, RowId::ZERO), |(lo, hi), &r| {
+                (lo.min(r), hi.max(r))
+            });
 
         let mut time_columns = SmallVec::<[TimeColumn; 2]>::new();
         for raw in raw_times {
@@ -237,26 +248,12 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            heap_size_bytes: 0,
+            row_id_range,
+            memory: memory::ChunkMemory::default(),
         };
-        chunk.heap_size_bytes = chunk.compute_heap_size_bytes();
+        chunk.memory = memory::ChunkMemory::of(&chunk);
         debug_assert!(chunk.sanity_check().is_ok(), "{:?}", chunk.sanity_check());
         Ok(chunk)
-    }
-
-    fn compute_heap_size_bytes(&self) -> u64 {
-        let row_ids = self.row_ids.len() * size_of::<RowId>();
-        let times: usize = self
-            .time_columns
-            .iter()
-            .map(|c| c.times.inner().capacity() + c.index_order.as_ref().map_or(0, |o| o.len() * 4))
-            .sum();
-        let components: usize = self
-            .components
-            .iter()
-            .map(|c| c.list.get_buffer_memory_size())
-            .sum();
-        (row_ids + times + components) as u64
     }
 
     /// The chunk's id.
@@ -326,9 +323,39 @@ impl Chunk {
         (TimeInt::saturating(time), self.row_ids[row])
     }
 
-    /// Bytes of heap this chunk's arrays and indices occupy.
+    /// Least and greatest row id of the chunk's rows.
+    pub fn row_id_range(&self) -> (RowId, RowId) {
+        self.row_id_range
+    }
+
+    /// Bytes of heap the chunk occupies: its own allocations plus the whole capacity of
+    /// every Arrow buffer it references (each counted once, however many columns share
+    /// it). A store counts a buffer shared by several chunks once; see
+    /// [`crate::StoreStats`].
     pub fn heap_size_bytes(&self) -> u64 {
-        self.heap_size_bytes
+        self.memory.heap_size_bytes()
+    }
+
+    /// Heap the chunk owns alone (everything but its Arrow buffers).
+    pub(crate) fn own_heap_bytes(&self) -> u64 {
+        self.memory.own_bytes
+    }
+
+    /// Every distinct Arrow buffer the chunk references.
+    pub(crate) fn buffers(&self) -> &[arrow_buffer::Buffer] {
+        &self.memory.buffers
+    }
+
+    /// Does the chunk alone hold its Arrow buffers (no other array shares them)?
+    pub(crate) fn owns_all_buffers(&self) -> bool {
+        self.memory.owns_all_buffers()
+    }
+
+    /// Bytes of data the chunk's rows really use (row ids, times, offsets, validity and
+    /// the referenced part of each values array), whatever the buffers around them hold.
+    /// Compaction thresholds are measured in these.
+    pub fn payload_bytes(&self) -> u64 {
+        self.memory.payload_bytes
     }
 
     /// Checks every invariant of the chunk; construction guarantees them, so an error here
@@ -345,7 +372,8 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            heap_size_bytes: _,
+            row_id_range,
+            memory,
         } = self;
         let n = row_ids.len();
         if n == 0 || components.is_empty() {
@@ -354,6 +382,12 @@ impl Chunk {
         if *is_sorted_by_row_id != row_ids.is_sorted() {
             return Err("is_sorted_by_row_id matches the row ids".into());
         }
+        if row_ids.iter().min() != Some(&row_id_range.0)
+            || row_ids.iter().max() != Some(&row_id_range.1)
+        {
+            return Err("row_id_range spans the row ids".into());
+        }
+        memory.sanity_check(self)?;
         if extra_metadata.contains_key(transport::META_ID)
             || extra_metadata.contains_key(transport::META_ENTITY_PATH)
         {

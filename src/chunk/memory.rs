@@ -1,0 +1,136 @@
+//! What a chunk costs in memory: the Arrow buffers it references (which other chunks may
+//! share, so a store must count each once), its own allocations, and the payload its rows
+//! really use.
+
+use arrow_buffer::Buffer;
+use arrow_data::ArrayData;
+use smallvec::SmallVec;
+
+use super::{Chunk, ComponentColumn, TimeColumn};
+use crate::RowId;
+
+/// Heap of one Arrow array node besides its buffers: the array struct behind an `Arc`, its
+/// `DataType` and child vector. An estimate; the counting-allocator test holds it to
+/// account.
+const ARRAY_NODE_BYTES: u64 = 96;
+/// Heap of one buffer handle besides its data: the shared `Bytes` header and its `Arc`.
+const BUFFER_HANDLE_BYTES: u64 = 64;
+/// Heap of one component's field (name and type behind an `Arc`).
+const FIELD_BYTES: u64 = 128;
+
+/// Memory figures of one chunk, computed once at construction.
+#[derive(Debug, Default)]
+pub(crate) struct ChunkMemory {
+    /// Every distinct Arrow buffer the chunk references (by allocation, not by slice). The
+    /// store's ledger keys them by address and reads their reference counts.
+    pub buffers: SmallVec<[Buffer; 4]>,
+    /// Allocations owned by the chunk alone: the struct, row ids, sort orders, the array
+    /// and buffer handles.
+    pub own_bytes: u64,
+    /// See [`Chunk::payload_bytes`].
+    pub payload_bytes: u64,
+}
+
+/// The address that identifies a buffer's allocation, however it is sliced.
+pub(crate) fn buffer_address(buffer: &Buffer) -> usize {
+    buffer.data_ptr().as_ptr().addr()
+}
+
+/// A buffer's heap: its allocation's capacity, or its length when the allocation is
+/// foreign and reports none.
+pub(crate) fn buffer_bytes(buffer: &Buffer) -> u64 {
+    buffer.capacity().max(buffer.len()) as u64
+}
+
+impl ChunkMemory {
+    pub fn of(chunk: &Chunk) -> Self {
+        let num_rows = chunk.row_ids.len() as u64;
+        let mut memory = Self {
+            buffers: SmallVec::new(),
+            own_bytes: (size_of::<Chunk>() + 2 * size_of::<usize>()) as u64
+                + num_rows * size_of::<RowId>() as u64,
+            payload_bytes: num_rows * size_of::<RowId>() as u64,
+        };
+        if chunk.time_columns.spilled() {
+            memory.own_bytes += (chunk.time_columns.capacity() * size_of::<TimeColumn>()) as u64;
+        }
+        for column in &chunk.time_columns {
+            memory.add_buffer(column.times.inner());
+            memory.own_bytes += column
+                .index_order
+                .as_ref()
+                .map_or(0, |o| o.len() as u64 * 4);
+            memory.payload_bytes += num_rows * 8;
+        }
+        memory.own_bytes += (chunk.components.capacity() * size_of::<ComponentColumn>()) as u64;
+        for column in &chunk.components {
+            memory.own_bytes += FIELD_BYTES;
+            if column.bounds_per_timeline.spilled() {
+                memory.own_bytes += (column.bounds_per_timeline.capacity()
+                    * size_of::<Option<super::ComponentTimeBounds>>())
+                    as u64;
+            }
+            let data = arrow_array::Array::to_data(&column.list);
+            memory.add_array(&data);
+            // Only an array built by hand around inconsistent buffers fails this; its whole
+            // buffers are then the honest upper bound.
+            let payload = data
+                .get_slice_memory_size()
+                .unwrap_or_else(|_| data.get_buffer_memory_size());
+            memory.payload_bytes += payload as u64;
+        }
+        memory
+    }
+
+    fn add_array(&mut self, data: &ArrayData) {
+        self.own_bytes += ARRAY_NODE_BYTES;
+        for buffer in data.buffers() {
+            self.add_buffer(buffer);
+        }
+        if let Some(nulls) = data.nulls() {
+            self.add_buffer(nulls.buffer());
+        }
+        for child in data.child_data() {
+            self.add_array(child);
+        }
+    }
+
+    fn add_buffer(&mut self, buffer: &Buffer) {
+        let address = buffer_address(buffer);
+        if !self.buffers.iter().any(|b| buffer_address(b) == address) {
+            self.own_bytes += BUFFER_HANDLE_BYTES;
+            self.buffers.push(buffer.clone());
+        }
+    }
+
+    /// Bytes of the referenced buffers, each counted once.
+    pub fn buffer_bytes(&self) -> u64 {
+        self.buffers.iter().map(buffer_bytes).sum()
+    }
+
+    pub fn heap_size_bytes(&self) -> u64 {
+        self.own_bytes + self.buffer_bytes()
+    }
+
+    /// Does the chunk alone hold its buffers? Each is then referenced exactly twice: once
+    /// by its column, once by [`ChunkMemory::buffers`]. Any further reference is another
+    /// array (perhaps another chunk) sharing it.
+    pub fn owns_all_buffers(&self) -> bool {
+        self.buffers.iter().all(|b| b.strong_count() == 2)
+    }
+
+    pub fn sanity_check(&self, chunk: &Chunk) -> Result<(), String> {
+        let fresh = Self::of(chunk);
+        let addresses = |m: &Self| {
+            let mut a: Vec<usize> = m.buffers.iter().map(buffer_address).collect();
+            a.sort_unstable();
+            a
+        };
+        if addresses(&fresh) != addresses(self)
+            || (fresh.own_bytes, fresh.payload_bytes) != (self.own_bytes, self.payload_bytes)
+        {
+            return Err("memory figures match the chunk's columns".into());
+        }
+        Ok(())
+    }
+}

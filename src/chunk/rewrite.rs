@@ -1,0 +1,134 @@
+//! New chunks from the rows of existing ones: the copies compaction, splitting and drops
+//! make. Every function here builds through [`Chunk::from_raw`], so a rewritten chunk is
+//! validated and indexed exactly like an inserted one.
+
+use std::sync::Arc;
+
+use arrow_array::{Array, ArrayRef};
+use arrow_buffer::ScalarBuffer;
+
+use super::{Chunk, RawComponentColumn, RawTimeColumn};
+use crate::error::ChunkError;
+use crate::{ChunkId, RowId};
+
+/// Rows of several chunks with one layout: `(chunk position, row)`.
+pub(crate) type RowSource = (usize, usize);
+
+impl Chunk {
+    /// Can rows of `self` and `other` live in one chunk? Same entity; same timelines with
+    /// the same types, in the same order; same components with the same Arrow types and
+    /// fields, in the same order; same schema metadata.
+    pub(crate) fn has_same_layout(&self, other: &Self) -> bool {
+        self.entity_path == other.entity_path
+            && self.time_columns.len() == other.time_columns.len()
+            && self.components.len() == other.components.len()
+            && self
+                .time_columns
+                .iter()
+                .zip(&other.time_columns)
+                .all(|(a, b)| {
+                    a.timeline == b.timeline
+                        && a.data_type == b.data_type
+                        && a.field_metadata == b.field_metadata
+                })
+            && self.components.iter().zip(&other.components).all(|(a, b)| {
+                a.descriptor == b.descriptor
+                    && (Arc::ptr_eq(&a.field, &b.field) || a.field == b.field)
+                    && a.list.data_type() == b.list.data_type()
+            })
+            && self.extra_metadata == other.extra_metadata
+    }
+
+    /// A new chunk holding `rows` of `chunks` (which share one layout), in that order.
+    ///
+    /// # Errors
+    /// Only if Arrow fails to copy, which would be a bug in this crate.
+    pub(crate) fn gather(chunks: &[&Self], rows: &[RowSource]) -> Result<Self, ChunkError> {
+        let Some(first) = chunks.first() else {
+            return Err(ChunkError::NoRows);
+        };
+        let row_ids: Vec<RowId> = rows.iter().map(|&(c, r)| chunks[c].row_ids[r]).collect();
+        let times = (0..first.time_columns.len())
+            .map(|t| {
+                let times: Vec<i64> = rows
+                    .iter()
+                    .map(|&(c, r)| chunks[c].time_columns[t].times[r])
+                    .collect();
+                first.time_columns[t].rebuilt(ScalarBuffer::from(times))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let components = (0..first.components.len())
+            .map(|position| {
+                let lists: Vec<&dyn Array> = chunks
+                    .iter()
+                    .map(|chunk| &chunk.components[position].list as &dyn Array)
+                    .collect();
+                let array = arrow_select::interleave::interleave(&lists, rows)?;
+                Ok(first.components[position].rebuilt(array))
+            })
+            .collect::<Result<Vec<_>, ChunkError>>()?;
+        Self::from_raw(
+            ChunkId::new(),
+            first.entity_path.clone(),
+            row_ids,
+            times,
+            components,
+            first.extra_metadata.clone(),
+        )
+    }
+
+    /// A new chunk of `len` rows from `offset`, sharing this chunk's buffers (only the row
+    /// ids are copied).
+    ///
+    /// # Errors
+    /// If the range is empty or out of bounds.
+    pub(crate) fn slice(&self, offset: usize, len: usize) -> Result<Self, ChunkError> {
+        if len == 0 || offset + len > self.num_rows() {
+            return Err(ChunkError::NoRows);
+        }
+        let times = self
+            .time_columns
+            .iter()
+            .map(|column| column.rebuilt(column.times.slice(offset, len)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let components = self
+            .components
+            .iter()
+            .map(|column| column.rebuilt(Arc::new(column.list.slice(offset, len))))
+            .collect();
+        Self::from_raw(
+            ChunkId::new(),
+            self.entity_path.clone(),
+            self.row_ids[offset..offset + len].to_vec(),
+            times,
+            components,
+            self.extra_metadata.clone(),
+        )
+    }
+}
+
+impl super::TimeColumn {
+    /// This column's timeline, type and metadata around other times.
+    fn rebuilt(&self, times: ScalarBuffer<i64>) -> Result<RawTimeColumn, ChunkError> {
+        let data = arrow_data::ArrayData::builder(self.data_type.clone())
+            .len(times.len())
+            .add_buffer(times.into_inner())
+            .build()?;
+        Ok(RawTimeColumn {
+            timeline: self.timeline.clone(),
+            array: arrow_array::make_array(data),
+            field_metadata: self.field_metadata.clone(),
+        })
+    }
+}
+
+impl super::ComponentColumn {
+    /// This column's descriptor and field around other cells.
+    fn rebuilt(&self, array: ArrayRef) -> RawComponentColumn {
+        RawComponentColumn {
+            descriptor: self.descriptor.clone(),
+            array,
+            field: Arc::clone(&self.field),
+        }
+    }
+}
