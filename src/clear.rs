@@ -9,20 +9,21 @@ use std::sync::Arc;
 use arrow_array::{Array, BooleanArray};
 use arrow_buffer::ArrowNativeType;
 
-use crate::{Chunk, EntityPath, RowId, TimeInt};
+use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt};
 
-/// A multiset of indices: duplicated row ids must neither crash nor miscount.
+/// A multiset of indices, each with the chunk holding it (so removing a chunk removes
+/// exactly its Clears): duplicated row ids must neither crash nor miscount.
 type IndexMultiset<K> = BTreeMap<K, u32>;
 
 /// The Clears logged at one entity.
 #[derive(Clone, Debug, Default)]
 struct EntityClears {
     /// All Clears, flat and recursive, per timeline: they hide this entity's own data.
-    any_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId)>>,
+    any_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
     /// Recursive Clears per timeline: they hide descendants' data too.
-    recursive_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId)>>,
-    static_any: IndexMultiset<RowId>,
-    static_recursive: IndexMultiset<RowId>,
+    recursive_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
+    static_any: IndexMultiset<(RowId, ChunkId)>,
+    static_recursive: IndexMultiset<(RowId, ChunkId)>,
 }
 
 /// The Clears of a whole store, as a tree of entity path parts.
@@ -60,43 +61,128 @@ impl ClearIndex {
 
     /// Indexes every Clear row of `chunk`; a chunk without any is not touched.
     pub fn insert_chunk(&mut self, chunk: &Chunk) {
+        self.update_chunk(chunk, true);
+    }
+
+    /// Forgets every Clear row of `chunk` (the mirror of [`ClearIndex::insert_chunk`]).
+    pub fn remove_chunk(&mut self, chunk: &Chunk) {
+        self.update_chunk(chunk, false);
+    }
+
+    fn update_chunk(&mut self, chunk: &Chunk, insert: bool) {
         let rows = clear_rows(chunk);
         if rows.is_empty() {
             return;
         }
-        let mut node = self;
-        for part in chunk.entity_path().part_arcs() {
-            node = node.children.entry(Arc::clone(part)).or_default();
-        }
-        let clears = node.clears.get_or_insert_with(Box::default);
+        let parts = chunk.entity_path().part_arcs();
+        let Some(clears) = self
+            .node_mut(parts, insert)
+            .and_then(|n| n.clears.as_deref_mut())
+        else {
+            return;
+        };
+        let id = chunk.id();
         let row_ids = chunk.row_ids();
         for &(row, recursive) in &rows {
             let row_id = row_ids[row];
             if chunk.is_static() {
-                *clears.static_any.entry(row_id).or_default() += 1;
+                update_multiset(&mut clears.static_any, (row_id, id), insert);
                 if recursive {
-                    *clears.static_recursive.entry(row_id).or_default() += 1;
+                    update_multiset(&mut clears.static_recursive, (row_id, id), insert);
                 }
             }
             for column in chunk.time_columns() {
                 let name = column.timeline().name_arc();
-                let key = (TimeInt::saturating(column.times()[row]), row_id);
-                *clears
-                    .any_per_timeline
-                    .entry(Arc::clone(name))
-                    .or_default()
-                    .entry(key)
-                    .or_default() += 1;
+                let key = (TimeInt::saturating(column.times()[row]), row_id, id);
+                let update = |per_timeline: &mut ahash::HashMap<Arc<str>, _>| {
+                    if insert {
+                        update_multiset(
+                            per_timeline.entry(Arc::clone(name)).or_default(),
+                            key,
+                            true,
+                        );
+                    } else if let Some(set) = per_timeline.get_mut(&**name) {
+                        update_multiset(set, key, false);
+                        if set.is_empty() {
+                            per_timeline.remove(&**name);
+                        }
+                    }
+                };
+                update(&mut clears.any_per_timeline);
                 if recursive {
-                    *clears
-                        .recursive_per_timeline
-                        .entry(Arc::clone(name))
-                        .or_default()
-                        .entry(key)
-                        .or_default() += 1;
+                    update(&mut clears.recursive_per_timeline);
                 }
             }
         }
+        if !insert {
+            self.prune(parts);
+        }
+    }
+
+    /// The node of `parts`, created (with empty Clears) if `create`.
+    fn node_mut(&mut self, parts: &[Arc<str>], create: bool) -> Option<&mut Self> {
+        let mut node = self;
+        for part in parts {
+            node = if create {
+                node.children.entry(Arc::clone(part)).or_default()
+            } else {
+                node.children.get_mut(&**part)?
+            };
+        }
+        if create {
+            node.clears.get_or_insert_with(Box::default);
+        }
+        Some(node)
+    }
+
+    /// Drops empty Clears and empty subtrees along `parts`, so the index stays as small as
+    /// what it holds.
+    fn prune(&mut self, parts: &[Arc<str>]) {
+        if let Some((first, rest)) = parts.split_first()
+            && let Some(child) = self.children.get_mut(&**first)
+        {
+            child.prune(rest);
+            if child.is_empty() {
+                self.children.remove(&**first);
+            }
+        }
+        if self.clears.as_ref().is_some_and(|c| c.is_empty()) {
+            self.clears = None;
+        }
+    }
+
+    /// Forgets every Clear logged at `entity` (and at its descendants if `recursive`),
+    /// static ones included: what dropping the entity means.
+    pub fn remove_entity(&mut self, entity: &EntityPath, recursive: bool) {
+        let parts = entity.part_arcs();
+        if let Some(node) = self.node_mut(parts, false) {
+            node.clears = None;
+            if recursive {
+                node.children.clear();
+            }
+        }
+        self.prune(parts);
+    }
+
+    /// Is `id` among the chunks holding the `n` latest Clears (flat or recursive, and
+    /// recursive alone) of `entity` on any timeline? Together with the latest data, those
+    /// decide every latest-at at `+∞`.
+    pub fn is_among_latest(&self, entity: &EntityPath, id: ChunkId, n: usize) -> bool {
+        let mut node = self;
+        for part in entity.part_arcs() {
+            match node.children.get(&**part) {
+                Some(child) => node = child,
+                None => return false,
+            }
+        }
+        let Some(clears) = &node.clears else {
+            return false;
+        };
+        clears
+            .any_per_timeline
+            .values()
+            .chain(clears.recursive_per_timeline.values())
+            .any(|set| set.keys().rev().take(n).any(|&(_, _, latest)| latest == id))
     }
 
     /// Is a cell of `entity` with index `(time, row_id)` (`time` `None` for static) hidden
@@ -143,7 +229,7 @@ impl ClearIndex {
                     .values()
                     .chain(static_recursive.values())
                     .all(|&n| n > 0);
-            if !counts_positive {
+            if !counts_positive || clears.is_empty() {
                 return Err("clear multisets hold positive counts and no empty sets".into());
             }
             for (timeline, recursive) in recursive_per_timeline {
@@ -151,6 +237,7 @@ impl ClearIndex {
                 if !recursive
                     .keys()
                     .all(|k| any.is_some_and(|a| a.contains_key(k)))
+                    || static_recursive.keys().any(|k| !static_any.contains_key(k))
                 {
                     return Err("every recursive Clear is also among all Clears".into());
                 }
@@ -166,7 +253,25 @@ impl ClearIndex {
     }
 }
 
+fn update_multiset<K: Ord>(set: &mut IndexMultiset<K>, key: K, insert: bool) {
+    if insert {
+        *set.entry(key).or_default() += 1;
+    } else if let std::collections::btree_map::Entry::Occupied(mut entry) = set.entry(key) {
+        *entry.get_mut() -= 1;
+        if *entry.get() == 0 {
+            entry.remove();
+        }
+    }
+}
+
 impl EntityClears {
+    fn is_empty(&self) -> bool {
+        self.any_per_timeline.is_empty()
+            && self.recursive_per_timeline.is_empty()
+            && self.static_any.is_empty()
+            && self.static_recursive.is_empty()
+    }
+
     fn hides(
         &self,
         is_self: bool,
@@ -181,7 +286,7 @@ impl EntityClears {
             (&self.static_recursive, &self.recursive_per_timeline)
         };
         // A static Clear hides all temporal data, and static data with a smaller row id.
-        if let Some((&latest_static, _)) = statics.last_key_value() {
+        if let Some((&(latest_static, _), _)) = statics.last_key_value() {
             match time {
                 None if row_id <= latest_static => return true,
                 Some(_) => return true,
@@ -192,7 +297,9 @@ impl EntityClears {
         let Some(time) = time else { return false };
         per_timeline
             .get(timeline)
-            .and_then(|set| set.range(..=(at, RowId::MAX)).next_back())
-            .is_some_and(|(&clear_index, _)| (time, row_id) <= clear_index)
+            .and_then(|set| set.range(..=(at, RowId::MAX, ChunkId::MAX)).next_back())
+            .is_some_and(|(&(clear_time, clear_row_id, _), _)| {
+                (time, row_id) <= (clear_time, clear_row_id)
+            })
     }
 }

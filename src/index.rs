@@ -74,8 +74,37 @@ impl TemporalComponentIndex {
             .insert(max_index_key(&entry), entry);
     }
 
+    /// Forgets a chunk indexed with `bounds`; returns whether it was indexed.
+    pub fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
+        let (min, max) = (bounds.min_time, bounds.max_time);
+        if self.chunks_by_min_time.remove(&(min, id)).is_none() {
+            return false;
+        }
+        if let Some(class) = span_class(min, max) {
+            let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;
+            if let Some(chunks) = classes.get_mut(class) {
+                chunks.remove(&(min, id));
+            }
+            while classes.last().is_some_and(BTreeMap::is_empty) {
+                classes.pop();
+            }
+        }
+        self.chunks_by_max_index
+            .remove(&(max, bounds.max_row_id, id));
+        true
+    }
+
     pub fn is_empty(&self) -> bool {
         self.chunks_by_min_time.is_empty()
+    }
+
+    /// Is `id` among the `n` chunks with the greatest indices?
+    pub fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
+        self.chunks_by_max_index
+            .keys()
+            .rev()
+            .take(n)
+            .any(|&(_, _, latest)| latest == id)
     }
 
     /// The chunk whose greatest index is the greatest at or before `t`.
