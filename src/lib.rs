@@ -57,26 +57,32 @@
 
 mod chunk;
 mod clear;
+mod compaction;
 mod component;
 mod entity_path;
 mod error;
+mod gc;
 mod ids;
 mod index;
 #[cfg(feature = "ipc")]
 pub mod io;
 mod query;
+mod stats;
 mod store;
 mod time;
 
 pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, ComponentTimeBounds, TimeColumn};
+pub use compaction::StoreConfig;
 pub use component::{ComponentDescriptor, ComponentName};
 pub use entity_path::EntityPath;
 #[cfg(feature = "ipc")]
 pub use error::IoError;
-pub use error::{ChunkError, EntityPathError, InsertError};
+pub use error::{ChunkError, ConfigError, EntityPathError, InsertError};
+pub use gc::{GcOptions, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
 pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow};
-pub use store::{ChunkStore, DeletionReason, StoreEvent, StoreStats};
+pub use stats::{EntityStats, StoreStats};
+pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreEvent};
 pub use time::{TimeInt, TimeType, Timeline};
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.

@@ -1,16 +1,22 @@
 //! [`ChunkStore`]: owns the chunks and every index over them. Insertion validates the whole
 //! chunk against the store first and only then mutates, so a rejected chunk leaves no trace.
+//! Every mutation goes through two primitives, [`ChunkStore::add_chunk`] and
+//! [`ChunkStore::remove_chunk`], which keep the indices, the statistics and the event list
+//! in step; compaction ([`crate::compaction`]) and garbage collection ([`crate::gc`]) are
+//! built on them.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::sync::Arc;
 
 use arrow_schema::DataType;
 
 use crate::clear::ClearIndex;
-use crate::error::InsertError;
+use crate::compaction::{PendingGroups, StoreConfig};
+use crate::error::{ConfigError, InsertError};
 use crate::index::{IndexedChunk, TemporalComponentIndex};
-use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeType};
+use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
+use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
 
 /// Debug builds check the whole store after an insert while it holds at most this many
 /// chunks.
@@ -45,6 +51,35 @@ pub enum StoreEvent {
     },
 }
 
+impl StoreEvent {
+    /// The chunk added or removed.
+    pub fn chunk(&self) -> &Arc<Chunk> {
+        match self {
+            Self::Addition(chunk) | Self::Deletion { chunk, .. } => chunk,
+        }
+    }
+}
+
+/// A callback that sees every batch of events a store's mutations return.
+pub type EventSubscriber = Arc<dyn Fn(&[StoreEvent]) + Send + Sync>;
+
+/// The store's subscribers. A clone of a store starts without any: a subscriber watches
+/// the store it subscribed to.
+#[derive(Default)]
+struct Subscribers(Vec<EventSubscriber>);
+
+impl Clone for Subscribers {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl fmt::Debug for Subscribers {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} subscribers", self.0.len())
+    }
+}
+
 /// The static cell that currently answers for one (entity, component).
 #[derive(Clone, Debug)]
 pub(crate) struct StaticWinner {
@@ -65,51 +100,29 @@ pub(crate) struct EntityIndex {
     pub static_chunks: ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
     pub temporal_per_timeline_per_component:
         ahash::HashMap<Arc<str>, ahash::HashMap<ComponentName, TemporalComponentIndex>>,
+    /// Every chunk of the entity the store holds.
+    pub chunk_ids: BTreeSet<ChunkId>,
+    /// Temporal chunks still small enough for compaction on insert to grow.
+    pub pending: PendingGroups,
+    pub stats: EntityStats,
+    pub ledger: BufferLedger,
 }
 
-/// Totals, kept up to date by every mutation, O(1) to read.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct StoreStats {
-    /// Static chunks held.
-    pub num_static_chunks: u64,
-    /// Rows in static chunks.
-    pub num_static_rows: u64,
-    /// Heap bytes of static chunks.
-    pub static_heap_bytes: u64,
-    /// Temporal chunks held.
-    pub num_temporal_chunks: u64,
-    /// Rows in temporal chunks.
-    pub num_temporal_rows: u64,
-    /// Heap bytes of temporal chunks.
-    pub temporal_heap_bytes: u64,
+/// A chunk as the store holds it.
+#[derive(Clone, Debug)]
+pub(crate) struct StoredChunk {
+    pub chunk: Arc<Chunk>,
+    /// Does the chunk's memory go through the buffer ledgers (it shares buffers)? Decided
+    /// once, on addition, so removal undoes exactly what addition did.
+    pub ledgered: bool,
 }
 
-impl StoreStats {
-    fn add(&mut self, chunk: &Chunk, sign: i64) {
-        let apply = |total: &mut u64, amount: u64| {
-            *total = if sign > 0 {
-                *total + amount
-            } else {
-                total.saturating_sub(amount)
-            };
-        };
-        let (chunks, rows, bytes) = if chunk.is_static() {
-            (
-                &mut self.num_static_chunks,
-                &mut self.num_static_rows,
-                &mut self.static_heap_bytes,
-            )
-        } else {
-            (
-                &mut self.num_temporal_chunks,
-                &mut self.num_temporal_rows,
-                &mut self.temporal_heap_bytes,
-            )
-        };
-        apply(chunks, 1);
-        apply(rows, chunk.num_rows() as u64);
-        apply(bytes, chunk.heap_size_bytes());
-    }
+/// Temporal chunks of one timeline by least and greatest time, across entities: what
+/// time-ordered garbage collection and range drops walk.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct TimelineChunks {
+    pub by_min_time: BTreeSet<(TimeInt, ChunkId)>,
+    pub by_max_time: BTreeSet<(TimeInt, ChunkId)>,
 }
 
 /// An in-memory store of chunks, answering latest-at and range queries.
@@ -117,22 +130,64 @@ impl StoreStats {
 /// See the crate documentation for an example.
 #[derive(Clone, Debug, Default)]
 pub struct ChunkStore {
-    chunks: ahash::HashMap<ChunkId, Arc<Chunk>>,
+    pub(crate) config: StoreConfig,
+    pub(crate) chunks: ahash::HashMap<ChunkId, StoredChunk>,
     time_types: ahash::HashMap<Arc<str>, TimeType>,
     pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
     pub(crate) clears: ClearIndex,
-    stats: StoreStats,
+    /// Temporal chunks by least row id: the garbage collector's default order.
+    pub(crate) temporal_by_row_id: BTreeSet<(RowId, ChunkId)>,
+    pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
+    pub(crate) stats: StoreStats,
+    pub(crate) ledgers: StoreLedgers,
+    subscribers: Subscribers,
 }
 
 impl ChunkStore {
-    /// An empty store.
+    /// An empty store with the default configuration ([`StoreConfig::DEFAULT`]:
+    /// compaction on insert).
     pub fn new() -> Self {
         Self::default()
     }
 
-    /// Inserts a chunk and returns what changed: its addition, and the deletion of any
-    /// static chunk it made invisible (possibly itself, if newer static data shadows it).
-    /// Inserting a chunk id the store already holds changes nothing.
+    /// An empty store with this configuration.
+    ///
+    /// # Errors
+    /// If a threshold of the configuration is zero.
+    pub fn with_config(config: StoreConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            ..Self::default()
+        })
+    }
+
+    /// The configuration the store was created with.
+    pub fn config(&self) -> &StoreConfig {
+        &self.config
+    }
+
+    /// Calls `subscriber` with the events of every later mutation, after the mutation and
+    /// before it returns the same events. A store without subscribers pays nothing.
+    pub fn subscribe(&mut self, subscriber: impl Fn(&[StoreEvent]) + Send + Sync + 'static) {
+        self.subscribers.0.push(Arc::new(subscriber));
+    }
+
+    /// Hands a mutation's events to the subscribers, and back to the caller.
+    pub(crate) fn notify(&self, events: Vec<StoreEvent>) -> Vec<StoreEvent> {
+        if !events.is_empty() {
+            for subscriber in &self.subscribers.0 {
+                subscriber(&events);
+            }
+        }
+        events
+    }
+
+    /// Inserts a chunk and returns what changed: its addition (or, if compaction split it,
+    /// the additions of its parts), the deletion of any static chunk it made invisible
+    /// (possibly itself, if newer static data shadows it), and whatever compaction merged
+    /// (deletions of the merged chunks, addition of the result). Inserting a chunk id the
+    /// store already holds changes nothing.
     ///
     /// # Errors
     /// If the chunk's timelines or component types conflict with the store; the store is
@@ -143,46 +198,148 @@ impl ChunkStore {
             return Ok(Vec::new());
         }
         self.validate(&chunk)?;
-
         for column in chunk.time_columns() {
             let timeline = column.timeline();
             self.time_types
                 .entry(Arc::clone(timeline.name_arc()))
                 .or_insert(timeline.time_type());
         }
-        let entity = self
-            .entities
-            .entry(chunk.entity_path().clone())
-            .or_default();
-        for column in chunk.components() {
-            entity
-                .element_types
-                .entry(column.name().clone())
-                .or_insert_with(|| column.element_type().clone());
-        }
-        self.clears.insert_chunk(&chunk);
-        self.chunks.insert(chunk.id(), Arc::clone(&chunk));
-        self.stats.add(&chunk, 1);
+        self.stats.rows_inserted += chunk.num_rows() as u64;
+        self.stats.payload_bytes_inserted += chunk.payload_bytes();
 
-        let mut events = vec![StoreEvent::Addition(Arc::clone(&chunk))];
-        if chunk.is_static() {
-            for overwritten in entity.insert_static(&chunk) {
-                self.chunks.remove(&overwritten.id());
-                self.stats.add(&overwritten, -1);
-                events.push(StoreEvent::Deletion {
-                    chunk: overwritten,
-                    reason: DeletionReason::Overwrite,
-                });
-            }
+        let mut events = Vec::with_capacity(1);
+        if chunk.is_static() || !self.config.compact_on_insert {
+            self.add_chunk(chunk, &mut events);
         } else {
-            entity.insert_temporal(&chunk);
+            self.insert_compacting(chunk, &mut events);
         }
         // The full check costs O(store): debug builds run it while the store is small, which
         // is where unit tests live; the model test calls it after every step regardless.
         if cfg!(debug_assertions) && self.chunks.len() <= DEBUG_SANITY_CHECK_MAX_CHUNKS {
             debug_assert!(self.sanity_check().is_ok(), "{:?}", self.sanity_check());
         }
-        Ok(events)
+        Ok(self.notify(events))
+    }
+
+    /// Adds a validated chunk to every index and figure, and records its addition (and
+    /// any static chunk it overwrites).
+    pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        let ledgered = !chunk.owns_all_buffers();
+        let entity = self
+            .entities
+            .entry(chunk.entity_path().clone())
+            .or_default();
+        for column in chunk.components() {
+            if !entity.element_types.contains_key(column.name()) {
+                entity
+                    .element_types
+                    .insert(column.name().clone(), column.element_type().clone());
+            }
+        }
+        entity.chunk_ids.insert(chunk.id());
+        crate::stats::account(
+            &chunk,
+            ledgered,
+            true,
+            &mut self.stats,
+            &mut self.ledgers,
+            &mut entity.stats,
+            &mut entity.ledger,
+        );
+        self.clears.insert_chunk(&chunk);
+        events.push(StoreEvent::Addition(Arc::clone(&chunk)));
+        if chunk.is_static() {
+            let overwritten = entity.insert_static(&chunk);
+            self.chunks
+                .insert(chunk.id(), StoredChunk { chunk, ledgered });
+            for overwritten in overwritten {
+                // An overwritten static Clear keeps hiding what it hid: its index entry
+                // stays, as the static winner semantics of section 5 ask.
+                self.forget_chunk(overwritten.id(), DeletionReason::Overwrite, events);
+            }
+        } else {
+            entity.insert_temporal(&chunk);
+            let id = chunk.id();
+            self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
+            for column in chunk.time_columns() {
+                let (min, max) = column.time_range();
+                let per_timeline = self
+                    .temporal_per_timeline
+                    .entry(Arc::clone(column.timeline().name_arc()))
+                    .or_default();
+                per_timeline.by_min_time.insert((min, id));
+                per_timeline.by_max_time.insert((max, id));
+            }
+            self.chunks.insert(id, StoredChunk { chunk, ledgered });
+        }
+    }
+
+    /// Removes a chunk from every index and figure and records its deletion; returns the
+    /// chunk, or `None` if the store does not hold it.
+    pub(crate) fn remove_chunk(
+        &mut self,
+        id: ChunkId,
+        reason: DeletionReason,
+        events: &mut Vec<StoreEvent>,
+    ) -> Option<Arc<Chunk>> {
+        let chunk = Arc::clone(&self.chunks.get(&id)?.chunk);
+        if chunk.is_static() {
+            if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
+                entity.remove_static(id);
+            }
+        } else {
+            self.clears.remove_chunk(&chunk);
+            if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
+                entity.remove_temporal(&chunk);
+            }
+            self.temporal_by_row_id
+                .remove(&(chunk.row_id_range().0, id));
+            for column in chunk.time_columns() {
+                let (min, max) = column.time_range();
+                let name = column.timeline().name();
+                if let Some(per_timeline) = self.temporal_per_timeline.get_mut(name) {
+                    per_timeline.by_min_time.remove(&(min, id));
+                    per_timeline.by_max_time.remove(&(max, id));
+                    if per_timeline.by_min_time.is_empty() {
+                        self.temporal_per_timeline.remove(name);
+                    }
+                }
+            }
+        }
+        self.forget_chunk(id, reason, events)
+    }
+
+    /// The part of removal every chunk shares: the chunk map, the figures, the entity if
+    /// it is left empty, and the event.
+    fn forget_chunk(
+        &mut self,
+        id: ChunkId,
+        reason: DeletionReason,
+        events: &mut Vec<StoreEvent>,
+    ) -> Option<Arc<Chunk>> {
+        let StoredChunk { chunk, ledgered } = self.chunks.remove(&id)?;
+        if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
+            entity.chunk_ids.remove(&id);
+            crate::stats::account(
+                &chunk,
+                ledgered,
+                false,
+                &mut self.stats,
+                &mut self.ledgers,
+                &mut entity.stats,
+                &mut entity.ledger,
+            );
+            if entity.chunk_ids.is_empty() {
+                // Nothing left: the entity is forgotten, as if never inserted (its
+                // component types included).
+                self.entities.remove(chunk.entity_path());
+            }
+        }
+        events.push(StoreEvent::Deletion {
+            chunk: Arc::clone(&chunk),
+            reason,
+        });
+        Some(chunk)
     }
 
     /// Every check `insert` makes before touching anything.
@@ -226,12 +383,12 @@ impl ChunkStore {
 
     /// The chunk with this id, if the store holds it.
     pub fn chunk(&self, id: ChunkId) -> Option<&Arc<Chunk>> {
-        self.chunks.get(&id)
+        self.chunks.get(&id).map(|stored| &stored.chunk)
     }
 
     /// Every chunk, in no particular order.
     pub fn chunks(&self) -> impl Iterator<Item = &Arc<Chunk>> {
-        self.chunks.values()
+        self.chunks.values().map(|stored| &stored.chunk)
     }
 
     /// Number of chunks, static and temporal.
@@ -239,9 +396,14 @@ impl ChunkStore {
         self.chunks.len()
     }
 
-    /// Totals of chunks, rows and heap bytes.
+    /// Totals of chunks, rows and heap bytes, and what compaction copied. O(1).
     pub fn stats(&self) -> StoreStats {
         self.stats
+    }
+
+    /// The figures of one entity (its own data, not its descendants'). O(1).
+    pub fn entity_stats(&self, entity: &EntityPath) -> Option<EntityStats> {
+        self.entities.get(entity).map(|e| e.stats)
     }
 
     /// The type a timeline has in this store, if any chunk used it.
@@ -278,37 +440,89 @@ impl ChunkStore {
     /// A description of the first broken invariant: a bug in this crate.
     pub fn sanity_check(&self) -> Result<(), String> {
         let Self {
+            config,
             chunks,
             time_types,
             entities,
             clears,
+            temporal_by_row_id,
+            temporal_per_timeline,
             stats,
+            ledgers: _,
+            subscribers: _,
         } = self;
+        config.validate().map_err(|e| e.to_string())?;
+        // Recount every figure from scratch, through fresh ledgers.
         let mut expected = StoreStats::default();
-        for chunk in chunks.values() {
+        let mut ledgers = StoreLedgers::default();
+        let mut expected_entities: ahash::HashMap<&EntityPath, (EntityStats, BufferLedger)> =
+            ahash::HashMap::default();
+        let mut expected_by_row_id = BTreeSet::new();
+        let mut expected_per_timeline: BTreeMap<&str, TimelineChunks> = BTreeMap::new();
+        for (&id, StoredChunk { chunk, ledgered }) in chunks {
             chunk.sanity_check()?;
-            expected.add(chunk, 1);
+            if chunk.id() != id {
+                return Err(format!("{id} is keyed by its id"));
+            }
+            let (entity_stats, entity_ledger) =
+                expected_entities.entry(chunk.entity_path()).or_default();
+            crate::stats::account(
+                chunk,
+                *ledgered,
+                true,
+                &mut expected,
+                &mut ledgers,
+                entity_stats,
+                entity_ledger,
+            );
             for column in chunk.time_columns() {
                 let timeline = column.timeline();
                 if time_types.get(timeline.name()) != Some(&timeline.time_type()) {
-                    return Err(format!(
-                        "{}: timeline {:?} has the store's type",
-                        chunk.id(),
-                        timeline
-                    ));
+                    return Err(format!("{id}: timeline {timeline:?} has the store's type"));
                 }
+                let (min, max) = column.time_range();
+                let per_timeline = expected_per_timeline.entry(timeline.name()).or_default();
+                per_timeline.by_min_time.insert((min, id));
+                per_timeline.by_max_time.insert((max, id));
+            }
+            if !chunk.is_static() {
+                expected_by_row_id.insert((chunk.row_id_range().0, id));
             }
             if !entities.contains_key(chunk.entity_path()) {
-                return Err(format!("{}: its entity is indexed", chunk.id()));
+                return Err(format!("{id}: its entity is indexed"));
             }
         }
-        if expected != *stats {
+        if expected != stats.contents() {
             return Err(format!(
                 "stats match the chunks: kept {stats:?}, counted {expected:?}"
             ));
         }
+        if expected_by_row_id != *temporal_by_row_id {
+            return Err("the row-id order holds exactly the temporal chunks".into());
+        }
+        let timelines_match = expected_per_timeline.len() == temporal_per_timeline.len()
+            && expected_per_timeline.iter().all(|(name, expected)| {
+                temporal_per_timeline.get(*name).is_some_and(|kept| {
+                    kept.by_min_time == expected.by_min_time
+                        && kept.by_max_time == expected.by_max_time
+                })
+            });
+        if !timelines_match {
+            return Err("the per-timeline orders hold exactly the temporal chunks".into());
+        }
         for (path, entity) in entities {
-            entity.sanity_check(path, chunks)?;
+            let counted = expected_entities.get(path).map(|e| e.0);
+            let num_chunks = counted.map_or(0, |c| c.num_static_chunks + c.num_temporal_chunks);
+            if num_chunks != entity.chunk_ids.len() as u64 {
+                return Err(format!("{path}: chunk ids list all its chunks"));
+            }
+            if counted != Some(entity.stats) {
+                return Err(format!(
+                    "{path}: stats match its chunks: kept {:?}, counted {counted:?}",
+                    entity.stats
+                ));
+            }
+            entity.sanity_check(path, chunks, config)?;
         }
         clears.sanity_check()
     }
@@ -390,17 +604,65 @@ impl EntityIndex {
         }
     }
 
+    /// Forgets a static chunk: its winners go with it (only dropping the entity removes
+    /// static data, so no other chunk needs to take over).
+    fn remove_static(&mut self, id: ChunkId) {
+        self.static_chunks.remove(&id);
+        self.static_winners
+            .retain(|_, winner| winner.chunk.id() != id);
+    }
+
+    /// Forgets a temporal chunk from every (timeline, component) index and from the
+    /// compaction candidates.
+    fn remove_temporal(&mut self, chunk: &Chunk) {
+        let id = chunk.id();
+        for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
+            let name = time_column.timeline().name();
+            let Some(per_component) = self.temporal_per_timeline_per_component.get_mut(name) else {
+                continue;
+            };
+            for column in chunk.components() {
+                let Some(bounds) = column.bounds(time_position) else {
+                    continue;
+                };
+                if let Some(index) = per_component.get_mut(column.name()) {
+                    index.remove(id, &bounds);
+                    if index.is_empty() {
+                        per_component.remove(column.name());
+                    }
+                }
+            }
+            if per_component.is_empty() {
+                self.temporal_per_timeline_per_component.remove(name);
+            }
+        }
+        self.pending.remove(chunk);
+    }
+
     fn sanity_check(
         &self,
         path: &EntityPath,
-        chunks: &ahash::HashMap<ChunkId, Arc<Chunk>>,
+        chunks: &ahash::HashMap<ChunkId, StoredChunk>,
+        config: &StoreConfig,
     ) -> Result<(), String> {
         let Self {
             element_types,
             static_winners,
             static_chunks,
             temporal_per_timeline_per_component,
+            chunk_ids,
+            pending,
+            stats: _,
+            ledger: _,
         } = self;
+        if chunk_ids.is_empty()
+            || chunk_ids
+                .iter()
+                .any(|id| chunks.get(id).is_none_or(|s| s.chunk.entity_path() != path))
+        {
+            return Err(format!("{path}: its chunk ids are non-empty and its own"));
+        }
+        pending.sanity_check(path, chunks, config)?;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
         for (component, winner) in static_winners {
             *wins.entry(winner.chunk.id()).or_default() += 1;
@@ -456,7 +718,7 @@ impl EntityIndex {
 /// changes to what a store holds are reviewable as text.
 impl fmt::Display for ChunkStore {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut chunks: Vec<&Arc<Chunk>> = self.chunks.values().collect();
+        let mut chunks: Vec<&Arc<Chunk>> = self.chunks().collect();
         chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
         writeln!(f, "ChunkStore: {} chunks", chunks.len())?;
         for chunk in chunks {

@@ -1,0 +1,454 @@
+//! Compaction (SEMANTICS.md section 6): merging small temporal chunks into bigger ones and
+//! splitting oversized ones, without changing any query's answer.
+//!
+//! **On insert**, every entity keeps, per chunk layout, the chunks still small enough to
+//! grow, bucketed by *level*: `⌊log_K(rows)⌋` with `K` = [`StoreConfig::merge_fanout`].
+//! A chunk enters
+//! the bucket of its level; when a bucket holds `K` chunks, they are merged into one,
+//! whose level is at least one higher, and the cascade goes on from there. A row is
+//! therefore copied at most `log_K(max_rows)` times (4 with the defaults), unlike the
+//! re-copy of one growing chunk on every insert that costs `O(max_rows)` copies per row.
+//! A chunk stops growing once it holds half of a threshold: merging it again could not
+//! double it.
+//!
+//! Every rewrite orders its rows by `(time on the first timeline, row id)`, so merged
+//! chunks are time-sorted whenever their rows allow it, then cuts them into equal pieces
+//! that respect the thresholds ([`StoreConfig`]).
+//!
+//! **On demand**, [`ChunkStore::compact`] rewrites, per entity and layout, every set of
+//! chunks that is not already as few time-sorted, non-overlapping chunks as the thresholds
+//! allow.
+
+use std::sync::Arc;
+
+use crate::chunk::RowSource;
+use crate::error::{ChunkError, ConfigError};
+use crate::store::{DeletionReason, StoredChunk};
+use crate::{Chunk, ChunkId, ChunkStore, EntityPath, RowId, StoreEvent, StoreStats};
+
+/// How a store sizes its chunks. Thresholds bound every chunk compaction writes; chunks
+/// inserted whole are split when they exceed them (unless compaction on insert is off).
+///
+/// The defaults ([`StoreConfig::DEFAULT`]) and the measurements behind them are
+/// documented in `docs/PERFORMANCE.md`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StoreConfig {
+    /// Merge small chunks and split big ones on insert.
+    pub compact_on_insert: bool,
+    /// Most rows of a chunk whose rows are sorted by time on every timeline.
+    pub max_rows: usize,
+    /// Most rows of a chunk whose rows are not (a query must search it through a sort
+    /// order, so it stays smaller).
+    pub max_rows_unsorted: usize,
+    /// Most payload bytes ([`Chunk::payload_bytes`]) of a chunk.
+    pub max_bytes: u64,
+    /// How many waiting chunks of one level compaction on insert merges at once (at
+    /// least 2). Larger fans copy each row fewer times (`log_K(max_rows)`) but leave more
+    /// small chunks waiting (up to `K − 1` per level). The default, 8, copies a row at
+    /// most 4 times under the default thresholds and keeps at most 28 chunks waiting per
+    /// entity and layout, whose time ranges do not overlap when data arrives in order.
+    pub merge_fanout: usize,
+}
+
+impl StoreConfig {
+    /// Compaction on insert, with the thresholds we measured best (see
+    /// `docs/PERFORMANCE.md`).
+    pub const DEFAULT: Self = Self {
+        compact_on_insert: true,
+        max_rows: 4096,
+        max_rows_unsorted: 1024,
+        max_bytes: 384 * 1024,
+        merge_fanout: 8,
+    };
+
+    /// Chunks are stored exactly as inserted; [`ChunkStore::compact`] still uses the
+    /// default thresholds.
+    pub const COMPACTION_OFF: Self = Self {
+        compact_on_insert: false,
+        ..Self::DEFAULT
+    };
+
+    /// Checks that every chunk could hold a row.
+    ///
+    /// # Errors
+    /// The first threshold that is zero.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        for (field, value) in [
+            ("max_rows", self.max_rows as u64),
+            ("max_rows_unsorted", self.max_rows_unsorted as u64),
+            ("max_bytes", self.max_bytes),
+        ] {
+            if value == 0 {
+                return Err(ConfigError::ZeroThreshold { field });
+            }
+        }
+        if self.merge_fanout < 2 {
+            return Err(ConfigError::FanoutBelowTwo {
+                merge_fanout: self.merge_fanout,
+            });
+        }
+        Ok(())
+    }
+
+    fn max_rows_for(&self, sorted: bool) -> usize {
+        if sorted {
+            self.max_rows
+        } else {
+            self.max_rows_unsorted
+        }
+    }
+
+    /// Does the chunk exceed a threshold (and can be split)?
+    fn is_oversized(&self, chunk: &Chunk) -> bool {
+        chunk.num_rows() > 1
+            && (chunk.num_rows() > self.max_rows_for(is_time_sorted(chunk))
+                || chunk.payload_bytes() > self.max_bytes)
+    }
+
+    /// Could the chunk still double without exceeding a threshold?
+    fn can_grow(&self, chunk: &Chunk) -> bool {
+        chunk.num_rows() * 2 <= self.max_rows_for(is_time_sorted(chunk))
+            && chunk.payload_bytes() * 2 <= self.max_bytes
+    }
+}
+
+impl Default for StoreConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+fn is_time_sorted(chunk: &Chunk) -> bool {
+    chunk
+        .time_columns()
+        .iter()
+        .all(crate::TimeColumn::is_sorted)
+}
+
+impl StoreConfig {
+    fn level(&self, num_rows: usize) -> usize {
+        num_rows.max(1).ilog(self.merge_fanout.max(2)) as usize
+    }
+}
+
+/// The chunks of one entity still waiting to grow, per layout and level.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct PendingGroups {
+    /// One group per layout; never empty.
+    groups: Vec<PendingGroup>,
+}
+
+#[derive(Clone, Debug, Default)]
+struct PendingGroup {
+    /// `levels[l]`: chunks of level `l`, oldest first; fewer than the fanout between
+    /// merges.
+    levels: Vec<Vec<Arc<Chunk>>>,
+}
+
+impl PendingGroup {
+    fn any_chunk(&self) -> Option<&Arc<Chunk>> {
+        self.levels.iter().flatten().next()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.levels.iter().all(Vec::is_empty)
+    }
+}
+
+impl PendingGroups {
+    fn group_position(&self, chunk: &Chunk) -> Option<usize> {
+        self.groups
+            .iter()
+            .position(|g| g.any_chunk().is_some_and(|c| c.has_same_layout(chunk)))
+    }
+
+    /// Adds a chunk to its layout's group; returns its level.
+    fn push(&mut self, chunk: Arc<Chunk>, config: &StoreConfig) -> usize {
+        let position = self.group_position(&chunk).unwrap_or_else(|| {
+            self.groups.push(PendingGroup::default());
+            self.groups.len() - 1
+        });
+        let level = config.level(chunk.num_rows());
+        let levels = &mut self.groups[position].levels;
+        if levels.len() <= level {
+            levels.resize_with(level + 1, Vec::new);
+        }
+        levels[level].push(chunk);
+        level
+    }
+
+    /// If the level of `member`'s group holds a full fan of chunks, takes them out.
+    fn take_full_fan(
+        &mut self,
+        member: &Chunk,
+        level: usize,
+        config: &StoreConfig,
+    ) -> Option<Vec<Arc<Chunk>>> {
+        let position = self.group_position(member)?;
+        let chunks = self.groups[position].levels.get_mut(level)?;
+        if chunks.len() < config.merge_fanout {
+            return None;
+        }
+        let fan = chunks.drain(..config.merge_fanout).collect();
+        if self.groups[position].is_empty() {
+            self.groups.swap_remove(position);
+        }
+        Some(fan)
+    }
+
+    /// Forgets a chunk that left the store (or was merged).
+    pub fn remove(&mut self, chunk: &Chunk) {
+        let id = chunk.id();
+        let found = self.groups.iter().enumerate().find_map(|(g, group)| {
+            group
+                .levels
+                .iter()
+                .position(|l| l.iter().any(|c| c.id() == id))
+                .map(|l| (g, l))
+        });
+        if let Some((position, level)) = found {
+            self.groups[position].levels[level].retain(|c| c.id() != id);
+            if self.groups[position].is_empty() {
+                self.groups.swap_remove(position);
+            }
+        }
+    }
+
+    pub fn sanity_check(
+        &self,
+        path: &EntityPath,
+        chunks: &ahash::HashMap<ChunkId, StoredChunk>,
+        config: &StoreConfig,
+    ) -> Result<(), String> {
+        for group in &self.groups {
+            let Some(first) = group.any_chunk() else {
+                return Err(format!("{path}: no empty compaction group"));
+            };
+            for (l, members) in group.levels.iter().enumerate() {
+                if members.len() >= config.merge_fanout {
+                    return Err(format!("{path}: a full fan at level {l} was merged"));
+                }
+                for chunk in members {
+                    let stored = chunks.get(&chunk.id());
+                    if stored.is_none_or(|s| !Arc::ptr_eq(&s.chunk, chunk))
+                        || chunk.is_static()
+                        || chunk.entity_path() != path
+                        || !chunk.has_same_layout(first)
+                        || config.level(chunk.num_rows()) != l
+                        || !config.can_grow(chunk)
+                    {
+                        return Err(format!(
+                            "{path}: waiting chunk {} is a small temporal chunk of the \
+                             store, in its layout's group at its level",
+                            chunk.id()
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Rewrites the rows of `inputs` (one layout) into as few chunks as the thresholds allow,
+/// ordered by `(time on the first timeline, row id)`. Counts what it copies in `stats`.
+fn rewrite(
+    inputs: &[&Chunk],
+    config: &StoreConfig,
+    stats: &mut StoreStats,
+) -> Result<Vec<Chunk>, ChunkError> {
+    let num_rows: usize = inputs.iter().map(|c| c.num_rows()).sum();
+    let payload: u64 = inputs.iter().map(|c| c.payload_bytes()).sum();
+    let first_time = |c: usize, r: usize| inputs[c].time_columns()[0].times()[r];
+
+    // Chunks already sorted and in sequence on the first timeline need no sort.
+    let in_sequence = inputs.iter().all(|c| c.time_columns()[0].is_sorted())
+        && inputs.windows(2).all(|w| {
+            w[0].time_columns()[0].time_range().1 <= w[1].time_columns()[0].time_range().0
+        });
+    let mut rows: Vec<RowSource> = inputs
+        .iter()
+        .enumerate()
+        .flat_map(|(c, chunk)| (0..chunk.num_rows()).map(move |r| (c, r)))
+        .collect();
+    if !in_sequence {
+        let key =
+            |&(c, r): &RowSource| -> (i64, RowId) { (first_time(c, r), inputs[c].row_ids()[r]) };
+        rows.sort_by_key(key);
+    }
+    let sorted = (0..inputs[0].time_columns().len()).all(|t| {
+        rows.windows(2).all(|w| {
+            let time = |(c, r): RowSource| inputs[c].time_columns()[t].times()[r];
+            time(w[0]) <= time(w[1])
+        })
+    });
+
+    let max_rows = config.max_rows_for(sorted);
+    let by_rows = num_rows.div_ceil(max_rows);
+    let by_bytes = usize::try_from(payload.div_ceil(config.max_bytes)).unwrap_or(usize::MAX);
+    let num_pieces = by_rows.max(by_bytes).clamp(1, num_rows.max(1));
+    let piece_len = num_rows.div_ceil(num_pieces).max(1);
+
+    let mut pieces = Vec::with_capacity(num_pieces);
+    if let [single] = inputs
+        && in_sequence
+    {
+        // Splitting a sorted chunk: slices share its buffers, nothing is copied.
+        for offset in (0..num_rows).step_by(piece_len) {
+            pieces.push(single.slice(offset, piece_len.min(num_rows - offset))?);
+        }
+        return Ok(pieces);
+    }
+    for piece_rows in rows.chunks(piece_len) {
+        let piece = Chunk::gather(inputs, piece_rows)?;
+        stats.rows_copied_by_compaction += piece.num_rows() as u64;
+        stats.payload_bytes_copied_by_compaction += piece.payload_bytes();
+        pieces.push(piece);
+    }
+    Ok(pieces)
+}
+
+/// Are `chunks` (one layout, sorted by least time) already as compact as the thresholds
+/// allow: each time-sorted and within them, none overlapping the next on the first
+/// timeline, and no fewer chunks possible?
+fn is_compact(chunks: &[Arc<Chunk>], config: &StoreConfig) -> bool {
+    let num_rows: usize = chunks.iter().map(|c| c.num_rows()).sum();
+    let payload: u64 = chunks.iter().map(|c| c.payload_bytes()).sum();
+    let fewest = num_rows
+        .div_ceil(config.max_rows)
+        .max(usize::try_from(payload.div_ceil(config.max_bytes)).unwrap_or(usize::MAX))
+        .max(1);
+    chunks.len() <= fewest
+        && chunks
+            .iter()
+            .all(|c| is_time_sorted(c) && !config.is_oversized(c))
+        && chunks
+            .windows(2)
+            .all(|w| w[0].time_columns()[0].time_range().1 <= w[1].time_columns()[0].time_range().0)
+}
+
+impl ChunkStore {
+    /// Inserts a validated temporal chunk with compaction: splits it if it exceeds a
+    /// threshold, else adds it and merges full fans, level after level.
+    pub(crate) fn insert_compacting(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        if config.is_oversized(&chunk)
+            && let Ok(pieces) = rewrite(&[&chunk], &config, &mut self.stats)
+        {
+            // The chunk itself never enters the store: its parts do.
+            for piece in pieces {
+                self.add_chunk(Arc::new(piece), events);
+            }
+            return;
+        }
+        self.add_chunk(Arc::clone(&chunk), events);
+        if config.can_grow(&chunk) {
+            self.merge_cascade(chunk, events);
+        }
+    }
+
+    /// Adds a small chunk to its entity's waiting chunks and merges every full fan this
+    /// completes.
+    fn merge_cascade(&mut self, mut member: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        let path = member.entity_path().clone();
+        let Some(entity) = self.entities.get_mut(&path) else {
+            return;
+        };
+        let mut level = entity.pending.push(Arc::clone(&member), &config);
+        loop {
+            let Some(entity) = self.entities.get_mut(&path) else {
+                return;
+            };
+            let Some(fan) = entity.pending.take_full_fan(&member, level, &config) else {
+                return;
+            };
+            let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
+            let Ok(pieces) = rewrite(&inputs, &config, &mut self.stats) else {
+                return; // the fan stays in the store as it is, no longer waiting
+            };
+            // Add before removing, so the entity (and its waiting chunks) never empties.
+            let mut grown = None;
+            let num_pieces = pieces.len();
+            for piece in pieces {
+                let piece = Arc::new(piece);
+                if num_pieces == 1 && config.can_grow(&piece) {
+                    grown = Some(Arc::clone(&piece));
+                }
+                self.add_chunk(piece, events);
+            }
+            for merged in &fan {
+                self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
+            }
+            let Some(next) = grown else { return };
+            let Some(entity) = self.entities.get_mut(&path) else {
+                return;
+            };
+            level = entity.pending.push(Arc::clone(&next), &config);
+            member = next;
+        }
+    }
+
+    /// Rewrites the store's temporal chunks into chunks near the thresholds: per entity
+    /// and layout, every set of chunks that is not already as few time-sorted,
+    /// non-overlapping chunks as the thresholds allow is merged, sorted and cut again.
+    /// For a store filled with compaction off, or fragmented by garbage collection.
+    /// Returns the deletions (reason [`DeletionReason::Compaction`]) and additions; no
+    /// query answer changes.
+    pub fn compact(&mut self) -> Vec<StoreEvent> {
+        let config = self.config;
+        // Group per entity and layout, in a deterministic order.
+        let mut groups: Vec<Vec<Arc<Chunk>>> = Vec::new();
+        let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
+        let mut temporal: Vec<&Arc<Chunk>> = self.chunks().filter(|c| !c.is_static()).collect();
+        temporal.sort_by_key(|c| {
+            (
+                c.entity_path().clone(),
+                c.time_columns()[0].time_range().0,
+                c.id(),
+            )
+        });
+        for chunk in temporal {
+            let positions = by_entity.entry(chunk.entity_path().clone()).or_default();
+            if let Some(&p) = positions
+                .iter()
+                .find(|&&p| groups[p][0].has_same_layout(chunk))
+            {
+                groups[p].push(Arc::clone(chunk));
+            } else {
+                positions.push(groups.len());
+                groups.push(vec![Arc::clone(chunk)]);
+            }
+        }
+
+        let mut events = Vec::new();
+        for chunks in groups {
+            if is_compact(&chunks, &config) {
+                continue;
+            }
+            let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
+            let Ok(pieces) = rewrite(&inputs, &config, &mut self.stats) else {
+                continue;
+            };
+            let num_pieces = pieces.len();
+            let mut small = Vec::new();
+            for piece in pieces {
+                let piece = Arc::new(piece);
+                if num_pieces == 1 && config.can_grow(&piece) {
+                    small.push(Arc::clone(&piece));
+                }
+                self.add_chunk(piece, &mut events);
+            }
+            for chunk in &chunks {
+                self.remove_chunk(chunk.id(), DeletionReason::Compaction, &mut events);
+            }
+            // A lone small result may keep growing with later inserts.
+            if config.compact_on_insert {
+                for chunk in small {
+                    self.merge_cascade(chunk, &mut events);
+                }
+            }
+        }
+        self.notify(events)
+    }
+}

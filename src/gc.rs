@@ -1,0 +1,360 @@
+//! Removing data (SEMANTICS.md section 7): garbage collection, which drops whole temporal
+//! chunks until a memory target is met, and the explicit drops of a time range or an
+//! entity.
+//!
+//! Garbage collection plans first ([`ChunkStore::plan_gc`], `&self`) and applies second
+//! ([`ChunkStore::apply_gc`]), so a plan can be inspected and tested on its own. Planning
+//! walks candidates in the requested order from ordered sets the store keeps up to date,
+//! so its cost is proportional to the chunks it looks at (those it drops, and the
+//! protected ones it skips on the way), times `log n`: never to the size of the store.
+
+use std::time::{Duration, Instant};
+
+use crate::store::{DeletionReason, StoredChunk};
+use crate::{Chunk, ChunkId, ChunkStore, ComponentName, EntityPath, StoreEvent, TimeInt};
+
+/// How much garbage collection should free.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GcTarget {
+    /// At least this many heap bytes ([`crate::StoreStats::heap_bytes`]).
+    DropAtLeastBytes(u64),
+    /// At least this fraction (0 to 1) of the store's heap bytes.
+    DropAtLeastFraction(f64),
+    /// Every chunk that is not protected.
+    Everything,
+}
+
+/// Which chunks garbage collection drops first.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum GcOrder {
+    /// The chunks holding the oldest rows (smallest least row id) first.
+    OldestRowIdsFirst,
+    /// The chunks furthest in time from `time` on `timeline` first (a viewer's time
+    /// cursor: what is far from it is least likely to be looked at). Chunks without the
+    /// timeline go last, oldest first.
+    FurthestFrom {
+        /// The timeline.
+        timeline: String,
+        /// The cursor.
+        time: TimeInt,
+    },
+}
+
+/// What garbage collection may drop, and how far it should go.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GcOptions {
+    /// How much to free.
+    pub target: GcTarget,
+    /// Keep the `n` latest chunks of every (entity, timeline, component), and those
+    /// holding the `n` latest Clears of every entity and timeline. With `n ≥ 1`, every
+    /// latest-at at `+∞` answers as before.
+    pub protect_latest: usize,
+    /// Keep every chunk with rows in one of these inclusive ranges: `(timeline, min,
+    /// max)`.
+    pub protected_time_ranges: Vec<(String, TimeInt, TimeInt)>,
+    /// Stop planning once this much time has passed, but only after choosing at least one
+    /// chunk to drop: a call that finds collectable data always frees some.
+    pub time_budget: Option<Duration>,
+    /// Which chunks go first.
+    pub order: GcOrder,
+}
+
+impl GcOptions {
+    /// Drop every unprotected temporal chunk, protecting nothing.
+    ///
+    /// ```
+    /// # use chunkstore::*;
+    /// let mut store = ChunkStore::new();
+    /// let events = store.gc(&GcOptions::everything());
+    /// assert!(events.is_empty()); // nothing to collect in an empty store
+    /// ```
+    pub fn everything() -> Self {
+        Self {
+            target: GcTarget::Everything,
+            protect_latest: 0,
+            protected_time_ranges: Vec::new(),
+            time_budget: None,
+            order: GcOrder::OldestRowIdsFirst,
+        }
+    }
+
+    /// Drop at least `fraction` of the store's heap, oldest rows first, protecting the
+    /// latest chunk of every (entity, timeline, component).
+    pub fn drop_at_least_fraction(fraction: f64) -> Self {
+        Self {
+            target: GcTarget::DropAtLeastFraction(fraction),
+            protect_latest: 1,
+            ..Self::everything()
+        }
+    }
+}
+
+/// The chunks one garbage collection will drop, in order.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct GcPlan {
+    /// The chunks to drop.
+    pub chunk_ids: Vec<ChunkId>,
+    /// Heap bytes dropping them frees (a buffer still shared by a kept chunk frees
+    /// nothing).
+    pub bytes_to_free: u64,
+    /// Candidates looked at, dropped or protected.
+    pub num_considered: usize,
+    /// Planning stopped on the time budget before meeting the target.
+    pub out_of_time: bool,
+}
+
+impl ChunkStore {
+    /// Chooses the chunks a garbage collection with `options` drops, without changing
+    /// anything. Static chunks are never chosen.
+    pub fn plan_gc(&self, options: &GcOptions) -> GcPlan {
+        let start = Instant::now();
+        let target = match options.target {
+            GcTarget::DropAtLeastBytes(bytes) => bytes,
+            #[expect(
+                clippy::cast_possible_truncation,
+                clippy::cast_sign_loss,
+                clippy::cast_precision_loss,
+                reason = "a fraction of a byte count, clamped to [0, 1]; NaN becomes 0"
+            )]
+            GcTarget::DropAtLeastFraction(fraction) => {
+                (fraction.clamp(0.0, 1.0) * self.stats.heap_bytes as f64).ceil() as u64
+            }
+            GcTarget::Everything => u64::MAX,
+        };
+        let mut plan = GcPlan::default();
+        // Per shared allocation: references the plan already drops.
+        let mut released: ahash::HashMap<usize, u32> = ahash::HashMap::default();
+        for id in self.gc_candidates(&options.order) {
+            if plan.bytes_to_free >= target {
+                break;
+            }
+            if let Some(budget) = options.time_budget
+                && !plan.chunk_ids.is_empty()
+                && start.elapsed() >= budget
+            {
+                plan.out_of_time = true;
+                break;
+            }
+            plan.num_considered += 1;
+            let Some(stored) = self.chunks.get(&id) else {
+                continue;
+            };
+            if self.is_gc_protected(&stored.chunk, options) {
+                continue;
+            }
+            plan.bytes_to_free += self.bytes_freed_by(stored, &mut released);
+            plan.chunk_ids.push(id);
+        }
+        plan
+    }
+
+    /// Drops the chunks of `plan` (those the store still holds), each reported as a
+    /// deletion with reason [`DeletionReason::Gc`].
+    pub fn apply_gc(&mut self, plan: &GcPlan) -> Vec<StoreEvent> {
+        let mut events = Vec::with_capacity(plan.chunk_ids.len());
+        for &id in &plan.chunk_ids {
+            if self.chunks.get(&id).is_some_and(|s| !s.chunk.is_static()) {
+                self.remove_chunk(id, DeletionReason::Gc, &mut events);
+            }
+        }
+        self.notify(events)
+    }
+
+    /// Plans and applies a garbage collection: see [`ChunkStore::plan_gc`].
+    pub fn gc(&mut self, options: &GcOptions) -> Vec<StoreEvent> {
+        let plan = self.plan_gc(options);
+        self.apply_gc(&plan)
+    }
+
+    /// Temporal chunk ids in the order `order` drops them.
+    fn gc_candidates<'a>(&'a self, order: &'a GcOrder) -> Box<dyn Iterator<Item = ChunkId> + 'a> {
+        let by_row_id = self.temporal_by_row_id.iter().map(|&(_, id)| id);
+        let GcOrder::FurthestFrom { timeline, time } = order else {
+            return Box::new(by_row_id);
+        };
+        let Some(chunks) = self.temporal_per_timeline.get(timeline.as_str()) else {
+            return Box::new(by_row_id);
+        };
+        let cursor = i128::from(time.as_i64());
+        let min_time = |id: &ChunkId| {
+            self.chunks
+                .get(id)
+                .and_then(|s| s.chunk.time_column(timeline))
+                .map(|c| i128::from(c.time_range().0.as_i64()))
+        };
+        // Ending furthest before the cursor first, from one end; starting furthest after
+        // it, from the other. A chunk starting after the cursor belongs to the second.
+        let mut before = chunks.by_max_time.iter().peekable();
+        let mut after = chunks.by_min_time.iter().rev().peekable();
+        let by_distance = std::iter::from_fn(move || {
+            while before
+                .peek()
+                .is_some_and(|(_, id)| min_time(id).is_some_and(|min| min > cursor))
+            {
+                before.next();
+            }
+            let distance_before = before
+                .peek()
+                .map(|(max, _)| (cursor - i128::from(max.as_i64())).max(0));
+            let distance_after = after
+                .peek()
+                .map(|(min, _)| i128::from(min.as_i64()) - cursor)
+                .filter(|&d| d > 0);
+            match (distance_before, distance_after) {
+                (Some(b), Some(a)) if a > b => after.next(),
+                (Some(_), _) => before.next(),
+                (None, Some(_)) => after.next(),
+                (None, None) => None,
+            }
+            .map(|&(_, id)| id)
+        });
+        let without_timeline = by_row_id.filter(|id| {
+            self.chunks
+                .get(id)
+                .is_some_and(|s| s.chunk.time_column(timeline).is_none())
+        });
+        Box::new(by_distance.chain(without_timeline))
+    }
+
+    /// Is the chunk kept by `options`' protections?
+    fn is_gc_protected(&self, chunk: &Chunk, options: &GcOptions) -> bool {
+        if chunk.is_static() {
+            return true;
+        }
+        let in_protected_range = options
+            .protected_time_ranges
+            .iter()
+            .any(|(name, min, max)| {
+                chunk.time_column(name).is_some_and(|column| {
+                    let (lo, hi) = column.time_range();
+                    lo <= *max && *min <= hi
+                })
+            });
+        if in_protected_range {
+            return true;
+        }
+        let n = options.protect_latest;
+        if n == 0 {
+            return false;
+        }
+        let Some(entity) = self.entities.get(chunk.entity_path()) else {
+            return false;
+        };
+        let id = chunk.id();
+        for (position, time_column) in chunk.time_columns().iter().enumerate() {
+            let Some(per_component) = entity
+                .temporal_per_timeline_per_component
+                .get(time_column.timeline().name())
+            else {
+                continue;
+            };
+            for column in chunk.components() {
+                if column.bounds(position).is_some()
+                    && per_component
+                        .get(column.name())
+                        .is_some_and(|index| index.is_among_latest(id, n))
+                {
+                    return true;
+                }
+            }
+        }
+        chunk.component(ComponentName::CLEAR_IS_RECURSIVE).is_some()
+            && self.clears.is_among_latest(chunk.entity_path(), id, n)
+    }
+
+    /// Heap bytes dropping `stored` frees, given the shared references the plan already
+    /// drops (`released`, updated).
+    fn bytes_freed_by(
+        &self,
+        stored: &StoredChunk,
+        released: &mut ahash::HashMap<usize, u32>,
+    ) -> u64 {
+        let chunk = &stored.chunk;
+        let mut bytes = crate::stats::fixed_bytes(chunk);
+        for buffer in chunk.buffers() {
+            if !stored.ledgered {
+                bytes += crate::chunk::memory::buffer_bytes(buffer);
+                continue;
+            }
+            let address = crate::chunk::memory::buffer_address(buffer);
+            let gone = released.entry(address).or_default();
+            *gone += 1;
+            if *gone >= self.ledgers.all.references(address) {
+                bytes += crate::chunk::memory::buffer_bytes(buffer);
+            }
+        }
+        bytes
+    }
+
+    /// Removes every row whose time on `timeline` is in `[min, max]`, from all its
+    /// timelines; static data is untouched. A chunk partly in the range is replaced by a
+    /// chunk of its other rows (a deletion, then an addition). Returns the events.
+    ///
+    /// Cost: the chunks of the timeline that end at or after `min`, times `log n`, plus
+    /// the rows rewritten.
+    pub fn drop_time_range(
+        &mut self,
+        timeline: &str,
+        min: TimeInt,
+        max: TimeInt,
+    ) -> Vec<StoreEvent> {
+        let mut events = Vec::new();
+        let Some(chunks) = self.temporal_per_timeline.get(timeline) else {
+            return events;
+        };
+        if min > max {
+            return events;
+        }
+        let touched: Vec<ChunkId> = chunks
+            .by_max_time
+            .range((min, ChunkId::ZERO)..)
+            .map(|&(_, id)| id)
+            .filter(|id| {
+                self.chunks
+                    .get(id)
+                    .and_then(|s| s.chunk.time_column(timeline))
+                    .is_some_and(|c| c.time_range().0 <= max)
+            })
+            .collect();
+        for id in touched {
+            let Some(chunk) = self.chunk(id).cloned() else {
+                continue;
+            };
+            let Some(times) = chunk.time_column(timeline).map(crate::TimeColumn::times) else {
+                continue;
+            };
+            let kept: Vec<(usize, usize)> = (0..chunk.num_rows())
+                .filter(|&row| !(min.as_i64()..=max.as_i64()).contains(&times[row]))
+                .map(|row| (0, row))
+                .collect();
+            if !kept.is_empty() {
+                match Chunk::gather(&[&chunk], &kept) {
+                    Ok(rest) => self.add_chunk(std::sync::Arc::new(rest), &mut events),
+                    // Copying rows of a valid chunk does not fail; if it ever did, the
+                    // chunk stays whole rather than losing rows outside the range.
+                    Err(_) => continue,
+                }
+            }
+            self.remove_chunk(id, DeletionReason::Drop, &mut events);
+        }
+        self.notify(events)
+    }
+
+    /// Removes all of `entity`'s data, static included, and its Clears; with `recursive`,
+    /// its descendants' too. Returns the events.
+    pub fn drop_entity(&mut self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {
+        let mut targets: Vec<ChunkId> = Vec::new();
+        for (path, index) in &self.entities {
+            if path == entity || (recursive && entity.is_ancestor_of(path)) {
+                targets.extend(index.chunk_ids.iter().copied());
+            }
+        }
+        targets.sort_unstable();
+        let mut events = Vec::with_capacity(targets.len());
+        for id in targets {
+            self.remove_chunk(id, DeletionReason::Drop, &mut events);
+        }
+        self.clears.remove_entity(entity, recursive);
+        self.notify(events)
+    }
+}

@@ -1,0 +1,214 @@
+//! Statistics and memory accounting: totals kept incrementally by every mutation (O(1) to
+//! read), and the ledger that counts an Arrow buffer shared by several chunks once.
+//!
+//! A chunk's cost to the store is its own allocations ([`Chunk::heap_size_bytes`] minus
+//! its buffers), an estimate of the index entries pointing at it, and its Arrow buffers.
+//! Chunks that alone hold their buffers (the common case: built by an SDK or by
+//! compaction) are counted directly; chunks sharing buffers (decoded from one IPC
+//! message, or slices of one split chunk) go through a [`BufferLedger`] that counts each
+//! allocation once, while any chunk references it.
+
+use arrow_buffer::Buffer;
+
+use crate::Chunk;
+use crate::chunk::memory::{buffer_address, buffer_bytes};
+
+/// Estimated heap of the store's bookkeeping per chunk: its slot in the chunk map, in the
+/// garbage collector's orders, and its compaction slot.
+const INDEX_BYTES_PER_CHUNK: u64 = 160;
+/// Estimated heap of one (timeline, component) index entry of a chunk: its node share in
+/// the two ordered views of the temporal index.
+const INDEX_BYTES_PER_ENTRY: u64 = 224;
+
+/// Totals, kept up to date by every mutation, O(1) to read.
+///
+/// Heap bytes count a shared Arrow buffer once: in `heap_bytes` once for the whole store,
+/// in `static_heap_bytes` and `temporal_heap_bytes` once per kind, so the two kinds can
+/// add up to more than `heap_bytes` when static and temporal chunks share a buffer.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StoreStats {
+    /// Static chunks held.
+    pub num_static_chunks: u64,
+    /// Rows in static chunks.
+    pub num_static_rows: u64,
+    /// Heap bytes of static chunks.
+    pub static_heap_bytes: u64,
+    /// Temporal chunks held.
+    pub num_temporal_chunks: u64,
+    /// Rows in temporal chunks.
+    pub num_temporal_rows: u64,
+    /// Heap bytes of temporal chunks.
+    pub temporal_heap_bytes: u64,
+    /// Heap bytes of the whole store: chunks, their buffers and the indices over them.
+    pub heap_bytes: u64,
+    /// Since the store was created: rows the caller inserted.
+    pub rows_inserted: u64,
+    /// Since the store was created: payload bytes ([`Chunk::payload_bytes`]) the caller
+    /// inserted.
+    pub payload_bytes_inserted: u64,
+    /// Since the store was created: rows compaction copied (a row merged three times
+    /// counts three times; a split that only slices copies nothing).
+    pub rows_copied_by_compaction: u64,
+    /// Since the store was created: payload bytes compaction wrote.
+    pub payload_bytes_copied_by_compaction: u64,
+}
+
+impl StoreStats {
+    /// Chunks held, static and temporal.
+    pub fn num_chunks(&self) -> u64 {
+        self.num_static_chunks + self.num_temporal_chunks
+    }
+
+    /// Rows held, static and temporal.
+    pub fn num_rows(&self) -> u64 {
+        self.num_static_rows + self.num_temporal_rows
+    }
+
+    /// The figures a store's contents determine (not the running totals since creation),
+    /// for comparing a store's kept stats with a recount.
+    pub(crate) fn contents(&self) -> Self {
+        Self {
+            rows_inserted: 0,
+            payload_bytes_inserted: 0,
+            rows_copied_by_compaction: 0,
+            payload_bytes_copied_by_compaction: 0,
+            ..*self
+        }
+    }
+}
+
+/// The figures of one entity, kept like [`StoreStats`]. A buffer shared by chunks of
+/// several entities counts once in each.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EntityStats {
+    /// Static chunks held.
+    pub num_static_chunks: u64,
+    /// Rows in static chunks.
+    pub num_static_rows: u64,
+    /// Temporal chunks held.
+    pub num_temporal_chunks: u64,
+    /// Rows in temporal chunks.
+    pub num_temporal_rows: u64,
+    /// Heap bytes of the entity's chunks, their buffers and index entries.
+    pub heap_bytes: u64,
+}
+
+/// Reference counts of the Arrow allocations held by chunks that share buffers, so each
+/// allocation is counted once.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct BufferLedger {
+    /// Allocation address → (references by chunks, bytes).
+    references: ahash::HashMap<usize, (u32, u64)>,
+}
+
+impl BufferLedger {
+    /// Records one more chunk referencing `buffer`; returns the bytes that became
+    /// counted (all of them for the first reference, none after).
+    pub fn acquire(&mut self, buffer: &Buffer) -> u64 {
+        let entry = self
+            .references
+            .entry(buffer_address(buffer))
+            .or_insert((0, buffer_bytes(buffer)));
+        entry.0 += 1;
+        if entry.0 == 1 { entry.1 } else { 0 }
+    }
+
+    /// Records one chunk fewer referencing `buffer`; returns the bytes that stopped being
+    /// counted.
+    pub fn release(&mut self, buffer: &Buffer) -> u64 {
+        let address = buffer_address(buffer);
+        let Some(entry) = self.references.get_mut(&address) else {
+            return 0;
+        };
+        entry.0 -= 1;
+        if entry.0 > 0 {
+            return 0;
+        }
+        let bytes = entry.1;
+        self.references.remove(&address);
+        bytes
+    }
+
+    /// How many chunks reference the allocation at `address`.
+    pub fn references(&self, address: usize) -> u32 {
+        self.references.get(&address).map_or(0, |e| e.0)
+    }
+}
+
+/// The store's share of memory accounting: the ledgers for the whole store and per kind.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct StoreLedgers {
+    pub all: BufferLedger,
+    pub static_: BufferLedger,
+    pub temporal: BufferLedger,
+}
+
+/// The bytes a chunk costs besides its Arrow buffers.
+pub(crate) fn fixed_bytes(chunk: &Chunk) -> u64 {
+    let entries: usize = if chunk.is_static() {
+        chunk.components().len()
+    } else {
+        chunk.time_columns().len() * chunk.components().len()
+    };
+    chunk.own_heap_bytes() + INDEX_BYTES_PER_CHUNK + INDEX_BYTES_PER_ENTRY * entries as u64
+}
+
+/// Adds (`sign` = 1) or removes (`sign` = -1) a chunk to or from the figures of the store
+/// and of its entity. `ledgered` says whether the chunk's buffers go through the ledgers
+/// (see the module docs); it must be the same on removal as it was on addition.
+pub(crate) fn account(
+    chunk: &Chunk,
+    ledgered: bool,
+    acquire: bool,
+    stats: &mut StoreStats,
+    ledgers: &mut StoreLedgers,
+    entity_stats: &mut EntityStats,
+    entity_ledger: &mut BufferLedger,
+) {
+    let fixed = fixed_bytes(chunk);
+    let (mut all, mut kind, mut entity) = (fixed, fixed, fixed);
+    let kind_ledger = if chunk.is_static() {
+        &mut ledgers.static_
+    } else {
+        &mut ledgers.temporal
+    };
+    for buffer in chunk.buffers() {
+        if !ledgered {
+            let bytes = buffer_bytes(buffer);
+            all += bytes;
+            kind += bytes;
+            entity += bytes;
+        } else if acquire {
+            all += ledgers.all.acquire(buffer);
+            kind += kind_ledger.acquire(buffer);
+            entity += entity_ledger.acquire(buffer);
+        } else {
+            all += ledgers.all.release(buffer);
+            kind += kind_ledger.release(buffer);
+            entity += entity_ledger.release(buffer);
+        }
+    }
+    let rows = chunk.num_rows() as u64;
+    let apply = |total: &mut u64, amount: u64| {
+        *total = if acquire {
+            *total + amount
+        } else {
+            total.saturating_sub(amount)
+        };
+    };
+    apply(&mut stats.heap_bytes, all);
+    apply(&mut entity_stats.heap_bytes, entity);
+    if chunk.is_static() {
+        apply(&mut stats.num_static_chunks, 1);
+        apply(&mut stats.num_static_rows, rows);
+        apply(&mut stats.static_heap_bytes, kind);
+        apply(&mut entity_stats.num_static_chunks, 1);
+        apply(&mut entity_stats.num_static_rows, rows);
+    } else {
+        apply(&mut stats.num_temporal_chunks, 1);
+        apply(&mut stats.num_temporal_rows, rows);
+        apply(&mut stats.temporal_heap_bytes, kind);
+        apply(&mut entity_stats.num_temporal_chunks, 1);
+        apply(&mut entity_stats.num_temporal_rows, rows);
+    }
+}
