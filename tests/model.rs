@@ -1,9 +1,15 @@
 //! Model test: random operation sequences (temporal inserts on several timelines, with
 //! out-of-order and overlapping chunks, null cells, empty lists and duplicate times; static
 //! inserts; flat and recursive Clears, temporal and static, at random depths of a small
-//! entity tree) interleaved with latest-at and range queries, run against the store and
-//! against a deliberately naive model that scans every row. Answers must be identical,
-//! and `sanity_check()` must pass after every insert.
+//! entity tree; garbage collections with random targets, orders and protections; drops of
+//! time ranges and of entities; on-demand compaction) interleaved with latest-at and range
+//! queries, run against two stores (compaction off, and compaction with tiny thresholds)
+//! and against a deliberately naive model that scans every row. After every step, answers
+//! must be identical, `sanity_check()` must pass, and replaying every event returned so
+//! far must give exactly the store's chunks.
+//!
+//! The named properties of the lifecycle (SEMANTICS.md sections 6 to 8) reuse the same
+//! generator and harness, each in its own test.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -13,13 +19,15 @@
 
 mod common;
 
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::sync::Arc;
 
-use arrow_array::{ArrayRef, Float64Array, Int64Array};
+use arrow_array::{Array, ArrayRef, BooleanArray, Float64Array, Int64Array};
 use chunkstore::{
-    Chunk, ChunkId, ChunkStore, ComponentName, LatestAtQuery, RangeQuery, RowId, TimeInt, Timeline,
+    Chunk, ChunkId, ChunkStore, ComponentName, DeletionReason, GcOptions, GcOrder, GcTarget,
+    LatestAtQuery, RangeQuery, RowId, StoreConfig, StoreEvent, TimeInt, Timeline,
 };
-use common::{bool_list, f64_list, path};
+use common::{bool_list, f64_list, path, t};
 use proptest::prelude::*;
 
 const ENTITIES: [&str; 6] = ["/", "a", "a/b", "a/b/c", "a/d", "e"];
@@ -67,6 +75,56 @@ enum Op {
         min: i64,
         max: i64,
     },
+    Gc(GcOp),
+    DropTimeRange {
+        timeline: usize,
+        min: i64,
+        max: i64,
+    },
+    DropEntity {
+        entity: usize,
+        recursive: bool,
+    },
+    Compact,
+}
+
+#[derive(Clone, Debug)]
+struct GcOp {
+    /// 0: everything; 1: half the heap; 2: a few bytes (one chunk or so).
+    target: u8,
+    protect_latest: usize,
+    /// Furthest from `(timeline, time)` first, else oldest row ids first.
+    cursor: Option<(usize, i64)>,
+    /// `(timeline, min, max)`.
+    protected: Option<(usize, i64, i64)>,
+    /// A zero time budget: planning stops after the first chunk it chooses.
+    zero_budget: bool,
+}
+
+impl GcOp {
+    fn options(&self) -> GcOptions {
+        GcOptions {
+            target: match self.target {
+                0 => GcTarget::Everything,
+                1 => GcTarget::DropAtLeastFraction(0.5),
+                _ => GcTarget::DropAtLeastBytes(1),
+            },
+            protect_latest: self.protect_latest,
+            protected_time_ranges: self
+                .protected
+                .iter()
+                .map(|&(timeline, min, max)| (TIMELINES[timeline].to_owned(), t(min), t(max)))
+                .collect(),
+            time_budget: self.zero_budget.then_some(std::time::Duration::ZERO),
+            order: match self.cursor {
+                Some((timeline, time)) => GcOrder::FurthestFrom {
+                    timeline: TIMELINES[timeline].to_owned(),
+                    time: t(time),
+                },
+                None => GcOrder::OldestRowIdsFirst,
+            },
+        }
+    }
 }
 
 fn cell() -> impl Strategy<Value = Cell> {
@@ -128,7 +186,41 @@ fn op() -> impl Strategy<Value = Op> {
             min,
             max: min + len,
         });
-    prop_oneof![6 => temporal, 1 => statics, 2 => clear, 4 => latest, 2 => range]
+    let gc = (
+        0u8..3,
+        0usize..3,
+        prop::option::of((0..2usize, 0..=MAX_TIME)),
+        prop::option::weighted(0.3, (0..2usize, 0..=MAX_TIME, 0..4i64)),
+        prop::bool::weighted(0.2),
+    )
+        .prop_map(|(target, protect_latest, cursor, protected, zero_budget)| {
+            Op::Gc(GcOp {
+                target,
+                protect_latest,
+                cursor,
+                protected: protected.map(|(timeline, min, len)| (timeline, min, min + len)),
+                zero_budget,
+            })
+        });
+    let drop_range =
+        (0..2usize, 0..=MAX_TIME, 0..4i64).prop_map(|(timeline, min, len)| Op::DropTimeRange {
+            timeline,
+            min,
+            max: min + len,
+        });
+    let drop_entity = (0..ENTITIES.len(), any::<bool>())
+        .prop_map(|(entity, recursive)| Op::DropEntity { entity, recursive });
+    prop_oneof![
+        6 => temporal,
+        1 => statics,
+        2 => clear,
+        4 => latest,
+        2 => range,
+        1 => gc,
+        1 => drop_range,
+        1 => drop_entity,
+        1 => Just(Op::Compact),
+    ]
 }
 
 /// What a query answers: `(time, row id, cell)` (time `None` for static).
@@ -293,18 +385,90 @@ impl RowIds {
     }
 }
 
-#[expect(
-    clippy::too_many_lines,
-    reason = "one match arm per operation, side by side with the model's"
-)]
-fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
-    let mut store = ChunkStore::new();
-    let mut model = Model::default();
-    let mut row_ids = RowIds { counter: 0 };
-    let mut randomness = shuffles.iter().copied().cycle();
-    let mut next_row_id = || row_ids.next(randomness.next().unwrap_or(0));
+/// The two stores every sequence runs against: compaction off, and compaction with
+/// thresholds so small that nearly every insert merges or splits.
+const CONFIGS: [StoreConfig; 2] = [
+    StoreConfig::COMPACTION_OFF,
+    StoreConfig {
+        compact_on_insert: true,
+        max_rows: 4,
+        max_rows_unsorted: 3,
+        max_bytes: 256,
+        merge_fanout: 2,
+    },
+];
 
-    for op in ops {
+/// One store, its naive model, and the chunks its events replay to.
+struct Harness {
+    store: ChunkStore,
+    model: Model,
+    replayed: HashMap<ChunkId, Arc<Chunk>>,
+    row_ids: RowIds,
+}
+
+impl Harness {
+    fn new(config: StoreConfig) -> Self {
+        Self {
+            store: ChunkStore::with_config(config).unwrap(),
+            model: Model::default(),
+            replayed: HashMap::new(),
+            row_ids: RowIds { counter: 0 },
+        }
+    }
+
+    /// Replays `events` on the set of chunks, which must stay consistent.
+    fn replay(&mut self, events: &[StoreEvent]) -> Result<(), TestCaseError> {
+        for event in events {
+            match event {
+                StoreEvent::Addition(chunk) => {
+                    let before = self.replayed.insert(chunk.id(), Arc::clone(chunk));
+                    prop_assert!(before.is_none(), "{} added twice", chunk.id());
+                }
+                StoreEvent::Deletion { chunk, .. } => {
+                    let before = self.replayed.remove(&chunk.id());
+                    prop_assert!(before.is_some(), "{} deleted before added", chunk.id());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The model forgets the rows of every chunk garbage collection removed.
+    fn forget_collected(&mut self, events: &[StoreEvent]) {
+        let collected: HashSet<u128> = events
+            .iter()
+            .filter_map(|e| match e {
+                StoreEvent::Deletion {
+                    chunk,
+                    reason: DeletionReason::Gc,
+                } => Some(chunk.row_ids().iter().map(|r| r.as_u128())),
+                _ => None,
+            })
+            .flatten()
+            .collect();
+        self.model
+            .rows
+            .retain(|(_, row_id, ..)| !collected.contains(row_id));
+        self.model
+            .clears
+            .retain(|(_, row_id, ..)| !collected.contains(row_id));
+    }
+
+    fn insert(&mut self, chunk: Chunk) -> Result<(), TestCaseError> {
+        let events = self.store.insert(chunk).unwrap();
+        self.replay(&events)
+    }
+
+    #[expect(
+        clippy::too_many_lines,
+        reason = "one match arm per operation, side by side with the model's"
+    )]
+    fn apply(
+        &mut self,
+        op: &Op,
+        randomness: &mut impl Iterator<Item = u64>,
+    ) -> Result<(), TestCaseError> {
+        let mut next_row_id = || self.row_ids.next(randomness.next().unwrap_or(0));
         match op {
             Op::Temporal {
                 entity,
@@ -332,10 +496,10 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                     components,
                 )
                 .unwrap();
-                store.insert(chunk).unwrap();
+                self.insert(chunk)?;
                 for (&row_id, (times, cells)) in ids.iter().zip(rows) {
                     let times = [0, 1].map(|i| (timelines & (1 << i) != 0).then_some(times[i]));
-                    model.rows.push((
+                    self.model.rows.push((
                         *entity,
                         row_id,
                         Row {
@@ -357,9 +521,9 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                     components,
                 )
                 .unwrap();
-                store.insert(chunk).unwrap();
+                self.insert(chunk)?;
                 for (&row_id, cells) in ids.iter().zip(rows) {
-                    model.rows.push((
+                    self.model.rows.push((
                         *entity,
                         row_id,
                         Row {
@@ -401,8 +565,8 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                     )],
                 )
                 .unwrap();
-                store.insert(chunk).unwrap();
-                model
+                self.insert(chunk)?;
+                self.model
                     .clears
                     .push((*entity, row_id, time.map(|t| t.map(Some)), *recursive));
             }
@@ -412,7 +576,14 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                 timeline,
                 at,
             } => {
-                check_latest_at(&store, &model, *entity, *component, *timeline, *at)?;
+                check_latest_at(
+                    &self.store,
+                    &self.model,
+                    *entity,
+                    *component,
+                    *timeline,
+                    *at,
+                )?;
             }
             Op::Range {
                 entity,
@@ -421,28 +592,231 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
                 min,
                 max,
             } => {
-                check_range(&store, &model, *entity, *component, *timeline, *min, *max)?;
+                check_range(
+                    &self.store,
+                    &self.model,
+                    *entity,
+                    *component,
+                    *timeline,
+                    *min,
+                    *max,
+                )?;
+            }
+            Op::Gc(gc) => {
+                let options = gc.options();
+                let protected = protected_chunks(&self.store, &options);
+                let collectable = self.store.chunks().any(|c| !protected.contains(&c.id()));
+                let events = self.store.gc(&options);
+                self.replay(&events)?;
+                for event in &events {
+                    let StoreEvent::Deletion { chunk, reason } = event else {
+                        return Err(TestCaseError::fail("gc only deletes"));
+                    };
+                    prop_assert_eq!(*reason, DeletionReason::Gc);
+                    prop_assert!(
+                        !protected.contains(&chunk.id()),
+                        "gc removed protected {}",
+                        chunk.id()
+                    );
+                }
+                prop_assert!(
+                    !collectable || !events.is_empty(),
+                    "gc freed nothing although unprotected chunks exist"
+                );
+                self.forget_collected(&events);
+            }
+            Op::DropTimeRange { timeline, min, max } => {
+                let events = self
+                    .store
+                    .drop_time_range(TIMELINES[*timeline], t(*min), t(*max));
+                self.replay(&events)?;
+                let in_range = |time: Option<i64>| time.is_some_and(|t| *min <= t && t <= *max);
+                self.model
+                    .rows
+                    .retain(|(_, _, row, is_static)| *is_static || !in_range(row.times[*timeline]));
+                self.model.clears.retain(|(_, _, times, _)| {
+                    !times.is_some_and(|times| in_range(times[*timeline]))
+                });
+            }
+            Op::DropEntity { entity, recursive } => {
+                let events = self.store.drop_entity(&path(ENTITIES[*entity]), *recursive);
+                self.replay(&events)?;
+                let dropped =
+                    |e: usize| e == *entity || (*recursive && is_strict_ancestor(*entity, e));
+                self.model.rows.retain(|(e, ..)| !dropped(*e));
+                self.model.clears.retain(|(e, ..)| !dropped(*e));
+            }
+            Op::Compact => {
+                let events = self.store.compact();
+                self.replay(&events)?;
+                for event in &events {
+                    if let StoreEvent::Deletion { reason, .. } = event {
+                        prop_assert_eq!(*reason, DeletionReason::Compaction);
+                    }
+                }
             }
         }
-        if let Err(broken) = store.sanity_check() {
+        if let Err(broken) = self.store.sanity_check() {
             return Err(TestCaseError::fail(format!(
                 "sanity_check after {op:?}: {broken}"
             )));
         }
+        let held: BTreeSet<ChunkId> = self.store.chunks().map(|c| c.id()).collect();
+        let replayed: BTreeSet<ChunkId> = self.replayed.keys().copied().collect();
+        prop_assert_eq!(
+            held,
+            replayed,
+            "events replay to the store's chunks after {:?}",
+            op
+        );
+        Ok(())
     }
-    // A final sweep of every query, so no sequence ends without being checked.
-    for entity in 0..ENTITIES.len() {
-        for component in 0..COMPONENTS.len() {
-            for timeline in 0..TIMELINES.len() {
-                for at in -1..=MAX_TIME + 1 {
-                    check_latest_at(&store, &model, entity, component, timeline, at)?;
+
+    /// Latest-at at the end of time and a full range, for every (entity, component,
+    /// timeline): cheap enough to run after every step.
+    fn light_sweep(&self, at: i64) -> Result<(), TestCaseError> {
+        for entity in 0..ENTITIES.len() {
+            for component in 0..COMPONENTS.len() {
+                for timeline in 0..TIMELINES.len() {
+                    for at in [at, MAX_TIME + 1] {
+                        check_latest_at(&self.store, &self.model, entity, component, timeline, at)?;
+                    }
+                    check_range(
+                        &self.store,
+                        &self.model,
+                        entity,
+                        component,
+                        timeline,
+                        0,
+                        MAX_TIME,
+                    )?;
                 }
-                check_range(&store, &model, entity, component, timeline, 0, MAX_TIME)?;
-                check_range(&store, &model, entity, component, timeline, 3, 7)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Every latest-at time and two ranges, for every (entity, component, timeline).
+    fn full_sweep(&self) -> Result<(), TestCaseError> {
+        for entity in 0..ENTITIES.len() {
+            for component in 0..COMPONENTS.len() {
+                for timeline in 0..TIMELINES.len() {
+                    for at in -1..=MAX_TIME + 1 {
+                        check_latest_at(&self.store, &self.model, entity, component, timeline, at)?;
+                    }
+                    check_range(
+                        &self.store,
+                        &self.model,
+                        entity,
+                        component,
+                        timeline,
+                        0,
+                        MAX_TIME,
+                    )?;
+                    check_range(&self.store, &self.model, entity, component, timeline, 3, 7)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs `ops` on a store with `config`, checking everything after every step.
+fn run_with(config: StoreConfig, ops: &[Op], shuffles: &[u64]) -> Result<Harness, TestCaseError> {
+    let mut harness = Harness::new(config);
+    let mut randomness = shuffles.iter().copied().cycle();
+    for (step, op) in ops.iter().enumerate() {
+        harness.apply(op, &mut randomness)?;
+        harness.light_sweep(i64::try_from(step).unwrap() % (MAX_TIME + 2) - 1)?;
+    }
+    harness.full_sweep()?;
+    Ok(harness)
+}
+
+fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
+    for config in CONFIGS {
+        run_with(config, ops, shuffles)?;
+    }
+    Ok(())
+}
+
+/// `(time, row id, chunk)`: how the store orders cells and Clears across chunks.
+type IndexKey = (i64, RowId, ChunkId);
+
+/// The chunks `options` must keep, found by brute force over the store's chunks: static
+/// ones, those touching a protected range, the `n` latest of every (entity, timeline,
+/// component), and those holding the `n` latest Clears (flat or recursive, and recursive
+/// alone) of every (entity, timeline).
+fn protected_chunks(store: &ChunkStore, options: &GcOptions) -> HashSet<ChunkId> {
+    let mut protected = HashSet::new();
+    // (entity, timeline, component) → (max time, max row id, chunk) per chunk.
+    let mut latest: HashMap<(String, String, String), Vec<IndexKey>> = HashMap::new();
+    // (entity, timeline, recursive only?) → every Clear row (time, row id, chunk).
+    let mut clears: HashMap<(String, String, bool), Vec<IndexKey>> = HashMap::new();
+    for chunk in store.chunks() {
+        if chunk.is_static() {
+            protected.insert(chunk.id());
+            continue;
+        }
+        for (name, min, max) in &options.protected_time_ranges {
+            if let Some(column) = chunk.time_column(name) {
+                let (lo, hi) = column.time_range();
+                if lo <= *max && *min <= hi {
+                    protected.insert(chunk.id());
+                }
+            }
+        }
+        let entity = chunk.entity_path().to_string();
+        for column in chunk.time_columns() {
+            let timeline = column.timeline().name().to_owned();
+            for component in chunk.components() {
+                let list = component.list_array();
+                let best = (0..chunk.num_rows())
+                    .filter(|&row| list.is_valid(row))
+                    .map(|row| (column.times()[row], chunk.row_ids()[row]))
+                    .max();
+                if let Some((time, row_id)) = best {
+                    latest
+                        .entry((
+                            entity.clone(),
+                            timeline.clone(),
+                            component.name().to_string(),
+                        ))
+                        .or_default()
+                        .push((time, row_id, chunk.id()));
+                }
+                if component.name().is_clear() {
+                    let flags = list
+                        .values()
+                        .as_any()
+                        .downcast_ref::<BooleanArray>()
+                        .unwrap();
+                    for row in (0..chunk.num_rows())
+                        .filter(|&r| list.is_valid(r) && list.value_length(r) > 0)
+                    {
+                        let first = usize::try_from(list.value_offsets()[row]).unwrap();
+                        let recursive = flags.is_valid(first) && flags.value(first);
+                        let key = (column.times()[row], chunk.row_ids()[row], chunk.id());
+                        clears
+                            .entry((entity.clone(), timeline.clone(), false))
+                            .or_default()
+                            .push(key);
+                        if recursive {
+                            clears
+                                .entry((entity.clone(), timeline.clone(), true))
+                                .or_default()
+                                .push(key);
+                        }
+                    }
+                }
             }
         }
     }
-    Ok(())
+    for mut keys in latest.into_values().chain(clears.into_values()) {
+        keys.sort_unstable();
+        protected.extend(keys.iter().rev().take(options.protect_latest).map(|k| k.2));
+    }
+    protected
 }
 
 fn check_latest_at(
