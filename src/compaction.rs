@@ -308,23 +308,28 @@ fn rewrite(
     Ok(pieces)
 }
 
-/// Are `chunks` (one layout, sorted by least time) already as compact as the thresholds
-/// allow: each time-sorted and within them, none overlapping the next on the first
-/// timeline, and no fewer chunks possible?
+/// Are `chunks` (one layout, sorted by least time on the first timeline) already what
+/// [`rewrite`] would make of them: in sequence on the first timeline, each within the
+/// thresholds, and no more of them than the thresholds require? Then `compact()` leaves
+/// them alone, which also makes it idempotent.
 fn is_compact(chunks: &[Arc<Chunk>], config: &StoreConfig) -> bool {
+    let in_sequence_on = |t: usize| {
+        chunks.iter().all(|c| c.time_columns()[t].is_sorted())
+            && chunks.windows(2).all(|w| {
+                w[0].time_columns()[t].time_range().1 <= w[1].time_columns()[t].time_range().0
+            })
+    };
+    if !in_sequence_on(0) || chunks.iter().any(|c| config.is_oversized(c)) {
+        return false;
+    }
+    let sorted = (1..chunks[0].time_columns().len()).all(in_sequence_on);
     let num_rows: usize = chunks.iter().map(|c| c.num_rows()).sum();
     let payload: u64 = chunks.iter().map(|c| c.payload_bytes()).sum();
     let fewest = num_rows
-        .div_ceil(config.max_rows)
+        .div_ceil(config.max_rows_for(sorted))
         .max(usize::try_from(payload.div_ceil(config.max_bytes)).unwrap_or(usize::MAX))
         .max(1);
     chunks.len() <= fewest
-        && chunks
-            .iter()
-            .all(|c| is_time_sorted(c) && !config.is_oversized(c))
-        && chunks
-            .windows(2)
-            .all(|w| w[0].time_columns()[0].time_range().1 <= w[1].time_columns()[0].time_range().0)
 }
 
 impl ChunkStore {

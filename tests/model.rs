@@ -819,6 +819,51 @@ fn protected_chunks(store: &ChunkStore, options: &GcOptions) -> HashSet<ChunkId>
     protected
 }
 
+fn latest_at_answer(
+    store: &ChunkStore,
+    entity: usize,
+    component: usize,
+    timeline: usize,
+    at: i64,
+) -> Option<Answer> {
+    let query = LatestAtQuery::new(TIMELINES[timeline], TimeInt::new(at).unwrap());
+    store
+        .latest_at(&query, &path(ENTITIES[entity]), COMPONENTS[component])
+        .map(|a| {
+            (
+                a.time().map(TimeInt::as_i64),
+                a.row_id().as_u128(),
+                values(&a.cell()),
+            )
+        })
+}
+
+fn range_answer(
+    store: &ChunkStore,
+    entity: usize,
+    component: usize,
+    timeline: usize,
+    min: i64,
+    max: i64,
+) -> Vec<Answer> {
+    let query = RangeQuery::new(
+        TIMELINES[timeline],
+        TimeInt::new(min).unwrap(),
+        TimeInt::new(max).unwrap(),
+    );
+    store
+        .range(&query, &path(ENTITIES[entity]), COMPONENTS[component])
+        .iter()
+        .map(|r| {
+            (
+                r.time().map(TimeInt::as_i64),
+                r.row_id().as_u128(),
+                values(&r.cell()),
+            )
+        })
+        .collect()
+}
+
 fn check_latest_at(
     store: &ChunkStore,
     model: &Model,
@@ -827,16 +872,7 @@ fn check_latest_at(
     timeline: usize,
     at: i64,
 ) -> Result<(), TestCaseError> {
-    let query = LatestAtQuery::new(TIMELINES[timeline], TimeInt::new(at).unwrap());
-    let ours = store
-        .latest_at(&query, &path(ENTITIES[entity]), COMPONENTS[component])
-        .map(|a| {
-            (
-                a.time().map(TimeInt::as_i64),
-                a.row_id().as_u128(),
-                values(&a.cell()),
-            )
-        });
+    let ours = latest_at_answer(store, entity, component, timeline, at);
     let expected = model.latest_at(entity, component, timeline, at);
     prop_assert_eq!(
         ours,
@@ -859,22 +895,7 @@ fn check_range(
     min: i64,
     max: i64,
 ) -> Result<(), TestCaseError> {
-    let query = RangeQuery::new(
-        TIMELINES[timeline],
-        TimeInt::new(min).unwrap(),
-        TimeInt::new(max).unwrap(),
-    );
-    let ours: Vec<Answer> = store
-        .range(&query, &path(ENTITIES[entity]), COMPONENTS[component])
-        .iter()
-        .map(|r| {
-            (
-                r.time().map(TimeInt::as_i64),
-                r.row_id().as_u128(),
-                values(&r.cell()),
-            )
-        })
-        .collect();
+    let ours = range_answer(store, entity, component, timeline, min, max);
     let expected = model.range(entity, component, timeline, min, max);
     prop_assert_eq!(
         ours,
@@ -892,13 +913,217 @@ fn check_range(
 /// Number of random sequences per run; the closing note quotes it.
 const NUM_CASES: u32 = 768;
 
+/// Cases per run of each named property (each case runs a whole sequence).
+const PROPERTY_CASES: u32 = 256;
+
+/// A store with compaction on insert off but tiny thresholds, so that `compact()` cuts
+/// nearly every set of chunks into several.
+const TINY_ON_DEMAND: StoreConfig = StoreConfig {
+    compact_on_insert: false,
+    ..CONFIGS[1]
+};
+
+/// Every answer of the full sweep, in order.
+fn all_answers(store: &ChunkStore) -> Vec<Vec<Answer>> {
+    let mut answers = Vec::new();
+    for entity in 0..ENTITIES.len() {
+        for component in 0..COMPONENTS.len() {
+            for timeline in 0..TIMELINES.len() {
+                for at in -1..=MAX_TIME + 1 {
+                    answers.push(
+                        latest_at_answer(store, entity, component, timeline, at)
+                            .into_iter()
+                            .collect(),
+                    );
+                }
+                answers.push(range_answer(
+                    store, entity, component, timeline, 0, MAX_TIME,
+                ));
+                answers.push(range_answer(store, entity, component, timeline, 3, 7));
+            }
+        }
+    }
+    answers
+}
+
+/// Latest-at at `+∞` of every (entity, component, timeline).
+fn answers_at_infinity(store: &ChunkStore) -> Vec<Option<Answer>> {
+    let mut answers = Vec::new();
+    for entity in 0..ENTITIES.len() {
+        for component in 0..COMPONENTS.len() {
+            for timeline in 0..TIMELINES.len() {
+                answers.push(latest_at_answer(
+                    store,
+                    entity,
+                    component,
+                    timeline,
+                    i64::MAX,
+                ));
+            }
+        }
+    }
+    answers
+}
+
+/// `(row id, times on t1 and t2)` of every row the store holds; static rows have none.
+fn rows_held(store: &ChunkStore) -> BTreeSet<(u128, [Option<i64>; 2])> {
+    store
+        .chunks()
+        .flat_map(|chunk| {
+            (0..chunk.num_rows()).map(move |row| {
+                let times = TIMELINES.map(|name| chunk.time_column(name).map(|c| c.times()[row]));
+                (chunk.row_ids()[row].as_u128(), times)
+            })
+        })
+        .collect()
+}
+
+fn ops() -> impl Strategy<Value = Vec<Op>> {
+    prop::collection::vec(op(), 1..40)
+}
+
+fn shuffles() -> impl Strategy<Value = Vec<u64>> {
+    prop::collection::vec(any::<u64>(), 1..16)
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: NUM_CASES, max_shrink_iters: 4096, ..ProptestConfig::default() })]
 
     #[test]
-    fn store_answers_like_the_naive_model(ops in prop::collection::vec(op(), 1..40), shuffles in prop::collection::vec(any::<u64>(), 1..16)) {
+    fn store_answers_like_the_naive_model(ops in ops(), shuffles in shuffles()) {
         run(&ops, &shuffles)?;
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: PROPERTY_CASES, max_shrink_iters: 4096, ..ProptestConfig::default() })]
+
+    /// Compaction on insert (tiny thresholds) and on demand (tiny and default thresholds)
+    /// answer every query exactly as the store without compaction. (Garbage collection is
+    /// left out: which chunks it drops depends on how rows are chunked.)
+    #[test]
+    fn compaction_preserves_all_queries(ops in ops(), shuffles in shuffles()) {
+        let ops: Vec<Op> = ops.into_iter().filter(|op| !matches!(op, Op::Gc(_))).collect();
+        let plain = run_with(StoreConfig::COMPACTION_OFF, &ops, &shuffles)?.store;
+        let expected = all_answers(&plain);
+        let compacting = run_with(CONFIGS[1], &ops, &shuffles)?.store;
+        prop_assert_eq!(&all_answers(&compacting), &expected);
+        for config in [TINY_ON_DEMAND, StoreConfig::COMPACTION_OFF] {
+            let mut store = run_with(config, &ops, &shuffles)?.store;
+            store.compact();
+            store.sanity_check().map_err(TestCaseError::fail)?;
+            prop_assert_eq!(&all_answers(&store), &expected, "after compact() with {:?}", config);
+            // A second pass finds nothing left to do.
+            let again = store.compact();
+            prop_assert!(again.is_empty(), "compact() is idempotent; second pass: {:?}", again);
+        }
+    }
+
+    /// Whatever the options, garbage collection drops no static chunk, no chunk touching a
+    /// protected range and none of the latest `n` (checked by brute force inside
+    /// `Harness::apply`), and frees something when anything is collectable.
+    #[test]
+    fn gc_never_removes_static_or_protected(
+        ops in ops(),
+        shuffles in shuffles(),
+        gc in prop::collection::vec(op(), 1..4),
+    ) {
+        for config in CONFIGS {
+            let mut harness = run_with(config, &ops, &shuffles)?;
+            let statics_before: Vec<u128> = static_row_ids(&harness.store);
+            let mut randomness = shuffles.iter().copied().cycle();
+            for op in gc.iter().filter(|op| matches!(op, Op::Gc(_))) {
+                harness.apply(op, &mut randomness)?;
+            }
+            prop_assert_eq!(static_row_ids(&harness.store), statics_before);
+            harness.full_sweep()?;
+        }
+    }
+
+    /// With `protect_latest ≥ 1`, every latest-at at `+∞` answers as before, whatever the
+    /// target and order.
+    #[test]
+    fn gc_protect_latest_keeps_latest_at_infinity(
+        ops in ops(),
+        shuffles in shuffles(),
+        protect_latest in 1usize..3,
+        cursor in prop::option::of((0..2usize, 0..=MAX_TIME)),
+    ) {
+        for config in CONFIGS {
+            let mut store = run_with(config, &ops, &shuffles)?.store;
+            let before = answers_at_infinity(&store);
+            let options = GcOp { target: 0, protect_latest, cursor, protected: None, zero_budget: false }.options();
+            store.gc(&options);
+            store.sanity_check().map_err(TestCaseError::fail)?;
+            prop_assert_eq!(answers_at_infinity(&store), before);
+        }
+    }
+
+    /// Replaying every event, as returned and as a subscriber saw them, on an empty set of
+    /// chunks gives exactly the store's chunks (the same `Arc`s), compaction included.
+    #[test]
+    fn events_replay_to_store_contents(ops in ops(), shuffles in shuffles()) {
+        for config in CONFIGS {
+            let mut harness = Harness::new(config);
+            let seen = Arc::new(std::sync::Mutex::new(HashMap::<ChunkId, Arc<Chunk>>::new()));
+            let sink = Arc::clone(&seen);
+            harness.store.subscribe(move |events| {
+                let mut seen = sink.lock().unwrap();
+                for event in events {
+                    match event {
+                        StoreEvent::Addition(chunk) => { seen.insert(chunk.id(), Arc::clone(chunk)); }
+                        StoreEvent::Deletion { chunk, .. } => { seen.remove(&chunk.id()); }
+                    }
+                }
+            });
+            let mut randomness = shuffles.iter().copied().cycle();
+            for op in &ops {
+                harness.apply(op, &mut randomness)?;
+            }
+            let held: HashMap<ChunkId, Arc<Chunk>> =
+                harness.store.chunks().map(|c| (c.id(), Arc::clone(c))).collect();
+            for replayed in [&harness.replayed, &*seen.lock().unwrap()] {
+                prop_assert_eq!(replayed.len(), held.len());
+                for (id, chunk) in replayed {
+                    prop_assert!(held.get(id).is_some_and(|h| Arc::ptr_eq(h, chunk)), "{} replays to the held chunk", id);
+                }
+            }
+        }
+    }
+
+    /// `drop_time_range` removes exactly the rows whose time on the timeline is in the
+    /// range (with all their timelines) and keeps every other row, static ones included.
+    #[test]
+    fn drop_time_range_removes_exactly_the_range(
+        ops in ops(),
+        shuffles in shuffles(),
+        timeline in 0..2usize,
+        min in 0..=MAX_TIME,
+        len in 0..6i64,
+    ) {
+        for config in CONFIGS {
+            let mut harness = run_with(config, &ops, &shuffles)?;
+            let before = rows_held(&harness.store);
+            let op = Op::DropTimeRange { timeline, min, max: min + len };
+            harness.apply(&op, &mut shuffles.iter().copied().cycle())?;
+            let expected: BTreeSet<_> = before
+                .into_iter()
+                .filter(|(_, times)| !times[timeline].is_some_and(|t| min <= t && t <= min + len))
+                .collect();
+            prop_assert_eq!(rows_held(&harness.store), expected);
+            harness.full_sweep()?;
+        }
+    }
+}
+
+fn static_row_ids(store: &ChunkStore) -> Vec<u128> {
+    let mut ids: Vec<u128> = store
+        .chunks()
+        .filter(|c| c.is_static())
+        .flat_map(|c| c.row_ids().iter().map(|r| r.as_u128()))
+        .collect();
+    ids.sort_unstable();
+    ids
 }
 
 /// Wide time spans next to short ones: exercises the span classes of the index with
