@@ -54,6 +54,7 @@
 //! ## Crate features
 //! - `ipc` (default): [`io`], reading chunks from Arrow IPC files and streams and writing
 //!   them. Needs `arrow-ipc`.
+#![forbid(unsafe_code)]
 
 mod chunk;
 mod clear;

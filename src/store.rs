@@ -18,9 +18,10 @@ use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
 
-/// Debug builds check the whole store after an insert while it holds at most this many
-/// chunks.
-const DEBUG_SANITY_CHECK_MAX_CHUNKS: usize = 1024;
+/// Debug builds check the whole store after every insert while it holds at most this many
+/// chunks, and after inserts that bring the rows inserted to a power of two (amortized
+/// O(1) per row) beyond.
+const DEBUG_SANITY_CHECK_MAX_CHUNKS: usize = 64;
 
 /// Why a chunk left the store.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -214,8 +215,12 @@ impl ChunkStore {
             self.insert_compacting(chunk, &mut events);
         }
         // The full check costs O(store): debug builds run it while the store is small, which
-        // is where unit tests live; the model test calls it after every step regardless.
-        if cfg!(debug_assertions) && self.chunks.len() <= DEBUG_SANITY_CHECK_MAX_CHUNKS {
+        // is where unit tests live, and ever more rarely as it grows; the model test calls it
+        // after every step regardless.
+        if cfg!(debug_assertions)
+            && (self.chunks.len() <= DEBUG_SANITY_CHECK_MAX_CHUNKS
+                || self.stats.rows_inserted.is_power_of_two())
+        {
             debug_assert!(self.sanity_check().is_ok(), "{:?}", self.sanity_check());
         }
         Ok(self.notify(events))

@@ -1,0 +1,213 @@
+//! Memory accounting against the allocator: a counting global allocator measures what a
+//! store really holds, and `StoreStats::heap_bytes` must agree within 10%. Also the bound
+//! of issue 3 on the `insert_streaming` workload: at most 40 heap bytes per row.
+//!
+//! One test function runs every scenario in turn: the allocator counts the whole process,
+//! so no other test may allocate concurrently in this binary.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::cast_precision_loss,
+    clippy::cast_possible_wrap,
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "tests fail loudly; byte counts are far below 2^52"
+)]
+
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicIsize, Ordering};
+
+use arrow_array::builder::{Float64Builder, ListBuilder};
+use arrow_array::{ArrayRef, Int64Array};
+use chunkstore::{Chunk, ChunkId, ChunkStore, EntityPath, RowId, StoreConfig, Timeline};
+
+/// Counts live heap bytes.
+struct Counting;
+
+static LIVE_BYTES: AtomicIsize = AtomicIsize::new(0);
+
+// The library forbids unsafe code; this test needs it only to forward every call to the
+// system allocator unchanged.
+#[allow(
+    unsafe_code,
+    reason = "a global allocator is an unsafe trait by definition"
+)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        LIVE_BYTES.fetch_add(layout.size() as isize, Ordering::Relaxed);
+        // SAFETY: forwarded unchanged.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        LIVE_BYTES.fetch_add(layout.size() as isize, Ordering::Relaxed);
+        // SAFETY: forwarded unchanged.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        LIVE_BYTES.fetch_sub(layout.size() as isize, Ordering::Relaxed);
+        // SAFETY: forwarded unchanged.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        LIVE_BYTES.fetch_add(
+            new_size as isize - layout.size() as isize,
+            Ordering::Relaxed,
+        );
+        // SAFETY: forwarded unchanged.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+fn live_bytes() -> isize {
+    LIVE_BYTES.load(Ordering::Relaxed)
+}
+
+/// A single-row chunk with one `scalar` cell, built as tightly as an SDK would.
+fn scalar_row(entity: &EntityPath, frame: i64, value: f64) -> Chunk {
+    let mut cells = ListBuilder::with_capacity(Float64Builder::with_capacity(1), 1);
+    cells.values().append_value(value);
+    cells.append(true);
+    Chunk::try_new(
+        ChunkId::new(),
+        entity.clone(),
+        vec![RowId::new()],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(vec![frame])) as ArrayRef,
+        )],
+        vec![("scalar".into(), Arc::new(cells.finish()) as ArrayRef)],
+    )
+    .unwrap()
+}
+
+/// `chunk_rows`-row chunks of `scalar` for `num_entities` entities, `num_rows` rows in all,
+/// entity-interleaved like `insert_streaming` (chunk `k`: entity `k % num_entities`).
+fn stream(num_entities: usize, num_rows: usize, chunk_rows: usize) -> Vec<Chunk> {
+    let entities: Vec<EntityPath> = (0..num_entities)
+        .map(|e| EntityPath::parse(&format!("stream/{e:03}")).unwrap())
+        .collect();
+    (0..num_rows / chunk_rows)
+        .map(|k| {
+            let entity = &entities[k % num_entities];
+            let first = (k / num_entities * chunk_rows) as i64;
+            if chunk_rows == 1 {
+                return scalar_row(entity, first, (k % 1000) as f64);
+            }
+            let cells: Vec<Option<Vec<f64>>> =
+                (0..chunk_rows).map(|r| Some(vec![r as f64])).collect();
+            Chunk::try_new(
+                ChunkId::new(),
+                entity.clone(),
+                (0..chunk_rows).map(|_| RowId::new()).collect(),
+                vec![(
+                    Timeline::sequence("frame"),
+                    Arc::new(Int64Array::from_iter_values(
+                        first..first + chunk_rows as i64,
+                    )) as ArrayRef,
+                )],
+                vec![("scalar".into(), common::f64_list(&cells))],
+            )
+            .unwrap()
+        })
+        .collect()
+}
+
+/// Builds chunks with `make` and inserts them into a fresh store; returns it with the heap
+/// the allocator says it holds once the caller's chunks are gone (every chunk is moved in,
+/// so what is still allocated since before `make` is the store's).
+fn measure(config: StoreConfig, make: impl FnOnce() -> Vec<Chunk>) -> (ChunkStore, isize) {
+    let before = live_bytes();
+    let chunks = make();
+    let mut store = ChunkStore::with_config(config).unwrap();
+    for chunk in chunks {
+        store.insert(chunk).unwrap();
+    }
+    (store, live_bytes() - before)
+}
+
+fn assert_within_10_percent(name: &str, store: &ChunkStore, held: isize) {
+    let reported = store.stats().heap_bytes as f64;
+    let ratio = reported / held as f64;
+    println!(
+        "{name}: {} chunks, allocator {held} B, store reports {reported} B ({ratio:.3})",
+        store.num_chunks()
+    );
+    assert!(
+        (0.9..=1.1).contains(&ratio),
+        "{name}: store reports {reported} B, the allocator holds {held} B"
+    );
+}
+
+#[test]
+fn heap_accounting_matches_the_allocator_and_streaming_stays_under_40_bytes_per_row() {
+    // 1. insert_streaming exactly: 1,000,000 single-row chunks over 100 entities, default
+    //    configuration. The bound of issue 3, and the allocator check.
+    let (store, held) = measure(StoreConfig::DEFAULT, || stream(100, 1_000_000, 1));
+    let stats = store.stats();
+    let per_row = stats.heap_bytes as f64 / stats.num_rows() as f64;
+    println!(
+        "insert_streaming: {per_row:.2} B/row over {} chunks; copy amplification {:.2} rows, {:.2} bytes",
+        stats.num_chunks(),
+        stats.rows_copied_by_compaction as f64 / stats.rows_inserted as f64,
+        stats.payload_bytes_copied_by_compaction as f64 / stats.payload_bytes_inserted as f64,
+    );
+    assert_eq!(stats.num_rows(), 1_000_000);
+    assert!(per_row <= 40.0, "{per_row} bytes per row");
+    assert_within_10_percent("insert_streaming", &store, held);
+    drop(store);
+
+    // 2. Compaction off, 1,000-row chunks (insert_batched's shape, smaller).
+    let (store, held) = measure(StoreConfig::COMPACTION_OFF, || stream(10, 200_000, 1000));
+    assert_within_10_percent("batched, compaction off", &store, held);
+    drop(store);
+
+    // 3. Compaction off, single-row chunks: per-chunk overhead dominates.
+    let (store, held) = measure(StoreConfig::COMPACTION_OFF, || stream(100, 20_000, 1));
+    assert_within_10_percent("single rows, compaction off", &store, held);
+    drop(store);
+
+    // 4. One big sorted chunk split into slices that share its buffers: counted once.
+    let (store, held) = measure(StoreConfig::DEFAULT, || stream(1, 100_000, 100_000));
+    assert!(store.num_chunks() > 1, "the chunk was split");
+    let naive: u64 = store.chunks().map(|c| c.heap_size_bytes()).sum();
+    assert!(naive > store.stats().heap_bytes * 2, "slices share buffers");
+    assert_within_10_percent("split slices", &store, held);
+    drop(store);
+
+    // 5. Two timelines, three components sharing one list array: six index entries per
+    //    chunk, and buffers shared inside each chunk.
+    let (store, held) = measure(StoreConfig::COMPACTION_OFF, || {
+        let entity = EntityPath::parse("wide").unwrap();
+        (0..20_000)
+            .map(|k| {
+                let cells = common::f64_list(&[Some(vec![1.0])]);
+                let times = || Arc::new(Int64Array::from(vec![k])) as ArrayRef;
+                Chunk::try_new(
+                    ChunkId::new(),
+                    entity.clone(),
+                    vec![RowId::new()],
+                    vec![
+                        (Timeline::sequence("a"), times()),
+                        (Timeline::sequence("b"), times()),
+                    ],
+                    vec![
+                        ("c1".into(), Arc::clone(&cells)),
+                        ("c2".into(), Arc::clone(&cells)),
+                        ("c3".into(), cells),
+                    ],
+                )
+                .unwrap()
+            })
+            .collect()
+    });
+    assert_within_10_percent("two timelines, shared columns", &store, held);
+}
