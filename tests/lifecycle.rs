@@ -1,0 +1,419 @@
+//! Examples of the lifecycle rules (SEMANTICS.md sections 6 to 8): compaction on insert
+//! and on demand, garbage collection (targets, orders, protections, time budget), drops,
+//! events and statistics. The model test checks the same rules on random sequences; these
+//! pin down one case each, readably.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::float_cmp,
+    clippy::cast_precision_loss,
+    reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
+)]
+
+mod common;
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use arrow_array::{ArrayRef, Int64Array};
+use chunkstore::{
+    Chunk, ChunkId, ChunkStore, ConfigError, DeletionReason, GcOptions, GcOrder, GcTarget,
+    LatestAtQuery, RangeQuery, StoreConfig, StoreEvent, Timeline,
+};
+use common::{clear, first_f64, path, scalar, scalars, static_scalar, t};
+
+fn off() -> ChunkStore {
+    ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap()
+}
+
+fn latest(store: &ChunkStore, entity: &str, at: i64) -> Option<f64> {
+    store
+        .latest_at(&LatestAtQuery::new("frame", t(at)), &path(entity), "x")
+        .map(|cell| first_f64(&cell.cell()))
+}
+
+fn range_values(store: &ChunkStore, entity: &str) -> Vec<(i64, f64)> {
+    store
+        .range(&RangeQuery::everything("frame"), &path(entity), "x")
+        .iter()
+        .map(|row| (row.time().unwrap().as_i64(), first_f64(&row.cell())))
+        .collect()
+}
+
+/// Ten chunks of ten rows at frames `10c..10c+9`, values = frame, row ids in order.
+fn ten_by_ten(store: &mut ChunkStore, entity: &str) {
+    for c in 0..10i64 {
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10)
+            .map(|r| {
+                let frame = 10 * c + r;
+                (frame, frame as u128 + 1, Some(vec![frame as f64]))
+            })
+            .collect();
+        store.insert(scalars(entity, "x", &rows)).unwrap();
+    }
+}
+
+fn deleted(events: &[StoreEvent], reason: DeletionReason) -> Vec<Arc<Chunk>> {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            StoreEvent::Deletion { chunk, reason: r } if *r == reason => Some(Arc::clone(chunk)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn config_rejects_zero_thresholds_and_fanouts_below_two() {
+    let zero_rows = StoreConfig {
+        max_rows: 0,
+        ..StoreConfig::DEFAULT
+    };
+    assert_eq!(
+        ChunkStore::with_config(zero_rows).unwrap_err(),
+        ConfigError::ZeroThreshold { field: "max_rows" }
+    );
+    let fanout = StoreConfig {
+        merge_fanout: 1,
+        ..StoreConfig::DEFAULT
+    };
+    let error = ChunkStore::with_config(fanout).unwrap_err();
+    assert!(error.to_string().contains("merge_fanout"), "{error}");
+}
+
+#[test]
+fn streaming_rows_merge_into_sorted_chunks_copying_each_row_a_few_times() {
+    let mut store = ChunkStore::new();
+    for frame in 0..10_000i64 {
+        let events = store
+            .insert(scalar("s", "x", frame, frame as u128 + 1, frame as f64))
+            .unwrap();
+        // Every merge reports the merged chunks as deletions and the result as addition.
+        for event in &events[1..] {
+            match event {
+                StoreEvent::Deletion { reason, .. } => {
+                    assert_eq!(*reason, DeletionReason::Compaction);
+                }
+                StoreEvent::Addition(chunk) => assert!(chunk.num_rows() > 1),
+            }
+        }
+    }
+    let stats = store.stats();
+    // log_8(4096) = 4 copies per row at most.
+    assert!(stats.rows_copied_by_compaction <= 4 * stats.rows_inserted);
+    assert!(
+        store.num_chunks() <= 2 + 4 * 7,
+        "{} chunks",
+        store.num_chunks()
+    );
+    for chunk in store.chunks() {
+        assert!(chunk.time_column("frame").unwrap().is_sorted());
+        assert!(chunk.num_rows() <= StoreConfig::DEFAULT.max_rows);
+    }
+    assert_eq!(latest(&store, "s", 5_000), Some(5_000.0));
+    assert_eq!(range_values(&store, "s").len(), 10_000);
+}
+
+#[test]
+fn out_of_order_rows_merge_into_time_sorted_chunks() {
+    let mut store = ChunkStore::new();
+    // A permutation of 0..1000 (multiplying by a unit mod 1000).
+    for k in 0..1000i64 {
+        let frame = (k * 337) % 1000;
+        store
+            .insert(scalar("o", "x", frame, k as u128 + 1, frame as f64))
+            .unwrap();
+    }
+    assert!(store.num_chunks() < 50, "{} chunks", store.num_chunks());
+    assert!(
+        store
+            .chunks()
+            .all(|c| c.time_column("frame").unwrap().is_sorted())
+    );
+    for at in [0, 1, 499, 999] {
+        assert_eq!(latest(&store, "o", at), Some(at as f64));
+    }
+}
+
+#[test]
+fn an_oversized_sorted_chunk_is_split_into_slices_without_copying() {
+    let mut store = ChunkStore::new();
+    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10_000)
+        .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
+        .collect();
+    let events = store.insert(scalars("big", "x", &rows)).unwrap();
+    assert_eq!(events.len(), 3, "three additions of ≤ 4096 rows");
+    assert!(store.chunks().all(|c| c.num_rows() <= 4096));
+    assert_eq!(store.stats().rows_copied_by_compaction, 0);
+    // The slices share the input's buffers, which the store counts once.
+    let per_chunk: u64 = store.chunks().map(|c| c.heap_size_bytes()).sum();
+    assert!(store.stats().heap_bytes < per_chunk);
+    assert_eq!(range_values(&store, "big").len(), 10_000);
+}
+
+#[test]
+fn an_oversized_unsorted_chunk_is_sorted_then_sized_as_sorted() {
+    let mut store = ChunkStore::new();
+    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..3000)
+        .map(|i| ((i * 7) % 3000, i as u128 + 1, Some(vec![i as f64])))
+        .collect();
+    store.insert(scalars("u", "x", &rows)).unwrap();
+    // 3000 rows exceed the unsorted threshold (1024) but fit the sorted one (4096).
+    assert_eq!(store.num_chunks(), 1);
+    assert!(
+        store
+            .chunks()
+            .all(|c| c.time_column("frame").unwrap().is_sorted())
+    );
+}
+
+#[test]
+fn compact_rewrites_a_fragmented_store_and_then_has_nothing_to_do() {
+    let mut store = off();
+    for frame in (0..1000i64).rev() {
+        store
+            .insert(scalar("f", "x", frame, 1000 - frame as u128, frame as f64))
+            .unwrap();
+    }
+    let before = range_values(&store, "f");
+    let events = store.compact();
+    assert_eq!(deleted(&events, DeletionReason::Compaction).len(), 1000);
+    assert_eq!(store.num_chunks(), 1);
+    assert_eq!(range_values(&store, "f"), before);
+    assert!(store.compact().is_empty());
+}
+
+#[test]
+fn gc_plans_without_changing_anything_and_applies_exactly_its_plan() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    let listing = store.to_string();
+    let options = GcOptions {
+        target: GcTarget::DropAtLeastFraction(0.3),
+        ..GcOptions::everything()
+    };
+    let plan = store.plan_gc(&options);
+    assert_eq!(store.to_string(), listing, "planning changes nothing");
+    assert_eq!(store.plan_gc(&options), plan, "planning is deterministic");
+    assert!(!plan.chunk_ids.is_empty());
+    let heap_before = store.stats().heap_bytes;
+    let events = store.apply_gc(&plan);
+    let dropped: Vec<ChunkId> = deleted(&events, DeletionReason::Gc)
+        .iter()
+        .map(|c| c.id())
+        .collect();
+    assert_eq!(dropped, plan.chunk_ids);
+    assert_eq!(heap_before - store.stats().heap_bytes, plan.bytes_to_free);
+    assert!(
+        plan.bytes_to_free * 10 >= heap_before * 3,
+        "the target is met"
+    );
+    // Oldest row ids first: frames 0..=9 went first.
+    assert_eq!(range_values(&store, "g")[0].0 % 10, 0);
+    assert!(latest(&store, "g", 5).is_none());
+}
+
+#[test]
+fn gc_furthest_from_a_cursor_drops_the_far_chunks_first() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    let options = GcOptions {
+        target: GcTarget::DropAtLeastBytes(1),
+        order: GcOrder::FurthestFrom {
+            timeline: "frame".into(),
+            time: t(52),
+        },
+        ..GcOptions::everything()
+    };
+    // [0, 9] ends 43 before the cursor; [90, 99] starts 38 after it.
+    let first = store.gc(&options);
+    assert_eq!(
+        deleted(&first, DeletionReason::Gc)[0].row_ids()[0].as_u128(),
+        1
+    );
+    let second = store.gc(&options);
+    assert_eq!(
+        deleted(&second, DeletionReason::Gc)[0].row_ids()[0].as_u128(),
+        91
+    );
+    // The chunk holding the cursor goes last.
+    let rest = store.gc(&GcOptions {
+        order: GcOrder::FurthestFrom {
+            timeline: "frame".into(),
+            time: t(52),
+        },
+        ..GcOptions::everything()
+    });
+    let last = deleted(&rest, DeletionReason::Gc).pop().unwrap();
+    assert_eq!(last.row_ids()[0].as_u128(), 51);
+}
+
+#[test]
+fn gc_never_touches_static_data_and_keeps_the_protected() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    store.insert(static_scalar("s", "x", 1000, 7.0)).unwrap();
+    let events = store.gc(&GcOptions {
+        protect_latest: 1,
+        protected_time_ranges: vec![("frame".into(), t(35), t(35))],
+        ..GcOptions::everything()
+    });
+    assert_eq!(deleted(&events, DeletionReason::Gc).len(), 8);
+    assert_eq!(store.stats().num_static_chunks, 1);
+    let frames: Vec<i64> = range_values(&store, "g").iter().map(|r| r.0).collect();
+    assert_eq!(frames, (30..40).chain(90..100).collect::<Vec<_>>());
+    assert_eq!(latest(&store, "s", 0), Some(7.0));
+}
+
+#[test]
+fn protect_latest_keeps_a_recursive_clear_behind_a_newer_flat_one() {
+    let mut store = off();
+    store.insert(scalar("p/c", "x", 5, 1, 1.0)).unwrap();
+    store.insert(clear("p", Some(10), 2, true)).unwrap();
+    store.insert(clear("p", Some(20), 3, false)).unwrap();
+    assert_eq!(latest(&store, "p/c", 100), None);
+    store.gc(&GcOptions {
+        protect_latest: 1,
+        ..GcOptions::everything()
+    });
+    // The recursive Clear is not the latest Clear of `p`, but it is the latest recursive
+    // one: dropping it would make the child's value reappear at +∞.
+    assert_eq!(latest(&store, "p/c", 100), None);
+}
+
+#[test]
+fn a_zero_time_budget_still_frees_a_chunk_past_the_protected_ones() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    // The oldest eight chunks are protected, so the walk skips them before finding one.
+    let options = GcOptions {
+        protected_time_ranges: vec![("frame".into(), t(0), t(79))],
+        time_budget: Some(Duration::ZERO),
+        ..GcOptions::everything()
+    };
+    let plan = store.plan_gc(&options);
+    assert_eq!(
+        plan.chunk_ids.len(),
+        1,
+        "exactly one: then the budget is spent"
+    );
+    assert!(plan.out_of_time);
+    let events = store.apply_gc(&plan);
+    assert_eq!(deleted(&events, DeletionReason::Gc).len(), 1);
+    // When nothing is collectable, nothing is dropped however long it may take.
+    let everything_protected = GcOptions {
+        protected_time_ranges: vec![("frame".into(), t(0), t(99))],
+        ..options
+    };
+    assert!(store.gc(&everything_protected).is_empty());
+}
+
+#[test]
+fn drop_time_range_rewrites_a_chunk_that_straddles_the_range() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    let events = store.drop_time_range("frame", t(15), t(24));
+    // [10, 19] and [20, 29] each lose half: two deletions, two additions.
+    assert_eq!(deleted(&events, DeletionReason::Drop).len(), 2);
+    assert_eq!(
+        events
+            .iter()
+            .filter(|e| matches!(e, StoreEvent::Addition(_)))
+            .count(),
+        2
+    );
+    let frames: Vec<i64> = range_values(&store, "g").iter().map(|r| r.0).collect();
+    assert_eq!(frames, (0..15).chain(25..100).collect::<Vec<_>>());
+    assert_eq!(latest(&store, "g", 20), Some(14.0));
+    assert!(
+        store.drop_time_range("frame", t(5), t(4)).is_empty(),
+        "empty range"
+    );
+    assert!(store.drop_time_range("other", t(0), t(99)).is_empty());
+}
+
+#[test]
+fn drop_time_range_removes_rows_from_all_their_timelines() {
+    let mut store = off();
+    let chunk = Chunk::try_new(
+        ChunkId::new(),
+        path("two"),
+        vec![common::rid(1), common::rid(2)],
+        vec![
+            (
+                Timeline::sequence("frame"),
+                Arc::new(Int64Array::from(vec![1, 2])) as ArrayRef,
+            ),
+            (
+                Timeline::sequence("tick"),
+                Arc::new(Int64Array::from(vec![100, 200])) as ArrayRef,
+            ),
+        ],
+        vec![(
+            "x".into(),
+            common::f64_list(&[Some(vec![1.0]), Some(vec![2.0])]),
+        )],
+    )
+    .unwrap();
+    store.insert(chunk).unwrap();
+    store.drop_time_range("tick", t(150), t(250));
+    assert_eq!(range_values(&store, "two"), [(1, 1.0)]);
+}
+
+#[test]
+fn drop_entity_removes_static_data_clears_and_optionally_descendants() {
+    let mut store = off();
+    store.insert(scalar("a", "x", 1, 1, 1.0)).unwrap();
+    store.insert(static_scalar("a", "y", 2, 2.0)).unwrap();
+    store.insert(scalar("a/b", "x", 1, 3, 3.0)).unwrap();
+    store.insert(clear("a", Some(5), 4, true)).unwrap();
+    assert_eq!(
+        latest(&store, "a/b", 9),
+        None,
+        "hidden by a's recursive Clear"
+    );
+
+    let events = store.drop_entity(&path("a"), false);
+    assert_eq!(deleted(&events, DeletionReason::Drop).len(), 3);
+    assert!(store.entity_stats(&path("a")).is_none());
+    // The Clear went with `a`: its child's value is visible again.
+    assert_eq!(latest(&store, "a/b", 9), Some(3.0));
+
+    store.insert(scalar("a", "x", 1, 5, 1.0)).unwrap();
+    store.drop_entity(&path("a"), true);
+    assert_eq!(store.num_chunks(), 0);
+    assert_eq!(store.stats().heap_bytes, 0);
+}
+
+#[test]
+fn stats_per_entity_add_up_and_follow_every_mutation() {
+    let mut store = off();
+    ten_by_ten(&mut store, "g");
+    store.insert(static_scalar("h", "x", 1000, 1.0)).unwrap();
+    let g = store.entity_stats(&path("g")).unwrap();
+    let h = store.entity_stats(&path("h")).unwrap();
+    assert_eq!((g.num_temporal_chunks, g.num_temporal_rows), (10, 100));
+    assert_eq!((h.num_static_chunks, h.num_static_rows), (1, 1));
+    let stats = store.stats();
+    assert_eq!(stats.heap_bytes, g.heap_bytes + h.heap_bytes);
+    assert_eq!(stats.num_chunks(), 11);
+    store.gc(&GcOptions::everything());
+    assert!(store.entity_stats(&path("g")).is_none());
+    assert_eq!(store.stats().heap_bytes, h.heap_bytes);
+}
+
+#[test]
+fn subscribers_see_every_mutation_and_clones_start_without_them() {
+    let mut store = ChunkStore::new();
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let sink = Arc::clone(&seen);
+    store.subscribe(move |events| sink.lock().unwrap().push(events.len()));
+    store.insert(scalar("a", "x", 1, 1, 1.0)).unwrap();
+    store.gc(&GcOptions::everything());
+    assert_eq!(*seen.lock().unwrap(), [1, 1]);
+    let mut clone = store.clone();
+    clone.insert(scalar("a", "x", 2, 2, 2.0)).unwrap();
+    assert_eq!(seen.lock().unwrap().len(), 2, "the clone has no subscriber");
+    store.gc(&GcOptions::everything());
+    assert_eq!(seen.lock().unwrap().len(), 2, "no events, no call");
+}
