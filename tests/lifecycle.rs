@@ -7,6 +7,7 @@
     clippy::expect_used,
     clippy::float_cmp,
     clippy::cast_precision_loss,
+    clippy::cast_sign_loss,
     reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
 )]
 
