@@ -1,16 +1,25 @@
 //! Look inside a directory of chunk files from a terminal.
 //!
 //! ```text
-//! cargo run --release --example query -- <DIR> latest-at <TIMELINE> <TIME>
-//! cargo run --release --example query -- <DIR> range <TIMELINE> <MIN> <MAX>
-//! cargo run --release --example query -- <DIR> stats
+//! cargo run --release --example query -- [OPTIONS] <DIR> latest-at <TIMELINE> <TIME>
+//! cargo run --release --example query -- [OPTIONS] <DIR> range <TIMELINE> <MIN> <MAX>
+//! cargo run --release --example query -- [OPTIONS] <DIR> stats
 //! ```
 //!
 //! `<DIR>` holds Arrow IPC files (file or stream format, names ending `.arrow`, `.arrows`,
 //! `.ipc` or `.feather`), each with one or more chunk batches in the transport layout,
 //! loaded in file-name order. Answers are JSON lines, ordered by entity path, component
-//! name, then `(time, row id)`; cells are rendered by arrow's JSON writer. Bad arguments or
-//! unreadable files print one line naming the problem and exit with code 2.
+//! name, then `(time, row id)`; cells are rendered by arrow's JSON writer. `chunk_id` is
+//! the id of the chunk the row was loaded from (as written in the file), whatever
+//! compaction made of it in the store. Bad arguments or unreadable files print one line
+//! naming the problem and exit with code 2.
+//!
+//! Options set how the store compacts while loading (the defaults are
+//! `StoreConfig::DEFAULT`'s); no answer depends on them, only `stats` shows the difference:
+//! - `--max-rows N`: most rows of a time-sorted chunk;
+//! - `--max-rows-unsorted N`: most rows of an unsorted chunk;
+//! - `--max-bytes N`: most payload bytes of a chunk;
+//! - `--compact`: run on-demand compaction once everything is loaded.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -18,10 +27,13 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
-use chunkstore::{ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, TimeInt};
+use chunkstore::{
+    ChunkId, ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, StoreConfig, TimeInt,
+};
 
-const USAGE: &str =
-    "usage: query <DIR> latest-at <TIMELINE> <TIME> | range <TIMELINE> <MIN> <MAX> | stats";
+const USAGE: &str = "usage: query [--max-rows N] [--max-rows-unsorted N] [--max-bytes N] \
+                     [--compact] <DIR> latest-at <TIMELINE> <TIME> | range <TIMELINE> <MIN> \
+                     <MAX> | stats";
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -76,7 +88,50 @@ fn parse_command(args: &[String]) -> Result<Command, String> {
     }
 }
 
+/// How to load: the store's configuration, and whether to compact afterwards.
+struct LoadOptions {
+    config: StoreConfig,
+    compact: bool,
+}
+
+/// Parses the options before `<DIR>`; returns them and the arguments left.
+fn parse_options(mut args: &[String]) -> Result<(LoadOptions, &[String]), String> {
+    let mut options = LoadOptions {
+        config: StoreConfig::DEFAULT,
+        compact: false,
+    };
+    while let [flag, rest @ ..] = args {
+        if !flag.starts_with("--") || flag == "--help" {
+            break;
+        }
+        if flag == "--compact" {
+            options.compact = true;
+            args = rest;
+            continue;
+        }
+        let [value, rest @ ..] = rest else {
+            return Err(format!("{flag} needs a value; {USAGE}"));
+        };
+        let number = || -> Result<u64, String> {
+            value
+                .parse()
+                .map_err(|_| format!("{flag} {value:?} is not a non-negative integer"))
+        };
+        let as_usize = |n: u64| usize::try_from(n).map_err(|_| format!("{flag} {n} is too large"));
+        match flag.as_str() {
+            "--max-rows" => options.config.max_rows = as_usize(number()?)?,
+            "--max-rows-unsorted" => options.config.max_rows_unsorted = as_usize(number()?)?,
+            "--max-bytes" => options.config.max_bytes = number()?,
+            _ => return Err(format!("unknown option {flag:?}; {USAGE}")),
+        }
+        args = rest;
+    }
+    options.config.validate().map_err(|e| e.to_string())?;
+    Ok((options, args))
+}
+
 fn run(args: &[String]) -> Result<(), String> {
+    let (options, args) = parse_options(args)?;
     let [dir, rest @ ..] = args else {
         return Err(format!("missing <DIR>; {USAGE}"));
     };
@@ -85,16 +140,16 @@ fn run(args: &[String]) -> Result<(), String> {
         return Ok(());
     }
     let command = parse_command(rest)?;
-    let store = load(Path::new(dir))?;
+    let loaded = load(Path::new(dir), &options)?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     match command {
         Command::LatestAt { timeline, at } => {
-            latest_at(&store, &LatestAtQuery::new(timeline, at), &mut out)
+            latest_at(&loaded, &LatestAtQuery::new(timeline, at), &mut out)
         }
         Command::Range { timeline, min, max } => {
-            range(&store, &RangeQuery::new(timeline, min, max), &mut out)
+            range(&loaded, &RangeQuery::new(timeline, min, max), &mut out)
         }
-        Command::Stats => stats(&store, &mut out),
+        Command::Stats => stats(&loaded.store, &mut out),
     }
 }
 
@@ -121,17 +176,40 @@ fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
     Ok(files)
 }
 
-fn load(dir: &Path) -> Result<ChunkStore, String> {
-    let mut store = ChunkStore::new();
+/// The store, and the chunk each row was loaded from (compaction may have moved it).
+struct Loaded {
+    store: ChunkStore,
+    source_chunk: ahash::HashMap<RowId, ChunkId>,
+}
+
+impl Loaded {
+    /// The id of the chunk `row_id` was loaded from; `stored` if unknown.
+    fn source_chunk(&self, row_id: RowId, stored: ChunkId) -> ChunkId {
+        self.source_chunk.get(&row_id).copied().unwrap_or(stored)
+    }
+}
+
+fn load(dir: &Path, options: &LoadOptions) -> Result<Loaded, String> {
+    let mut store = ChunkStore::with_config(options.config).map_err(|e| e.to_string())?;
+    let mut source_chunk = ahash::HashMap::default();
     for file in chunk_files(dir)? {
         let name = file.display();
         let chunks =
             chunkstore::io::read_chunks_from_path(&file).map_err(|e| format!("{name}: {e}"))?;
         for chunk in chunks {
+            for &row_id in chunk.row_ids() {
+                source_chunk.entry(row_id).or_insert(chunk.id());
+            }
             store.insert(chunk).map_err(|e| format!("{name}: {e}"))?;
         }
     }
-    Ok(store)
+    if options.compact {
+        store.compact();
+    }
+    Ok(Loaded {
+        store,
+        source_chunk,
+    })
 }
 
 type Out<'a> = std::io::BufWriter<std::io::StdoutLock<'a>>;
@@ -177,7 +255,8 @@ fn render_cell(column: &ComponentColumn, row: usize) -> Result<String, String> {
         .ok_or_else(|| format!("unexpected JSON rendering {text:?}"))
 }
 
-fn latest_at(store: &ChunkStore, query: &LatestAtQuery, out: &mut Out<'_>) -> Result<(), String> {
+fn latest_at(loaded: &Loaded, query: &LatestAtQuery, out: &mut Out<'_>) -> Result<(), String> {
+    let store = &loaded.store;
     for entity in store.entity_paths() {
         let entity_text = entity.to_string();
         for component in store.component_names(&entity) {
@@ -190,7 +269,7 @@ fn latest_at(store: &ChunkStore, query: &LatestAtQuery, out: &mut Out<'_>) -> Re
                 component.as_str(),
                 answer.time(),
                 answer.row_id(),
-                answer.chunk_id(),
+                loaded.source_chunk(answer.row_id(), answer.chunk_id()),
                 &value,
             );
             write_line(out, &line)?;
@@ -199,7 +278,8 @@ fn latest_at(store: &ChunkStore, query: &LatestAtQuery, out: &mut Out<'_>) -> Re
     Ok(())
 }
 
-fn range(store: &ChunkStore, query: &RangeQuery, out: &mut Out<'_>) -> Result<(), String> {
+fn range(loaded: &Loaded, query: &RangeQuery, out: &mut Out<'_>) -> Result<(), String> {
+    let store = &loaded.store;
     for entity in store.entity_paths() {
         let entity_text = entity.to_string();
         for component in store.component_names(&entity) {
@@ -210,7 +290,7 @@ fn range(store: &ChunkStore, query: &RangeQuery, out: &mut Out<'_>) -> Result<()
                     component.as_str(),
                     row.time(),
                     row.row_id(),
-                    row.chunk().id(),
+                    loaded.source_chunk(row.row_id(), row.chunk().id()),
                     &value,
                 );
                 write_line(out, &line)?;
@@ -223,13 +303,13 @@ fn range(store: &ChunkStore, query: &RangeQuery, out: &mut Out<'_>) -> Result<()
 fn stats(store: &ChunkStore, out: &mut Out<'_>) -> Result<(), String> {
     let s = store.stats();
     let line = serde_json::json!({
-        "num_chunks": s.num_static_chunks + s.num_temporal_chunks,
+        "num_chunks": s.num_chunks(),
         "num_static_chunks": s.num_static_chunks,
         "num_temporal_chunks": s.num_temporal_chunks,
-        "num_rows": s.num_static_rows + s.num_temporal_rows,
+        "num_rows": s.num_rows(),
         "num_static_rows": s.num_static_rows,
         "num_temporal_rows": s.num_temporal_rows,
-        "heap_bytes": s.static_heap_bytes + s.temporal_heap_bytes,
+        "heap_bytes": s.heap_bytes,
         "static_heap_bytes": s.static_heap_bytes,
         "temporal_heap_bytes": s.temporal_heap_bytes,
         "num_entities": store.entity_paths().len(),

@@ -263,12 +263,14 @@ fn static_answers_match_rerun() {
     }
 }
 
-#[test]
-fn cli_answers_on_the_robot_recording() {
+/// Runs the query CLI with `options` before the recording's directory and `command`
+/// after it; returns its standard output.
+fn cli(options: &[&str], command: &[&str]) -> String {
     let output = std::process::Command::new(env!("CARGO"))
         .args(["run", "--quiet", "--example", "query", "--"])
+        .args(options)
         .arg(recording().join("chunks"))
-        .args(["latest-at", "frame_id", "30"])
+        .args(command)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
@@ -277,8 +279,68 @@ fn cli_answers_on_the_robot_recording() {
         "{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let lines: Vec<serde_json::Value> = String::from_utf8(output.stdout)
-        .unwrap()
+    String::from_utf8(output.stdout).unwrap()
+}
+
+#[test]
+fn cli_answers_are_the_same_whatever_the_compaction_options() {
+    let chunk_count = |options: &[&str]| {
+        let stats: serde_json::Value = serde_json::from_str(&cli(options, &["stats"])).unwrap();
+        stats["num_chunks"].as_u64().unwrap()
+    };
+    let variants: [&[&str]; 4] = [
+        &["--max-rows", "2", "--max-rows-unsorted", "1", "--max-bytes", "4096"],
+        &["--compact"],
+        &["--max-rows", "7", "--max-bytes", "100000", "--compact"],
+        &["--max-rows-unsorted", "3"],
+    ];
+    let plain_chunks = chunk_count(&[]);
+    let mut counts = vec![plain_chunks];
+    for command in [
+        &["latest-at", "frame_id", "30"][..],
+        &["latest-at", "sim_time", "1500000000"],
+        &["range", "frame_id", "0", "59"],
+        &["range", "log_time", "0", "9223372036854775807"],
+    ] {
+        let expected = cli(&[], command);
+        assert!(expected.lines().count() > 10, "{command:?} answers");
+        for options in variants {
+            assert_eq!(cli(options, command), expected, "{options:?} {command:?}");
+        }
+    }
+    for options in variants {
+        counts.push(chunk_count(options));
+    }
+    // The options do change the store: splitting into tiny chunks, merging into few.
+    assert!(counts[1] > plain_chunks * 3, "{counts:?}");
+    assert!(counts[2] < plain_chunks, "{counts:?}");
+}
+
+#[test]
+fn cli_rejects_bad_options() {
+    for (options, message) in [
+        (&["--max-rows", "0"][..], "max_rows must be at least 1"),
+        (&["--max-bytes", "lots"], "is not a non-negative integer"),
+        (&["--max-rows"], "is not a non-negative integer"), // it took <DIR> as its value
+        (&["--frobnicate", "1"], "unknown option"),
+    ] {
+        let output = std::process::Command::new(env!("CARGO"))
+            .args(["run", "--quiet", "--example", "query", "--"])
+            .args(options)
+            .arg(recording().join("chunks"))
+            .arg("stats")
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert_eq!(output.status.code(), Some(2), "{options:?}");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(message), "{options:?}: {stderr}");
+    }
+}
+
+#[test]
+fn cli_answers_on_the_robot_recording() {
+    let lines: Vec<serde_json::Value> = cli(&[], &["latest-at", "frame_id", "30"])
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
