@@ -1,9 +1,14 @@
 //! The body of the `ipc_insert` fuzz target, shared with the corpus replay test
 //! (`tests/fuzz_corpus.rs`): arbitrary bytes go through Arrow IPC decoding, chunk
-//! validation, a transport round trip, insertion and queries. Nothing may panic, a
-//! decoded chunk must round-trip losslessly, and the store must stay sane.
+//! validation, a transport round trip, insertion and queries, then the whole lifecycle:
+//! compaction on insert with tiny thresholds, on-demand compaction, a range drop, garbage
+//! collection and entity drops. Nothing may panic, a decoded chunk must round-trip
+//! losslessly, the store must stay sane after every mutation, and compaction must not
+//! change which rows answer.
 
-use chunkstore::{Chunk, ChunkStore, LatestAtQuery, RangeQuery, TimeInt};
+use chunkstore::{
+    Chunk, ChunkStore, GcOptions, LatestAtQuery, RangeQuery, RowId, StoreConfig, TimeInt,
+};
 
 /// Query times worth probing: extremes, and around zero.
 const PROBES: [i64; 5] = [i64::MIN + 1, -1, 0, 1, i64::MAX];
@@ -12,8 +17,19 @@ pub fn ipc_insert(bytes: &[u8]) {
     let Ok(chunks) = chunkstore::io::read_chunks_from_bytes(bytes) else {
         return;
     };
-    let mut store = ChunkStore::new();
+    let mut store =
+        ChunkStore::with_config(StoreConfig::COMPACTION_OFF).expect("a valid config");
+    // Tiny thresholds: nearly every chunk is split, merged or both.
+    let mut compacting = ChunkStore::with_config(StoreConfig {
+        compact_on_insert: true,
+        max_rows: 2,
+        max_rows_unsorted: 1,
+        max_bytes: 64,
+        merge_fanout: 2,
+    })
+    .expect("a valid config");
     let mut timelines = Vec::new();
+    let mut seen_ids = std::collections::HashSet::new();
     for chunk in chunks {
         let batch = chunk
             .to_record_batch()
@@ -28,16 +44,87 @@ pub fn ipc_insert(bytes: &[u8]) {
             timelines.push(column.timeline().name().to_owned());
         }
         // Conflicting chunks are rejected with an error; either way the store stays sane.
-        let _ = store.insert(chunk);
+        let chunk = std::sync::Arc::new(chunk);
+        let accepted = store.insert(std::sync::Arc::clone(&chunk)).is_ok();
         store
             .sanity_check()
             .expect("the store stays sane after any insert");
+        // A repeated chunk id changes nothing in the store holding that chunk as it was,
+        // but compaction may have merged it away: the compacting store sees each id once.
+        if !seen_ids.insert(chunk.id()) {
+            continue;
+        }
+        assert_eq!(
+            compacting.insert(chunk).is_ok(),
+            accepted,
+            "compaction does not change what is accepted"
+        );
+        compacting
+            .sanity_check()
+            .expect("the store stays sane after any compacting insert");
     }
     timelines.sort();
     timelines.dedup();
+    query_everything(&store, &timelines);
+    let answers = answer_keys(&store, &timelines);
+    assert_eq!(
+        answer_keys(&compacting, &timelines),
+        answers,
+        "compaction on insert changes no answer"
+    );
+    store.compact();
+    store.sanity_check().expect("sane after compact()");
+    assert_eq!(
+        answer_keys(&store, &timelines),
+        answers,
+        "compact() changes no answer"
+    );
+    for store in [&mut store, &mut compacting] {
+        if let Some(timeline) = timelines.first() {
+            store.drop_time_range(timeline, TimeInt::saturating(-1), TimeInt::saturating(1));
+            store.sanity_check().expect("sane after drop_time_range");
+        }
+        store.gc(&GcOptions::drop_at_least_fraction(0.5));
+        store.sanity_check().expect("sane after gc");
+        for entity in store.entity_paths() {
+            store.drop_entity(&entity, false);
+            store.sanity_check().expect("sane after drop_entity");
+        }
+        assert_eq!(store.stats().num_chunks(), 0, "dropping every entity empties it");
+    }
+}
+
+/// Which rows answer every latest-at probe and every full range: `(time, row id)` keys
+/// (cells are left out: duplicated row ids, legal but odd, make them ambiguous).
+type AnswerKey = (Option<TimeInt>, RowId);
+
+fn answer_keys(store: &ChunkStore, timelines: &[String]) -> Vec<Vec<AnswerKey>> {
+    let mut answers = Vec::new();
     for entity in store.entity_paths() {
         for component in store.component_names(&entity) {
-            for timeline in &timelines {
+            for timeline in timelines {
+                for at in PROBES {
+                    let query = LatestAtQuery::new(timeline.as_str(), TimeInt::saturating(at));
+                    let answer = store.latest_at(&query, &entity, component.as_str());
+                    answers.push(answer.map(|a| (a.time(), a.row_id())).into_iter().collect());
+                }
+                let range = store.range(
+                    &RangeQuery::everything(timeline.as_str()),
+                    &entity,
+                    component.as_str(),
+                );
+                answers.push(range.iter().map(|r| (r.time(), r.row_id())).collect());
+            }
+        }
+    }
+    answers
+}
+
+/// Runs every query and touches every cell: nothing may panic, ranges ascend.
+fn query_everything(store: &ChunkStore, timelines: &[String]) {
+    for entity in store.entity_paths() {
+        for component in store.component_names(&entity) {
+            for timeline in timelines {
                 for at in PROBES {
                     let query = LatestAtQuery::new(timeline.as_str(), TimeInt::saturating(at));
                     if let Some(answer) = store.latest_at(&query, &entity, component.as_str()) {
