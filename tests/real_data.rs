@@ -289,7 +289,14 @@ fn cli_answers_are_the_same_whatever_the_compaction_options() {
         stats["num_chunks"].as_u64().unwrap()
     };
     let variants: [&[&str]; 4] = [
-        &["--max-rows", "2", "--max-rows-unsorted", "1", "--max-bytes", "4096"],
+        &[
+            "--max-rows",
+            "2",
+            "--max-rows-unsorted",
+            "1",
+            "--max-bytes",
+            "4096",
+        ],
         &["--compact"],
         &["--max-rows", "7", "--max-bytes", "100000", "--compact"],
         &["--max-rows-unsorted", "3"],

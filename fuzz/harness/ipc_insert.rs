@@ -17,8 +17,7 @@ pub fn ipc_insert(bytes: &[u8]) {
     let Ok(chunks) = chunkstore::io::read_chunks_from_bytes(bytes) else {
         return;
     };
-    let mut store =
-        ChunkStore::with_config(StoreConfig::COMPACTION_OFF).expect("a valid config");
+    let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).expect("a valid config");
     // Tiny thresholds: nearly every chunk is split, merged or both.
     let mut compacting = ChunkStore::with_config(StoreConfig {
         compact_on_insert: true,
@@ -90,7 +89,11 @@ pub fn ipc_insert(bytes: &[u8]) {
             store.drop_entity(&entity, false);
             store.sanity_check().expect("sane after drop_entity");
         }
-        assert_eq!(store.stats().num_chunks(), 0, "dropping every entity empties it");
+        assert_eq!(
+            store.stats().num_chunks(),
+            0,
+            "dropping every entity empties it"
+        );
     }
 }
 
