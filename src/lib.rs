@@ -81,7 +81,7 @@ pub use error::IoError;
 pub use error::{ChunkError, ConfigError, EntityPathError, InsertError};
 pub use gc::{GcOptions, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
-pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow};
+pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 pub use stats::{EntityStats, StoreStats};
 pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreEvent};
 pub use time::{TimeInt, TimeType, Timeline};

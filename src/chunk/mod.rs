@@ -571,6 +571,11 @@ impl TimeColumn {
         }
     }
 
+    /// The rows in ascending `(time, row id)` order, when that is not row order.
+    pub(crate) fn index_order(&self) -> Option<&[u32]> {
+        self.index_order.as_deref()
+    }
+
     /// Number of positions whose time is `<= t` (a partition point in index order).
     pub(crate) fn num_positions_at_or_before(&self, t: i64) -> usize {
         match &self.index_order {

@@ -115,25 +115,135 @@ impl<'a> RangeRow<'a> {
     }
 }
 
+/// Consecutive rows of one chunk in a range result, in ascending `(time, row id)` order:
+/// what a consumer that reads Arrow columns in bulk iterates instead of single rows (one
+/// downcast per run rather than per row).
+///
+/// ```
+/// # use std::sync::Arc;
+/// # use arrow_array::{cast::AsArray, types::Float64Type, Array, ArrayRef, Float64Array};
+/// # use chunkstore::*;
+/// # let frame = Timeline::sequence("frame");
+/// # let e = EntityPath::parse("e").unwrap();
+/// # let v = |x: f64| Arc::new(Float64Array::from(vec![x])) as ArrayRef;
+/// # let mut store = ChunkStore::new();
+/// # store.insert(ChunkBuilder::new(ChunkId::new(), e.clone())
+/// #     .with_row(RowId::new(), [(frame.clone(), 1)], [("speed", v(1.5))])
+/// #     .with_row(RowId::new(), [(frame, 2)], [("speed", v(2.5))])
+/// #     .build()?)?;
+/// let result = store.range(&RangeQuery::everything("frame"), &e, "speed");
+/// let mut sum = 0.0;
+/// for run in result.runs() {
+///     let list = run.column().list_array();
+///     let values = list.values().as_primitive::<Float64Type>();
+///     for row in run.rows().filter(|&row| list.is_valid(row)) {
+///         sum += values.value(list.value_offsets()[row] as usize);
+///     }
+/// }
+/// assert_eq!(sum, 4.0);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Copy, Debug)]
+pub struct RangeRun<'a> {
+    chunk: &'a Arc<Chunk>,
+    column: &'a ComponentColumn,
+    /// `None` for the static answer.
+    times: Option<&'a TimeColumn>,
+    start: u32,
+    end: u32,
+}
+
+impl<'a> RangeRun<'a> {
+    /// The chunk holding the rows.
+    pub fn chunk(&self) -> &'a Arc<Chunk> {
+        self.chunk
+    }
+
+    /// The component column.
+    pub fn column(&self) -> &'a ComponentColumn {
+        self.column
+    }
+
+    /// The rows of the run within its chunk, in ascending `(time, row id)` order. Unlike
+    /// [`RangeResult::iter`], rows whose cell is null are included: check
+    /// [`ComponentColumn::is_valid`].
+    pub fn rows(&self) -> RunRows<'a> {
+        RunRows {
+            order: self.times.and_then(TimeColumn::index_order),
+            positions: self.start as usize..self.end as usize,
+        }
+    }
+
+    /// Number of rows, null cells included.
+    pub fn len(&self) -> usize {
+        (self.end - self.start) as usize
+    }
+
+    /// Is the run empty? (Never, for a run of a [`RangeResult`].)
+    pub fn is_empty(&self) -> bool {
+        self.start == self.end
+    }
+
+    /// Row `row` of the chunk, with its time (`None` for static data) and row id.
+    fn row_at(&self, row: usize) -> RangeRow<'a> {
+        RangeRow {
+            chunk: self.chunk,
+            column: self.column,
+            row,
+            time: self.times.map(|t| TimeInt::saturating(t.times()[row])),
+            row_id: self.chunk.row_ids()[row],
+        }
+    }
+}
+
+/// The rows of a [`RangeRun`], in ascending `(time, row id)` order.
+#[derive(Clone, Debug)]
+pub struct RunRows<'a> {
+    /// The chunk's `(time, row id)` order, when it is not row order.
+    order: Option<&'a [u32]>,
+    positions: std::ops::Range<usize>,
+}
+
+impl Iterator for RunRows<'_> {
+    type Item = usize;
+
+    #[inline]
+    fn next(&mut self) -> Option<usize> {
+        let pos = self.positions.next()?;
+        Some(self.order.map_or(pos, |order| order[pos] as usize))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        self.positions.size_hint()
+    }
+}
+
+impl ExactSizeIterator for RunRows<'_> {}
+
 impl RangeResult {
     /// The rows, in ascending `(time, row id)` order.
     pub fn iter(&self) -> impl Iterator<Item = RangeRow<'_>> + '_ {
-        self.runs.iter().flat_map(move |run| {
+        self.runs().flat_map(|run| {
+            run.rows()
+                .filter(move |&row| run.column.is_valid(row))
+                .map(move |row| run.row_at(row))
+        })
+    }
+
+    /// The rows as runs of consecutive rows of one chunk, in ascending `(time, row id)`
+    /// order; null cells are not skipped (see [`RangeRun::rows`]).
+    pub fn runs(&self) -> impl Iterator<Item = RangeRun<'_>> + '_ {
+        self.runs.iter().map(move |run| {
             let source = &self.sources[run.source as usize];
-            let times: Option<&TimeColumn> = source
-                .time_column
-                .map(|t| &source.chunk.time_columns()[t as usize]);
-            let column = &source.chunk.components()[source.component_column as usize];
-            (run.start as usize..run.end as usize).filter_map(move |pos| {
-                let row = times.map_or(pos, |t| t.row_at(pos));
-                column.is_valid(row).then(|| RangeRow {
-                    chunk: &source.chunk,
-                    column,
-                    row,
-                    time: times.map(|t| TimeInt::saturating(t.times()[row])),
-                    row_id: source.chunk.row_ids()[row],
-                })
-            })
+            RangeRun {
+                chunk: &source.chunk,
+                column: &source.chunk.components()[source.component_column as usize],
+                times: source
+                    .time_column
+                    .map(|t| &source.chunk.time_columns()[t as usize]),
+                start: run.start,
+                end: run.end,
+            }
         })
     }
 

@@ -1,0 +1,295 @@
+//! The data generator shared by the criterion benches and `examples/workloads.rs`: the
+//! random numbers, component columns and chunk shapes of `../shared/bench/WORKLOADS.md`,
+//! and the small readers that take a query's answer back out of Arrow.
+//!
+//! Everything here goes through the crate's public API only, as an embedding application
+//! would.
+#![allow(
+    dead_code,
+    reason = "each bench and the workloads example use a part of it"
+)]
+#![allow(
+    clippy::expect_used,
+    reason = "generated data is valid; a failure should stop loudly"
+)]
+
+use std::sync::Arc;
+
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type};
+use arrow_array::{
+    Array, ArrayRef, BooleanArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    ListArray, StringArray,
+};
+use arrow_buffer::OffsetBuffer;
+use arrow_schema::{DataType, Field};
+use chunkstore::{
+    Chunk, ChunkId, ChunkStore, ComponentName, EntityPath, LatestAtQuery, RangeRun, RowId,
+    StoreConfig, TimeInt, Timeline,
+};
+
+/// The timeline every workload logs on.
+pub const FRAME: &str = "frame";
+/// `FixedSizeList<Float32, 3>` instances.
+pub const POSITION3D: &str = "position3d";
+/// One `Float64` instance per row.
+pub const SCALAR: &str = "scalar";
+/// One `Utf8` instance per row.
+pub const TEXT: &str = "text";
+
+/// WORKLOADS.md's random numbers: `SplitMix64`, seeded with 42.
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    /// A fresh generator, as each workload creates at its start.
+    pub fn new() -> Self {
+        Self(42)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// `next() % n`.
+    pub fn uniform(&mut self, n: u64) -> u64 {
+        self.next_u64() % n
+    }
+
+    /// `uniform(n)` as an index or a time.
+    #[expect(clippy::cast_possible_truncation, reason = "n fits the target type")]
+    pub fn uniform_usize(&mut self, n: usize) -> usize {
+        self.uniform(n as u64) as usize
+    }
+
+    /// A permutation of `0..n`: Fisher-Yates from the identity.
+    #[expect(clippy::cast_possible_wrap, reason = "n < 2^63")]
+    pub fn permutation(&mut self, n: usize) -> Vec<i64> {
+        let mut v: Vec<i64> = (0..n as i64).collect();
+        for i in (1..n).rev() {
+            let j = self.uniform_usize(i + 1);
+            v.swap(i, j);
+        }
+        v
+    }
+}
+
+/// Row ids increasing in the order chunks are built (which is the order they are
+/// inserted): one fresh id, then its successors.
+pub struct RowIds(RowId);
+
+impl RowIds {
+    /// Starts after every id generated so far in this process.
+    pub fn new() -> Self {
+        Self(RowId::new())
+    }
+
+    /// The next `n` ids.
+    pub fn take(&mut self, n: usize) -> Vec<RowId> {
+        (0..n)
+            .map(|_| {
+                let id = self.0;
+                self.0 = id.next();
+                id
+            })
+            .collect()
+    }
+}
+
+/// Entity paths `name(0)`, `name(1)`, ...
+pub fn entities(n: usize, name: impl Fn(usize) -> String) -> Vec<EntityPath> {
+    (0..n)
+        .map(|i| EntityPath::parse(&name(i)).expect("generated paths are valid"))
+        .collect()
+}
+
+/// A `List` column of `rows` cells of `per_row` instances each.
+fn list_column(values: ArrayRef, per_row: usize, rows: usize) -> ArrayRef {
+    let field = Arc::new(Field::new_list_field(values.data_type().clone(), true));
+    let offsets = OffsetBuffer::from_lengths(std::iter::repeat_n(per_row, rows));
+    Arc::new(ListArray::new(field, offsets, values, None))
+}
+
+/// A `position3d` column: `rows` cells of `per_row` points, `point(row, instance)` each.
+pub fn positions(
+    rows: usize,
+    per_row: usize,
+    point: impl Fn(usize, usize) -> [f32; 3],
+) -> ArrayRef {
+    let mut flat = Vec::with_capacity(rows * per_row * 3);
+    for r in 0..rows {
+        for k in 0..per_row {
+            flat.extend_from_slice(&point(r, k));
+        }
+    }
+    let item = Arc::new(Field::new_list_field(DataType::Float32, false));
+    let xyz = FixedSizeListArray::new(item, 3, Arc::new(Float32Array::from(flat)), None);
+    list_column(Arc::new(xyz), per_row, rows)
+}
+
+/// A `scalar` column: one value per row.
+pub fn scalars(values: Vec<f64>) -> ArrayRef {
+    let rows = values.len();
+    list_column(Arc::new(Float64Array::from(values)), 1, rows)
+}
+
+/// A `text` column: one string per row.
+pub fn texts(values: Vec<String>) -> ArrayRef {
+    let rows = values.len();
+    list_column(Arc::new(StringArray::from(values)), 1, rows)
+}
+
+/// A chunk on the `frame` sequence timeline (`frames` need not be sorted).
+pub fn temporal_chunk(
+    ids: &mut RowIds,
+    entity: &EntityPath,
+    frames: Vec<i64>,
+    columns: Vec<(&str, ArrayRef)>,
+) -> Arc<Chunk> {
+    let row_ids = ids.take(frames.len());
+    let times: ArrayRef = Arc::new(Int64Array::from(frames));
+    Arc::new(Chunk::new(
+        ChunkId::new(),
+        entity.clone(),
+        row_ids,
+        vec![(Timeline::sequence(FRAME), times)],
+        columns.into_iter().map(|(c, a)| (c.into(), a)).collect(),
+    ))
+}
+
+/// A static chunk: no timeline.
+pub fn static_chunk(
+    ids: &mut RowIds,
+    entity: &EntityPath,
+    columns: Vec<(&str, ArrayRef)>,
+) -> Arc<Chunk> {
+    let row_ids = ids.take(columns[0].1.len());
+    Arc::new(Chunk::new(
+        ChunkId::new(),
+        entity.clone(),
+        row_ids,
+        Vec::new(),
+        columns.into_iter().map(|(c, a)| (c.into(), a)).collect(),
+    ))
+}
+
+/// A Clear at `frame` on `entity`: recursive (the subtree) or flat (the entity alone).
+pub fn clear_chunk(
+    ids: &mut RowIds,
+    entity: &EntityPath,
+    frame: i64,
+    recursive: bool,
+) -> Arc<Chunk> {
+    let flag = Arc::new(BooleanArray::from(vec![recursive])) as ArrayRef;
+    temporal_chunk(
+        ids,
+        entity,
+        vec![frame],
+        vec![(ComponentName::CLEAR_IS_RECURSIVE, list_column(flag, 1, 1))],
+    )
+}
+
+/// The range of instances of cell `row` in a `List` column.
+fn instances(list: &ListArray, row: usize) -> std::ops::Range<usize> {
+    let offsets = list.value_offsets();
+    #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
+    let range = offsets[row] as usize..offsets[row + 1] as usize;
+    range
+}
+
+/// The first `scalar` instance of a cell.
+pub fn first_f64(list: &ListArray, row: usize) -> Option<f64> {
+    let range = instances(list, row);
+    let values = list.values().as_primitive_opt::<Float64Type>()?;
+    (!range.is_empty()).then(|| values.value(range.start))
+}
+
+/// The `position3d` instances of a cell, as `[x, y, z]` (empty if the cell holds another
+/// type).
+pub fn points(list: &ListArray, row: usize) -> &[[f32; 3]] {
+    let range = instances(list, row);
+    let floats = list
+        .values()
+        .as_fixed_size_list_opt()
+        .filter(|xyz| xyz.value_length() == 3)
+        .and_then(|xyz| xyz.values().as_primitive_opt::<Float32Type>());
+    floats
+        .and_then(|f| f.values().get(range.start * 3..range.end * 3))
+        .map_or(&[], |flat| flat.as_chunks::<3>().0)
+}
+
+/// Byte length of the first `text` instance of a cell.
+pub fn first_text_len(list: &ListArray, row: usize) -> Option<usize> {
+    let range = instances(list, row);
+    let strings = list.values().as_string_opt::<i32>()?;
+    (!range.is_empty()).then(|| strings.value(range.start).len())
+}
+
+/// Calls `f` with the first `scalar` instance of every non-empty, non-null cell of a range
+/// run, in order: one downcast per run.
+pub fn for_each_first_f64(run: &RangeRun<'_>, mut f: impl FnMut(f64)) {
+    let list = run.column().list_array();
+    let Some(values) = list.values().as_primitive_opt::<Float64Type>() else {
+        return;
+    };
+    let (offsets, values) = (list.value_offsets(), values.values());
+    for row in run.rows() {
+        #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
+        let (start, end) = (offsets[row] as usize, offsets[row + 1] as usize);
+        if start < end && list.is_valid(row) {
+            f(values[start]);
+        }
+    }
+}
+
+/// A store with this configuration holding `chunks`, inserted in order.
+pub fn store_with(config: StoreConfig, chunks: &[Arc<Chunk>]) -> ChunkStore {
+    let mut store = ChunkStore::with_config(config).expect("a valid config");
+    for chunk in chunks {
+        store.insert(Arc::clone(chunk)).expect("consistent chunks");
+    }
+    store
+}
+
+/// One `scalar` series at `entity`: a chunk per `chunk_rows` consecutive `frames`, value =
+/// frame.
+#[expect(clippy::cast_precision_loss, reason = "bench frames are small")]
+pub fn scalar_series(
+    ids: &mut RowIds,
+    entity: &EntityPath,
+    frames: &[i64],
+    chunk_rows: usize,
+) -> Vec<Arc<Chunk>> {
+    frames
+        .chunks(chunk_rows)
+        .map(|frames| {
+            let values = scalars(frames.iter().map(|&f| f as f64).collect());
+            temporal_chunk(ids, entity, frames.to_vec(), vec![(SCALAR, values)])
+        })
+        .collect()
+}
+
+/// `n` single-row `scalar` chunks per entity, interleaved across `entities` as a live
+/// stream of `entities.len()` series arrives: frame `k` of every series, then `k + 1`.
+pub fn interleaved_streams(ids: &mut RowIds, entities: &[EntityPath], n: usize) -> Vec<Arc<Chunk>> {
+    let mut chunks = Vec::with_capacity(n * entities.len());
+    for frame in 0..n {
+        for entity in entities {
+            #[expect(clippy::cast_possible_wrap, reason = "bench frames are small")]
+            let frame = frame as i64;
+            chunks.extend(scalar_series(ids, entity, &[frame], 1));
+        }
+    }
+    chunks
+}
+
+/// Latest-at `scalar` at `entity` as of `t` on `frame`, read back as a number.
+pub fn latest_scalar(store: &ChunkStore, t: i64, entity: &EntityPath) -> Option<f64> {
+    let query = LatestAtQuery::new(FRAME, TimeInt::new(t)?);
+    let cell = store.latest_at(&query, entity, SCALAR)?;
+    first_f64(cell.component().list_array(), cell.row())
+}

@@ -1,0 +1,74 @@
+//! Compaction on demand: a store filled with compaction off (single rows, in and out of
+//! order) rewritten by `compact()`, and the split of one oversized chunk on insert.
+
+#![allow(
+    clippy::expect_used,
+    reason = "generated data is valid; a failure should stop the bench loudly"
+)]
+
+mod common;
+
+use std::sync::Arc;
+
+use chunkstore::{ChunkStore, StoreConfig};
+use common::{RowIds, SplitMix64, entities, interleaved_streams, scalar_series, store_with};
+use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
+
+fn bench_compact(c: &mut Criterion, id: &str, base: &ChunkStore, rows: u64) {
+    let mut group = c.benchmark_group("compaction");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(rows));
+    group.bench_function(id, |b| {
+        b.iter_batched(
+            || base.clone(),
+            |mut store| {
+                let events = store.compact();
+                (store, events)
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.finish();
+}
+
+fn compaction(c: &mut Criterion) {
+    let mut ids = RowIds::new();
+    let series = entities(100, |e| format!("stream/{e:03}"));
+    let store = store_with(
+        StoreConfig::COMPACTION_OFF,
+        &interleaved_streams(&mut ids, &series, 100),
+    );
+    bench_compact(c, "compact/100_entities/10k_single_rows", &store, 10_000);
+
+    let one = entities(1, |_| "ooo".to_owned());
+    let shuffled = SplitMix64::new().permutation(10_000);
+    let store = store_with(
+        StoreConfig::COMPACTION_OFF,
+        &scalar_series(&mut ids, &one[0], &shuffled, 1),
+    );
+    bench_compact(c, "compact/out_of_order/10k_single_rows", &store, 10_000);
+
+    // A sorted chunk 25 times the row threshold: split into slices, nothing copied.
+    let frames: Vec<i64> = (0..100_000).collect();
+    let big = scalar_series(&mut ids, &one[0], &frames, frames.len());
+    let mut group = c.benchmark_group("compaction");
+    group.throughput(Throughput::Elements(frames.len() as u64));
+    group.bench_function("split_on_insert/sorted_chunk_of_100k_rows", |b| {
+        b.iter_batched(
+            || ChunkStore::with_config(StoreConfig::DEFAULT).expect("a valid config"),
+            |mut store| {
+                drop(
+                    store
+                        .insert(Arc::clone(&big[0]))
+                        .expect("a consistent chunk"),
+                );
+                store
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.finish();
+}
+
+criterion_group!(benches, compaction);
+criterion_main!(benches);
