@@ -270,7 +270,11 @@ impl ChunkStore {
         released: &mut ahash::HashMap<usize, u32>,
     ) -> u64 {
         let chunk = &stored.chunk;
-        let mut bytes = crate::stats::fixed_bytes(chunk);
+        let mut bytes = crate::stats::fixed_bytes(chunk)
+            + self
+                .entities
+                .get(chunk.entity_path())
+                .map_or(0, |entity| entity.extra_index_heap_bytes_of(chunk));
         for buffer in chunk.buffers() {
             if !stored.ledgered {
                 bytes += crate::chunk::memory::buffer_bytes(buffer);

@@ -11,6 +11,12 @@
 //!   least time: a chunk of bucket `L` that contains `t` starts in `(t − 2^(L+1), t]`, so the
 //!   chunks straddling a time are found without scanning older ones. (This is what keeps one
 //!   long chunk from slowing every query down, unlike bounding a walk by the longest span.)
+//!
+//! Most indices hold few chunks (a viewer logs thousands of entities, each with a handful
+//! of chunks): up to [`SMALL_INDEX_MAX_CHUNKS`] chunks, an index is one vector sorted by
+//! least time and scanned linearly, which costs a fraction of three B-trees' nodes in
+//! memory and answers in a few cache lines. It turns into the three views above when it
+//! outgrows that, and back once it holds half as many.
 
 use std::collections::BTreeMap;
 use std::ops::Bound;
@@ -32,8 +38,232 @@ pub(crate) struct IndexedChunk {
 type MaxIndexKey = (TimeInt, RowId, ChunkId);
 type MinTimeKey = (TimeInt, ChunkId);
 
+/// Up to this many chunks, an index is one sorted vector; see the module docs.
+pub(crate) const SMALL_INDEX_MAX_CHUNKS: usize = 16;
+
+/// Heap of one chunk's entry in a small index: its slot in the vector, with the vector's
+/// usual spare capacity. An estimate, held to account by `tests/memory.rs`.
+pub(crate) const SMALL_INDEX_BYTES_PER_ENTRY: u64 = 80;
+
+/// Heap of one chunk's entry in a large index: its share of the nodes of the two ordered
+/// views (B-tree nodes filled in order are about half full, so an entry costs about twice
+/// its keys and values). Measured with the counting allocator of `tests/memory.rs`.
+pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
+
+/// The index of one (entity, timeline, component): see the module docs.
+#[derive(Clone, Debug)]
+pub(crate) enum TemporalComponentIndex {
+    /// At most [`SMALL_INDEX_MAX_CHUNKS`] entries, sorted by `(least time, chunk id)`.
+    Small(Vec<IndexedChunk>),
+    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries.
+    Large(Box<LargeIndex>),
+}
+
+impl Default for TemporalComponentIndex {
+    fn default() -> Self {
+        Self::Small(Vec::new())
+    }
+}
+
+fn min_time_key(entry: &IndexedChunk) -> MinTimeKey {
+    (entry.bounds.min_time, entry.chunk.id())
+}
+
+impl TemporalComponentIndex {
+    /// Indexes a chunk (once: a chunk already indexed is left as it is).
+    pub fn insert(&mut self, entry: IndexedChunk) {
+        match self {
+            Self::Small(entries) => {
+                let key = min_time_key(&entry);
+                let Err(position) = entries.binary_search_by_key(&key, min_time_key) else {
+                    return; // already indexed: a store never inserts a chunk id twice
+                };
+                if entries.len() < SMALL_INDEX_MAX_CHUNKS {
+                    entries.insert(position, entry);
+                    return;
+                }
+                let mut large = LargeIndex::default();
+                for entry in entries.drain(..) {
+                    large.insert(entry);
+                }
+                large.insert(entry);
+                *self = Self::Large(Box::new(large));
+            }
+            Self::Large(large) => large.insert(entry),
+        }
+    }
+
+    /// Forgets a chunk indexed with `bounds`; returns whether it was indexed.
+    pub fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
+        match self {
+            Self::Small(entries) => {
+                let key = (bounds.min_time, id);
+                let Ok(position) = entries.binary_search_by_key(&key, min_time_key) else {
+                    return false;
+                };
+                entries.remove(position);
+                if entries.len() * 4 <= entries.capacity() {
+                    entries.shrink_to(entries.len() * 2);
+                }
+                true
+            }
+            Self::Large(large) => {
+                let removed = large.remove(id, bounds);
+                if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
+                    let entries = large.chunks_by_min_time.values().cloned().collect();
+                    *self = Self::Small(entries);
+                }
+                removed
+            }
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        match self {
+            Self::Small(entries) => entries.is_empty(),
+            Self::Large(large) => large.chunks_by_min_time.is_empty(),
+        }
+    }
+
+    /// Heap this index holds beyond [`SMALL_INDEX_BYTES_PER_ENTRY`] per chunk, which the
+    /// store counts with each chunk: what a large index's B-trees add.
+    pub fn extra_heap_bytes(&self) -> u64 {
+        match self {
+            Self::Small(_) => 0,
+            Self::Large(large) => {
+                large.len() as u64 * (LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY)
+            }
+        }
+    }
+
+    /// Is `id` among the `n` chunks with the greatest indices?
+    pub fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
+        match self {
+            Self::Small(entries) => {
+                entries
+                    .iter()
+                    .find(|e| e.chunk.id() == id)
+                    .is_some_and(|own| {
+                        let key = max_index_key(own);
+                        entries.iter().filter(|e| max_index_key(e) > key).count() < n
+                    })
+            }
+            Self::Large(large) => large.is_among_latest(id, n),
+        }
+    }
+
+    /// The chunk whose greatest index is the greatest at or before `t`.
+    pub fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
+        match self {
+            Self::Small(entries) => entries
+                .iter()
+                .filter(|e| e.bounds.max_time <= t)
+                .max_by_key(|e| max_index_key(e)),
+            Self::Large(large) => large.latest_ending_at_or_before(t),
+        }
+    }
+
+    /// Chunks with `min ≤ t < max`: those whose latest-at answer at `t` is not their
+    /// greatest index, and so needs a search inside the chunk.
+    pub fn for_each_straddling<'a>(&'a self, t: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
+        match self {
+            Self::Small(entries) => entries
+                .iter()
+                .take_while(|e| e.bounds.min_time <= t)
+                .filter(|e| e.bounds.max_time > t)
+                .for_each(f),
+            Self::Large(large) => large.for_each_straddling(t, &mut f),
+        }
+    }
+
+    /// Chunks with `min < t ≤ max`: those that start before a range beginning at `t` and
+    /// reach into it.
+    pub fn for_each_reaching_into<'a>(&'a self, t: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
+        match self {
+            Self::Small(entries) => entries
+                .iter()
+                .take_while(|e| e.bounds.min_time < t)
+                .filter(|e| e.bounds.max_time >= t)
+                .for_each(f),
+            Self::Large(large) => large.for_each_reaching_into(t, &mut f),
+        }
+    }
+
+    /// Every chunk starting in `[min, max]`, by least time.
+    pub fn for_each_starting_in<'a>(
+        &'a self,
+        min: TimeInt,
+        max: TimeInt,
+        mut f: impl FnMut(&'a IndexedChunk),
+    ) {
+        match self {
+            Self::Small(entries) => entries
+                .iter()
+                .skip_while(|e| e.bounds.min_time < min)
+                .take_while(|e| e.bounds.min_time <= max)
+                .for_each(f),
+            Self::Large(large) => large.for_each_starting_in(min, max, &mut f),
+        }
+    }
+
+    /// Every chunk, in no particular order.
+    pub fn chunks(&self) -> Box<dyn Iterator<Item = &IndexedChunk> + '_> {
+        match self {
+            Self::Small(entries) => Box::new(entries.iter()),
+            Self::Large(large) => Box::new(large.chunks_by_max_index.values()),
+        }
+    }
+
+    pub fn sanity_check(&self) -> Result<(), String> {
+        match self {
+            Self::Small(entries) => {
+                if entries.len() > SMALL_INDEX_MAX_CHUNKS {
+                    return Err(format!(
+                        "a small index holds at most {SMALL_INDEX_MAX_CHUNKS} chunks, not {}",
+                        entries.len()
+                    ));
+                }
+                if !entries
+                    .windows(2)
+                    .all(|w| min_time_key(&w[0]) < min_time_key(&w[1]))
+                {
+                    return Err("a small index is sorted by (least time, chunk id)".into());
+                }
+                entries.iter().try_for_each(check_bounds)
+            }
+            Self::Large(large) => {
+                if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
+                    return Err(format!(
+                        "a large index holds more than {} chunks, not {}",
+                        SMALL_INDEX_MAX_CHUNKS / 2,
+                        large.len()
+                    ));
+                }
+                large.sanity_check()
+            }
+        }
+    }
+}
+
+/// Do the entry's bounds equal what its chunk computed?
+fn check_bounds(entry: &IndexedChunk) -> Result<(), String> {
+    let component = entry
+        .chunk
+        .components()
+        .get(entry.component_column as usize);
+    if component.and_then(|c| c.bounds(entry.time_column as usize)) == Some(entry.bounds) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} has the bounds its chunk computed",
+            entry.chunk.id()
+        ))
+    }
+}
+
+/// The three views of a large index.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct TemporalComponentIndex {
+pub(crate) struct LargeIndex {
     chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
     chunks_by_min_time: BTreeMap<MinTimeKey, IndexedChunk>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
@@ -55,8 +285,12 @@ fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
     )
 }
 
-impl TemporalComponentIndex {
-    pub fn insert(&mut self, entry: IndexedChunk) {
+impl LargeIndex {
+    fn len(&self) -> usize {
+        self.chunks_by_min_time.len()
+    }
+
+    fn insert(&mut self, entry: IndexedChunk) {
         let id = entry.chunk.id();
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
         if self.chunks_by_min_time.contains_key(&(min, id)) {
@@ -74,8 +308,7 @@ impl TemporalComponentIndex {
             .insert(max_index_key(&entry), entry);
     }
 
-    /// Forgets a chunk indexed with `bounds`; returns whether it was indexed.
-    pub fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
+    fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
         let (min, max) = (bounds.min_time, bounds.max_time);
         if self.chunks_by_min_time.remove(&(min, id)).is_none() {
             return false;
@@ -94,12 +327,7 @@ impl TemporalComponentIndex {
         true
     }
 
-    pub fn is_empty(&self) -> bool {
-        self.chunks_by_min_time.is_empty()
-    }
-
-    /// Is `id` among the `n` chunks with the greatest indices?
-    pub fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
+    fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
         self.chunks_by_max_index
             .keys()
             .rev()
@@ -107,23 +335,18 @@ impl TemporalComponentIndex {
             .any(|&(_, _, latest)| latest == id)
     }
 
-    /// The chunk whose greatest index is the greatest at or before `t`.
-    pub fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
+    fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
         self.chunks_by_max_index
             .range(..=(t, RowId::MAX, ChunkId::MAX))
             .next_back()
             .map(|(_, entry)| entry)
     }
 
-    /// Spanning chunks with `min ≤ t < max`: those whose latest-at answer at `t` is not their
-    /// greatest index, and so needs a search inside the chunk.
-    pub fn for_each_straddling<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+    fn for_each_straddling<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
         self.for_each_spanning(t, Bound::Included((t, ChunkId::MAX)), |max| max > t, f);
     }
 
-    /// Spanning chunks with `min < t ≤ max`: those that start before a range beginning at
-    /// `t` and reach into it.
-    pub fn for_each_reaching_into<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+    fn for_each_reaching_into<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
         self.for_each_spanning(t, Bound::Excluded((t, ChunkId::ZERO)), |max| max >= t, f);
     }
 
@@ -151,8 +374,7 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// Every chunk starting in `[min, max]`.
-    pub fn for_each_starting_in<'a>(
+    fn for_each_starting_in<'a>(
         &'a self,
         min: TimeInt,
         max: TimeInt,
@@ -167,12 +389,7 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// Every chunk, in no particular order.
-    pub fn chunks(&self) -> impl Iterator<Item = &IndexedChunk> {
-        self.chunks_by_max_index.values()
-    }
-
-    pub fn sanity_check(&self) -> Result<(), String> {
+    fn sanity_check(&self) -> Result<(), String> {
         let Self {
             chunks_by_max_index,
             chunks_by_min_time,
@@ -217,16 +434,7 @@ impl TemporalComponentIndex {
             if by_min.is_none_or(|e| !Arc::ptr_eq(&e.chunk, &entry.chunk)) {
                 return Err(format!("{} is keyed by its least time", entry.chunk.id()));
             }
-            let component = entry
-                .chunk
-                .components()
-                .get(entry.component_column as usize);
-            if component.and_then(|c| c.bounds(entry.time_column as usize)) != Some(b) {
-                return Err(format!(
-                    "{} has the bounds its chunk computed",
-                    entry.chunk.id()
-                ));
-            }
+            check_bounds(entry)?;
         }
         let expected_spanning = chunks_by_max_index
             .values()

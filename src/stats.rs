@@ -12,20 +12,26 @@ use arrow_buffer::Buffer;
 
 use crate::Chunk;
 use crate::chunk::memory::{buffer_address, buffer_bytes};
+use crate::index::SMALL_INDEX_BYTES_PER_ENTRY;
 
 // The index estimates below were measured with the counting allocator of
 // `tests/memory.rs` (20,000 single-row chunks inserted in order, with one and with six
 // (timeline, component) entries each). B-tree nodes filled in order are about half full,
 // which is why an entry costs about twice its keys and values.
 
+/// Adds a signed amount of heap bytes (an index growing or shrinking) to a figure.
+pub(crate) fn apply_delta(total: &mut u64, delta: i64) {
+    *total = total.saturating_add_signed(delta);
+}
+
 /// Estimated heap of the store's bookkeeping per chunk: its slot in the chunk map, in the
 /// entity's chunk set and in the garbage collector's row-id order.
 const INDEX_BYTES_PER_CHUNK: u64 = 80;
 /// Estimated heap per timeline of a chunk: its slots in the per-timeline time orders.
 const INDEX_BYTES_PER_TIMELINE: u64 = 100;
-/// Estimated heap of one (timeline, component) index entry of a chunk: its node share in
-/// the two ordered views of the temporal index.
-const INDEX_BYTES_PER_ENTRY: u64 = 490;
+/// Estimated heap of one component entry of a static chunk (its static winner slot and
+/// chunk record).
+const STATIC_BYTES_PER_ENTRY: u64 = 490;
 
 /// Totals, kept up to date by every mutation, O(1) to read.
 ///
@@ -152,15 +158,17 @@ pub(crate) struct StoreLedgers {
 
 /// The bytes a chunk costs besides its Arrow buffers.
 pub(crate) fn fixed_bytes(chunk: &Chunk) -> u64 {
-    let entries: usize = if chunk.is_static() {
-        chunk.components().len()
+    // A temporal chunk's entries are counted at what a small index costs; a large index
+    // reports what its B-trees add on top (`TemporalComponentIndex::extra_heap_bytes`).
+    let entries = if chunk.is_static() {
+        STATIC_BYTES_PER_ENTRY * chunk.components().len() as u64
     } else {
-        chunk.time_columns().len() * chunk.components().len()
+        SMALL_INDEX_BYTES_PER_ENTRY * (chunk.time_columns().len() * chunk.components().len()) as u64
     };
     chunk.own_heap_bytes()
         + INDEX_BYTES_PER_CHUNK
         + INDEX_BYTES_PER_TIMELINE * chunk.time_columns().len() as u64
-        + INDEX_BYTES_PER_ENTRY * entries as u64
+        + entries
 }
 
 /// Adds (`sign` = 1) or removes (`sign` = -1) a chunk to or from the figures of the store

@@ -14,7 +14,9 @@ use arrow_schema::DataType;
 use crate::clear::ClearIndex;
 use crate::compaction::{PendingGroups, StoreConfig};
 use crate::error::{ConfigError, InsertError};
-use crate::index::{IndexedChunk, TemporalComponentIndex};
+use crate::index::{
+    IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
+};
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
 
@@ -263,7 +265,10 @@ impl ChunkStore {
                 self.forget_chunk(overwritten.id(), DeletionReason::Overwrite, events);
             }
         } else {
-            entity.insert_temporal(&chunk);
+            let extra = entity.insert_temporal(&chunk);
+            crate::stats::apply_delta(&mut entity.stats.heap_bytes, extra);
+            crate::stats::apply_delta(&mut self.stats.heap_bytes, extra);
+            crate::stats::apply_delta(&mut self.stats.temporal_heap_bytes, extra);
             let id = chunk.id();
             self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
             for column in chunk.time_columns() {
@@ -295,7 +300,10 @@ impl ChunkStore {
         } else {
             self.clears.remove_chunk(&chunk);
             if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
-                entity.remove_temporal(&chunk);
+                let extra = entity.remove_temporal(&chunk);
+                crate::stats::apply_delta(&mut entity.stats.heap_bytes, extra);
+                crate::stats::apply_delta(&mut self.stats.heap_bytes, extra);
+                crate::stats::apply_delta(&mut self.stats.temporal_heap_bytes, extra);
             }
             self.temporal_by_row_id
                 .remove(&(chunk.row_id_range().0, id));
@@ -497,6 +505,15 @@ impl ChunkStore {
                 return Err(format!("{id}: its entity is indexed"));
             }
         }
+        // Large indices' extra heap, which the store adds as indices grow and shrink.
+        for (path, entity) in entities {
+            let extra = entity.extra_index_heap_bytes();
+            expected.heap_bytes += extra;
+            expected.temporal_heap_bytes += extra;
+            if let Some((entity_stats, _)) = expected_entities.get_mut(path) {
+                entity_stats.heap_bytes += extra;
+            }
+        }
         if expected != stats.contents() {
             return Err(format!(
                 "stats match the chunks: kept {stats:?}, counted {expected:?}"
@@ -586,7 +603,11 @@ impl EntityIndex {
         clippy::cast_possible_truncation,
         reason = "columns < 2^32, checked in Chunk::from_raw"
     )]
-    fn insert_temporal(&mut self, chunk: &Arc<Chunk>) {
+    /// Indexes a temporal chunk under every (timeline, component) it has cells for;
+    /// returns how much the indices' extra heap grew (see
+    /// [`TemporalComponentIndex::extra_heap_bytes`]).
+    fn insert_temporal(&mut self, chunk: &Arc<Chunk>) -> i64 {
+        let mut extra = 0;
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let per_component = self
                 .temporal_per_timeline_per_component
@@ -596,17 +617,18 @@ impl EntityIndex {
                 let Some(bounds) = column.bounds(time_position) else {
                     continue;
                 };
-                per_component
-                    .entry(column.name().clone())
-                    .or_default()
-                    .insert(IndexedChunk {
-                        chunk: Arc::clone(chunk),
-                        time_column: time_position as u32,
-                        component_column: component_position as u32,
-                        bounds,
-                    });
+                let index = per_component.entry(column.name().clone()).or_default();
+                let before = index.extra_heap_bytes();
+                index.insert(IndexedChunk {
+                    chunk: Arc::clone(chunk),
+                    time_column: time_position as u32,
+                    component_column: component_position as u32,
+                    bounds,
+                });
+                extra += signed_difference(index.extra_heap_bytes(), before);
             }
         }
+        extra
     }
 
     /// Forgets a static chunk: its winners go with it (only dropping the entity removes
@@ -619,8 +641,10 @@ impl EntityIndex {
 
     /// Forgets a temporal chunk from every (timeline, component) index and from the
     /// compaction candidates.
-    fn remove_temporal(&mut self, chunk: &Chunk) {
+    /// Returns how much the indices' extra heap grew (negative: shrank).
+    fn remove_temporal(&mut self, chunk: &Chunk) -> i64 {
         let id = chunk.id();
+        let mut extra = 0;
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let name = time_column.timeline().name();
             let Some(per_component) = self.temporal_per_timeline_per_component.get_mut(name) else {
@@ -631,7 +655,9 @@ impl EntityIndex {
                     continue;
                 };
                 if let Some(index) = per_component.get_mut(column.name()) {
+                    let before = index.extra_heap_bytes();
                     index.remove(id, &bounds);
+                    extra += signed_difference(index.extra_heap_bytes(), before);
                     if index.is_empty() {
                         per_component.remove(column.name());
                     }
@@ -642,6 +668,41 @@ impl EntityIndex {
             }
         }
         self.pending.remove(chunk);
+        extra
+    }
+
+    /// What the entity's large indices add to the heap (see
+    /// [`TemporalComponentIndex::extra_heap_bytes`]).
+    pub(crate) fn extra_index_heap_bytes(&self) -> u64 {
+        self.temporal_per_timeline_per_component
+            .values()
+            .flat_map(|per_component| per_component.values())
+            .map(TemporalComponentIndex::extra_heap_bytes)
+            .sum()
+    }
+
+    /// What removing `chunk` would take off the large indices' extra heap, at most.
+    pub(crate) fn extra_index_heap_bytes_of(&self, chunk: &Chunk) -> u64 {
+        let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;
+        let mut extra = 0;
+        for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
+            let Some(per_component) = self
+                .temporal_per_timeline_per_component
+                .get(time_column.timeline().name())
+            else {
+                continue;
+            };
+            for column in chunk.components() {
+                if column.bounds(time_position).is_some()
+                    && per_component
+                        .get(column.name())
+                        .is_some_and(|index| index.extra_heap_bytes() > 0)
+                {
+                    extra += per_entry;
+                }
+            }
+        }
+        extra
     }
 
     fn sanity_check(
@@ -747,4 +808,9 @@ impl fmt::Display for ChunkStore {
         }
         Ok(())
     }
+}
+
+/// `after − before` for byte counts far below `i64::MAX`.
+fn signed_difference(after: u64, before: u64) -> i64 {
+    i64::try_from(i128::from(after) - i128::from(before)).unwrap_or(0)
 }

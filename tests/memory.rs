@@ -210,4 +210,10 @@ fn heap_accounting_matches_the_allocator_and_streaming_stays_under_40_bytes_per_
             .collect()
     });
     assert_within_10_percent("two timelines, shared columns", &store, held);
+    drop(store);
+
+    // 6. Many entities with a few chunks each (a viewer's usual shape): every index is a
+    //    small one.
+    let (store, held) = measure(StoreConfig::COMPACTION_OFF, || stream(5_000, 200_000, 10));
+    assert_within_10_percent("5,000 entities, 4 chunks each", &store, held);
 }

@@ -230,22 +230,35 @@ pub fn first_text_len(list: &ListArray, row: usize) -> Option<usize> {
 }
 
 /// Calls `f` with the first `scalar` instance of every non-empty, non-null cell of a range
-/// run, in order: one downcast per run.
+/// run, in order: one downcast per run, and a plain loop over the offsets when the run is
+/// a slice of its chunk.
 pub fn for_each_first_f64(run: &RangeRun<'_>, mut f: impl FnMut(f64)) {
     let list = run.column().list_array();
     let Some(values) = list.values().as_primitive_opt::<Float64Type>() else {
         return;
     };
     let (offsets, values) = (list.value_offsets(), values.values());
-    for row in run.rows() {
-        #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
-        let (start, end) = (offsets[row] as usize, offsets[row + 1] as usize);
-        if start < end && list.is_valid(row) {
-            f(values[start]);
+    #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
+    let cell = |row: usize| (offsets[row] as usize, offsets[row + 1] as usize);
+    match run.contiguous_rows() {
+        Some(rows) if list.null_count() == 0 => {
+            #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
+            for bounds in offsets[rows.start..=rows.end].windows(2) {
+                if bounds[0] < bounds[1] {
+                    f(values[bounds[0] as usize]);
+                }
+            }
+        }
+        _ => {
+            for row in run.rows() {
+                let (start, end) = cell(row);
+                if start < end && list.is_valid(row) {
+                    f(values[start]);
+                }
+            }
         }
     }
 }
-
 /// A store with this configuration holding `chunks`, inserted in order.
 pub fn store_with(config: StoreConfig, chunks: &[Arc<Chunk>]) -> ChunkStore {
     let mut store = ChunkStore::with_config(config).expect("a valid config");

@@ -174,6 +174,14 @@ impl<'a> RangeRun<'a> {
         }
     }
 
+    /// The rows as one range of the chunk's rows, when the chunk's rows are already in
+    /// `(time, row id)` order on the queried timeline (the common case: time-sorted
+    /// chunks, and every compacted one). Then a reader can slice the Arrow column itself.
+    pub fn contiguous_rows(&self) -> Option<std::ops::Range<usize>> {
+        let in_row_order = self.times.is_none_or(|t| t.index_order().is_none());
+        in_row_order.then_some(self.start as usize..self.end as usize)
+    }
+
     /// Number of rows, null cells included.
     pub fn len(&self) -> usize {
         (self.end - self.start) as usize
