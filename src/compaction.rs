@@ -162,8 +162,10 @@ impl PendingGroups {
             .position(|g| g.any_chunk().is_some_and(|c| c.has_same_layout(chunk)))
     }
 
-    /// Adds a chunk to its layout's group; returns its level.
-    fn push(&mut self, chunk: Arc<Chunk>, config: &StoreConfig) -> usize {
+    /// Adds a chunk to its layout's group; returns the group's position and the chunk's
+    /// level, which [`PendingGroups::take_full_fan`] takes back (so a chunk's layout is
+    /// compared once per push, not again per level).
+    fn push(&mut self, chunk: Arc<Chunk>, config: &StoreConfig) -> (usize, usize) {
         let position = self.group_position(&chunk).unwrap_or_else(|| {
             self.groups.push(PendingGroup::default());
             self.groups.len() - 1
@@ -174,18 +176,18 @@ impl PendingGroups {
             levels.resize_with(level + 1, Vec::new);
         }
         levels[level].push(chunk);
-        level
+        (position, level)
     }
 
-    /// If the level of `member`'s group holds a full fan of chunks, takes them out.
+    /// If `level` of the group at `position` (as [`PendingGroups::push`] returned them)
+    /// holds a full fan of chunks, takes them out.
     fn take_full_fan(
         &mut self,
-        member: &Chunk,
+        position: usize,
         level: usize,
         config: &StoreConfig,
     ) -> Option<Vec<Arc<Chunk>>> {
-        let position = self.group_position(member)?;
-        let chunks = self.groups[position].levels.get_mut(level)?;
+        let chunks = self.groups.get_mut(position)?.levels.get_mut(level)?;
         if chunks.len() < config.merge_fanout {
             return None;
         }
@@ -354,18 +356,18 @@ impl ChunkStore {
 
     /// Adds a small chunk to its entity's waiting chunks and merges every full fan this
     /// completes.
-    fn merge_cascade(&mut self, mut member: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+    fn merge_cascade(&mut self, member: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
         let config = self.config;
         let path = member.entity_path().clone();
         let Some(entity) = self.entities.get_mut(&path) else {
             return;
         };
-        let mut level = entity.pending.push(Arc::clone(&member), &config);
+        let (mut group, mut level) = entity.pending.push(member, &config);
         loop {
             let Some(entity) = self.entities.get_mut(&path) else {
                 return;
             };
-            let Some(fan) = entity.pending.take_full_fan(&member, level, &config) else {
+            let Some(fan) = entity.pending.take_full_fan(group, level, &config) else {
                 return;
             };
             let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
@@ -389,8 +391,7 @@ impl ChunkStore {
             let Some(entity) = self.entities.get_mut(&path) else {
                 return;
             };
-            level = entity.pending.push(Arc::clone(&next), &config);
-            member = next;
+            (group, level) = entity.pending.push(next, &config);
         }
     }
 

@@ -103,8 +103,8 @@ pub(crate) struct EntityIndex {
     pub static_chunks: ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
     pub temporal_per_timeline_per_component:
         ahash::HashMap<Arc<str>, ahash::HashMap<ComponentName, TemporalComponentIndex>>,
-    /// Every chunk of the entity the store holds.
-    pub chunk_ids: BTreeSet<ChunkId>,
+    /// Every chunk of the entity the store holds (unordered: `drop_entity` sorts them).
+    pub chunk_ids: ahash::HashSet<ChunkId>,
     /// Temporal chunks still small enough for compaction on insert to grow.
     pub pending: PendingGroups,
     pub stats: EntityStats,
