@@ -361,8 +361,19 @@ fn run_in_chunk(
     max: TimeInt,
 ) -> Option<PendingRun<'_>> {
     let times = &entry.chunk.time_columns()[entry.time_column as usize];
-    let start = times.num_positions_before(min.as_i64());
-    let end = times.num_positions_at_or_before(max.as_i64());
+    // A chunk wholly inside the range needs no search (and its time column is not even
+    // read): most chunks of a long range are.
+    let (first_time, last_time) = times.time_range();
+    let start = if min <= first_time {
+        0
+    } else {
+        times.num_positions_before(min.as_i64())
+    };
+    let end = if last_time <= max {
+        times.times().len()
+    } else {
+        times.num_positions_at_or_before(max.as_i64())
+    };
     (start < end).then(|| PendingRun {
         entry,
         run: Run {
