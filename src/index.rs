@@ -15,10 +15,15 @@
 //! Most indices hold few chunks (a viewer logs thousands of entities, each with a handful
 //! of chunks): up to [`SMALL_INDEX_MAX_CHUNKS`] chunks, an index is one vector sorted by
 //! least time and scanned linearly, which costs a fraction of three B-trees' nodes in
-//! memory and answers in a few cache lines. It turns into the three views above when it
-//! outgrows that, and back once it holds half as many.
+//! memory and answers in a few cache lines. Beyond that, chunks that do not overlap in
+//! time and arrive in time order (batches of a live stream, recordings loaded in order)
+//! stay in one *sequence*: a deque in which least times, greatest times and greatest
+//! indices all ascend together, so every question is one binary search, and arrival and
+//! garbage collection (oldest first, or from both ends around a cursor) touch only its
+//! ends. The first chunk that breaks the order turns the index into the three views
+//! above. Either turns back into a vector once it holds half of the small limit.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::ops::Bound;
 use std::sync::Arc;
 
@@ -55,8 +60,33 @@ pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
 pub(crate) enum TemporalComponentIndex {
     /// At most [`SMALL_INDEX_MAX_CHUNKS`] entries, sorted by `(least time, chunk id)`.
     Small(Vec<IndexedChunk>),
+    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries that do not overlap in time,
+    /// in time order: each ends strictly before the next starts.
+    Sequence(VecDeque<IndexedChunk>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries.
     Large(Box<LargeIndex>),
+}
+
+/// A middle removal from a sequence shifts at most this many entries; past that the
+/// sequence turns into the three views, where removal is logarithmic.
+const SEQUENCE_MAX_SHIFT: usize = 64;
+
+/// Do `entries` (sorted by least time) each end strictly before the next starts?
+fn in_sequence<'a>(entries: impl IntoIterator<Item = &'a IndexedChunk>) -> bool {
+    let mut previous_max = None;
+    entries.into_iter().all(|e| {
+        let ordered = previous_max.is_none_or(|max| max < e.bounds.min_time);
+        previous_max = Some(e.bounds.max_time);
+        ordered
+    })
+}
+
+fn large_from(entries: impl IntoIterator<Item = IndexedChunk>) -> TemporalComponentIndex {
+    let mut large = LargeIndex::default();
+    for entry in entries {
+        large.insert(entry);
+    }
+    TemporalComponentIndex::Large(Box::new(large))
 }
 
 impl Default for TemporalComponentIndex {
@@ -78,16 +108,30 @@ impl TemporalComponentIndex {
                 let Err(position) = entries.binary_search_by_key(&key, min_time_key) else {
                     return; // already indexed: a store never inserts a chunk id twice
                 };
-                if entries.len() < SMALL_INDEX_MAX_CHUNKS {
-                    entries.insert(position, entry);
+                entries.insert(position, entry);
+                if entries.len() > SMALL_INDEX_MAX_CHUNKS {
+                    let entries = std::mem::take(entries);
+                    *self = if in_sequence(&entries) {
+                        Self::Sequence(entries.into())
+                    } else {
+                        large_from(entries)
+                    };
+                }
+            }
+            Self::Sequence(entries) => {
+                let (Some(first), Some(last)) = (entries.front(), entries.back()) else {
+                    entries.push_back(entry);
                     return;
+                };
+                if last.bounds.max_time < entry.bounds.min_time {
+                    entries.push_back(entry);
+                } else if entry.bounds.max_time < first.bounds.min_time {
+                    entries.push_front(entry);
+                } else if binary_search_deque(entries, &min_time_key(&entry)).is_err() {
+                    let mut index = large_from(std::mem::take(entries));
+                    index.insert(entry);
+                    *self = index;
                 }
-                let mut large = LargeIndex::default();
-                for entry in entries.drain(..) {
-                    large.insert(entry);
-                }
-                large.insert(entry);
-                *self = Self::Large(Box::new(large));
             }
             Self::Large(large) => large.insert(entry),
         }
@@ -107,6 +151,32 @@ impl TemporalComponentIndex {
                 }
                 true
             }
+            Self::Sequence(entries) => {
+                let key = (bounds.min_time, id);
+                let position = if entries.front().is_some_and(|e| min_time_key(e) == key) {
+                    0
+                } else if entries.back().is_some_and(|e| min_time_key(e) == key) {
+                    entries.len() - 1
+                } else {
+                    let Ok(position) = binary_search_deque(entries, &key) else {
+                        return false;
+                    };
+                    position
+                };
+                if position.min(entries.len() - 1 - position) > SEQUENCE_MAX_SHIFT {
+                    let mut index = large_from(std::mem::take(entries));
+                    let removed = index.remove(id, bounds);
+                    *self = index;
+                    return removed;
+                }
+                entries.remove(position);
+                if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
+                    *self = Self::Small(std::mem::take(entries).into());
+                } else if entries.len() * 4 <= entries.capacity() {
+                    entries.shrink_to(entries.len() * 2);
+                }
+                true
+            }
             Self::Large(large) => {
                 let removed = large.remove(id, bounds);
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
@@ -121,6 +191,7 @@ impl TemporalComponentIndex {
     pub fn is_empty(&self) -> bool {
         match self {
             Self::Small(entries) => entries.is_empty(),
+            Self::Sequence(entries) => entries.is_empty(),
             Self::Large(large) => large.chunks_by_min_time.is_empty(),
         }
     }
@@ -129,7 +200,7 @@ impl TemporalComponentIndex {
     /// store counts with each chunk: what a large index's B-trees add.
     pub fn extra_heap_bytes(&self) -> u64 {
         match self {
-            Self::Small(_) => 0,
+            Self::Small(_) | Self::Sequence(_) => 0,
             Self::Large(large) => {
                 large.len() as u64 * (LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY)
             }
@@ -148,6 +219,8 @@ impl TemporalComponentIndex {
                         entries.iter().filter(|e| max_index_key(e) > key).count() < n
                     })
             }
+            // Greatest indices ascend with the position.
+            Self::Sequence(entries) => entries.iter().rev().take(n).any(|e| e.chunk.id() == id),
             Self::Large(large) => large.is_among_latest(id, n),
         }
     }
@@ -159,6 +232,10 @@ impl TemporalComponentIndex {
                 .iter()
                 .filter(|e| e.bounds.max_time <= t)
                 .max_by_key(|e| max_index_key(e)),
+            Self::Sequence(entries) => {
+                let end = entries.partition_point(|e| e.bounds.max_time <= t);
+                end.checked_sub(1).and_then(|last| entries.get(last))
+            }
             Self::Large(large) => large.latest_ending_at_or_before(t),
         }
     }
@@ -172,6 +249,15 @@ impl TemporalComponentIndex {
                 .take_while(|e| e.bounds.min_time <= t)
                 .filter(|e| e.bounds.max_time > t)
                 .for_each(f),
+            // Only the last chunk starting at or before `t` can reach past it.
+            Self::Sequence(entries) => {
+                let end = entries.partition_point(|e| e.bounds.min_time <= t);
+                if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
+                    && e.bounds.max_time > t
+                {
+                    f(e);
+                }
+            }
             Self::Large(large) => large.for_each_straddling(t, &mut f),
         }
     }
@@ -185,6 +271,14 @@ impl TemporalComponentIndex {
                 .take_while(|e| e.bounds.min_time < t)
                 .filter(|e| e.bounds.max_time >= t)
                 .for_each(f),
+            Self::Sequence(entries) => {
+                let end = entries.partition_point(|e| e.bounds.min_time < t);
+                if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
+                    && e.bounds.max_time >= t
+                {
+                    f(e);
+                }
+            }
             Self::Large(large) => large.for_each_reaching_into(t, &mut f),
         }
     }
@@ -202,6 +296,11 @@ impl TemporalComponentIndex {
                 .skip_while(|e| e.bounds.min_time < min)
                 .take_while(|e| e.bounds.min_time <= max)
                 .for_each(f),
+            Self::Sequence(entries) => {
+                let start = entries.partition_point(|e| e.bounds.min_time < min);
+                let end = entries.partition_point(|e| e.bounds.min_time <= max);
+                entries.range(start..end.max(start)).for_each(f);
+            }
             Self::Large(large) => large.for_each_starting_in(min, max, &mut f),
         }
     }
@@ -210,6 +309,7 @@ impl TemporalComponentIndex {
     pub fn chunks(&self) -> Box<dyn Iterator<Item = &IndexedChunk> + '_> {
         match self {
             Self::Small(entries) => Box::new(entries.iter()),
+            Self::Sequence(entries) => Box::new(entries.iter()),
             Self::Large(large) => Box::new(large.chunks_by_max_index.values()),
         }
     }
@@ -231,6 +331,19 @@ impl TemporalComponentIndex {
                 }
                 entries.iter().try_for_each(check_bounds)
             }
+            Self::Sequence(entries) => {
+                if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
+                    return Err(format!(
+                        "a sequence holds more than {} chunks, not {}",
+                        SMALL_INDEX_MAX_CHUNKS / 2,
+                        entries.len()
+                    ));
+                }
+                if !in_sequence(entries.iter()) {
+                    return Err("a sequence's chunks each end before the next starts".into());
+                }
+                entries.iter().try_for_each(check_bounds)
+            }
             Self::Large(large) => {
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
                     return Err(format!(
@@ -243,6 +356,12 @@ impl TemporalComponentIndex {
             }
         }
     }
+}
+
+/// The position of the entry keyed `key` in a sequence (sorted by that key), or where it
+/// would go.
+fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Result<usize, usize> {
+    entries.binary_search_by(|e| min_time_key(e).cmp(key))
 }
 
 /// Do the entry's bounds equal what its chunk computed?
