@@ -311,7 +311,7 @@ impl ChunkStore {
         }
         let touched: Vec<ChunkId> = chunks
             .by_max_time
-            .range((min, ChunkId::ZERO)..)
+            .iter_from(&(min, ChunkId::ZERO))
             .map(|&(_, id)| id)
             .filter(|id| {
                 self.chunks

@@ -67,6 +67,7 @@ mod ids;
 mod index;
 #[cfg(feature = "ipc")]
 pub mod io;
+mod ordered;
 mod query;
 mod stats;
 mod store;

@@ -5,7 +5,7 @@
 //! in step; compaction ([`crate::compaction`]) and garbage collection ([`crate::gc`]) are
 //! built on them.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::fmt;
 use std::sync::Arc;
 
@@ -17,6 +17,7 @@ use crate::error::{ConfigError, InsertError};
 use crate::index::{
     IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
 };
+use crate::ordered::OrderedSet;
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
 
@@ -124,8 +125,8 @@ pub(crate) struct StoredChunk {
 /// time-ordered garbage collection and range drops walk.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct TimelineChunks {
-    pub by_min_time: BTreeSet<(TimeInt, ChunkId)>,
-    pub by_max_time: BTreeSet<(TimeInt, ChunkId)>,
+    pub by_min_time: OrderedSet<(TimeInt, ChunkId)>,
+    pub by_max_time: OrderedSet<(TimeInt, ChunkId)>,
 }
 
 /// An in-memory store of chunks, answering latest-at and range queries.
@@ -139,7 +140,7 @@ pub struct ChunkStore {
     pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
     pub(crate) clears: ClearIndex,
     /// Temporal chunks by least row id: the garbage collector's default order.
-    pub(crate) temporal_by_row_id: BTreeSet<(RowId, ChunkId)>,
+    pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
     pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
     pub(crate) stats: StoreStats,
     pub(crate) ledgers: StoreLedgers,
@@ -470,7 +471,7 @@ impl ChunkStore {
         let mut ledgers = StoreLedgers::default();
         let mut expected_entities: ahash::HashMap<&EntityPath, (EntityStats, BufferLedger)> =
             ahash::HashMap::default();
-        let mut expected_by_row_id = BTreeSet::new();
+        let mut expected_by_row_id = OrderedSet::default();
         let mut expected_per_timeline: BTreeMap<&str, TimelineChunks> = BTreeMap::new();
         for (&id, StoredChunk { chunk, ledgered }) in chunks {
             chunk.sanity_check()?;
@@ -519,13 +520,16 @@ impl ChunkStore {
                 "stats match the chunks: kept {stats:?}, counted {expected:?}"
             ));
         }
+        temporal_by_row_id.sanity_check()?;
         if expected_by_row_id != *temporal_by_row_id {
             return Err("the row-id order holds exactly the temporal chunks".into());
         }
         let timelines_match = expected_per_timeline.len() == temporal_per_timeline.len()
             && expected_per_timeline.iter().all(|(name, expected)| {
                 temporal_per_timeline.get(*name).is_some_and(|kept| {
-                    kept.by_min_time == expected.by_min_time
+                    kept.by_min_time.sanity_check().is_ok()
+                        && kept.by_max_time.sanity_check().is_ok()
+                        && kept.by_min_time == expected.by_min_time
                         && kept.by_max_time == expected.by_max_time
                 })
             });
