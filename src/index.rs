@@ -44,7 +44,7 @@ type MaxIndexKey = (TimeInt, RowId, ChunkId);
 type MinTimeKey = (TimeInt, ChunkId);
 
 /// Up to this many chunks, an index is one sorted vector; see the module docs.
-pub(crate) const SMALL_INDEX_MAX_CHUNKS: usize = 16;
+pub(crate) const SMALL_INDEX_MAX_CHUNKS: usize = 32;
 
 /// Heap of one chunk's entry in a small index: its slot in the vector, with the vector's
 /// usual spare capacity. An estimate, held to account by `tests/memory.rs`.
