@@ -69,6 +69,7 @@ mod index;
 pub mod io;
 mod ordered;
 mod query;
+mod small_map;
 mod stats;
 mod store;
 mod time;

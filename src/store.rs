@@ -18,6 +18,7 @@ use crate::index::{
     IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
 };
 use crate::ordered::OrderedSet;
+use crate::small_map::SmallMap;
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
 
@@ -98,12 +99,12 @@ pub(crate) struct StaticWinner {
 pub(crate) struct EntityIndex {
     /// The element type each component was first seen with (static and temporal).
     pub element_types: BTreeMap<ComponentName, DataType>,
-    pub static_winners: ahash::HashMap<ComponentName, StaticWinner>,
+    pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// How many components each static chunk of this entity answers for; a chunk that
     /// answers for none is invisible and leaves the store.
     pub static_chunks: ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
     pub temporal_per_timeline_per_component:
-        ahash::HashMap<Arc<str>, ahash::HashMap<ComponentName, TemporalComponentIndex>>,
+        SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Every chunk of the entity the store holds (unordered: `drop_entity` sorts them).
     pub chunk_ids: ahash::HashSet<ChunkId>,
     /// Temporal chunks still small enough for compaction on insert to grow.
@@ -615,13 +616,12 @@ impl EntityIndex {
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let per_component = self
                 .temporal_per_timeline_per_component
-                .entry(Arc::clone(time_column.timeline().name_arc()))
-                .or_default();
+                .get_or_default(Arc::clone(time_column.timeline().name_arc()));
             for (component_position, column) in chunk.components().iter().enumerate() {
                 let Some(bounds) = column.bounds(time_position) else {
                     continue;
                 };
-                let index = per_component.entry(column.name().clone()).or_default();
+                let index = per_component.get_or_default(column.name().clone());
                 let before = index.extra_heap_bytes();
                 index.insert(IndexedChunk {
                     chunk: Arc::clone(chunk),
@@ -680,7 +680,7 @@ impl EntityIndex {
     pub(crate) fn extra_index_heap_bytes(&self) -> u64 {
         self.temporal_per_timeline_per_component
             .values()
-            .flat_map(|per_component| per_component.values())
+            .flat_map(SmallMap::values)
             .map(TemporalComponentIndex::extra_heap_bytes)
             .sum()
     }
@@ -734,7 +734,7 @@ impl EntityIndex {
         }
         pending.sanity_check(path, chunks, config)?;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
-        for (component, winner) in static_winners {
+        for (component, winner) in static_winners.iter() {
             *wins.entry(winner.chunk.id()).or_default() += 1;
             let column = winner
                 .chunk
@@ -761,8 +761,8 @@ impl EntityIndex {
                 ));
             }
         }
-        for (timeline, per_component) in temporal_per_timeline_per_component {
-            for (component, index) in per_component {
+        for (timeline, per_component) in temporal_per_timeline_per_component.iter() {
+            for (component, index) in per_component.iter() {
                 index.sanity_check()?;
                 if !element_types.contains_key(component) || index.is_empty() {
                     return Err(format!(

@@ -1,0 +1,175 @@
+//! [`SmallMap`]: a map for the few keys an entity has (its timelines, its components), as
+//! one vector searched linearly, turning into a hash map past [`SMALL_MAP_MAX_KEYS`].
+//!
+//! An entity usually has one to three timelines and a handful of components. A hash map
+//! for each costs a table allocation and a string hash per lookup; a short vector is one
+//! allocation next to its neighbours, and comparing a few short names (lengths first) is
+//! cheaper than hashing one. A viewer's store holds thousands of entities, so this is what
+//! decides how many cache lines a query touches before it reaches the data.
+
+use std::borrow::Borrow;
+use std::hash::Hash;
+
+/// Past this many keys, a [`SmallMap`] is a hash map.
+const SMALL_MAP_MAX_KEYS: usize = 16;
+
+/// A map; see the module docs. Iteration order is unspecified.
+#[derive(Clone, Debug)]
+pub(crate) enum SmallMap<K, V> {
+    Few(Vec<(K, V)>),
+    Many(ahash::HashMap<K, V>),
+}
+
+impl<K, V> Default for SmallMap<K, V> {
+    fn default() -> Self {
+        Self::Few(Vec::new())
+    }
+}
+
+impl<K: Eq + Hash, V> SmallMap<K, V> {
+    pub fn get<Q>(&self, key: &Q) -> Option<&V>
+    where
+        K: Borrow<Q>,
+        Q: Eq + Hash + ?Sized,
+    {
+        match self {
+            Self::Few(entries) => entries
+                .iter()
+                .find(|(k, _)| k.borrow() == key)
+                .map(|(_, v)| v),
+            Self::Many(map) => map.get(key),
+        }
+    }
+
+    pub fn get_mut<Q>(&mut self, key: &Q) -> Option<&mut V>
+    where
+        K: Borrow<Q>,
+        Q: Eq + Hash + ?Sized,
+    {
+        match self {
+            Self::Few(entries) => entries
+                .iter_mut()
+                .find(|(k, _)| k.borrow() == key)
+                .map(|(_, v)| v),
+            Self::Many(map) => map.get_mut(key),
+        }
+    }
+
+    /// The value of `key`, inserted with `V::default()` if absent.
+    pub fn get_or_default(&mut self, key: K) -> &mut V
+    where
+        V: Default,
+    {
+        if let Self::Few(entries) = self
+            && entries.len() >= SMALL_MAP_MAX_KEYS
+            && !entries.iter().any(|(k, _)| *k == key)
+        {
+            *self = Self::Many(std::mem::take(entries).into_iter().collect());
+        }
+        match self {
+            Self::Few(entries) => {
+                let position = if let Some(position) = entries.iter().position(|(k, _)| *k == key) {
+                    position
+                } else {
+                    entries.push((key, V::default()));
+                    entries.len() - 1
+                };
+                &mut entries[position].1
+            }
+            Self::Many(map) => map.entry(key).or_default(),
+        }
+    }
+
+    /// Sets `key` to `value`.
+    pub fn insert(&mut self, key: K, value: V) {
+        if let Some(existing) = self.get_mut(&key) {
+            *existing = value;
+            return;
+        }
+        match self {
+            Self::Few(entries) if entries.len() < SMALL_MAP_MAX_KEYS => entries.push((key, value)),
+            Self::Few(entries) => {
+                let mut map: ahash::HashMap<K, V> = std::mem::take(entries).into_iter().collect();
+                map.insert(key, value);
+                *self = Self::Many(map);
+            }
+            Self::Many(map) => {
+                map.insert(key, value);
+            }
+        }
+    }
+
+    pub fn remove<Q>(&mut self, key: &Q) -> Option<V>
+    where
+        K: Borrow<Q>,
+        Q: Eq + Hash + ?Sized,
+    {
+        match self {
+            Self::Few(entries) => {
+                let position = entries.iter().position(|(k, _)| k.borrow() == key)?;
+                Some(entries.swap_remove(position).1)
+            }
+            Self::Many(map) => map.remove(key),
+        }
+    }
+
+    pub fn retain(&mut self, mut keep: impl FnMut(&K, &mut V) -> bool) {
+        match self {
+            Self::Few(entries) => entries.retain_mut(|(k, v)| keep(k, v)),
+            Self::Many(map) => map.retain(|k, v| keep(k, v)),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        match self {
+            Self::Few(entries) => entries.is_empty(),
+            Self::Many(map) => map.is_empty(),
+        }
+    }
+
+    /// The entries, in no particular order.
+    pub fn iter(&self) -> Box<dyn Iterator<Item = (&K, &V)> + '_> {
+        match self {
+            Self::Few(entries) => Box::new(entries.iter().map(|(k, v)| (k, v))),
+            Self::Many(map) => Box::new(map.iter()),
+        }
+    }
+
+    /// The values, in no particular order.
+    pub fn values(&self) -> impl Iterator<Item = &V> + '_ {
+        self.iter().map(|(_, v)| v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every operation agrees with a `HashMap`, below and past the vector's limit.
+    #[test]
+    fn agrees_with_a_hash_map() {
+        let mut map: SmallMap<String, u32> = SmallMap::default();
+        let mut model: std::collections::HashMap<String, u32> = std::collections::HashMap::new();
+        for round in 0..3u32 {
+            for k in 0..40u32 {
+                let key = format!("k{}", (k * 7 + round) % 23);
+                *map.get_or_default(key.clone()) += k;
+                *model.entry(key.clone()).or_default() += k;
+                assert_eq!(map.get(key.as_str()), model.get(&key));
+                if k % 5 == 0 {
+                    assert_eq!(map.remove(key.as_str()), model.remove(&key));
+                }
+                if k % 11 == 0 {
+                    map.retain(|_, v| *v % 3 != 0);
+                    model.retain(|_, v| *v % 3 != 0);
+                }
+            }
+            let mut entries: Vec<_> = map.iter().map(|(k, v)| (k.clone(), *v)).collect();
+            let mut expected: Vec<_> = model.iter().map(|(k, v)| (k.clone(), *v)).collect();
+            entries.sort();
+            expected.sort();
+            assert_eq!(entries, expected);
+            assert_eq!(map.is_empty(), model.is_empty());
+        }
+    }
+}
