@@ -11,6 +11,9 @@
 //! - `out_of_order`: 100,000 single-row chunks whose frames are a permutation of
 //!   `0..100,000` (`SplitMix64`, seed 42); then 100,000 latest-at queries at random frames.
 //!
+//! Chunks come from the generator the benches and `examples/workloads.rs` share
+//! (`benches/common/`), values being the frame.
+//!
 //! Reported per setting: insert time per row, the store's heap bytes per row, chunks
 //! left, copy amplification (rows and payload bytes compaction copied ÷ inserted), and
 //! latest-at time per query. Times are wall-clock on a shared machine: compare rows of one
@@ -30,44 +33,11 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use arrow_array::builder::{Float64Builder, ListBuilder};
-use arrow_array::{ArrayRef, Float64Array, Int64Array};
-use chunkstore::{
-    Chunk, ChunkId, ChunkStore, EntityPath, LatestAtQuery, RowId, StoreConfig, TimeInt, Timeline,
-};
+#[path = "../benches/common/mod.rs"]
+mod common;
 
-/// The generator of WORKLOADS.md.
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    fn uniform(&mut self, n: u64) -> u64 {
-        self.next() % n
-    }
-}
-
-fn scalar_row(entity: &EntityPath, frame: i64, value: f64) -> Chunk {
-    let mut cells = ListBuilder::with_capacity(Float64Builder::with_capacity(1), 1);
-    cells.values().append_value(value);
-    cells.append(true);
-    Chunk::new(
-        ChunkId::new(),
-        entity.clone(),
-        vec![RowId::new()],
-        vec![(
-            Timeline::sequence("frame"),
-            Arc::new(Int64Array::from(vec![frame])) as ArrayRef,
-        )],
-        vec![("scalar".into(), Arc::new(cells.finish()) as ArrayRef)],
-    )
-}
+use chunkstore::{Chunk, ChunkStore, EntityPath, StoreConfig};
+use common::{RowIds, SplitMix64, entities, interleaved_streams, latest_scalar, scalar_series};
 
 /// One measured shape: what the table prints.
 struct Measured {
@@ -80,28 +50,22 @@ struct Measured {
     checksum: f64,
 }
 
-fn insert_all(config: StoreConfig, chunks: Vec<Chunk>) -> (ChunkStore, f64) {
-    let num_rows = chunks.len();
+fn insert_all(config: StoreConfig, chunks: &[Arc<Chunk>]) -> (ChunkStore, f64) {
     let mut store = ChunkStore::with_config(config).expect("valid config");
     let start = Instant::now();
     for chunk in chunks {
-        store.insert(chunk).expect("consistent chunks");
+        store.insert(Arc::clone(chunk)).expect("consistent chunks");
     }
-    let ns = start.elapsed().as_nanos() as f64 / num_rows as f64;
+    let ns = start.elapsed().as_nanos() as f64 / chunks.len() as f64;
     (store, ns)
 }
 
 fn measure(store: &ChunkStore, insert_ns_per_row: f64, queries: &[(EntityPath, i64)]) -> Measured {
     let start = Instant::now();
-    let mut checksum = 0.0;
-    for (entity, at) in queries {
-        let query = LatestAtQuery::new("frame", TimeInt::saturating(*at));
-        if let Some(answer) = store.latest_at(&query, entity, "scalar")
-            && let Some(values) = answer.cell().as_any().downcast_ref::<Float64Array>()
-        {
-            checksum += values.value(0);
-        }
-    }
+    let checksum: f64 = queries
+        .iter()
+        .filter_map(|(entity, at)| latest_scalar(store, *at, entity))
+        .sum();
     let query_ns = start.elapsed().as_nanos() as f64 / queries.len() as f64;
     let stats = store.stats();
     Measured {
@@ -117,13 +81,9 @@ fn measure(store: &ChunkStore, insert_ns_per_row: f64, queries: &[(EntityPath, i
 }
 
 fn insert_streaming(config: StoreConfig) -> Measured {
-    let entities: Vec<EntityPath> = (0..100)
-        .map(|e| EntityPath::parse(&format!("stream/{e:03}")).expect("valid path"))
-        .collect();
-    let chunks = (0..1_000_000usize)
-        .map(|k| scalar_row(&entities[k % 100], (k / 100) as i64, (k % 1000) as f64))
-        .collect();
-    let (store, ns) = insert_all(config, chunks);
+    let entities = entities(100, |e| format!("stream/{e:03}"));
+    let chunks = interleaved_streams(&mut RowIds::new(), &entities, 10_000);
+    let (store, ns) = insert_all(config, &chunks);
     let queries: Vec<(EntityPath, i64)> = (0..100_000)
         .map(|q| (entities[q % 100].clone(), 5_000))
         .collect();
@@ -131,21 +91,14 @@ fn insert_streaming(config: StoreConfig) -> Measured {
 }
 
 fn out_of_order(config: StoreConfig) -> Measured {
-    let mut random = SplitMix64(42);
-    let mut frames: Vec<i64> = (0..100_000).collect();
-    for i in (1..frames.len()).rev() {
-        let j = random.uniform(i as u64 + 1) as usize;
-        frames.swap(i, j);
-    }
+    let mut random = SplitMix64::new();
+    let frames = random.permutation(100_000);
     let entity = EntityPath::parse("ooo").expect("valid path");
     let queries: Vec<(EntityPath, i64)> = (0..100_000)
         .map(|_| (entity.clone(), random.uniform(100_000) as i64))
         .collect();
-    let chunks = frames
-        .iter()
-        .map(|&frame| scalar_row(&entity, frame, frame as f64))
-        .collect();
-    let (store, ns) = insert_all(config, chunks);
+    let chunks = scalar_series(&mut RowIds::new(), &entity, &frames, 1);
+    let (store, ns) = insert_all(config, &chunks);
     measure(&store, ns, &queries)
 }
 

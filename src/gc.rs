@@ -241,22 +241,11 @@ impl ChunkStore {
             return false;
         };
         let id = chunk.id();
-        for (position, time_column) in chunk.time_columns().iter().enumerate() {
-            let Some(per_component) = entity
-                .temporal_per_timeline_per_component
-                .get(time_column.timeline().name())
-            else {
-                continue;
-            };
-            for column in chunk.components() {
-                if column.bounds(position).is_some()
-                    && per_component
-                        .get(column.name())
-                        .is_some_and(|index| index.is_among_latest(id, n))
-                {
-                    return true;
-                }
-            }
+        if entity
+            .indices_of(chunk)
+            .any(|index| index.is_among_latest(id, n))
+        {
+            return true;
         }
         chunk.component(ComponentName::CLEAR_IS_RECURSIVE).is_some()
             && self.clears.is_among_latest(chunk.entity_path(), id, n)

@@ -685,28 +685,38 @@ impl EntityIndex {
             .sum()
     }
 
+    /// The indices holding `chunk`: one per (timeline, component) it has cells for.
+    pub(crate) fn indices_of<'a>(
+        &'a self,
+        chunk: &'a Chunk,
+    ) -> impl Iterator<Item = &'a TemporalComponentIndex> + 'a {
+        chunk
+            .time_columns()
+            .iter()
+            .enumerate()
+            .filter_map(|(position, time_column)| {
+                let per_component = self
+                    .temporal_per_timeline_per_component
+                    .get(time_column.timeline().name())?;
+                Some((position, per_component))
+            })
+            .flat_map(move |(position, per_component)| {
+                chunk
+                    .components()
+                    .iter()
+                    .filter(move |column| column.bounds(position).is_some())
+                    .filter_map(move |column| per_component.get(column.name()))
+            })
+    }
+
     /// What removing `chunk` would take off the large indices' extra heap, at most.
     pub(crate) fn extra_index_heap_bytes_of(&self, chunk: &Chunk) -> u64 {
         let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;
-        let mut extra = 0;
-        for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
-            let Some(per_component) = self
-                .temporal_per_timeline_per_component
-                .get(time_column.timeline().name())
-            else {
-                continue;
-            };
-            for column in chunk.components() {
-                if column.bounds(time_position).is_some()
-                    && per_component
-                        .get(column.name())
-                        .is_some_and(|index| index.extra_heap_bytes() > 0)
-                {
-                    extra += per_entry;
-                }
-            }
-        }
-        extra
+        let large = self
+            .indices_of(chunk)
+            .filter(|index| index.extra_heap_bytes() > 0)
+            .count();
+        per_entry * large as u64
     }
 
     fn sanity_check(
