@@ -268,9 +268,7 @@ impl ChunkStore {
             }
         } else {
             let extra = entity.insert_temporal(&chunk);
-            crate::stats::apply_delta(&mut entity.stats.heap_bytes, extra);
-            crate::stats::apply_delta(&mut self.stats.heap_bytes, extra);
-            crate::stats::apply_delta(&mut self.stats.temporal_heap_bytes, extra);
+            crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
             let id = chunk.id();
             self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
             for column in chunk.time_columns() {
@@ -303,9 +301,7 @@ impl ChunkStore {
             self.clears.remove_chunk(&chunk);
             if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
                 let extra = entity.remove_temporal(&chunk);
-                crate::stats::apply_delta(&mut entity.stats.heap_bytes, extra);
-                crate::stats::apply_delta(&mut self.stats.heap_bytes, extra);
-                crate::stats::apply_delta(&mut self.stats.temporal_heap_bytes, extra);
+                crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
             }
             self.temporal_by_row_id
                 .remove(&(chunk.row_id_range().0, id));
