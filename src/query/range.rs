@@ -175,8 +175,9 @@ impl<'a> RangeRun<'a> {
     }
 
     /// The rows as one range of the chunk's rows, when the chunk's rows are already in
-    /// `(time, row id)` order on the queried timeline (the common case: time-sorted
-    /// chunks, and every compacted one). Then a reader can slice the Arrow column itself.
+    /// `(time, row id)` order on the queried timeline (the common case: data logged in
+    /// time order, and compacted chunks on their first timeline). Then a reader can slice
+    /// the Arrow column itself.
     pub fn contiguous_rows(&self) -> Option<std::ops::Range<usize>> {
         let in_row_order = self.times.is_none_or(|t| t.index_order().is_none());
         in_row_order.then_some(self.start as usize..self.end as usize)
