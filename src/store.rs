@@ -234,10 +234,15 @@ impl ChunkStore {
     /// any static chunk it overwrites).
     pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
         let ledgered = !chunk.owns_all_buffers();
+        let is_new_entity = !self.entities.contains_key(chunk.entity_path());
         let entity = self
             .entities
             .entry(chunk.entity_path().clone())
             .or_default();
+        if is_new_entity {
+            self.stats.heap_bytes += crate::stats::ENTITY_BYTES;
+            entity.stats.heap_bytes += crate::stats::ENTITY_BYTES;
+        }
         for column in chunk.components() {
             if !entity.element_types.contains_key(column.name()) {
                 entity
@@ -344,6 +349,10 @@ impl ChunkStore {
                 // Nothing left: the entity is forgotten, as if never inserted (its
                 // component types included).
                 self.entities.remove(chunk.entity_path());
+                self.stats.heap_bytes = self
+                    .stats
+                    .heap_bytes
+                    .saturating_sub(crate::stats::ENTITY_BYTES);
             }
         }
         events.push(StoreEvent::Deletion {
@@ -503,13 +512,14 @@ impl ChunkStore {
                 return Err(format!("{id}: its entity is indexed"));
             }
         }
-        // Large indices' extra heap, which the store adds as indices grow and shrink.
+        // Each entity's own bookkeeping, and large indices' extra heap, which the store
+        // adds as indices grow and shrink.
         for (path, entity) in entities {
             let extra = entity.extra_index_heap_bytes();
-            expected.heap_bytes += extra;
+            expected.heap_bytes += extra + crate::stats::ENTITY_BYTES;
             expected.temporal_heap_bytes += extra;
             if let Some((entity_stats, _)) = expected_entities.get_mut(path) {
-                entity_stats.heap_bytes += extra;
+                entity_stats.heap_bytes += extra + crate::stats::ENTITY_BYTES;
             }
         }
         if expected != stats.contents() {

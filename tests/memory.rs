@@ -216,4 +216,31 @@ fn heap_accounting_matches_the_allocator_and_streaming_stays_under_40_bytes_per_
     //    small one.
     let (store, held) = measure(StoreConfig::COMPACTION_OFF, || stream(5_000, 200_000, 10));
     assert_within_10_percent("5,000 entities, 4 chunks each", &store, held);
+    drop(store);
+
+    // 7. Static data beside temporal data at many entities (static_shadow's shape).
+    let (store, held) = measure(StoreConfig::COMPACTION_OFF, || {
+        (0..2_000)
+            .flat_map(|i| {
+                let entity = format!("props/{i}");
+                [
+                    common::static_scalar(&entity, "name", 2 * i + 1, 1.0),
+                    common::scalars(
+                        &entity,
+                        "value",
+                        &(0..10)
+                            .map(|f| {
+                                (
+                                    f,
+                                    100_000 + 10 * u128::from(i as u32) + f as u128,
+                                    Some(vec![1.0]),
+                                )
+                            })
+                            .collect::<Vec<_>>(),
+                    ),
+                ]
+            })
+            .collect()
+    });
+    assert_within_10_percent("static beside temporal, 2,000 entities", &store, held);
 }
