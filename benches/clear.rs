@@ -8,6 +8,8 @@
 
 mod common;
 
+use std::sync::Arc;
+
 use chunkstore::{EntityPath, StoreConfig};
 use common::{RowIds, clear_chunk, latest_scalar, scalar_series, store_with};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -48,6 +50,7 @@ fn clear(c: &mut Criterion) {
     chunks.push(clear_chunk(&mut ids, &root, 90, true));
     let store = store_with(StoreConfig::COMPACTION_OFF, &chunks);
 
+    let frame: Arc<str> = common::FRAME.into();
     let mut group = c.benchmark_group("clear");
     group.throughput(Throughput::Elements(paths.len() as u64));
     for (id, t) in [
@@ -59,7 +62,7 @@ fn clear(c: &mut Criterion) {
             b.iter(|| {
                 paths
                     .iter()
-                    .filter_map(|p| latest_scalar(&store, t, p))
+                    .filter_map(|p| latest_scalar(&store, &frame, t, p))
                     .count()
             });
         });

@@ -8,9 +8,11 @@
 
 mod common;
 
+use std::sync::Arc;
+
 use chunkstore::{ChunkStore, EntityPath, StoreConfig};
 use common::{
-    RowIds, SCALAR, SplitMix64, TEXT, entities, latest_scalar, scalar_series, scalars,
+    FRAME, RowIds, SCALAR, SplitMix64, TEXT, entities, latest_scalar, scalar_series, scalars,
     static_chunk, store_with, texts,
 };
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -19,11 +21,12 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 fn bench_queries(c: &mut Criterion, id: &str, store: &ChunkStore, queries: &[(EntityPath, i64)]) {
     let mut group = c.benchmark_group("latest_at");
     group.throughput(Throughput::Elements(queries.len() as u64));
+    let frame: Arc<str> = FRAME.into();
     group.bench_function(id, |b| {
         b.iter(|| {
             queries
                 .iter()
-                .filter_map(|(entity, t)| latest_scalar(store, *t, entity))
+                .filter_map(|(entity, t)| latest_scalar(store, &frame, *t, entity))
                 .sum::<f64>()
         });
     });
@@ -117,7 +120,7 @@ fn latest_at(c: &mut Criterion) {
                 .iter()
                 .filter(|(entity, t)| {
                     let query = chunkstore::LatestAtQuery::new(
-                        common::FRAME,
+                        FRAME,
                         chunkstore::TimeInt::new(*t).expect("a valid time"),
                     );
                     store

@@ -62,9 +62,10 @@ fn insert_all(config: StoreConfig, chunks: &[Arc<Chunk>]) -> (ChunkStore, f64) {
 
 fn measure(store: &ChunkStore, insert_ns_per_row: f64, queries: &[(EntityPath, i64)]) -> Measured {
     let start = Instant::now();
+    let frame: Arc<str> = common::FRAME.into();
     let checksum: f64 = queries
         .iter()
-        .filter_map(|(entity, at)| latest_scalar(store, *at, entity))
+        .filter_map(|(entity, at)| latest_scalar(store, &frame, *at, entity))
         .sum();
     let query_ns = start.elapsed().as_nanos() as f64 / queries.len() as f64;
     let stats = store.stats();

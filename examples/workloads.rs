@@ -32,8 +32,8 @@ use chunkstore::{
     StoreConfig, TimeInt,
 };
 use common::{
-    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, clear_chunk, entities, first_f64,
-    first_text_len, for_each_first_f64, points, positions, scalars, static_chunk, store_with,
+    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, clear_chunk, entities, first_text_len,
+    for_each_first_f64, latest_scalar, points, positions, scalars, static_chunk, store_with,
     temporal_chunk, texts,
 };
 
@@ -175,11 +175,6 @@ fn latest_at(
     )
 }
 
-fn latest_f64(store: &ChunkStore, timeline: &Arc<str>, t: i64, entity: &EntityPath) -> Option<f64> {
-    let cell = latest_at(store, timeline, t, entity, SCALAR)?;
-    first_f64(cell.component().list_array(), cell.row())
-}
-
 // --- Reporting ---
 
 struct Report {
@@ -288,7 +283,7 @@ fn insert_streaming() -> bool {
     let frame: Arc<str> = FRAME.into();
     let checksum = entities
         .iter()
-        .filter_map(|e| latest_f64(&store, &frame, 5_000, e))
+        .filter_map(|e| latest_scalar(&store, &frame, 5_000, e))
         .map(|v| v as u64)
         .sum();
     // The row at frame 5,000 of entity e is k = 500,000 + e, value e: 0 + ... + 99.
@@ -483,7 +478,7 @@ fn out_of_order() -> bool {
     let (ops, ns_per_op, checksum) = time_query(|| {
         let mut sum = 0u64;
         for &t in &queries {
-            if let Some(v) = latest_f64(&store, &frame, t, &entity) {
+            if let Some(v) = latest_scalar(&store, &frame, t, &entity) {
                 sum = sum.wrapping_add(v as u64);
             }
         }
@@ -545,7 +540,7 @@ fn gc_half() -> bool {
     let frame: Arc<str> = FRAME.into();
     let values: Vec<f64> = entities
         .iter()
-        .filter_map(|e| latest_f64(&store, &frame, 9_999, e))
+        .filter_map(|e| latest_scalar(&store, &frame, 9_999, e))
         .collect();
     let checksum = values.len() as u64 + values.iter().map(|&v| v as u64).sum::<u64>();
     // All 100 entities answer 9,999 % 1000 = 999.
@@ -601,7 +596,7 @@ fn static_shadow() -> bool {
             {
                 sum = sum.wrapping_add(len as u64);
             }
-            if let Some(v) = latest_f64(&store, &frame, t, &entities[i]) {
+            if let Some(v) = latest_scalar(&store, &frame, t, &entities[i]) {
                 sum = sum.wrapping_add(v as u64);
             }
         }
@@ -662,7 +657,7 @@ fn clear_recursive() -> bool {
             for t in [25, 75] {
                 for entity in &entities {
                     ops += 1;
-                    if let Some(v) = latest_f64(&store, &frame, t, entity) {
+                    if let Some(v) = latest_scalar(&store, &frame, t, entity) {
                         sum = sum.wrapping_add(v as u64 + 1000);
                     }
                 }

@@ -300,9 +300,15 @@ pub fn interleaved_streams(ids: &mut RowIds, entities: &[EntityPath], n: usize) 
     chunks
 }
 
-/// Latest-at `scalar` at `entity` as of `t` on `frame`, read back as a number.
-pub fn latest_scalar(store: &ChunkStore, t: i64, entity: &EntityPath) -> Option<f64> {
-    let query = LatestAtQuery::new(FRAME, TimeInt::new(t)?);
+/// Latest-at `scalar` at `entity` as of `t` on `timeline`, read back as a number. The
+/// caller makes the timeline's name once, so a timed loop allocates nothing per query.
+pub fn latest_scalar(
+    store: &ChunkStore,
+    timeline: &Arc<str>,
+    t: i64,
+    entity: &EntityPath,
+) -> Option<f64> {
+    let query = LatestAtQuery::new(Arc::clone(timeline), TimeInt::new(t)?);
     let cell = store.latest_at(&query, entity, SCALAR)?;
     first_f64(cell.component().list_array(), cell.row())
 }
