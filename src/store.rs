@@ -572,7 +572,7 @@ impl EntityIndex {
         let mut num_won = 0;
         let mut losers = Vec::new();
         for (position, column) in chunk.components().iter().enumerate() {
-            let Some((row_id, row)) = column.max_row_id_cell() else {
+            let Some((row_id, row)) = column.max_row_id_cell(chunk.row_ids()) else {
                 continue;
             };
             let winner = StaticWinner {
@@ -757,7 +757,7 @@ impl EntityIndex {
                 .components()
                 .get(winner.component_column as usize);
             if column.map(crate::ComponentColumn::name) != Some(component)
-                || column.and_then(crate::ComponentColumn::max_row_id_cell)
+                || column.and_then(|c| c.max_row_id_cell(winner.chunk.row_ids()))
                     != Some((winner.row_id, winner.row))
             {
                 return Err(format!(

@@ -22,8 +22,9 @@ const FIELD_BYTES: u64 = 128;
 #[derive(Debug, Default)]
 pub(crate) struct ChunkMemory {
     /// Every distinct Arrow buffer the chunk references (by allocation, not by slice). The
-    /// store's ledger keys them by address and reads their reference counts.
-    pub buffers: SmallVec<[Buffer; 4]>,
+    /// store's ledger keys them by address and reads their reference counts. Room for the
+    /// three of a one-timeline chunk of one primitive component (times, offsets, values).
+    pub buffers: SmallVec<[Buffer; 3]>,
     /// Allocations owned by the chunk alone: the struct, row ids, sort orders, the array
     /// and buffer handles.
     pub own_bytes: u64,
@@ -56,15 +57,19 @@ impl ChunkMemory {
         }
         for column in &chunk.time_columns {
             memory.add_buffer(column.times.inner());
+            memory.own_bytes += column.field_metadata.heap_bytes();
             memory.own_bytes += column
                 .index_order
                 .as_ref()
                 .map_or(0, |o| o.len() as u64 * 4);
             memory.payload_bytes += num_rows * 8;
         }
-        memory.own_bytes += (chunk.components.capacity() * size_of::<ComponentColumn>()) as u64;
+        memory.own_bytes += (chunk.components.capacity() * size_of::<ComponentColumn>()) as u64
+            + chunk.extra_metadata.heap_bytes();
         for column in &chunk.components {
-            memory.own_bytes += FIELD_BYTES;
+            if column.field.is_some() {
+                memory.own_bytes += FIELD_BYTES;
+            }
             if column.bounds_per_timeline.spilled() {
                 memory.own_bytes += (column.bounds_per_timeline.capacity()
                     * size_of::<Option<super::ComponentTimeBounds>>())

@@ -8,7 +8,6 @@ mod rewrite;
 mod transport;
 
 use std::collections::HashMap;
-use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, ListArray};
 use arrow_buffer::ScalarBuffer;
@@ -52,13 +51,15 @@ pub struct Chunk {
     entity_path: EntityPath,
     row_ids: Box<[RowId]>,
     is_sorted_by_row_id: bool,
-    time_columns: SmallVec<[TimeColumn; 2]>,
+    /// Inline room for one: most chunks have one timeline, and a streamed row's chunk is
+    /// small enough that a second inline column would be a tenth of it.
+    time_columns: SmallVec<[TimeColumn; 1]>,
     components: Vec<ComponentColumn>,
     /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
     /// transport.
-    extra_metadata: HashMap<String, String>,
-    /// Least and greatest row id.
-    row_id_range: (RowId, RowId),
+    extra_metadata: Metadata,
+    /// Rows of the least and greatest row id (positions, not ids: a quarter of the bytes).
+    row_id_range_rows: (u32, u32),
     /// Heap the chunk and its Arrow buffers occupy; see [`memory`].
     memory: memory::ChunkMemory,
 }
@@ -71,7 +72,7 @@ pub struct TimeColumn {
     /// The column's Arrow type as given (a timestamp may carry a timezone).
     data_type: DataType,
     /// Field metadata as given, for lossless transport.
-    field_metadata: HashMap<String, String>,
+    field_metadata: Metadata,
     is_sorted: bool,
     /// Row positions in ascending `(time, row id)` order; `None` when the rows already are.
     index_order: Option<Box<[u32]>>,
@@ -96,14 +97,16 @@ pub struct ComponentTimeBounds {
 pub struct ComponentColumn {
     descriptor: ComponentDescriptor,
     list: ListArray,
-    /// The column's field as given (its name and metadata), for lossless transport.
-    field: FieldRef,
+    /// The column's field as given (its name and metadata), for lossless transport; `None`
+    /// for a column built through the API, whose field is named after the component and
+    /// carries no metadata (derived when needed rather than allocated per chunk).
+    field: Option<FieldRef>,
     /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
     /// every cell is null.
-    bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 2]>,
-    /// For every chunk: the non-null cell with the greatest row id, as `(row id, row)`.
-    /// It is the static winner of a static chunk.
-    max_row_id_cell: Option<(RowId, u32)>,
+    bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 1]>,
+    /// For every chunk: the row of the non-null cell with the greatest row id. It is the
+    /// static winner of a static chunk.
+    max_row_id_row: Option<u32>,
 }
 
 impl Chunk {
@@ -135,19 +138,16 @@ impl Chunk {
                 Ok(RawTimeColumn {
                     timeline,
                     array,
-                    field_metadata: HashMap::new(),
+                    field_metadata: Metadata::default(),
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let components = components
             .into_iter()
-            .map(|(descriptor, array)| {
-                let field = default_component_field(&descriptor, array.data_type());
-                RawComponentColumn {
-                    descriptor,
-                    array,
-                    field,
-                }
+            .map(|(descriptor, array)| RawComponentColumn {
+                descriptor,
+                array,
+                field: None,
             })
             .collect();
         Self::from_raw(
@@ -156,7 +156,7 @@ impl Chunk {
             row_ids,
             time_columns,
             components,
-            HashMap::new(),
+            Metadata::default(),
         )
     }
 
@@ -182,7 +182,7 @@ impl Chunk {
         row_ids: Vec<RowId>,
         raw_times: Vec<RawTimeColumn>,
         raw_components: Vec<RawComponentColumn>,
-        extra_metadata: HashMap<String, String>,
+        extra_metadata: Metadata,
     ) -> Result<Self, ChunkError> {
         let num_rows = row_ids.len();
         if num_rows == 0 {
@@ -201,13 +201,9 @@ impl Chunk {
             return Err(ChunkError::NoComponents);
         }
         let is_sorted_by_row_id = row_ids.is_sorted();
-        let row_id_range = row_ids
-            .iter()
-            .fold((RowId::MAX, RowId::ZERO), |(lo, hi), &r| {
-                (lo.min(r), hi.max(r))
-            });
+        let row_id_range_rows = row_id_range_rows(&row_ids);
 
-        let mut time_columns = SmallVec::<[TimeColumn; 2]>::new();
+        let mut time_columns = SmallVec::<[TimeColumn; 1]>::new();
         for raw in raw_times {
             if raw.timeline.name().is_empty() {
                 return Err(ChunkError::EmptyName { kind: "timeline" });
@@ -248,7 +244,7 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            row_id_range,
+            row_id_range_rows,
             memory: memory::ChunkMemory::default(),
         };
         chunk.memory = memory::ChunkMemory::of(&chunk);
@@ -325,7 +321,8 @@ impl Chunk {
 
     /// Least and greatest row id of the chunk's rows.
     pub fn row_id_range(&self) -> (RowId, RowId) {
-        self.row_id_range
+        let (min, max) = self.row_id_range_rows;
+        (self.row_ids[min as usize], self.row_ids[max as usize])
     }
 
     /// Bytes of heap the chunk occupies: its own allocations plus the whole capacity of
@@ -372,7 +369,7 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            row_id_range,
+            row_id_range_rows,
             memory,
         } = self;
         let n = row_ids.len();
@@ -382,8 +379,9 @@ impl Chunk {
         if *is_sorted_by_row_id != row_ids.is_sorted() {
             return Err("is_sorted_by_row_id matches the row ids".into());
         }
-        if row_ids.iter().min() != Some(&row_id_range.0)
-            || row_ids.iter().max() != Some(&row_id_range.1)
+        if row_id_range_rows.0.max(row_id_range_rows.1) as usize >= n
+            || row_ids.iter().min() != Some(&row_ids[row_id_range_rows.0 as usize])
+            || row_ids.iter().max() != Some(&row_ids[row_id_range_rows.1 as usize])
         {
             return Err("row_id_range spans the row ids".into());
         }
@@ -411,24 +409,66 @@ impl Chunk {
     }
 }
 
+/// Rows of the least and greatest row id (the first of equals for the least, the last for
+/// the greatest; `row_ids` is not empty and shorter than `2^32`, checked by the caller).
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn row_id_range_rows(row_ids: &[RowId]) -> (u32, u32) {
+    let (mut min, mut max) = (0, 0);
+    for (row, id) in row_ids.iter().enumerate() {
+        if *id < row_ids[min] {
+            min = row;
+        }
+        if *id > row_ids[max] {
+            max = row;
+        }
+    }
+    (min as u32, max as u32)
+}
+
 struct RawTimeColumn {
     timeline: Timeline,
     array: ArrayRef,
-    field_metadata: HashMap<String, String>,
+    field_metadata: Metadata,
 }
 
 struct RawComponentColumn {
     descriptor: ComponentDescriptor,
     array: ArrayRef,
-    field: FieldRef,
+    field: Option<FieldRef>,
 }
 
-fn default_component_field(descriptor: &ComponentDescriptor, data_type: &DataType) -> FieldRef {
-    Arc::new(arrow_schema::Field::new(
-        descriptor.name.as_str(),
-        data_type.clone(),
-        true,
-    ))
+/// String metadata kept only for lossless transport: almost always empty, so it costs one
+/// pointer until it is not.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[expect(
+    clippy::box_collection,
+    reason = "one pointer instead of a 48-byte empty map in every chunk and time column"
+)]
+pub(crate) struct Metadata(Option<Box<HashMap<String, String>>>);
+
+impl Metadata {
+    pub(crate) fn new(map: HashMap<String, String>) -> Self {
+        Self((!map.is_empty()).then(|| Box::new(map)))
+    }
+
+    /// A copy of the entries.
+    pub(crate) fn to_map(&self) -> HashMap<String, String> {
+        self.0.as_deref().cloned().unwrap_or_default()
+    }
+
+    pub(crate) fn contains_key(&self, key: &str) -> bool {
+        self.0.as_ref().is_some_and(|map| map.contains_key(key))
+    }
+
+    /// Heap the entries' map occupies (its strings aside).
+    pub(crate) fn heap_bytes(&self) -> u64 {
+        self.0
+            .as_ref()
+            .map_or(0, |_| size_of::<HashMap<String, String>>() as u64)
+    }
 }
 
 impl TimeColumn {
@@ -706,6 +746,7 @@ impl ComponentColumn {
                 max_row_id_cell = Some((row_id, row as u32));
             }
         }
+        let max_row_id_row = max_row_id_cell.map(|(_, row)| row);
 
         let bounds_per_timeline = time_columns
             .iter()
@@ -736,7 +777,7 @@ impl ComponentColumn {
             list,
             field,
             bounds_per_timeline,
-            max_row_id_cell,
+            max_row_id_row,
         })
     }
 
@@ -779,9 +820,11 @@ impl ComponentColumn {
             .flatten()
     }
 
-    /// The non-null cell with the greatest row id, as `(row id, row)`.
-    pub(crate) fn max_row_id_cell(&self) -> Option<(RowId, u32)> {
-        self.max_row_id_cell
+    /// The non-null cell with the greatest row id, as `(row id, row)`, given the chunk's
+    /// row ids.
+    pub(crate) fn max_row_id_cell(&self, row_ids: &[RowId]) -> Option<(RowId, u32)> {
+        let row = self.max_row_id_row?;
+        Some((*row_ids.get(row as usize)?, row))
     }
 }
 

@@ -33,7 +33,11 @@ impl Chunk {
                 })
             && self.components.iter().zip(&other.components).all(|(a, b)| {
                 a.descriptor == b.descriptor
-                    && (Arc::ptr_eq(&a.field, &b.field) || a.field == b.field)
+                    && match (&a.field, &b.field) {
+                        (None, None) => true,
+                        (Some(a), Some(b)) => Arc::ptr_eq(a, b) || a == b,
+                        _ => false,
+                    }
                     && a.list.data_type() == b.list.data_type()
             })
             && self.extra_metadata == other.extra_metadata
@@ -128,7 +132,7 @@ impl super::ComponentColumn {
         RawComponentColumn {
             descriptor: self.descriptor.clone(),
             array,
-            field: Arc::clone(&self.field),
+            field: self.field.clone(),
         }
     }
 }

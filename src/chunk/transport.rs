@@ -8,7 +8,7 @@ use arrow_array::{Array, ArrayRef, FixedSizeBinaryArray, RecordBatch};
 use arrow_buffer::Buffer;
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema};
 
-use super::{Chunk, RawComponentColumn, RawTimeColumn};
+use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn};
 use crate::error::ChunkError;
 use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
 
@@ -125,7 +125,7 @@ impl Chunk {
                     times.push(RawTimeColumn {
                         timeline: Timeline::new(name.as_str(), time_type),
                         array: Arc::clone(array),
-                        field_metadata: field.metadata().clone(),
+                        field_metadata: Metadata::new(field.metadata().clone()),
                     });
                 }
                 ColumnKind::Component => {
@@ -141,13 +141,23 @@ impl Chunk {
                     components.push(RawComponentColumn {
                         descriptor,
                         array: Arc::clone(array),
-                        field: Arc::clone(field),
+                        // A field saying nothing the descriptor does not is not kept: such a column
+                        // has the same layout as one built through the API.
+                        field: (field.name() != name || !meta.is_empty())
+                            .then(|| Arc::clone(field)),
                     });
                 }
             }
         }
         let row_ids = row_ids.ok_or(ChunkError::MissingRowIds)?;
-        Self::from_raw(id, entity_path, row_ids, times, components, metadata)
+        Self::from_raw(
+            id,
+            entity_path,
+            row_ids,
+            times,
+            components,
+            Metadata::new(metadata),
+        )
     }
 
     /// Encodes the chunk as a `RecordBatch` in the transport layout. Decoding the result
@@ -174,7 +184,7 @@ impl Chunk {
         columns.push(row_ids_to_arrow(&self.row_ids));
 
         for column in &self.time_columns {
-            let mut meta = column.field_metadata.clone();
+            let mut meta = column.field_metadata.to_map();
             let name = column.timeline.name();
             meta.insert(META_KIND.to_owned(), "index".to_owned());
             meta.insert(META_INDEX_NAME.to_owned(), name.to_owned());
@@ -194,7 +204,11 @@ impl Chunk {
         }
 
         for column in &self.components {
-            let mut meta = column.field.metadata().clone();
+            let mut meta = column
+                .field
+                .as_ref()
+                .map(|field| field.metadata().clone())
+                .unwrap_or_default();
             let descriptor = &column.descriptor;
             meta.insert(META_KIND.to_owned(), "data".to_owned());
             meta.insert(
@@ -210,13 +224,16 @@ impl Chunk {
                     None => meta.remove(key),
                 };
             }
-            let field = Field::new(column.field.name(), column.list.data_type().clone(), true)
-                .with_metadata(meta);
+            let name = column
+                .field
+                .as_ref()
+                .map_or(descriptor.name.as_str(), |field| field.name().as_str());
+            let field = Field::new(name, column.list.data_type().clone(), true).with_metadata(meta);
             fields.push(Arc::new(field));
             columns.push(Arc::new(column.list.clone()));
         }
 
-        let mut metadata = self.extra_metadata.clone();
+        let mut metadata = self.extra_metadata.to_map();
         metadata.insert(META_ID.to_owned(), self.id.to_string());
         metadata.insert(META_ENTITY_PATH.to_owned(), self.entity_path.to_string());
         let schema = Arc::new(Schema::new_with_metadata(fields, metadata));
