@@ -198,6 +198,11 @@ impl PendingGroups {
         Some(fan)
     }
 
+    /// Every waiting chunk.
+    pub fn chunks(&self) -> impl Iterator<Item = &Arc<Chunk>> {
+        self.groups.iter().flat_map(|g| g.levels.iter().flatten())
+    }
+
     /// Forgets a chunk that left the store (or was merged).
     pub fn remove(&mut self, chunk: &Chunk) {
         let id = chunk.id();
@@ -348,8 +353,10 @@ impl ChunkStore {
             }
             return;
         }
-        self.add_chunk(Arc::clone(&chunk), events);
-        if config.can_grow(&chunk) {
+        // A chunk that will wait to be merged stays out of the store-wide orders.
+        let waits = config.can_grow(&chunk);
+        self.add_chunk_to_orders(Arc::clone(&chunk), !waits, events);
+        if waits {
             self.merge_cascade(chunk, events);
         }
     }
@@ -360,6 +367,7 @@ impl ChunkStore {
         let config = self.config;
         let path = member.entity_path().clone();
         let Some(entity) = self.entities.get_mut(&path) else {
+            self.settle_in_global_orders(member.id());
             return;
         };
         let (mut group, mut level) = entity.pending.push(member, &config);
@@ -372,23 +380,29 @@ impl ChunkStore {
             };
             let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
             let Ok(pieces) = rewrite(&inputs, &config, &mut self.stats) else {
-                return; // the fan stays in the store as it is, no longer waiting
+                // The fan stays in the store as it is, no longer waiting.
+                for chunk in &fan {
+                    self.settle_in_global_orders(chunk.id());
+                }
+                return;
             };
             // Add before removing, so the entity (and its waiting chunks) never empties.
             let mut grown = None;
             let num_pieces = pieces.len();
             for piece in pieces {
                 let piece = Arc::new(piece);
-                if num_pieces == 1 && config.can_grow(&piece) {
+                let waits = num_pieces == 1 && config.can_grow(&piece);
+                if waits {
                     grown = Some(Arc::clone(&piece));
                 }
-                self.add_chunk(piece, events);
+                self.add_chunk_to_orders(piece, !waits, events);
             }
             for merged in &fan {
                 self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
             }
             let Some(next) = grown else { return };
             let Some(entity) = self.entities.get_mut(&path) else {
+                self.settle_in_global_orders(next.id());
                 return;
             };
             (group, level) = entity.pending.push(next, &config);

@@ -8,6 +8,7 @@
 //! so its cost is proportional to the chunks it looks at (those it drops, and the
 //! protected ones it skips on the way), times `log n`: never to the size of the store.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::store::{DeletionReason, StoredChunk};
@@ -166,15 +167,47 @@ impl ChunkStore {
         self.apply_gc(&plan)
     }
 
-    /// Temporal chunk ids in the order `order` drops them.
+    /// Temporal chunk ids in the order `order` drops them: the store-wide orders, with the
+    /// few waiting chunks compaction keeps out of them merged in.
     fn gc_candidates<'a>(&'a self, order: &'a GcOrder) -> Box<dyn Iterator<Item = ChunkId> + 'a> {
-        let by_row_id = self.temporal_by_row_id.iter().map(|&(_, id)| id);
+        let outside = self.chunks_outside_global_orders();
+        let mut outside_by_row_id: Vec<_> = outside
+            .iter()
+            .map(|c| (c.row_id_range().0, c.id()))
+            .collect();
+        outside_by_row_id.sort_unstable();
+        let by_row_id = merge_sorted(
+            self.temporal_by_row_id.iter().copied(),
+            outside_by_row_id,
+            |a, b| a < b,
+        )
+        .map(|(_, id)| id);
         let GcOrder::FurthestFrom { timeline, time } = order else {
             return Box::new(by_row_id);
         };
-        let Some(chunks) = self.temporal_per_timeline.get(timeline.as_str()) else {
+        let on_timeline =
+            |c: &&Arc<Chunk>| c.time_column(timeline).map(|t| (t.time_range(), c.id()));
+        let mut outside_by_max: Vec<_> = outside
+            .iter()
+            .filter_map(|c| on_timeline(c).map(|((_, max), id)| (max, id)))
+            .collect();
+        outside_by_max.sort_unstable();
+        let mut outside_by_min_desc: Vec<_> = outside
+            .iter()
+            .filter_map(|c| on_timeline(c).map(|((min, _), id)| (min, id)))
+            .collect();
+        outside_by_min_desc.sort_unstable_by(|a, b| b.cmp(a));
+        let (by_max_time, by_min_time_desc) =
+            match self.temporal_per_timeline.get(timeline.as_str()) {
+                Some(chunks) => (
+                    Some(chunks.by_max_time.iter().copied()),
+                    Some(chunks.by_min_time.iter().rev().copied()),
+                ),
+                None => (None, None),
+            };
+        if by_max_time.is_none() && outside_by_max.is_empty() {
             return Box::new(by_row_id);
-        };
+        }
         let cursor = i128::from(time.as_i64());
         let min_time = |id: &ChunkId| {
             self.chunks
@@ -184,8 +217,16 @@ impl ChunkStore {
         };
         // Ending furthest before the cursor first, from one end; starting furthest after
         // it, from the other. A chunk starting after the cursor belongs to the second.
-        let mut before = chunks.by_max_time.iter().peekable();
-        let mut after = chunks.by_min_time.iter().rev().peekable();
+        let mut before = merge_sorted(by_max_time.into_iter().flatten(), outside_by_max, |a, b| {
+            a < b
+        })
+        .peekable();
+        let mut after = merge_sorted(
+            by_min_time_desc.into_iter().flatten(),
+            outside_by_min_desc,
+            |a, b| a > b,
+        )
+        .peekable();
         let by_distance = std::iter::from_fn(move || {
             while before
                 .peek()
@@ -206,7 +247,7 @@ impl ChunkStore {
                 (None, Some(_)) => after.next(),
                 (None, None) => None,
             }
-            .map(|&(_, id)| id)
+            .map(|(_, id)| id)
         });
         let without_timeline = by_row_id.filter(|id| {
             self.chunks
@@ -292,21 +333,23 @@ impl ChunkStore {
         max: TimeInt,
     ) -> Vec<StoreEvent> {
         let mut events = Vec::new();
-        let Some(chunks) = self.temporal_per_timeline.get(timeline) else {
-            return events;
-        };
         if min > max {
             return events;
         }
-        let touched: Vec<ChunkId> = chunks
-            .by_max_time
-            .iter_from(&(min, ChunkId::ZERO))
-            .map(|&(_, id)| id)
+        let ordered = self
+            .temporal_per_timeline
+            .get(timeline)
+            .into_iter()
+            .flat_map(|chunks| chunks.by_max_time.iter_from(&(min, ChunkId::ZERO)))
+            .map(|&(_, id)| id);
+        let outside = self.chunks_outside_global_orders();
+        let touched: Vec<ChunkId> = ordered
+            .chain(outside.iter().map(|c| c.id()))
             .filter(|id| {
                 self.chunks
                     .get(id)
                     .and_then(|s| s.chunk.time_column(timeline))
-                    .is_some_and(|c| c.time_range().0 <= max)
+                    .is_some_and(|c| c.time_range().0 <= max && min <= c.time_range().1)
             })
             .collect();
         for id in touched {
@@ -350,4 +393,20 @@ impl ChunkStore {
         self.clears.remove_entity(entity, recursive);
         self.notify(events)
     }
+}
+
+/// Merges `extra` into `ordered`, both sorted by `first` (`first(a, b)`: `a` goes before
+/// `b`); on ties `ordered` goes first.
+fn merge_sorted<T>(
+    ordered: impl Iterator<Item = T>,
+    extra: Vec<T>,
+    first: impl Fn(&T, &T) -> bool,
+) -> impl Iterator<Item = T> {
+    let mut ordered = ordered.peekable();
+    let mut extra = extra.into_iter().peekable();
+    std::iter::from_fn(move || match (ordered.peek(), extra.peek()) {
+        (Some(a), Some(b)) if first(b, a) => extra.next(),
+        (Some(_), _) => ordered.next(),
+        (None, _) => extra.next(),
+    })
 }

@@ -120,6 +120,12 @@ pub(crate) struct StoredChunk {
     /// Does the chunk's memory go through the buffer ledgers (it shares buffers)? Decided
     /// once, on addition, so removal undoes exactly what addition did.
     pub ledgered: bool,
+    /// Is a temporal chunk in the store-wide orders (`temporal_by_row_id`,
+    /// `temporal_per_timeline`)? A chunk compaction will soon merge away enters them only
+    /// if it stops waiting: streamed rows would otherwise pass through those orders one
+    /// by one. Garbage collection and range drops read waiting chunks from the entities'
+    /// compaction groups instead. Always true for static chunks (which no order holds).
+    pub in_global_orders: bool,
 }
 
 /// Temporal chunks of one timeline by least and greatest time, across entities: what
@@ -143,6 +149,8 @@ pub struct ChunkStore {
     /// Temporal chunks by least row id: the garbage collector's default order.
     pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
     pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
+    /// Temporal chunks outside the store-wide orders (see [`StoredChunk::in_global_orders`]).
+    pub(crate) num_outside_global_orders: usize,
     pub(crate) stats: StoreStats,
     pub(crate) ledgers: StoreLedgers,
     subscribers: Subscribers,
@@ -233,6 +241,18 @@ impl ChunkStore {
     /// Adds a validated chunk to every index and figure, and records its addition (and
     /// any static chunk it overwrites).
     pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        self.add_chunk_to_orders(chunk, true, events);
+    }
+
+    /// [`ChunkStore::add_chunk`], leaving a temporal chunk out of the store-wide orders
+    /// unless `in_global_orders`: for a chunk compaction keeps waiting, which must then
+    /// either leave the store or be [settled](ChunkStore::settle_in_global_orders).
+    pub(crate) fn add_chunk_to_orders(
+        &mut self,
+        chunk: Arc<Chunk>,
+        in_global_orders: bool,
+        events: &mut Vec<StoreEvent>,
+    ) {
         let ledgered = !chunk.owns_all_buffers();
         let is_new_entity = !self.entities.contains_key(chunk.entity_path());
         let entity = self
@@ -264,8 +284,12 @@ impl ChunkStore {
         events.push(StoreEvent::Addition(Arc::clone(&chunk)));
         if chunk.is_static() {
             let overwritten = entity.insert_static(&chunk);
-            self.chunks
-                .insert(chunk.id(), StoredChunk { chunk, ledgered });
+            let stored = StoredChunk {
+                chunk,
+                ledgered,
+                in_global_orders: true,
+            };
+            self.chunks.insert(stored.chunk.id(), stored);
             for overwritten in overwritten {
                 // An overwritten static Clear keeps hiding what it hid: its index entry
                 // stays, as the static winner semantics of section 5 ask.
@@ -274,19 +298,64 @@ impl ChunkStore {
         } else {
             let extra = entity.insert_temporal(&chunk);
             crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
-            let id = chunk.id();
-            self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
-            for column in chunk.time_columns() {
-                let (min, max) = column.time_range();
-                let per_timeline = self
-                    .temporal_per_timeline
-                    .entry(Arc::clone(column.timeline().name_arc()))
-                    .or_default();
-                per_timeline.by_min_time.insert((min, id));
-                per_timeline.by_max_time.insert((max, id));
+            if in_global_orders {
+                self.insert_in_global_orders(&chunk);
+            } else {
+                self.num_outside_global_orders += 1;
             }
-            self.chunks.insert(id, StoredChunk { chunk, ledgered });
+            let stored = StoredChunk {
+                chunk,
+                ledgered,
+                in_global_orders,
+            };
+            self.chunks.insert(stored.chunk.id(), stored);
         }
+    }
+
+    fn insert_in_global_orders(&mut self, chunk: &Chunk) {
+        let id = chunk.id();
+        self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
+        for column in chunk.time_columns() {
+            let (min, max) = column.time_range();
+            let per_timeline = self
+                .temporal_per_timeline
+                .entry(Arc::clone(column.timeline().name_arc()))
+                .or_default();
+            per_timeline.by_min_time.insert((min, id));
+            per_timeline.by_max_time.insert((max, id));
+        }
+    }
+
+    /// Puts a temporal chunk left out of the store-wide orders into them (a chunk
+    /// compaction stopped waiting for).
+    pub(crate) fn settle_in_global_orders(&mut self, id: ChunkId) {
+        let Some(stored) = self.chunks.get_mut(&id) else {
+            return;
+        };
+        if stored.in_global_orders || stored.chunk.is_static() {
+            return;
+        }
+        stored.in_global_orders = true;
+        let chunk = Arc::clone(&stored.chunk);
+        self.num_outside_global_orders -= 1;
+        self.insert_in_global_orders(&chunk);
+    }
+
+    /// The temporal chunks outside the store-wide orders: some of the chunks compaction
+    /// keeps waiting. O(entities) when there are any, O(1) when none.
+    pub(crate) fn chunks_outside_global_orders(&self) -> Vec<&Arc<Chunk>> {
+        if self.num_outside_global_orders == 0 {
+            return Vec::new();
+        }
+        self.entities
+            .values()
+            .flat_map(|entity| entity.pending.chunks())
+            .filter(|chunk| {
+                self.chunks
+                    .get(&chunk.id())
+                    .is_some_and(|stored| !stored.in_global_orders)
+            })
+            .collect()
     }
 
     /// Removes a chunk from every index and figure and records its deletion; returns the
@@ -297,7 +366,8 @@ impl ChunkStore {
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
     ) -> Option<Arc<Chunk>> {
-        let chunk = Arc::clone(&self.chunks.get(&id)?.chunk);
+        let stored = self.chunks.get(&id)?;
+        let (chunk, in_global_orders) = (Arc::clone(&stored.chunk), stored.in_global_orders);
         if chunk.is_static() {
             if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
                 entity.remove_static(id);
@@ -307,6 +377,10 @@ impl ChunkStore {
             if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
                 let extra = entity.remove_temporal(&chunk);
                 crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
+            }
+            if !in_global_orders {
+                self.num_outside_global_orders -= 1;
+                return self.forget_chunk(id, reason, events);
             }
             self.temporal_by_row_id
                 .remove(&(chunk.row_id_range().0, id));
@@ -333,7 +407,9 @@ impl ChunkStore {
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
     ) -> Option<Arc<Chunk>> {
-        let StoredChunk { chunk, ledgered } = self.chunks.remove(&id)?;
+        let StoredChunk {
+            chunk, ledgered, ..
+        } = self.chunks.remove(&id)?;
         if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
             entity.chunk_ids.remove(&id);
             crate::stats::account(
@@ -453,6 +529,62 @@ impl ChunkStore {
             .and_then(|e| e.element_types.get(component))
     }
 
+    /// Only a temporal chunk compaction waits for may be left out of the store-wide
+    /// orders (part of [`ChunkStore::sanity_check`]).
+    fn check_outside_global_orders(&self, chunk: &Arc<Chunk>) -> Result<(), String> {
+        let waiting = self
+            .entities
+            .get(chunk.entity_path())
+            .is_some_and(|e| e.pending.chunks().any(|c| Arc::ptr_eq(c, chunk)));
+        if chunk.is_static() || !waiting {
+            return Err(format!(
+                "{}: only a temporal chunk compaction waits for is left out of the \
+                 store-wide orders",
+                chunk.id()
+            ));
+        }
+        Ok(())
+    }
+
+    /// The store-wide orders hold exactly the expected chunks (part of
+    /// [`ChunkStore::sanity_check`]).
+    fn check_global_orders(
+        &self,
+        outside_global_orders: usize,
+        expected_by_row_id: &OrderedSet<(RowId, ChunkId)>,
+        expected_per_timeline: &BTreeMap<&str, TimelineChunks>,
+    ) -> Result<(), String> {
+        let Self {
+            temporal_by_row_id,
+            temporal_per_timeline,
+            num_outside_global_orders,
+            ..
+        } = self;
+        if outside_global_orders != *num_outside_global_orders {
+            return Err(format!(
+                "{num_outside_global_orders} chunks are counted outside the store-wide \
+                 orders, {outside_global_orders} are"
+            ));
+        }
+        temporal_by_row_id.sanity_check()?;
+        if expected_by_row_id != temporal_by_row_id {
+            return Err("the row-id order holds exactly the temporal chunks".into());
+        }
+        let timelines_match = expected_per_timeline.len() == temporal_per_timeline.len()
+            && expected_per_timeline.iter().all(|(name, expected)| {
+                temporal_per_timeline.get(*name).is_some_and(|kept| {
+                    kept.by_min_time.sanity_check().is_ok()
+                        && kept.by_max_time.sanity_check().is_ok()
+                        && kept.by_min_time == expected.by_min_time
+                        && kept.by_max_time == expected.by_max_time
+                })
+            });
+        if !timelines_match {
+            return Err("the per-timeline orders hold exactly the temporal chunks".into());
+        }
+        Ok(())
+    }
+
     /// Checks every invariant of the store and its indices. Cheap enough for tests to call
     /// after every mutation; debug builds call it after every insert.
     ///
@@ -465,8 +597,9 @@ impl ChunkStore {
             time_types,
             entities,
             clears,
-            temporal_by_row_id,
-            temporal_per_timeline,
+            temporal_by_row_id: _,
+            temporal_per_timeline: _,
+            num_outside_global_orders: _,
             stats,
             ledgers: _,
             subscribers: _,
@@ -479,7 +612,16 @@ impl ChunkStore {
             ahash::HashMap::default();
         let mut expected_by_row_id = OrderedSet::default();
         let mut expected_per_timeline: BTreeMap<&str, TimelineChunks> = BTreeMap::new();
-        for (&id, StoredChunk { chunk, ledgered }) in chunks {
+        let mut outside_global_orders = 0;
+        for (
+            &id,
+            StoredChunk {
+                chunk,
+                ledgered,
+                in_global_orders,
+            },
+        ) in chunks
+        {
             chunk.sanity_check()?;
             if chunk.id() != id {
                 return Err(format!("{id} is keyed by its id"));
@@ -500,12 +642,17 @@ impl ChunkStore {
                 if time_types.get(timeline.name()) != Some(&timeline.time_type()) {
                     return Err(format!("{id}: timeline {timeline:?} has the store's type"));
                 }
-                let (min, max) = column.time_range();
-                let per_timeline = expected_per_timeline.entry(timeline.name()).or_default();
-                per_timeline.by_min_time.insert((min, id));
-                per_timeline.by_max_time.insert((max, id));
+                if *in_global_orders {
+                    let (min, max) = column.time_range();
+                    let per_timeline = expected_per_timeline.entry(timeline.name()).or_default();
+                    per_timeline.by_min_time.insert((min, id));
+                    per_timeline.by_max_time.insert((max, id));
+                }
             }
-            if !chunk.is_static() {
+            if !*in_global_orders {
+                self.check_outside_global_orders(chunk)?;
+                outside_global_orders += 1;
+            } else if !chunk.is_static() {
                 expected_by_row_id.insert((chunk.row_id_range().0, id));
             }
             if !entities.contains_key(chunk.entity_path()) {
@@ -527,22 +674,11 @@ impl ChunkStore {
                 "stats match the chunks: kept {stats:?}, counted {expected:?}"
             ));
         }
-        temporal_by_row_id.sanity_check()?;
-        if expected_by_row_id != *temporal_by_row_id {
-            return Err("the row-id order holds exactly the temporal chunks".into());
-        }
-        let timelines_match = expected_per_timeline.len() == temporal_per_timeline.len()
-            && expected_per_timeline.iter().all(|(name, expected)| {
-                temporal_per_timeline.get(*name).is_some_and(|kept| {
-                    kept.by_min_time.sanity_check().is_ok()
-                        && kept.by_max_time.sanity_check().is_ok()
-                        && kept.by_min_time == expected.by_min_time
-                        && kept.by_max_time == expected.by_max_time
-                })
-            });
-        if !timelines_match {
-            return Err("the per-timeline orders hold exactly the temporal chunks".into());
-        }
+        self.check_global_orders(
+            outside_global_orders,
+            &expected_by_row_id,
+            &expected_per_timeline,
+        )?;
         for (path, entity) in entities {
             let counted = expected_entities.get(path).map(|e| e.0);
             let num_chunks = counted.map_or(0, |c| c.num_static_chunks + c.num_temporal_chunks);
