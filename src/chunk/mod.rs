@@ -137,7 +137,7 @@ impl Chunk {
                 }
                 Ok(RawTimeColumn {
                     timeline,
-                    array,
+                    times: RawTimes::Array(array),
                     field_metadata: Metadata::default(),
                 })
             })
@@ -430,8 +430,19 @@ fn row_id_range_rows(row_ids: &[RowId]) -> (u32, u32) {
 
 struct RawTimeColumn {
     timeline: Timeline,
-    array: ArrayRef,
+    times: RawTimes,
     field_metadata: Metadata,
+}
+
+/// A time column's data before validation.
+enum RawTimes {
+    /// As given: checked for length and nulls, then read as `i64`.
+    Array(ArrayRef),
+    /// Copied from a valid column (compaction, slices): already `i64`, without nulls.
+    Copied {
+        times: ScalarBuffer<i64>,
+        data_type: DataType,
+    },
 }
 
 struct RawComponentColumn {
@@ -479,26 +490,41 @@ impl TimeColumn {
     fn try_new(raw: RawTimeColumn, row_ids: &[RowId]) -> Result<Self, ChunkError> {
         let RawTimeColumn {
             timeline,
-            array,
+            times,
             field_metadata,
         } = raw;
         let name = || timeline.name().to_owned();
-        if array.len() != row_ids.len() {
+        let (times, data_type) = match times {
+            RawTimes::Array(array) => {
+                if array.len() != row_ids.len() {
+                    return Err(ChunkError::LengthMismatch {
+                        column: name(),
+                        expected: row_ids.len(),
+                        actual: array.len(),
+                    });
+                }
+                if array.null_count() > 0 {
+                    return Err(ChunkError::NullTimes {
+                        timeline: name(),
+                        null_count: array.null_count(),
+                    });
+                }
+                let data = array.to_data();
+                // All three timeline types are 64-bit primitives: one buffer of i64, sliced.
+                let times =
+                    ScalarBuffer::<i64>::new(data.buffers()[0].clone(), data.offset(), data.len());
+                (times, array.data_type().clone())
+            }
+            RawTimes::Copied { times, data_type } => (times, data_type),
+        };
+        if times.len() != row_ids.len() {
+            // Only a copy made by this crate gets here with another length: a bug.
             return Err(ChunkError::LengthMismatch {
                 column: name(),
                 expected: row_ids.len(),
-                actual: array.len(),
+                actual: times.len(),
             });
         }
-        if array.null_count() > 0 {
-            return Err(ChunkError::NullTimes {
-                timeline: name(),
-                null_count: array.null_count(),
-            });
-        }
-        let data = array.to_data();
-        // All three timeline types are 64-bit primitives: one buffer of i64, sliced.
-        let times = ScalarBuffer::<i64>::new(data.buffers()[0].clone(), data.offset(), data.len());
         if let Some(row) = times.iter().position(|&t| t == i64::MIN) {
             return Err(ChunkError::ReservedTime {
                 timeline: name(),
@@ -521,7 +547,7 @@ impl TimeColumn {
         });
         Ok(Self {
             timeline,
-            data_type: array.data_type().clone(),
+            data_type,
             times,
             field_metadata,
             is_sorted,

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use arrow_array::{Array, ArrayRef};
 use arrow_buffer::ScalarBuffer;
 
-use super::{Chunk, RawComponentColumn, RawTimeColumn};
+use super::{Chunk, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::error::ChunkError;
 use crate::{ChunkId, RowId};
 
@@ -60,7 +60,7 @@ impl Chunk {
                     .collect();
                 first.time_columns[t].rebuilt(ScalarBuffer::from(times))
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect();
         let components = (0..first.components.len())
             .map(|position| {
                 let lists: Vec<&dyn Array> = chunks
@@ -94,7 +94,7 @@ impl Chunk {
             .time_columns
             .iter()
             .map(|column| column.rebuilt(column.times.slice(offset, len)))
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect();
         let components = self
             .components
             .iter()
@@ -113,16 +113,15 @@ impl Chunk {
 
 impl super::TimeColumn {
     /// This column's timeline, type and metadata around other times.
-    fn rebuilt(&self, times: ScalarBuffer<i64>) -> Result<RawTimeColumn, ChunkError> {
-        let data = arrow_data::ArrayData::builder(self.data_type.clone())
-            .len(times.len())
-            .add_buffer(times.into_inner())
-            .build()?;
-        Ok(RawTimeColumn {
+    fn rebuilt(&self, times: ScalarBuffer<i64>) -> RawTimeColumn {
+        RawTimeColumn {
             timeline: self.timeline.clone(),
-            array: arrow_array::make_array(data),
+            times: RawTimes::Copied {
+                times,
+                data_type: self.data_type.clone(),
+            },
             field_metadata: self.field_metadata.clone(),
-        })
+        }
     }
 }
 

@@ -8,7 +8,7 @@ use arrow_array::{Array, ArrayRef, FixedSizeBinaryArray, RecordBatch};
 use arrow_buffer::Buffer;
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema};
 
-use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn};
+use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::error::ChunkError;
 use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
 
@@ -124,7 +124,7 @@ impl Chunk {
                     })?;
                     times.push(RawTimeColumn {
                         timeline: Timeline::new(name.as_str(), time_type),
-                        array: Arc::clone(array),
+                        times: RawTimes::Array(Arc::clone(array)),
                         field_metadata: Metadata::new(field.metadata().clone()),
                     });
                 }
