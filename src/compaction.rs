@@ -291,10 +291,7 @@ fn rewrite(
             }
         }
         keyed.sort();
-        keyed
-            .into_iter()
-            .map(|(_, _, c, r)| (c, r))
-            .collect()
+        keyed.into_iter().map(|(_, _, c, r)| (c, r)).collect()
     };
     // Rows are now in order on the first timeline; the others are checked.
     let sorted = (1..inputs[0].time_columns().len()).all(|t| {

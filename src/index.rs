@@ -21,7 +21,9 @@
 //! indices all ascend together, so every question is one binary search, and arrival and
 //! garbage collection (oldest first, or from both ends around a cursor) touch only its
 //! ends. The first chunk that breaks the order turns the index into the three views
-//! above. Either turns back into a vector once it holds half of the small limit.
+//! above, which keep their newest few chunks in arrival order outside the B-trees
+//! (compaction merges most small chunks away before they would reach them). Either turns
+//! back into a vector once it holds half of the small limit.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::ops::Bound;
@@ -180,8 +182,7 @@ impl TemporalComponentIndex {
             Self::Large(large) => {
                 let removed = large.remove(id, bounds);
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    let entries = large.chunks_by_min_time.values().cloned().collect();
-                    *self = Self::Small(entries);
+                    *self = Self::Small(large.entries_by_min_time());
                 }
                 removed
             }
@@ -192,7 +193,7 @@ impl TemporalComponentIndex {
         match self {
             Self::Small(entries) => entries.is_empty(),
             Self::Sequence(entries) => entries.is_empty(),
-            Self::Large(large) => large.chunks_by_min_time.is_empty(),
+            Self::Large(large) => large.len() == 0,
         }
     }
 
@@ -310,7 +311,7 @@ impl TemporalComponentIndex {
         match self {
             Self::Small(entries) => Box::new(entries.iter()),
             Self::Sequence(entries) => Box::new(entries.iter()),
-            Self::Large(large) => Box::new(large.chunks_by_max_index.values()),
+            Self::Large(large) => Box::new(large.chunks_by_max_index.values().chain(&large.recent)),
         }
     }
 
@@ -380,9 +381,18 @@ fn check_bounds(entry: &IndexedChunk) -> Result<(), String> {
     }
 }
 
-/// The three views of a large index.
+/// A large index keeps up to this many of its newest chunks in arrival order, outside its
+/// B-trees. See [`LargeIndex::recent`].
+const LARGE_INDEX_RECENT_CHUNKS: usize = 16;
+
+/// The three views of a large index, and its newest chunks.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct LargeIndex {
+    /// The newest chunks, oldest first, in none of the views: the oldest moves into them
+    /// when this is full. Compaction on insert merges small chunks a few inserts after
+    /// they arrive, so most of them come and go here without touching a B-tree (three
+    /// inserts and three removals each); every question scans these few as well.
+    recent: VecDeque<IndexedChunk>,
     chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
     chunks_by_min_time: BTreeMap<MinTimeKey, IndexedChunk>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
@@ -406,10 +416,39 @@ fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
 
 impl LargeIndex {
     fn len(&self) -> usize {
-        self.chunks_by_min_time.len()
+        self.chunks_by_min_time.len() + self.recent.len()
+    }
+
+    /// Every entry, sorted by `(least time, chunk id)`.
+    fn entries_by_min_time(&self) -> Vec<IndexedChunk> {
+        let mut entries: Vec<IndexedChunk> = self
+            .chunks_by_min_time
+            .values()
+            .chain(&self.recent)
+            .cloned()
+            .collect();
+        entries.sort_by_key(min_time_key);
+        entries
     }
 
     fn insert(&mut self, entry: IndexedChunk) {
+        let id = entry.chunk.id();
+        if self.recent.iter().any(|e| e.chunk.id() == id)
+            || self
+                .chunks_by_min_time
+                .contains_key(&(entry.bounds.min_time, id))
+        {
+            return; // already indexed: a store never inserts a chunk id twice
+        }
+        self.recent.push_back(entry);
+        if self.recent.len() > LARGE_INDEX_RECENT_CHUNKS
+            && let Some(oldest) = self.recent.pop_front()
+        {
+            self.insert_in_views(oldest);
+        }
+    }
+
+    fn insert_in_views(&mut self, entry: IndexedChunk) {
         let id = entry.chunk.id();
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
         if self.chunks_by_min_time.contains_key(&(min, id)) {
@@ -428,6 +467,10 @@ impl LargeIndex {
     }
 
     fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
+        if let Some(position) = self.recent.iter().position(|e| e.chunk.id() == id) {
+            self.recent.remove(position);
+            return true;
+        }
         let (min, max) = (bounds.min_time, bounds.max_time);
         if self.chunks_by_min_time.remove(&(min, id)).is_none() {
             return false;
@@ -447,25 +490,44 @@ impl LargeIndex {
     }
 
     fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
-        self.chunks_by_max_index
+        let mut latest: Vec<MaxIndexKey> = self
+            .chunks_by_max_index
             .keys()
             .rev()
             .take(n)
-            .any(|&(_, _, latest)| latest == id)
+            .copied()
+            .chain(self.recent.iter().map(max_index_key))
+            .collect();
+        latest.sort_unstable_by(|a, b| b.cmp(a));
+        latest.iter().take(n).any(|&(_, _, latest)| latest == id)
     }
 
     fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
-        self.chunks_by_max_index
+        let in_views = self
+            .chunks_by_max_index
             .range(..=(t, RowId::MAX, ChunkId::MAX))
             .next_back()
-            .map(|(_, entry)| entry)
+            .map(|(_, entry)| entry);
+        self.recent
+            .iter()
+            .filter(|e| e.bounds.max_time <= t)
+            .chain(in_views)
+            .max_by_key(|e| max_index_key(e))
     }
 
-    fn for_each_straddling<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+    fn for_each_straddling<'a>(&'a self, t: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
+        self.recent
+            .iter()
+            .filter(|e| e.bounds.min_time <= t && t < e.bounds.max_time)
+            .for_each(&mut f);
         self.for_each_spanning(t, Bound::Included((t, ChunkId::MAX)), |max| max > t, f);
     }
 
-    fn for_each_reaching_into<'a>(&'a self, t: TimeInt, f: impl FnMut(&'a IndexedChunk)) {
+    fn for_each_reaching_into<'a>(&'a self, t: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
+        self.recent
+            .iter()
+            .filter(|e| e.bounds.min_time < t && t <= e.bounds.max_time)
+            .for_each(&mut f);
         self.for_each_spanning(t, Bound::Excluded((t, ChunkId::ZERO)), |max| max >= t, f);
     }
 
@@ -499,21 +561,44 @@ impl LargeIndex {
         max: TimeInt,
         mut f: impl FnMut(&'a IndexedChunk),
     ) {
+        let in_range = |e: &&IndexedChunk| (min..=max).contains(&e.bounds.min_time);
+        let mut recent: Vec<&IndexedChunk> = self.recent.iter().filter(in_range).collect();
+        recent.sort_by_key(|e| min_time_key(e));
+        let mut recent = recent.into_iter().peekable();
         for entry in self
             .chunks_by_min_time
             .range((min, ChunkId::ZERO)..=(max, ChunkId::MAX))
             .map(|(_, e)| e)
         {
+            while let Some(earlier) = recent.next_if(|r| min_time_key(r) < min_time_key(entry)) {
+                f(earlier);
+            }
             f(entry);
         }
+        recent.for_each(f);
     }
 
     fn sanity_check(&self) -> Result<(), String> {
         let Self {
+            recent,
             chunks_by_max_index,
             chunks_by_min_time,
             spanning_chunk_ids_by_min_time_per_span_class,
         } = self;
+        if recent.len() > LARGE_INDEX_RECENT_CHUNKS {
+            return Err(format!(
+                "a large index keeps at most {LARGE_INDEX_RECENT_CHUNKS} recent chunks"
+            ));
+        }
+        for (i, entry) in recent.iter().enumerate() {
+            let id = entry.chunk.id();
+            if recent.iter().skip(i + 1).any(|e| e.chunk.id() == id)
+                || chunks_by_min_time.contains_key(&(entry.bounds.min_time, id))
+            {
+                return Err(format!("{id} is indexed once"));
+            }
+            check_bounds(entry)?;
+        }
         if chunks_by_max_index.len() != chunks_by_min_time.len() {
             return Err(format!(
                 "both views index the same chunks ({} by max index, {} by min time)",
