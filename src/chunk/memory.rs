@@ -4,6 +4,7 @@
 
 use arrow_buffer::Buffer;
 use arrow_data::ArrayData;
+use arrow_schema::DataType;
 use smallvec::SmallVec;
 
 use super::{Chunk, ComponentColumn, TimeColumn};
@@ -15,7 +16,8 @@ use crate::RowId;
 const ARRAY_NODE_BYTES: u64 = 96;
 /// Heap of one buffer handle besides its data: the shared `Bytes` header and its `Arc`.
 const BUFFER_HANDLE_BYTES: u64 = 64;
-/// Heap of one component's field (name and type behind an `Arc`).
+/// Heap of one field (name and type behind an `Arc`): a component's own, or a nested
+/// type's child.
 const FIELD_BYTES: u64 = 128;
 
 /// Memory figures of one chunk, computed once at construction.
@@ -89,6 +91,12 @@ impl ChunkMemory {
 
     fn add_array(&mut self, data: &ArrayData) {
         self.own_bytes += ARRAY_NODE_BYTES;
+        // A nested type holds its child's field behind an `Arc` of its own.
+        if let DataType::List(_) | DataType::LargeList(_) | DataType::FixedSizeList(..) =
+            data.data_type()
+        {
+            self.own_bytes += FIELD_BYTES;
+        }
         for buffer in data.buffers() {
             self.add_buffer(buffer);
         }
