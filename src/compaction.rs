@@ -6,7 +6,7 @@
 //! A chunk enters
 //! the bucket of its level; when a bucket holds `K` chunks, they are merged into one,
 //! whose level is at least one higher, and the cascade goes on from there. A row is
-//! therefore copied at most `log_K(max_rows)` times (4 with the defaults), unlike the
+//! therefore copied at most `log_K(max_rows)` times (3 with the defaults), unlike the
 //! re-copy of one growing chunk on every insert that costs `O(max_rows)` copies per row.
 //! A chunk stops growing once it holds half of a threshold: merging it again could not
 //! double it.
@@ -44,8 +44,8 @@ pub struct StoreConfig {
     pub max_bytes: u64,
     /// How many waiting chunks of one level compaction on insert merges at once (at
     /// least 2). Larger fans copy each row fewer times (`log_K(max_rows)`) but leave more
-    /// small chunks waiting (up to `K − 1` per level). The default, 8, copies a row at
-    /// most 4 times under the default thresholds and keeps at most 28 chunks waiting per
+    /// small chunks waiting (up to `K − 1` per level). The default, 16, copies a row at
+    /// most 3 times under the default thresholds and keeps at most 45 chunks waiting per
     /// entity and layout, whose time ranges do not overlap when data arrives in order.
     pub merge_fanout: usize,
 }
@@ -58,7 +58,7 @@ impl StoreConfig {
         max_rows: 4096,
         max_rows_unsorted: 1024,
         max_bytes: 384 * 1024,
-        merge_fanout: 8,
+        merge_fanout: 16,
     };
 
     /// Chunks are stored exactly as inserted; [`ChunkStore::compact`] still uses the
