@@ -203,17 +203,18 @@ impl PendingGroups {
         self.groups.iter().flat_map(|g| g.levels.iter().flatten())
     }
 
-    /// Forgets a chunk that left the store (or was merged).
-    pub fn remove(&mut self, chunk: &Chunk) {
+    /// Forgets a chunk that left the store (or was merged). Only the chunk's own level is
+    /// searched: a merge removes each of its inputs, which have already left their level.
+    pub fn remove(&mut self, chunk: &Chunk, config: &StoreConfig) {
         let id = chunk.id();
-        let found = self.groups.iter().enumerate().find_map(|(g, group)| {
+        let level = config.level(chunk.num_rows());
+        let found = self.groups.iter().position(|group| {
             group
                 .levels
-                .iter()
-                .position(|l| l.iter().any(|c| c.id() == id))
-                .map(|l| (g, l))
+                .get(level)
+                .is_some_and(|l| l.iter().any(|c| c.id() == id))
         });
-        if let Some((position, level)) = found {
+        if let Some(position) = found {
             self.groups[position].levels[level].retain(|c| c.id() != id);
             if self.groups[position].is_empty() {
                 self.groups.swap_remove(position);

@@ -210,12 +210,14 @@ impl ChunkStore {
         if self.chunks.contains_key(&chunk.id()) {
             return Ok(Vec::new());
         }
-        self.validate(&chunk)?;
-        for column in chunk.time_columns() {
-            let timeline = column.timeline();
-            self.time_types
-                .entry(Arc::clone(timeline.name_arc()))
-                .or_insert(timeline.time_type());
+        let timelines_known = self.validate(&chunk)?;
+        if !timelines_known {
+            for column in chunk.time_columns() {
+                let timeline = column.timeline();
+                self.time_types
+                    .entry(Arc::clone(timeline.name_arc()))
+                    .or_insert(timeline.time_type());
+            }
         }
         self.stats.rows_inserted += chunk.num_rows() as u64;
         self.stats.payload_bytes_inserted += chunk.payload_bytes();
@@ -254,12 +256,12 @@ impl ChunkStore {
         events: &mut Vec<StoreEvent>,
     ) {
         let ledgered = !chunk.owns_all_buffers();
-        let is_new_entity = !self.entities.contains_key(chunk.entity_path());
         let entity = self
             .entities
             .entry(chunk.entity_path().clone())
             .or_default();
-        if is_new_entity {
+        // An entity leaves the map with its last chunk, so one without chunks is new.
+        if entity.chunk_ids.is_empty() {
             self.stats.heap_bytes += crate::stats::ENTITY_BYTES;
             entity.stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
@@ -375,7 +377,7 @@ impl ChunkStore {
         } else {
             self.clears.remove_chunk(&chunk);
             if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
-                let extra = entity.remove_temporal(&chunk);
+                let extra = entity.remove_temporal(&chunk, &self.config);
                 crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
             }
             if !in_global_orders {
@@ -438,19 +440,23 @@ impl ChunkStore {
         Some(chunk)
     }
 
-    /// Every check `insert` makes before touching anything.
-    fn validate(&self, chunk: &Chunk) -> Result<(), InsertError> {
+    /// Every check `insert` makes before touching anything; returns whether the store
+    /// already knows all the chunk's timelines.
+    fn validate(&self, chunk: &Chunk) -> Result<bool, InsertError> {
+        let mut timelines_known = true;
         for column in chunk.time_columns() {
             let timeline = column.timeline();
-            if let Some(&existing) = self.time_types.get(timeline.name())
-                && existing != timeline.time_type()
-            {
-                return Err(InsertError::TimelineTypeConflict {
-                    chunk_id: chunk.id(),
-                    timeline: timeline.name().to_owned(),
-                    existing,
-                    incoming: timeline.time_type(),
-                });
+            match self.time_types.get(timeline.name()) {
+                Some(&existing) if existing != timeline.time_type() => {
+                    return Err(InsertError::TimelineTypeConflict {
+                        chunk_id: chunk.id(),
+                        timeline: timeline.name().to_owned(),
+                        existing,
+                        incoming: timeline.time_type(),
+                    });
+                }
+                Some(_) => {}
+                None => timelines_known = false,
             }
         }
         let entity = self.entities.get(chunk.entity_path());
@@ -474,7 +480,7 @@ impl ChunkStore {
                 });
             }
         }
-        Ok(())
+        Ok(timelines_known)
     }
 
     /// The chunk with this id, if the store holds it.
@@ -788,7 +794,7 @@ impl EntityIndex {
     /// Forgets a temporal chunk from every (timeline, component) index and from the
     /// compaction candidates.
     /// Returns how much the indices' extra heap grew (negative: shrank).
-    fn remove_temporal(&mut self, chunk: &Chunk) -> i64 {
+    fn remove_temporal(&mut self, chunk: &Chunk, config: &crate::StoreConfig) -> i64 {
         let id = chunk.id();
         let mut extra = 0;
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
@@ -813,7 +819,7 @@ impl EntityIndex {
                 self.temporal_per_timeline_per_component.remove(name);
             }
         }
-        self.pending.remove(chunk);
+        self.pending.remove(chunk, config);
         extra
     }
 
