@@ -242,6 +242,15 @@ pub fn for_each_first_f64(run: &RangeRun<'_>, mut f: impl FnMut(f64)) {
     let cell = |row: usize| (offsets[row] as usize, offsets[row + 1] as usize);
     match run.contiguous_rows() {
         Some(rows) if list.null_count() == 0 => {
+            if run.column().has_one_instance_per_row() {
+                #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
+                let first = offsets[rows.start] as usize;
+                values[first..first + rows.len()]
+                    .iter()
+                    .copied()
+                    .for_each(f);
+                return;
+            }
             #[expect(clippy::cast_sign_loss, reason = "list offsets are non-negative")]
             for bounds in offsets[rows.start..=rows.end].windows(2) {
                 if bounds[0] < bounds[1] {

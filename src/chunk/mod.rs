@@ -107,6 +107,9 @@ pub struct ComponentColumn {
     /// For every chunk: the row of the non-null cell with the greatest row id. It is the
     /// static winner of a static chunk.
     max_row_id_row: Option<u32>,
+    /// Does every cell span exactly one instance? See
+    /// [`ComponentColumn::has_one_instance_per_row`].
+    one_instance_per_row: bool,
 }
 
 impl Chunk {
@@ -403,6 +406,17 @@ impl Chunk {
             }
             if column.bounds_per_timeline.len() != time_columns.len() {
                 return Err("component bounds exist for every timeline".into());
+            }
+            let one_each = column
+                .list
+                .value_offsets()
+                .windows(2)
+                .all(|w| w[1] - w[0] == 1);
+            if column.one_instance_per_row != one_each {
+                return Err(format!(
+                    "component {}'s one-instance flag matches its offsets",
+                    column.descriptor.name
+                ));
             }
         }
         Ok(())
@@ -773,6 +787,7 @@ impl ComponentColumn {
             }
         }
         let max_row_id_row = max_row_id_cell.map(|(_, row)| row);
+        let one_instance_per_row = list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1);
 
         let bounds_per_timeline = time_columns
             .iter()
@@ -804,6 +819,7 @@ impl ComponentColumn {
             field,
             bounds_per_timeline,
             max_row_id_row,
+            one_instance_per_row,
         })
     }
 
@@ -830,6 +846,14 @@ impl ComponentColumn {
     /// The cell at `row`, or `None` if out of bounds or null. Zero-copy.
     pub fn cell(&self, row: usize) -> Option<ArrayRef> {
         (row < self.list.len() && self.list.is_valid(row)).then(|| self.list.value(row))
+    }
+
+    /// Does every cell span exactly one instance of the values array (a scalar series, a
+    /// single pose per row)? Then the instances of rows `a..b` are the values
+    /// `offsets[a]..offsets[a] + (b − a)`: a reader can take them as one slice. Null cells
+    /// span one too when this holds; check [`Array::null_count`] on the list.
+    pub fn has_one_instance_per_row(&self) -> bool {
+        self.one_instance_per_row
     }
 
     /// Is the cell at `row` non-null?
@@ -869,7 +893,48 @@ impl ListValueTypeRef for ListArray {
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Arc;
+
     use super::*;
+
+    /// A chunk of one `frame` row per cell of `list` (times 0, 1, …).
+    fn chunk_of(list: ListArray) -> Chunk {
+        let n = u32::try_from(list.len()).unwrap();
+        Chunk::try_new(
+            ChunkId::new(),
+            EntityPath::parse("a").unwrap(),
+            (1..=u128::from(n)).map(RowId::from_u128).collect(),
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(arrow_array::Int64Array::from_iter_values(0..i64::from(n))) as ArrayRef,
+            )],
+            vec![("x".into(), Arc::new(list) as ArrayRef)],
+        )
+        .unwrap()
+    }
+
+    /// The flag holds exactly when every cell spans one value, a null cell included.
+    #[test]
+    fn one_instance_per_row_follows_the_offsets() {
+        let list = |offsets: Vec<i32>, nulls: Option<Vec<bool>>| {
+            let len = usize::try_from(*offsets.last().unwrap()).unwrap();
+            ListArray::new(
+                Arc::new(arrow_schema::Field::new_list_field(DataType::Float64, true)),
+                arrow_buffer::OffsetBuffer::new(offsets.into()),
+                Arc::new(arrow_array::Float64Array::from(vec![1.0; len])),
+                nulls.map(arrow_buffer::NullBuffer::from),
+            )
+        };
+        let flag = |l: ListArray| chunk_of(l).components()[0].has_one_instance_per_row();
+        assert!(flag(list(vec![0, 1, 2, 3], None)));
+        assert!(flag(list(vec![0, 1, 2], Some(vec![true, false]))));
+        assert!(!flag(list(vec![0, 1, 3], None)), "a cell of two");
+        assert!(!flag(list(vec![0, 1, 1, 2], None)), "an empty cell");
+        assert!(
+            !flag(list(vec![0, 1, 1], Some(vec![true, false]))),
+            "a null spanning none"
+        );
+    }
 
     /// The guided search finds exactly the partition point a binary search finds, for
     /// evenly spread, clustered, duplicated and extreme times, and targets inside, between
