@@ -58,8 +58,11 @@ pub struct Chunk {
     /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
     /// transport.
     extra_metadata: Metadata,
-    /// Rows of the least and greatest row id (positions, not ids: a quarter of the bytes).
-    row_id_range_rows: (u32, u32),
+    /// The least row id, kept here because garbage collection and removal key chunks by
+    /// it (reading it from the row ids would cost a cache miss per chunk).
+    min_row_id: RowId,
+    /// Row of the greatest row id (a position, not an id: a quarter of the bytes).
+    max_row_id_row: u32,
     /// Heap the chunk and its Arrow buffers occupy; see [`memory`].
     memory: memory::ChunkMemory,
 }
@@ -104,9 +107,10 @@ pub struct ComponentColumn {
     /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
     /// every cell is null.
     bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 1]>,
-    /// For every chunk: the row of the non-null cell with the greatest row id. It is the
-    /// static winner of a static chunk.
-    max_row_id_row: Option<u32>,
+    /// For every chunk: the row of the non-null cell with the greatest row id, or
+    /// [`NO_ROW`] if every cell is null. It is the static winner of a static chunk. (A
+    /// sentinel rather than an `Option`, so that the flag below fits in the same word.)
+    best_cell_row: u32,
     /// Does every cell span exactly one instance? See
     /// [`ComponentColumn::has_one_instance_per_row`].
     one_instance_per_row: bool,
@@ -204,7 +208,8 @@ impl Chunk {
             return Err(ChunkError::NoComponents);
         }
         let is_sorted_by_row_id = row_ids.is_sorted();
-        let row_id_range_rows = row_id_range_rows(&row_ids);
+        let (min_row, max_row_id_row) = row_id_range_rows(&row_ids);
+        let min_row_id = row_ids[min_row as usize];
 
         let mut time_columns = SmallVec::<[TimeColumn; 1]>::new();
         for raw in raw_times {
@@ -247,7 +252,8 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            row_id_range_rows,
+            min_row_id,
+            max_row_id_row,
             memory: memory::ChunkMemory::default(),
         };
         chunk.memory = memory::ChunkMemory::of(&chunk);
@@ -324,8 +330,7 @@ impl Chunk {
 
     /// Least and greatest row id of the chunk's rows.
     pub fn row_id_range(&self) -> (RowId, RowId) {
-        let (min, max) = self.row_id_range_rows;
-        (self.row_ids[min as usize], self.row_ids[max as usize])
+        (self.min_row_id, self.row_ids[self.max_row_id_row as usize])
     }
 
     /// Bytes of heap the chunk occupies: its own allocations plus the whole capacity of
@@ -372,7 +377,8 @@ impl Chunk {
             time_columns,
             components,
             extra_metadata,
-            row_id_range_rows,
+            min_row_id,
+            max_row_id_row,
             memory,
         } = self;
         let n = row_ids.len();
@@ -382,9 +388,9 @@ impl Chunk {
         if *is_sorted_by_row_id != row_ids.is_sorted() {
             return Err("is_sorted_by_row_id matches the row ids".into());
         }
-        if row_id_range_rows.0.max(row_id_range_rows.1) as usize >= n
-            || row_ids.iter().min() != Some(&row_ids[row_id_range_rows.0 as usize])
-            || row_ids.iter().max() != Some(&row_ids[row_id_range_rows.1 as usize])
+        if *max_row_id_row as usize >= n
+            || row_ids.iter().min() != Some(min_row_id)
+            || row_ids.iter().max() != Some(&row_ids[*max_row_id_row as usize])
         {
             return Err("row_id_range spans the row ids".into());
         }
@@ -422,6 +428,10 @@ impl Chunk {
         Ok(())
     }
 }
+
+/// No row: a chunk has fewer than `u32::MAX` rows (checked in `Chunk::from_raw`), so its
+/// rows are numbered below this.
+const NO_ROW: u32 = u32::MAX;
 
 /// Rows of the least and greatest row id (the first of equals for the least, the last for
 /// the greatest; `row_ids` is not empty and shorter than `2^32`, checked by the caller).
@@ -786,7 +796,7 @@ impl ComponentColumn {
                 max_row_id_cell = Some((row_id, row as u32));
             }
         }
-        let max_row_id_row = max_row_id_cell.map(|(_, row)| row);
+        let best_cell_row = max_row_id_cell.map_or(NO_ROW, |(_, row)| row);
         let one_instance_per_row = list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1);
 
         let bounds_per_timeline = time_columns
@@ -818,7 +828,7 @@ impl ComponentColumn {
             list,
             field,
             bounds_per_timeline,
-            max_row_id_row,
+            best_cell_row,
             one_instance_per_row,
         })
     }
@@ -873,7 +883,10 @@ impl ComponentColumn {
     /// The non-null cell with the greatest row id, as `(row id, row)`, given the chunk's
     /// row ids.
     pub(crate) fn max_row_id_cell(&self, row_ids: &[RowId]) -> Option<(RowId, u32)> {
-        let row = self.max_row_id_row?;
+        let row = self.best_cell_row;
+        if row == NO_ROW {
+            return None;
+        }
         Some((*row_ids.get(row as usize)?, row))
     }
 }
