@@ -274,11 +274,12 @@ fn rewrite(
             w[0].time_columns()[0].time_range().1 <= w[1].time_columns()[0].time_range().0
         });
     let rows: Vec<RowSource> = if in_sequence {
-        inputs
-            .iter()
-            .enumerate()
-            .flat_map(|(c, chunk)| (0..chunk.num_rows()).map(move |r| (c, r)))
-            .collect()
+        // Sized up front: a flattening collect knows no length and regrows.
+        let mut rows = Vec::with_capacity(num_rows);
+        for (c, chunk) in inputs.iter().enumerate() {
+            rows.extend((0..chunk.num_rows()).map(|r| (c, r)));
+        }
+        rows
     } else {
         // Keys read once into one array, then sorted: a sort calling back into the
         // chunks for every comparison cost a tenth of out-of-order inserts. The source
@@ -401,7 +402,13 @@ impl ChunkStore {
                 }
                 return;
             };
-            // Add before removing, so the entity (and its waiting chunks) never empties.
+            // Remove before adding: the result covers the fan's times, so adding it first
+            // would overlap them and turn an in-order entity's sequence index into the
+            // general one. (If the fan was all the entity held, the entity goes and comes
+            // back with the result; it had nothing else waiting.)
+            for merged in &fan {
+                self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
+            }
             let mut grown = None;
             let num_pieces = pieces.len();
             for piece in pieces {
@@ -411,9 +418,6 @@ impl ChunkStore {
                     grown = Some(Arc::clone(&piece));
                 }
                 self.add_chunk_to_orders(piece, !waits, events);
-            }
-            for merged in &fan {
-                self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
             }
             let Some(next) = grown else { return };
             let Some(entity) = self.entities.get_mut(&path) else {
