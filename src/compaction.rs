@@ -469,6 +469,10 @@ impl ChunkStore {
             let Ok(pieces) = rewrite(&inputs, &config, &mut self.stats) else {
                 continue;
             };
+            // Removed first, as in `merge_cascade`: the pieces cover the same times.
+            for chunk in &chunks {
+                self.remove_chunk(chunk.id(), DeletionReason::Compaction, &mut events);
+            }
             let num_pieces = pieces.len();
             let mut small = Vec::new();
             for piece in pieces {
@@ -477,9 +481,6 @@ impl ChunkStore {
                     small.push(Arc::clone(&piece));
                 }
                 self.add_chunk(piece, &mut events);
-            }
-            for chunk in &chunks {
-                self.remove_chunk(chunk.id(), DeletionReason::Compaction, &mut events);
             }
             // A lone small result may keep growing with later inserts.
             if config.compact_on_insert {
