@@ -109,6 +109,9 @@ pub(crate) struct EntityIndex {
     pub chunk_ids: ahash::HashSet<ChunkId>,
     /// Temporal chunks still small enough for compaction on insert to grow.
     pub pending: PendingGroups,
+    /// What the large indices add to the heap, kept as they change
+    /// ([`EntityIndex::extra_index_heap_bytes`] recounts it).
+    pub large_index_bytes: u64,
     pub stats: EntityStats,
     pub ledger: BufferLedger,
 }
@@ -780,6 +783,7 @@ impl EntityIndex {
                 extra += signed_difference(index.extra_heap_bytes(), before);
             }
         }
+        self.large_index_bytes = self.large_index_bytes.saturating_add_signed(extra);
         extra
     }
 
@@ -820,6 +824,7 @@ impl EntityIndex {
             }
         }
         self.pending.remove(chunk, config);
+        self.large_index_bytes = self.large_index_bytes.saturating_add_signed(extra);
         extra
     }
 
@@ -859,6 +864,11 @@ impl EntityIndex {
 
     /// What removing `chunk` would take off the large indices' extra heap, at most.
     pub(crate) fn extra_index_heap_bytes_of(&self, chunk: &Chunk) -> u64 {
+        // Most entities have no large index: then no lookup by the chunk's names (whose
+        // strings are cold, a cache miss each when planning a GC over many chunks).
+        if self.large_index_bytes == 0 {
+            return 0;
+        }
         let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;
         let large = self
             .indices_of(chunk)
@@ -880,9 +890,16 @@ impl EntityIndex {
             temporal_per_timeline_per_component,
             chunk_ids,
             pending,
+            large_index_bytes,
             stats: _,
             ledger: _,
         } = self;
+        if *large_index_bytes != self.extra_index_heap_bytes() {
+            return Err(format!(
+                "{path}: large indices' bytes are kept up to date ({large_index_bytes} kept, {} counted)",
+                self.extra_index_heap_bytes()
+            ));
+        }
         if chunk_ids.is_empty()
             || chunk_ids
                 .iter()
