@@ -448,12 +448,10 @@ impl LargeIndex {
         }
     }
 
+    /// Puts an entry leaving `recent` into the views (`insert` made sure it is not there).
     fn insert_in_views(&mut self, entry: IndexedChunk) {
         let id = entry.chunk.id();
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
-        if self.chunks_by_min_time.contains_key(&(min, id)) {
-            return; // already indexed: a store never inserts a chunk id twice
-        }
         self.chunks_by_min_time.insert((min, id), entry.clone());
         if let Some(class) = span_class(min, max) {
             let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;

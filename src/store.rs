@@ -894,10 +894,11 @@ impl EntityIndex {
             stats: _,
             ledger: _,
         } = self;
-        if *large_index_bytes != self.extra_index_heap_bytes() {
+        let counted = self.extra_index_heap_bytes();
+        if *large_index_bytes != counted {
             return Err(format!(
-                "{path}: large indices' bytes are kept up to date ({large_index_bytes} kept, {} counted)",
-                self.extra_index_heap_bytes()
+                "{path}: large indices' bytes are kept up to date ({large_index_bytes} kept, \
+                 {counted} counted)"
             ));
         }
         if chunk_ids.is_empty()

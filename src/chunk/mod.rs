@@ -413,12 +413,7 @@ impl Chunk {
             if column.bounds_per_timeline.len() != time_columns.len() {
                 return Err("component bounds exist for every timeline".into());
             }
-            let one_each = column
-                .list
-                .value_offsets()
-                .windows(2)
-                .all(|w| w[1] - w[0] == 1);
-            if column.one_instance_per_row != one_each {
+            if column.one_instance_per_row != has_one_instance_per_row(&column.list) {
                 return Err(format!(
                     "component {}'s one-instance flag matches its offsets",
                     column.descriptor.name
@@ -427,6 +422,11 @@ impl Chunk {
         }
         Ok(())
     }
+}
+
+/// Does every cell of `list` span exactly one value?
+fn has_one_instance_per_row(list: &ListArray) -> bool {
+    list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1)
 }
 
 /// No row: a chunk has fewer than `u32::MAX` rows (checked in `Chunk::from_raw`), so its
@@ -797,7 +797,7 @@ impl ComponentColumn {
             }
         }
         let best_cell_row = max_row_id_cell.map_or(NO_ROW, |(_, row)| row);
-        let one_instance_per_row = list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1);
+        let one_instance_per_row = has_one_instance_per_row(&list);
 
         let bounds_per_timeline = time_columns
             .iter()

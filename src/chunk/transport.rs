@@ -141,8 +141,8 @@ impl Chunk {
                     components.push(RawComponentColumn {
                         descriptor,
                         array: Arc::clone(array),
-                        // A field saying nothing the descriptor does not is not kept: such a column
-                        // has the same layout as one built through the API.
+                        // A field saying nothing the descriptor does not is not kept: such
+                        // a column has the same layout as one built through the API.
                         field: (field.name() != name || !meta.is_empty())
                             .then(|| Arc::clone(field)),
                     });
