@@ -35,7 +35,7 @@ pub(crate) struct ClearIndex {
 
 /// One Clear row: its row, and whether it is recursive.
 fn clear_rows(chunk: &Chunk) -> Vec<(usize, bool)> {
-    let Some(column) = chunk.component(crate::ComponentName::CLEAR_IS_RECURSIVE) else {
+    let Some(column) = chunk.clear_column() else {
         return Vec::new();
     };
     let list = column.list_array();

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::store::{DeletionReason, StoredChunk};
-use crate::{Chunk, ChunkId, ChunkStore, ComponentName, EntityPath, StoreEvent, TimeInt};
+use crate::{Chunk, ChunkId, ChunkStore, EntityPath, StoreEvent, TimeInt};
 
 /// How much garbage collection should free.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -154,9 +154,15 @@ impl ChunkStore {
     pub fn apply_gc(&mut self, plan: &GcPlan) -> Vec<StoreEvent> {
         let mut events = Vec::with_capacity(plan.chunk_ids.len());
         for &id in &plan.chunk_ids {
-            if self.chunks.get(&id).is_some_and(|s| !s.chunk.is_static()) {
-                self.remove_chunk(id, DeletionReason::Gc, &mut events);
+            let Some(stored) = self.chunks.remove(&id) else {
+                continue;
+            };
+            if stored.chunk.is_static() {
+                // Only a plan built by hand names one; it is left as it was.
+                self.chunks.insert(id, stored);
+                continue;
             }
+            self.take_out(stored, true, DeletionReason::Gc, &mut events);
         }
         self.notify(events)
     }
@@ -288,8 +294,7 @@ impl ChunkStore {
         {
             return true;
         }
-        chunk.component(ComponentName::CLEAR_IS_RECURSIVE).is_some()
-            && self.clears.is_among_latest(chunk.entity_path(), id, n)
+        chunk.clear_column().is_some() && self.clears.is_among_latest(chunk.entity_path(), id, n)
     }
 
     /// Heap bytes dropping `stored` frees, given the shared references the plan already
@@ -305,11 +310,10 @@ impl ChunkStore {
                 .entities
                 .get(chunk.entity_path())
                 .map_or(0, |entity| entity.extra_index_heap_bytes_of(chunk));
+        if !stored.ledgered {
+            return bytes + chunk.buffer_bytes();
+        }
         for buffer in chunk.buffers() {
-            if !stored.ledgered {
-                bytes += crate::chunk::memory::buffer_bytes(buffer);
-                continue;
-            }
             let address = crate::chunk::memory::buffer_address(buffer);
             let gone = released.entry(address).or_default();
             *gone += 1;

@@ -206,21 +206,23 @@ pub(crate) fn account(
     } else {
         &mut ledgers.temporal
     };
-    for buffer in chunk.buffers() {
-        if !ledgered {
-            let bytes = buffer_bytes(buffer);
-            all += bytes;
-            kind += bytes;
-            entity += bytes;
-        } else if acquire {
-            all += ledgers.all.acquire(buffer);
-            kind += kind_ledger.acquire(buffer);
-            entity += entity_ledger.acquire(buffer);
-        } else {
-            all += ledgers.all.release(buffer);
-            kind += kind_ledger.release(buffer);
-            entity += entity_ledger.release(buffer);
+    if ledgered {
+        for buffer in chunk.buffers() {
+            if acquire {
+                all += ledgers.all.acquire(buffer);
+                kind += kind_ledger.acquire(buffer);
+                entity += entity_ledger.acquire(buffer);
+            } else {
+                all += ledgers.all.release(buffer);
+                kind += kind_ledger.release(buffer);
+                entity += entity_ledger.release(buffer);
+            }
         }
+    } else {
+        let bytes = chunk.buffer_bytes();
+        all += bytes;
+        kind += bytes;
+        entity += bytes;
     }
     let rows = chunk.num_rows() as u64;
     let apply = |total: &mut u64, amount: u64| {

@@ -298,7 +298,9 @@ impl ChunkStore {
             for overwritten in overwritten {
                 // An overwritten static Clear keeps hiding what it hid: its index entry
                 // stays, as the static winner semantics of section 5 ask.
-                self.forget_chunk(overwritten.id(), DeletionReason::Overwrite, events);
+                if let Some(stored) = self.chunks.remove(&overwritten.id()) {
+                    self.take_out(stored, false, DeletionReason::Overwrite, events);
+                }
             }
         } else {
             let extra = entity.insert_temporal(&chunk);
@@ -371,51 +373,44 @@ impl ChunkStore {
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
     ) -> Option<Arc<Chunk>> {
-        let stored = self.chunks.get(&id)?;
-        let (chunk, in_global_orders) = (Arc::clone(&stored.chunk), stored.in_global_orders);
-        if chunk.is_static() {
-            if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
-                entity.remove_static(id);
-            }
-        } else {
-            self.clears.remove_chunk(&chunk);
-            if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
-                let extra = entity.remove_temporal(&chunk, &self.config);
-                crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
-            }
-            if !in_global_orders {
-                self.num_outside_global_orders -= 1;
-                return self.forget_chunk(id, reason, events);
-            }
-            self.temporal_by_row_id
-                .remove(&(chunk.row_id_range().0, id));
-            for column in chunk.time_columns() {
-                let (min, max) = column.time_range();
-                let name = column.timeline().name();
-                if let Some(per_timeline) = self.temporal_per_timeline.get_mut(name) {
-                    per_timeline.by_min_time.remove(&(min, id));
-                    per_timeline.by_max_time.remove(&(max, id));
-                    if per_timeline.by_min_time.is_empty() {
-                        self.temporal_per_timeline.remove(name);
-                    }
-                }
-            }
-        }
-        self.forget_chunk(id, reason, events)
+        let stored = self.chunks.remove(&id)?;
+        Some(self.take_out(stored, true, reason, events))
     }
 
-    /// The part of removal every chunk shares: the chunk map, the figures, the entity if
-    /// it is left empty, and the event.
-    fn forget_chunk(
+    /// Takes a chunk already out of the chunk map out of everything else: with `unindex`,
+    /// its indices and orders; always its entity's chunk set, the figures (and the entity
+    /// itself if it is left empty), and records the deletion event. One lookup of the
+    /// entity serves all of it.
+    pub(crate) fn take_out(
         &mut self,
-        id: ChunkId,
+        stored: StoredChunk,
+        unindex: bool,
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
-    ) -> Option<Arc<Chunk>> {
+    ) -> Arc<Chunk> {
         let StoredChunk {
-            chunk, ledgered, ..
-        } = self.chunks.remove(&id)?;
+            chunk,
+            ledgered,
+            in_global_orders,
+        } = stored;
+        let id = chunk.id();
+        if unindex && !chunk.is_static() {
+            self.clears.remove_chunk(&chunk);
+            if in_global_orders {
+                self.remove_from_global_orders(&chunk);
+            } else {
+                self.num_outside_global_orders -= 1;
+            }
+        }
         if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
+            if unindex {
+                if chunk.is_static() {
+                    entity.remove_static(id);
+                } else {
+                    let extra = entity.remove_temporal(&chunk, &self.config);
+                    crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
+                }
+            }
             entity.chunk_ids.remove(&id);
             crate::stats::account(
                 &chunk,
@@ -440,7 +435,24 @@ impl ChunkStore {
             chunk: Arc::clone(&chunk),
             reason,
         });
-        Some(chunk)
+        chunk
+    }
+
+    fn remove_from_global_orders(&mut self, chunk: &Chunk) {
+        let id = chunk.id();
+        self.temporal_by_row_id
+            .remove(&(chunk.row_id_range().0, id));
+        for column in chunk.time_columns() {
+            let (min, max) = column.time_range();
+            let name = column.timeline().name();
+            if let Some(per_timeline) = self.temporal_per_timeline.get_mut(name) {
+                per_timeline.by_min_time.remove(&(min, id));
+                per_timeline.by_max_time.remove(&(max, id));
+                if per_timeline.by_min_time.is_empty() {
+                    self.temporal_per_timeline.remove(name);
+                }
+            }
+        }
     }
 
     /// Every check `insert` makes before touching anything; returns whether the store

@@ -27,6 +27,9 @@ pub(crate) struct ChunkMemory {
     /// store's ledger keys them by address and reads their reference counts. Room for the
     /// three of a one-timeline chunk of one primitive component (times, offsets, values).
     pub buffers: SmallVec<[Buffer; 3]>,
+    /// Heap of `buffers`, each counted once. Kept because reading a buffer's capacity
+    /// touches its shared header, a cache miss per buffer on every GC and removal.
+    pub buffer_bytes: u64,
     /// Allocations owned by the chunk alone: the struct, row ids, sort orders, the array
     /// and buffer handles.
     pub own_bytes: u64,
@@ -50,6 +53,7 @@ impl ChunkMemory {
         let num_rows = chunk.row_ids.len() as u64;
         let mut memory = Self {
             buffers: SmallVec::new(),
+            buffer_bytes: 0,
             own_bytes: (size_of::<Chunk>() + 2 * size_of::<usize>()) as u64
                 + num_rows * size_of::<RowId>() as u64,
             payload_bytes: num_rows * size_of::<RowId>() as u64,
@@ -86,6 +90,7 @@ impl ChunkMemory {
                 .unwrap_or_else(|_| data.get_buffer_memory_size());
             memory.payload_bytes += payload as u64;
         }
+        memory.buffer_bytes = memory.buffers.iter().map(buffer_bytes).sum();
         memory
     }
 
@@ -116,13 +121,8 @@ impl ChunkMemory {
         }
     }
 
-    /// Bytes of the referenced buffers, each counted once.
-    pub fn buffer_bytes(&self) -> u64 {
-        self.buffers.iter().map(buffer_bytes).sum()
-    }
-
     pub fn heap_size_bytes(&self) -> u64 {
-        self.own_bytes + self.buffer_bytes()
+        self.own_bytes + self.buffer_bytes
     }
 
     /// Does the chunk alone hold its buffers? Each is then referenced exactly twice: once
@@ -140,7 +140,8 @@ impl ChunkMemory {
             a
         };
         if addresses(&fresh) != addresses(self)
-            || (fresh.own_bytes, fresh.payload_bytes) != (self.own_bytes, self.payload_bytes)
+            || (fresh.own_bytes, fresh.payload_bytes, fresh.buffer_bytes)
+                != (self.own_bytes, self.payload_bytes, self.buffer_bytes)
         {
             return Err("memory figures match the chunk's columns".into());
         }

@@ -51,6 +51,9 @@ pub struct Chunk {
     entity_path: EntityPath,
     row_ids: Box<[RowId]>,
     is_sorted_by_row_id: bool,
+    /// Is one of the components [`crate::ComponentName::CLEAR_IS_RECURSIVE`]? Kept so that
+    /// removal and GC need not compare every component's name (a cold string per chunk).
+    has_clears: bool,
     /// Inline room for one: most chunks have one timeline, and a streamed row's chunk is
     /// small enough that a second inline column would be a tenth of it.
     time_columns: SmallVec<[TimeColumn; 1]>,
@@ -244,11 +247,13 @@ impl Chunk {
             components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
         }
 
+        let has_clears = components.iter().any(|c| c.descriptor.name.is_clear());
         let mut chunk = Self {
             id,
             entity_path,
             row_ids: row_ids.into_boxed_slice(),
             is_sorted_by_row_id,
+            has_clears,
             time_columns,
             components,
             extra_metadata,
@@ -351,6 +356,21 @@ impl Chunk {
         &self.memory.buffers
     }
 
+    /// Heap of [`Chunk::buffers`], each counted once (read without touching them).
+    pub(crate) fn buffer_bytes(&self) -> u64 {
+        self.memory.buffer_bytes
+    }
+
+    /// The Clear column ([`crate::ComponentName::CLEAR_IS_RECURSIVE`]), if the chunk has
+    /// one.
+    pub(crate) fn clear_column(&self) -> Option<&ComponentColumn> {
+        if self.has_clears {
+            self.component(crate::ComponentName::CLEAR_IS_RECURSIVE)
+        } else {
+            None
+        }
+    }
+
     /// Does the chunk alone hold its Arrow buffers (no other array shares them)?
     pub(crate) fn owns_all_buffers(&self) -> bool {
         self.memory.owns_all_buffers()
@@ -374,6 +394,7 @@ impl Chunk {
             entity_path: _,
             row_ids,
             is_sorted_by_row_id,
+            has_clears,
             time_columns,
             components,
             extra_metadata,
@@ -387,6 +408,9 @@ impl Chunk {
         }
         if *is_sorted_by_row_id != row_ids.is_sorted() {
             return Err("is_sorted_by_row_id matches the row ids".into());
+        }
+        if *has_clears != components.iter().any(|c| c.descriptor.name.is_clear()) {
+            return Err("has_clears matches the components".into());
         }
         if *max_row_id_row as usize >= n
             || row_ids.iter().min() != Some(min_row_id)
