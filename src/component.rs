@@ -12,9 +12,10 @@ impl ComponentName {
     /// The component that marks a row as a Clear; its boolean says whether it is recursive.
     pub const CLEAR_IS_RECURSIVE: &'static str = "Clear:is_recursive";
 
-    /// A component name.
+    /// A component name. Equal names share one allocation, process-wide (up to a cap), so
+    /// that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>) -> Self {
-        Self(name.into())
+        Self(crate::names::share(name.into()))
     }
 
     /// The name as text.

@@ -67,6 +67,7 @@ mod ids;
 mod index;
 #[cfg(feature = "ipc")]
 pub mod io;
+mod names;
 mod ordered;
 mod query;
 mod small_map;

@@ -94,10 +94,11 @@ pub struct Timeline {
 }
 
 impl Timeline {
-    /// A timeline of the given name and type.
+    /// A timeline of the given name and type. Equal names share one allocation,
+    /// process-wide (up to a cap), so that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>, time_type: TimeType) -> Self {
         Self {
-            name: name.into(),
+            name: crate::names::share(name.into()),
             time_type,
         }
     }
