@@ -37,6 +37,9 @@ use crate::{Chunk, ChunkId, RowId, TimeInt};
 #[derive(Clone, Debug)]
 pub(crate) struct IndexedChunk {
     pub chunk: Arc<Chunk>,
+    /// The chunk's id, kept beside its bounds: every scan and search of an index compares
+    /// ids, and reading them from the chunks would cost a cache miss per chunk.
+    pub chunk_id: ChunkId,
     pub time_column: u32,
     pub component_column: u32,
     pub bounds: ComponentTimeBounds,
@@ -98,7 +101,7 @@ impl Default for TemporalComponentIndex {
 }
 
 fn min_time_key(entry: &IndexedChunk) -> MinTimeKey {
-    (entry.bounds.min_time, entry.chunk.id())
+    (entry.bounds.min_time, entry.chunk_id)
 }
 
 impl TemporalComponentIndex {
@@ -211,17 +214,15 @@ impl TemporalComponentIndex {
     /// Is `id` among the `n` chunks with the greatest indices?
     pub fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
         match self {
-            Self::Small(entries) => {
-                entries
-                    .iter()
-                    .find(|e| e.chunk.id() == id)
-                    .is_some_and(|own| {
-                        let key = max_index_key(own);
-                        entries.iter().filter(|e| max_index_key(e) > key).count() < n
-                    })
-            }
+            Self::Small(entries) => entries
+                .iter()
+                .find(|e| e.chunk_id == id)
+                .is_some_and(|own| {
+                    let key = max_index_key(own);
+                    entries.iter().filter(|e| max_index_key(e) > key).count() < n
+                }),
             // Greatest indices ascend with the position.
-            Self::Sequence(entries) => entries.iter().rev().take(n).any(|e| e.chunk.id() == id),
+            Self::Sequence(entries) => entries.iter().rev().take(n).any(|e| e.chunk_id == id),
             Self::Large(large) => large.is_among_latest(id, n),
         }
     }
@@ -367,6 +368,9 @@ fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Re
 
 /// Do the entry's bounds equal what its chunk computed?
 fn check_bounds(entry: &IndexedChunk) -> Result<(), String> {
+    if entry.chunk_id != entry.chunk.id() {
+        return Err(format!("{} carries its chunk's id", entry.chunk.id()));
+    }
     let component = entry
         .chunk
         .components()
@@ -376,7 +380,7 @@ fn check_bounds(entry: &IndexedChunk) -> Result<(), String> {
     } else {
         Err(format!(
             "{} has the bounds its chunk computed",
-            entry.chunk.id()
+            entry.chunk_id
         ))
     }
 }
@@ -410,7 +414,7 @@ fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
     (
         entry.bounds.max_time,
         entry.bounds.max_row_id,
-        entry.chunk.id(),
+        entry.chunk_id,
     )
 }
 
@@ -432,8 +436,8 @@ impl LargeIndex {
     }
 
     fn insert(&mut self, entry: IndexedChunk) {
-        let id = entry.chunk.id();
-        if self.recent.iter().any(|e| e.chunk.id() == id)
+        let id = entry.chunk_id;
+        if self.recent.iter().any(|e| e.chunk_id == id)
             || self
                 .chunks_by_min_time
                 .contains_key(&(entry.bounds.min_time, id))
@@ -450,7 +454,7 @@ impl LargeIndex {
 
     /// Puts an entry leaving `recent` into the views (`insert` made sure it is not there).
     fn insert_in_views(&mut self, entry: IndexedChunk) {
-        let id = entry.chunk.id();
+        let id = entry.chunk_id;
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
         self.chunks_by_min_time.insert((min, id), entry.clone());
         if let Some(class) = span_class(min, max) {
@@ -465,7 +469,7 @@ impl LargeIndex {
     }
 
     fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
-        if let Some(position) = self.recent.iter().position(|e| e.chunk.id() == id) {
+        if let Some(position) = self.recent.iter().position(|e| e.chunk_id == id) {
             self.recent.remove(position);
             return true;
         }
@@ -589,8 +593,8 @@ impl LargeIndex {
             ));
         }
         for (i, entry) in recent.iter().enumerate() {
-            let id = entry.chunk.id();
-            if recent.iter().skip(i + 1).any(|e| e.chunk.id() == id)
+            let id = entry.chunk_id;
+            if recent.iter().skip(i + 1).any(|e| e.chunk_id == id)
                 || chunks_by_min_time.contains_key(&(entry.bounds.min_time, id))
             {
                 return Err(format!("{id} is indexed once"));
@@ -627,14 +631,11 @@ impl LargeIndex {
         for (key, entry) in chunks_by_max_index {
             let b = entry.bounds;
             if *key != max_index_key(entry) {
-                return Err(format!(
-                    "{} is keyed by its greatest index",
-                    entry.chunk.id()
-                ));
+                return Err(format!("{} is keyed by its greatest index", entry.chunk_id));
             }
-            let by_min = chunks_by_min_time.get(&(b.min_time, entry.chunk.id()));
+            let by_min = chunks_by_min_time.get(&(b.min_time, entry.chunk_id));
             if by_min.is_none_or(|e| !Arc::ptr_eq(&e.chunk, &entry.chunk)) {
-                return Err(format!("{} is keyed by its least time", entry.chunk.id()));
+                return Err(format!("{} is keyed by its least time", entry.chunk_id));
             }
             check_bounds(entry)?;
         }

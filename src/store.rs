@@ -788,6 +788,7 @@ impl EntityIndex {
                 let before = index.extra_heap_bytes();
                 index.insert(IndexedChunk {
                     chunk: Arc::clone(chunk),
+                    chunk_id: chunk.id(),
                     time_column: time_position as u32,
                     component_column: component_position as u32,
                     bounds,
