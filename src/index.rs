@@ -436,14 +436,16 @@ impl LargeIndex {
     }
 
     fn insert(&mut self, entry: IndexedChunk) {
-        let id = entry.chunk_id;
-        if self.recent.iter().any(|e| e.chunk_id == id)
-            || self
-                .chunks_by_min_time
-                .contains_key(&(entry.bounds.min_time, id))
-        {
-            return; // already indexed: a store never inserts a chunk id twice
-        }
+        // The store adds a chunk id once (its chunk map refuses a second), so no search
+        // for an earlier copy is made here.
+        debug_assert!(
+            !self.recent.iter().any(|e| e.chunk_id == entry.chunk_id)
+                && !self
+                    .chunks_by_min_time
+                    .contains_key(&(entry.bounds.min_time, entry.chunk_id)),
+            "{} indexed twice",
+            entry.chunk_id
+        );
         self.recent.push_back(entry);
         if self.recent.len() > LARGE_INDEX_RECENT_CHUNKS
             && let Some(oldest) = self.recent.pop_front()
