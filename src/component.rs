@@ -15,7 +15,7 @@ impl ComponentName {
     /// A component name. Equal names share one allocation, process-wide (up to a cap), so
     /// that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>) -> Self {
-        Self(crate::names::share(name.into()))
+        Self(crate::shared::share_name(name.into()))
     }
 
     /// The name as text.

@@ -67,9 +67,9 @@ mod ids;
 mod index;
 #[cfg(feature = "ipc")]
 pub mod io;
-mod names;
 mod ordered;
 mod query;
+mod shared;
 mod small_map;
 mod stats;
 mod store;

@@ -1,49 +1,71 @@
-//! One shared copy of each timeline and component name, process-wide.
+//! One shared copy of each timeline name, component name and list item field,
+//! process-wide.
 //!
-//! Every chunk names its timelines and components, and a store compares those names on
-//! every insert, removal and query (its per-entity maps are keyed by them). Built
-//! independently, each chunk would carry its own allocation of `frame` and of
-//! `Points3D:positions`: memory per chunk, and a cold cache line at each comparison.
-//! [`crate::Timeline::new`] and [`crate::ComponentName::new`] hand out the shared copy
-//! instead, so equal names are usually the same allocation (`Arc::ptr_eq`, which `Arc`'s
-//! equality checks first) and the one copy stays in cache.
+//! Every chunk names its timelines and components and types its list columns, and a store
+//! compares those on every insert, merge, removal and query (its per-entity maps are keyed
+//! by the names; compaction groups chunks by type). Built independently, each chunk would
+//! carry its own allocation of `frame`, of `Points3D:positions` and of its lists' item
+//! field: memory per chunk, and cold cache lines at each comparison.
+//! [`crate::Timeline::new`], [`crate::ComponentName::new`] and chunk construction use the
+//! shared copy instead, so equal values are usually the same allocation (`Arc::ptr_eq`,
+//! which `Arc`'s equality checks first) and that one copy stays in cache.
 //!
-//! The set only grows, so it is capped: past [`MAX_SHARED_NAMES`] distinct names (far more
-//! than any schema has; only generated names get there) a new name keeps its own
+//! The sets only grow, so each is capped: past [`MAX_SHARED`] distinct values (far more
+//! than any schema has; only generated names get there) a new value keeps its own
 //! allocation, which is just as correct.
 
+use std::hash::Hash;
 use std::sync::{Arc, OnceLock};
 
+use arrow_schema::{Field, FieldRef};
 use parking_lot::RwLock;
 
-/// How many distinct names are shared at most.
-pub(crate) const MAX_SHARED_NAMES: usize = 16_384;
+/// How many distinct values of each kind are shared at most.
+pub(crate) const MAX_SHARED: usize = 16_384;
 
-fn shared_names() -> &'static NameSet {
-    static NAMES: OnceLock<NameSet> = OnceLock::new();
+type SharedSet<T> = RwLock<ahash::HashSet<Arc<T>>>;
+
+fn shared_names() -> &'static SharedSet<str> {
+    static NAMES: OnceLock<SharedSet<str>> = OnceLock::new();
     NAMES.get_or_init(RwLock::default)
+}
+
+fn shared_fields() -> &'static SharedSet<Field> {
+    static FIELDS: OnceLock<SharedSet<Field>> = OnceLock::new();
+    FIELDS.get_or_init(RwLock::default)
 }
 
 /// The shared copy of `name`: an earlier equal name's allocation if there is one, else
 /// `name` itself, now shared (while the set has room).
-pub(crate) fn share(name: Arc<str>) -> Arc<str> {
-    share_in(shared_names(), MAX_SHARED_NAMES, name)
+pub(crate) fn share_name(name: Arc<str>) -> Arc<str> {
+    share_in(shared_names(), MAX_SHARED, name)
 }
 
-type NameSet = RwLock<ahash::HashSet<Arc<str>>>;
+/// The shared copy of a list's item field, as [`share_name`] does for names.
+pub(crate) fn share_field(field: &FieldRef) -> FieldRef {
+    share_in(shared_fields(), MAX_SHARED, Arc::clone(field))
+}
 
-fn share_in(names: &NameSet, cap: usize, name: Arc<str>) -> Arc<str> {
-    if let Some(shared) = names.read().get(&*name) {
+/// Is `field` the shared copy (so that no chunk owns it)?
+pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
+    shared_fields()
+        .read()
+        .get(&**field)
+        .is_some_and(|shared| Arc::ptr_eq(shared, field))
+}
+
+fn share_in<T: ?Sized + Hash + Eq>(set: &SharedSet<T>, cap: usize, value: Arc<T>) -> Arc<T> {
+    if let Some(shared) = set.read().get(&*value) {
         return Arc::clone(shared);
     }
-    let mut names = names.write();
-    if let Some(shared) = names.get(&*name) {
+    let mut set = set.write();
+    if let Some(shared) = set.get(&*value) {
         return Arc::clone(shared);
     }
-    if names.len() < cap {
-        names.insert(Arc::clone(&name));
+    if set.len() < cap {
+        set.insert(Arc::clone(&value));
     }
-    name
+    value
 }
 
 #[cfg(test)]
@@ -52,7 +74,7 @@ mod tests {
 
     #[test]
     fn equal_names_share_one_allocation() {
-        let names = NameSet::default();
+        let names = SharedSet::<str>::default();
         let a = share_in(&names, 8, Arc::from("frame"));
         let b = share_in(&names, 8, Arc::from(String::from("frame")));
         assert!(Arc::ptr_eq(&a, &b));
@@ -64,12 +86,28 @@ mod tests {
             crate::ComponentName::new("names-test/position"),
             crate::ComponentName::new(String::from("names-test/position")),
         );
-        assert_eq!(x, y);
+        assert_eq!(x.as_str().as_ptr(), y.as_str().as_ptr());
+    }
+
+    #[test]
+    fn equal_fields_share_one_allocation() {
+        let make = || {
+            Arc::new(Field::new(
+                "shared-test/item",
+                arrow_schema::DataType::Float64,
+                true,
+            ))
+        };
+        let (first, second) = (make(), make());
+        let shared = share_field(&first);
+        assert!(Arc::ptr_eq(&shared, &share_field(&second)));
+        assert!(is_shared_field(&shared));
+        assert!(!is_shared_field(&second));
     }
 
     #[test]
     fn past_the_cap_names_keep_their_own_allocation() {
-        let names = NameSet::default();
+        let names = SharedSet::<str>::default();
         for i in 0..4 {
             share_in(&names, 4, Arc::from(format!("fill-{i}")));
         }

@@ -98,7 +98,7 @@ impl Timeline {
     /// process-wide (up to a cap), so that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>, time_type: TimeType) -> Self {
         Self {
-            name: crate::names::share(name.into()),
+            name: crate::shared::share_name(name.into()),
             time_type,
         }
     }

@@ -83,6 +83,13 @@ impl ChunkMemory {
             }
             let data = arrow_array::Array::to_data(&column.list);
             memory.add_array(&data);
+            // The list's item field is usually the process-wide shared copy, which no
+            // chunk owns.
+            if let DataType::List(field) = data.data_type()
+                && crate::shared::is_shared_field(field)
+            {
+                memory.own_bytes -= FIELD_BYTES;
+            }
             // Only an array built by hand around inconsistent buffers fails this; its whole
             // buffers are then the honest upper bound.
             let payload = data

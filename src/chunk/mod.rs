@@ -448,6 +448,27 @@ impl Chunk {
     }
 }
 
+/// `list` with its item field replaced by the process-wide shared copy of an equal field
+/// (see [`crate::shared`]): the same data, and a type that compares by pointer.
+fn with_shared_item_field(list: &ListArray) -> ListArray {
+    let DataType::List(field) = list.data_type() else {
+        return list.clone();
+    };
+    let shared = crate::shared::share_field(field);
+    if std::sync::Arc::ptr_eq(&shared, field) {
+        return list.clone();
+    }
+    // The parts come from a valid list and the field is equal, so this does not fail; if
+    // it ever did, the list keeps its own field.
+    ListArray::try_new(
+        shared,
+        list.offsets().clone(),
+        std::sync::Arc::clone(list.values()),
+        list.nulls().cloned(),
+    )
+    .unwrap_or_else(|_| list.clone())
+}
+
 /// Does every cell of `list` span exactly one value?
 fn has_one_instance_per_row(list: &ListArray) -> bool {
     list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1)
@@ -811,7 +832,7 @@ impl ComponentColumn {
                 actual: list.len(),
             });
         }
-        let list = list.clone();
+        let list = with_shared_item_field(list);
         let valid = |row: usize| list.is_valid(row);
 
         let mut max_row_id_cell: Option<(RowId, u32)> = None;
