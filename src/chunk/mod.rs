@@ -54,6 +54,9 @@ pub struct Chunk {
     /// Is one of the components [`crate::ComponentName::CLEAR_IS_RECURSIVE`]? Kept so that
     /// removal and GC need not compare every component's name (a cold string per chunk).
     has_clears: bool,
+    /// Did the chunk alone hold its Arrow buffers when it was built? Then a store need not
+    /// read every buffer's shared reference count (a cold cache line each) on insert.
+    owned_buffers_when_built: bool,
     /// Inline room for one: most chunks have one timeline, and a streamed row's chunk is
     /// small enough that a second inline column would be a tenth of it.
     time_columns: SmallVec<[TimeColumn; 1]>,
@@ -254,6 +257,7 @@ impl Chunk {
             row_ids: row_ids.into_boxed_slice(),
             is_sorted_by_row_id,
             has_clears,
+            owned_buffers_when_built: false,
             time_columns,
             components,
             extra_metadata,
@@ -262,6 +266,7 @@ impl Chunk {
             memory: memory::ChunkMemory::default(),
         };
         chunk.memory = memory::ChunkMemory::of(&chunk);
+        chunk.owned_buffers_when_built = chunk.memory.owns_all_buffers();
         debug_assert!(chunk.sanity_check().is_ok(), "{:?}", chunk.sanity_check());
         Ok(chunk)
     }
@@ -372,8 +377,12 @@ impl Chunk {
     }
 
     /// Does the chunk alone hold its Arrow buffers (no other array shares them)?
+    ///
+    /// A chunk that did when it was built is taken to still do: only a caller taking
+    /// its columns out to build another chunk from them could change that, and a store
+    /// deciding when the second chunk arrives could not tell which came first either.
     pub(crate) fn owns_all_buffers(&self) -> bool {
-        self.memory.owns_all_buffers()
+        self.owned_buffers_when_built || self.memory.owns_all_buffers()
     }
 
     /// Bytes of data the chunk's rows really use (row ids, times, offsets, validity and
@@ -395,6 +404,7 @@ impl Chunk {
             row_ids,
             is_sorted_by_row_id,
             has_clears,
+            owned_buffers_when_built: _, // a fact of the past; nothing to check it against
             time_columns,
             components,
             extra_metadata,
