@@ -19,10 +19,11 @@ use crate::error::EntityPathError;
 /// assert!(EntityPath::parse("paths").unwrap().is_ancestor_of(&path));
 /// ```
 #[derive(Clone)]
-pub struct EntityPath(Arc<Inner>);
-
-struct Inner {
-    parts: Box<[Arc<str>]>,
+pub struct EntityPath {
+    parts: Arc<Box<[Arc<str>]>>,
+    /// Kept beside the pointer rather than behind it: a store hashes the path of every
+    /// query, and reading the hash through the pointer would be a cache miss per query
+    /// when the caller's paths are many.
     hash: u64,
 }
 
@@ -64,10 +65,10 @@ impl EntityPath {
         for part in &parts {
             part.hash(&mut hasher);
         }
-        Self(Arc::new(Inner {
-            parts: parts.into_boxed_slice(),
+        Self {
+            parts: Arc::new(parts.into_boxed_slice()),
             hash: hasher.finish(),
-        }))
+        }
     }
 
     /// Parses the text form: optional leading `/`, parts separated by `/`, `\` escaping the
@@ -115,27 +116,27 @@ impl EntityPath {
 
     /// The unescaped parts, root first.
     pub fn parts(&self) -> impl ExactSizeIterator<Item = &str> + '_ {
-        self.0.parts.iter().map(|p| &**p)
+        self.parts.iter().map(|p| &**p)
     }
 
     /// The shared parts, for building derived paths without copying strings.
     pub(crate) fn part_arcs(&self) -> &[Arc<str>] {
-        &self.0.parts
+        &self.parts
     }
 
     /// Number of parts (0 for the root).
     pub fn num_parts(&self) -> usize {
-        self.0.parts.len()
+        self.parts.len()
     }
 
     /// Is this the root `/`?
     pub fn is_root(&self) -> bool {
-        self.0.parts.is_empty()
+        self.parts.is_empty()
     }
 
     /// The parent, or `None` for the root.
     pub fn parent(&self) -> Option<Self> {
-        let parts = &self.0.parts;
+        let parts = &self.parts;
         (!parts.is_empty()).then(|| Self::from_parts(parts[..parts.len() - 1].to_vec()))
     }
 
@@ -143,23 +144,23 @@ impl EntityPath {
     pub fn ancestors(&self) -> impl Iterator<Item = Self> + '_ {
         (0..self.num_parts())
             .rev()
-            .map(|n| Self::from_parts(self.0.parts[..n].to_vec()))
+            .map(|n| Self::from_parts(self.parts[..n].to_vec()))
     }
 
     /// Is `self` a strict ancestor of `other`?
     pub fn is_ancestor_of(&self, other: &Self) -> bool {
-        self.num_parts() < other.num_parts() && other.0.parts.starts_with(&self.0.parts)
+        self.num_parts() < other.num_parts() && other.parts.starts_with(&self.parts)
     }
 
     /// Is `self` equal to `other` or inside its subtree?
     pub fn starts_with(&self, other: &Self) -> bool {
-        self.0.parts.starts_with(&other.0.parts)
+        self.parts.starts_with(&other.parts)
     }
 
     /// The path one level below this one.
     #[must_use]
     pub fn join(&self, part: impl Into<Arc<str>>) -> Self {
-        let mut parts = self.0.parts.to_vec();
+        let mut parts = self.parts.to_vec();
         parts.push(part.into());
         Self::from_parts(parts)
     }
@@ -248,8 +249,8 @@ impl std::str::FromStr for EntityPath {
 
 impl PartialEq for EntityPath {
     fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.0, &other.0)
-            || (self.0.hash == other.0.hash && self.0.parts == other.0.parts)
+        Arc::ptr_eq(&self.parts, &other.parts)
+            || (self.hash == other.hash && self.parts == other.parts)
     }
 }
 
@@ -257,7 +258,7 @@ impl Eq for EntityPath {}
 
 impl Hash for EntityPath {
     fn hash<H: Hasher>(&self, state: &mut H) {
-        state.write_u64(self.0.hash);
+        state.write_u64(self.hash);
     }
 }
 
@@ -270,10 +271,10 @@ impl PartialOrd for EntityPath {
 /// Orders part by part, so a parent sorts right before its subtree.
 impl Ord for EntityPath {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        if Arc::ptr_eq(&self.0, &other.0) {
+        if Arc::ptr_eq(&self.parts, &other.parts) {
             return std::cmp::Ordering::Equal;
         }
-        self.0.parts.cmp(&other.0.parts)
+        self.parts.cmp(&other.parts)
     }
 }
 
