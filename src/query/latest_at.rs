@@ -33,8 +33,26 @@ impl LatestAtQuery {
     }
 }
 
-/// A candidate answer: its index `(time, row id)`, and where it is.
-type Candidate<'a> = ((TimeInt, RowId), &'a IndexedChunk, u32);
+/// A candidate answer: its time, where it is, and its row id if already known (an index
+/// entry keeps its chunk's greatest; inside a chunk it is read only to break a tie).
+struct Candidate<'a> {
+    time: TimeInt,
+    entry: &'a IndexedChunk,
+    row: u32,
+    row_id: Option<RowId>,
+}
+
+impl Candidate<'_> {
+    fn row_id(&self) -> RowId {
+        self.row_id
+            .unwrap_or_else(|| self.entry.chunk.row_ids()[self.row as usize])
+    }
+
+    /// Does this candidate have a greater index `(time, row id)` than `other`?
+    fn is_after(&self, other: &Self) -> bool {
+        self.time > other.time || (self.time == other.time && self.row_id() > other.row_id())
+    }
+}
 
 impl ChunkStore {
     /// The cell of `component` at `entity` as of the query's time, per SEMANTICS.md:
@@ -58,7 +76,7 @@ impl ChunkStore {
                 query.timeline(),
                 query.at,
                 answer.time,
-                answer.row_id,
+                answer.row_id(),
             );
         (!hidden).then_some(answer)
     }
@@ -77,32 +95,33 @@ impl ChunkStore {
                 component_column: winner.component_column,
                 row: winner.row,
                 time: None,
-                row_id: winner.row_id,
             });
         }
         let index = entity_index
             .temporal_per_timeline_per_component
             .get(query.timeline())?
             .get(component)?;
-        let ((time, row_id), entry, row) = latest_in_index(index, query.at)?;
+        let best = latest_in_index(index, query.at)?;
         Some(QueryCell {
-            chunk: Arc::clone(&entry.chunk),
-            component_column: entry.component_column,
-            row,
-            time: Some(time),
-            row_id,
+            chunk: Arc::clone(&best.entry.chunk),
+            component_column: best.entry.component_column,
+            row: best.row,
+            time: Some(best.time),
         })
     }
 }
 
 fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candidate<'_>> {
-    let mut best: Option<Candidate<'_>> = index.latest_ending_at_or_before(at).map(|entry| {
-        let b = entry.bounds;
-        ((b.max_time, b.max_row_id), entry, b.max_row)
-    });
+    let mut best: Option<Candidate<'_>> =
+        index.latest_ending_at_or_before(at).map(|entry| Candidate {
+            time: entry.bounds.max_time,
+            entry,
+            row: entry.bounds.max_row,
+            row_id: Some(entry.bounds.max_row_id),
+        });
     index.for_each_straddling(at, |entry| {
         if let Some(candidate) = latest_in_chunk(entry, at)
-            && best.as_ref().is_none_or(|(key, ..)| candidate.0 > *key)
+            && best.as_ref().is_none_or(|best| candidate.is_after(best))
         {
             best = Some(candidate);
         }
@@ -124,8 +143,10 @@ fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
         .rev()
         .map(|pos| times.row_at(pos))
         .find(|&row| column.is_valid(row))
-        .map(|row| {
-            let key = chunk.index_of_row(entry.time_column as usize, row);
-            (key, entry, row as u32)
+        .map(|row| Candidate {
+            time: TimeInt::saturating(times.times()[row]),
+            entry,
+            row: row as u32,
+            row_id: None,
         })
 }

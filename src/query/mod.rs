@@ -20,7 +20,6 @@ pub struct QueryCell {
     component_column: u32,
     row: u32,
     time: Option<TimeInt>,
-    row_id: RowId,
 }
 
 impl QueryCell {
@@ -49,9 +48,10 @@ impl QueryCell {
         self.time.is_none()
     }
 
-    /// The cell's row id.
+    /// The cell's row id (read from the chunk when asked: most readers never do, and it
+    /// is a cache line of its own).
     pub fn row_id(&self) -> RowId {
-        self.row_id
+        self.chunk.row_ids()[self.row as usize]
     }
 
     /// The component column the cell belongs to.
