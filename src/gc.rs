@@ -367,15 +367,23 @@ impl ChunkStore {
                 .filter(|&row| !(min.as_i64()..=max.as_i64()).contains(&times[row]))
                 .map(|row| (0, row))
                 .collect();
-            if !kept.is_empty() {
+            let rest = if kept.is_empty() {
+                None
+            } else {
                 match Chunk::gather(&[&chunk], &kept) {
-                    Ok(rest) => self.add_chunk(std::sync::Arc::new(rest), &mut events),
+                    Ok(rest) => Some(rest),
                     // Copying rows of a valid chunk does not fail; if it ever did, the
                     // chunk stays whole rather than losing rows outside the range.
                     Err(_) => continue,
                 }
-            }
+            };
+            // Removed before its rest is added: the rest covers the chunk's times, so
+            // adding it first would overlap them and turn an in-order entity's sequence
+            // index into the general one.
             self.remove_chunk(id, DeletionReason::Drop, &mut events);
+            if let Some(rest) = rest {
+                self.add_chunk(std::sync::Arc::new(rest), &mut events);
+            }
         }
         self.notify(events)
     }
@@ -413,4 +421,59 @@ fn merge_sorted<T>(
         (Some(_), _) => ordered.next(),
         (None, _) => extra.next(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Float64Array};
+
+    use super::*;
+    use crate::index::TemporalComponentIndex;
+    use crate::{ChunkBuilder, RowId, StoreConfig, Timeline};
+
+    /// A range drop inside one chunk of an in-order entity keeps its index a sequence: the
+    /// chunk leaves before the rest of its rows come back.
+    #[test]
+    fn a_partial_range_drop_keeps_a_sequence() {
+        let mut store = ChunkStore::with_config(StoreConfig {
+            compact_on_insert: false,
+            ..StoreConfig::default()
+        })
+        .unwrap();
+        let (frame, entity) = (Timeline::sequence("frame"), EntityPath::parse("e").unwrap());
+        for c in 0..40i64 {
+            let mut builder = ChunkBuilder::new(ChunkId::new(), entity.clone());
+            for r in 0..10 {
+                let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+                builder =
+                    builder.with_row(RowId::new(), [(frame.clone(), c * 10 + r)], [("x", value)]);
+            }
+            store.insert(builder.build().unwrap()).unwrap();
+        }
+        let is_sequence = |store: &ChunkStore| {
+            let index = store.entities[&entity]
+                .temporal_per_timeline_per_component
+                .get("frame")
+                .and_then(|per_component| per_component.get("x"));
+            matches!(index, Some(TemporalComponentIndex::Sequence(_)))
+        };
+        assert!(is_sequence(&store));
+        // Inside the last chunk, the first, and one in the middle.
+        for (min, max) in [(393, 395), (2, 4), (203, 205)] {
+            let (min, max) = (TimeInt::new(min).unwrap(), TimeInt::new(max).unwrap());
+            let events = store.drop_time_range("frame", min, max);
+            assert_eq!(
+                events.len(),
+                2,
+                "the chunk's deletion, then its rest's addition"
+            );
+            assert!(matches!(events[0], StoreEvent::Deletion { .. }));
+            assert!(matches!(events[1], StoreEvent::Addition(_)));
+            store.sanity_check().unwrap();
+            assert!(is_sequence(&store));
+        }
+        assert_eq!(store.stats().num_temporal_rows, 400 - 9);
+    }
 }

@@ -132,10 +132,23 @@ impl TemporalComponentIndex {
                     entries.push_back(entry);
                 } else if entry.bounds.max_time < first.bounds.min_time {
                     entries.push_front(entry);
-                } else if binary_search_deque(entries, &min_time_key(&entry)).is_err() {
-                    let mut index = large_from(std::mem::take(entries));
-                    index.insert(entry);
-                    *self = index;
+                } else if let Err(position) = binary_search_deque(entries, &min_time_key(&entry)) {
+                    // A chunk filling a gap (the rest of a chunk a range drop cut) keeps
+                    // the sequence, if it overlaps neither neighbour and few entries move.
+                    let fits = position
+                        .checked_sub(1)
+                        .and_then(|before| entries.get(before))
+                        .is_none_or(|before| before.bounds.max_time < entry.bounds.min_time)
+                        && entries
+                            .get(position)
+                            .is_none_or(|after| entry.bounds.max_time < after.bounds.min_time);
+                    if fits && position.min(entries.len() - position) <= SEQUENCE_MAX_SHIFT {
+                        entries.insert(position, entry);
+                    } else {
+                        let mut index = large_from(std::mem::take(entries));
+                        index.insert(entry);
+                        *self = index;
+                    }
                 }
             }
             Self::Large(large) => large.insert(entry),
