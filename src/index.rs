@@ -467,7 +467,8 @@ impl LargeIndex {
         }
     }
 
-    /// Puts an entry leaving `recent` into the views (`insert` made sure it is not there).
+    /// Puts an entry leaving `recent` into the views (the store adds each chunk once, so
+    /// it is not there yet).
     fn insert_in_views(&mut self, entry: IndexedChunk) {
         let id = entry.chunk_id;
         let (min, max) = (entry.bounds.min_time, entry.bounds.max_time);
