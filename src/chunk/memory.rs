@@ -83,13 +83,6 @@ impl ChunkMemory {
             }
             let data = arrow_array::Array::to_data(&column.list);
             memory.add_array(&data);
-            // The list's item field is usually the process-wide shared copy, which no
-            // chunk owns.
-            if let DataType::List(field) = data.data_type()
-                && crate::shared::is_shared_field(field)
-            {
-                memory.own_bytes -= FIELD_BYTES;
-            }
             // Only an array built by hand around inconsistent buffers fails this; its whole
             // buffers are then the honest upper bound.
             let payload = data
@@ -103,10 +96,15 @@ impl ChunkMemory {
 
     fn add_array(&mut self, data: &ArrayData) {
         self.own_bytes += ARRAY_NODE_BYTES;
-        // A nested type holds its child's field behind an `Arc` of its own.
-        if let DataType::List(_) | DataType::LargeList(_) | DataType::FixedSizeList(..) =
-            data.data_type()
-        {
+        // A nested type holds its child's field behind an `Arc` of its own, unless that is
+        // the process-wide shared copy (a list's item field usually is; see
+        // `crate::shared`), which no chunk owns.
+        let owns_child_field = match data.data_type() {
+            DataType::List(field) => !crate::shared::is_shared_field(field),
+            DataType::LargeList(_) | DataType::FixedSizeList(..) => true,
+            _ => false,
+        };
+        if owns_child_field {
             self.own_bytes += FIELD_BYTES;
         }
         for buffer in data.buffers() {
