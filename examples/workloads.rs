@@ -246,11 +246,7 @@ fn insert_batched() -> bool {
     let (store, ns_per_op) = time_inserts(OFF, &chunks);
     let frame: Arc<str> = FRAME.into();
     let x = latest_at(&store, &frame, 5_000_500, &entity, POSITION3D)
-        .and_then(|cell| {
-            points(cell.component().list_array(), cell.row())
-                .first()
-                .copied()
-        })
+        .and_then(|cell| points(cell.component(), cell.row()).first().copied())
         .map_or(0, |p| p[0] as u64);
     Report {
         workload: "insert_batched",
@@ -330,7 +326,7 @@ fn latest_at_mono() -> bool {
         let mut sum = 0u64;
         for &(i, t) in &queries {
             if let Some(cell) = latest_at(&store, &frame, t, &entities[i], POSITION3D)
-                && let Some(p) = points(cell.component().list_array(), cell.row()).first()
+                && let Some(p) = points(cell.component(), cell.row()).first()
             {
                 sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
             }
@@ -368,7 +364,7 @@ fn latest_at_batch() -> bool {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = latest_at(&store, &frame, t, &entity, POSITION3D) {
-                for p in points(cell.component().list_array(), cell.row()) {
+                for p in points(cell.component(), cell.row()) {
                     sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
                 }
             }

@@ -24,8 +24,8 @@ use arrow_array::{
 use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
 use chunkstore::{
-    Chunk, ChunkId, ChunkStore, ComponentName, EntityPath, LatestAtQuery, RangeRun, RowId,
-    StoreConfig, TimeInt, Timeline,
+    Chunk, ChunkId, ChunkStore, ComponentColumn, ComponentName, EntityPath, LatestAtQuery,
+    RangeRun, RowId, StoreConfig, TimeInt, Timeline,
 };
 
 /// The timeline every workload logs on.
@@ -202,24 +202,19 @@ fn instances(list: &ListArray, row: usize) -> std::ops::Range<usize> {
 }
 
 /// The first `scalar` instance of a cell.
-pub fn first_f64(list: &ListArray, row: usize) -> Option<f64> {
-    let range = instances(list, row);
-    let values = list.values().as_primitive_opt::<Float64Type>()?;
-    (!range.is_empty()).then(|| values.value(range.start))
+pub fn first_f64(column: &ComponentColumn, row: usize) -> Option<f64> {
+    column
+        .primitive_values::<Float64Type>(row)?
+        .first()
+        .copied()
 }
 
-/// The `position3d` instances of a cell, as `[x, y, z]` (empty if the cell holds another
-/// type).
-pub fn points(list: &ListArray, row: usize) -> &[[f32; 3]] {
-    let range = instances(list, row);
-    let floats = list
-        .values()
-        .as_fixed_size_list_opt()
-        .filter(|xyz| xyz.value_length() == 3)
-        .and_then(|xyz| xyz.values().as_primitive_opt::<Float32Type>());
-    floats
-        .and_then(|f| f.values().get(range.start * 3..range.end * 3))
-        .map_or(&[], |flat| flat.as_chunks::<3>().0)
+/// The `position3d` instances of a cell, as `[x, y, z]` (empty if the cell is null or
+/// holds another type).
+pub fn points(column: &ComponentColumn, row: usize) -> &[[f32; 3]] {
+    column
+        .fixed_size_values::<Float32Type, 3>(row)
+        .unwrap_or_default()
 }
 
 /// Byte length of the first `text` instance of a cell.
@@ -319,5 +314,5 @@ pub fn latest_scalar(
 ) -> Option<f64> {
     let query = LatestAtQuery::new(Arc::clone(timeline), TimeInt::new(t)?);
     let cell = store.latest_at(&query, entity, SCALAR)?;
-    first_f64(cell.component().list_array(), cell.row())
+    first_f64(cell.component(), cell.row())
 }

@@ -6,8 +6,13 @@
 //! losslessly, the store must stay sane after every mutation, and compaction must not
 //! change which rows answer.
 
+use arrow_array::cast::AsArray;
+use arrow_array::types::{Float32Type, Float64Type, Int64Type};
+use arrow_array::{Array, ArrowPrimitiveType};
+use arrow_buffer::ToByteSlice;
 use chunkstore::{
-    Chunk, ChunkStore, GcOptions, LatestAtQuery, RangeQuery, RowId, StoreConfig, TimeInt,
+    Chunk, ChunkStore, ComponentColumn, GcOptions, LatestAtQuery, RangeQuery, RowId, StoreConfig,
+    TimeInt,
 };
 
 /// Query times worth probing: extremes, and around zero.
@@ -132,6 +137,7 @@ fn query_everything(store: &ChunkStore, timelines: &[String]) {
                     let query = LatestAtQuery::new(timeline.as_str(), TimeInt::saturating(at));
                     if let Some(answer) = store.latest_at(&query, &entity, component.as_str()) {
                         let _ = answer.cell();
+                        typed_reads_agree(answer.component(), answer.row());
                     }
                 }
                 let range = store.range(
@@ -145,8 +151,40 @@ fn query_everything(store: &ChunkStore, timelines: &[String]) {
                     assert!(previous <= Some(key), "range rows ascend");
                     previous = Some(key);
                     let _ = row.cell();
+                    typed_reads_agree(row.column(), row.row());
                 }
             }
         }
     }
+}
+
+/// The typed slice readers return exactly the values of the cell Arrow gives, and nothing
+/// for a cell of another type.
+fn typed_reads_agree(column: &ComponentColumn, row: usize) {
+    let cell = column.cell(row);
+    same_values::<Float64Type>(column.primitive_values::<Float64Type>(row), cell.as_deref());
+    same_values::<Int64Type>(column.primitive_values::<Int64Type>(row), cell.as_deref());
+    let points = column.fixed_size_values::<Float32Type, 3>(row);
+    let cell_points = cell.as_deref().and_then(|c| c.as_fixed_size_list_opt());
+    match (points, cell_points) {
+        (Some(points), Some(fixed)) if fixed.value_length() == 3 => {
+            same_values::<Float32Type>(Some(points.as_flattened()), Some(fixed.values().as_ref()));
+        }
+        (Some(_), _) => panic!("read as points, but the cell is not fixed-size lists of 3"),
+        (None, _) => {}
+    }
+}
+
+fn same_values<T: ArrowPrimitiveType>(read: Option<&[T::Native]>, cell: Option<&dyn Array>) {
+    let Some(read) = read else {
+        return;
+    };
+    let cell = cell
+        .and_then(|c| c.as_primitive_opt::<T>())
+        .expect("a cell read as values is an array of that type");
+    assert_eq!(
+        cell.values().inner().as_slice(),
+        read.to_byte_slice(),
+        "a typed read returns the cell's values (bit for bit: NaNs included)"
+    );
 }

@@ -130,11 +130,19 @@ impl ChunkMemory {
         self.own_bytes + self.buffer_bytes
     }
 
-    /// Does the chunk alone hold its buffers? Each is then referenced exactly twice: once
-    /// by its column, once by [`ChunkMemory::buffers`]. Any further reference is another
-    /// array (perhaps another chunk) sharing it.
-    pub fn owns_all_buffers(&self) -> bool {
-        self.buffers.iter().all(|b| b.strong_count() == 2)
+    /// Does the chunk alone hold its buffers? Each is then referenced exactly twice (once
+    /// by its column, once by [`ChunkMemory::buffers`]), plus once per handle in
+    /// `also_held` on the same allocation (the chunk's own further handles). Any further
+    /// reference is another array (perhaps another chunk) sharing it.
+    pub fn owns_all_buffers(&self, also_held: &[&Buffer]) -> bool {
+        self.buffers.iter().all(|b| {
+            let address = buffer_address(b);
+            let extra = also_held
+                .iter()
+                .filter(|held| buffer_address(held) == address)
+                .count();
+            b.strong_count() == 2 + extra
+        })
     }
 
     pub fn sanity_check(&self, chunk: &Chunk) -> Result<(), String> {

@@ -9,8 +9,9 @@ mod transport;
 
 use std::collections::HashMap;
 
-use arrow_array::{Array, ArrayRef, ListArray};
-use arrow_buffer::ScalarBuffer;
+use arrow_array::cast::AsArray;
+use arrow_array::{Array, ArrayRef, ArrowPrimitiveType, ListArray};
+use arrow_buffer::{Buffer, ScalarBuffer};
 use arrow_schema::{DataType, FieldRef};
 use smallvec::SmallVec;
 
@@ -120,6 +121,53 @@ pub struct ComponentColumn {
     /// Does every cell span exactly one instance? See
     /// [`ComponentColumn::has_one_instance_per_row`].
     one_instance_per_row: bool,
+    /// The primitive values beneath the items, when there are such; see [`PrimitiveLeaf`].
+    leaf: Option<PrimitiveLeaf>,
+}
+
+/// The primitive values beneath a column's items, when the items are primitive values or
+/// fixed-size lists of them, such as scalars or 3D positions.
+///
+/// Kept so that reading a cell is the offsets and then the values. Through Arrow's arrays it
+/// is also one array struct per nesting level, each behind its own pointer: in a store far
+/// larger than the cache, a dependent cache miss each, on every query answer read.
+#[derive(Clone, Debug)]
+struct PrimitiveLeaf {
+    /// Starting at the items' first value (any slicing already applied). A second handle on
+    /// the leaf array's buffer: it shares the allocation.
+    values: Buffer,
+    data_type: DataType,
+    /// `Some(n)` for items that are fixed-size lists of `n` values, `None` for values.
+    fixed_size: Option<usize>,
+}
+
+impl PrimitiveLeaf {
+    /// The leaf of `list`'s items, if they are primitives or fixed-size lists of them.
+    fn of(list: &ListArray) -> Option<Self> {
+        let (items, fixed_size) = match list.values().as_fixed_size_list_opt() {
+            Some(fixed) => (
+                fixed.values(),
+                Some(usize::try_from(fixed.value_length()).ok()?),
+            ),
+            None => (list.values(), None),
+        };
+        if !items.data_type().is_primitive() {
+            return None;
+        }
+        // A primitive array's data has one buffer, its values from its first element on.
+        let data = items.to_data();
+        Some(Self {
+            values: data.buffers().first()?.clone(),
+            data_type: items.data_type().clone(),
+            fixed_size,
+        })
+    }
+
+    /// The same values (the very same bytes, not equal ones), type and shape?
+    fn is_the_same(&self, other: &Self) -> bool {
+        let key = |l: &Self| (l.values.as_ptr(), l.values.len(), l.fixed_size);
+        key(self) == key(other) && self.data_type == other.data_type
+    }
 }
 
 impl Chunk {
@@ -266,7 +314,7 @@ impl Chunk {
             memory: memory::ChunkMemory::default(),
         };
         chunk.memory = memory::ChunkMemory::of(&chunk);
-        chunk.owned_buffers_when_built = chunk.memory.owns_all_buffers();
+        chunk.owned_buffers_when_built = chunk.owns_all_buffers_now();
         debug_assert!(chunk.sanity_check().is_ok(), "{:?}", chunk.sanity_check());
         Ok(chunk)
     }
@@ -382,7 +430,18 @@ impl Chunk {
     /// its columns out to build another chunk from them could change that, and a store
     /// deciding when the second chunk arrives could not tell which came first either.
     pub(crate) fn owns_all_buffers(&self) -> bool {
-        self.owned_buffers_when_built || self.memory.owns_all_buffers()
+        self.owned_buffers_when_built || self.owns_all_buffers_now()
+    }
+
+    /// Reads every buffer's reference count; a column's primitive leaf is one more
+    /// reference of the chunk's own.
+    fn owns_all_buffers_now(&self) -> bool {
+        let leaves: SmallVec<[&Buffer; 2]> = self
+            .components
+            .iter()
+            .filter_map(|c| c.leaf.as_ref().map(|leaf| &leaf.values))
+            .collect();
+        self.memory.owns_all_buffers(&leaves)
     }
 
     /// Bytes of data the chunk's rows really use (row ids, times, offsets, validity and
@@ -450,6 +509,16 @@ impl Chunk {
             if column.one_instance_per_row != has_one_instance_per_row(&column.list) {
                 return Err(format!(
                     "component {}'s one-instance flag matches its offsets",
+                    column.descriptor.name
+                ));
+            }
+            let leaf_matches = match (&column.leaf, &PrimitiveLeaf::of(&column.list)) {
+                (Some(kept), Some(fresh)) => kept.is_the_same(fresh),
+                (kept, fresh) => kept.is_none() && fresh.is_none(),
+            };
+            if !leaf_matches {
+                return Err(format!(
+                    "component {}'s primitive leaf is its items' values",
                     column.descriptor.name
                 ));
             }
@@ -853,6 +922,7 @@ impl ComponentColumn {
         }
         let best_cell_row = max_row_id_cell.map_or(NO_ROW, |(_, row)| row);
         let one_instance_per_row = has_one_instance_per_row(&list);
+        let leaf = PrimitiveLeaf::of(&list);
 
         let bounds_per_timeline = time_columns
             .iter()
@@ -885,6 +955,7 @@ impl ComponentColumn {
             bounds_per_timeline,
             best_cell_row,
             one_instance_per_row,
+            leaf,
         })
     }
 
@@ -919,6 +990,79 @@ impl ComponentColumn {
     /// span one too when this holds; check [`Array::null_count`] on the list.
     pub fn has_one_instance_per_row(&self) -> bool {
         self.one_instance_per_row
+    }
+
+    /// The values of the cell at `row`, for a column of `List<T>` (e.g. scalars): one
+    /// zero-copy slice, read through the offsets and the values buffer only.
+    ///
+    /// `None` if `row` is out of bounds, the cell is null, or the items are not `T`
+    /// (compared with [`ArrowPrimitiveType::DATA_TYPE`]). Like Arrow's
+    /// `PrimitiveArray::values`, a null *instance* reads as whatever its slot holds.
+    ///
+    /// ```
+    /// use arrow_array::types::Float64Type;
+    /// # use std::sync::Arc;
+    /// # use arrow_array::{builder::{Float64Builder, ListBuilder}, ArrayRef, Int64Array};
+    /// # use chunkstore::{Chunk, ChunkId, EntityPath, RowId, Timeline};
+    /// # let mut scalars = ListBuilder::new(Float64Builder::new());
+    /// # scalars.values().append_value(1.5);
+    /// # scalars.values().append_value(2.5);
+    /// # scalars.append(true);
+    /// # let chunk = Chunk::try_new(
+    /// #     ChunkId::new(),
+    /// #     EntityPath::parse("sensor").unwrap(),
+    /// #     vec![RowId::new()],
+    /// #     vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(vec![0])) as ArrayRef)],
+    /// #     vec![("scalar".into(), Arc::new(scalars.finish()) as ArrayRef)],
+    /// # )
+    /// # .unwrap();
+    /// let column = &chunk.components()[0];
+    /// assert_eq!(column.primitive_values::<Float64Type>(0), Some(&[1.5, 2.5][..]));
+    /// ```
+    pub fn primitive_values<T: ArrowPrimitiveType>(&self, row: usize) -> Option<&[T::Native]> {
+        self.leaf_values::<T>(row, None)
+    }
+
+    /// The values of the cell at `row`, for a column of `List<FixedSizeList<T, N>>` (e.g.
+    /// 3D positions, `N = 3`): one zero-copy slice of `N`-arrays, read through the offsets
+    /// and the values buffer only.
+    ///
+    /// `None` if `row` is out of bounds, the cell is null, `N` is 0, or the items are not
+    /// fixed-size lists of `N` `T`s. As in [`ComponentColumn::primitive_values`], null
+    /// instances read as whatever their slots hold.
+    pub fn fixed_size_values<T: ArrowPrimitiveType, const N: usize>(
+        &self,
+        row: usize,
+    ) -> Option<&[[T::Native; N]]> {
+        if N == 0 {
+            return None;
+        }
+        self.leaf_values::<T>(row, Some(N))
+            .map(|values| values.as_chunks::<N>().0)
+    }
+
+    fn leaf_values<T: ArrowPrimitiveType>(
+        &self,
+        row: usize,
+        fixed_size: Option<usize>,
+    ) -> Option<&[T::Native]> {
+        let leaf = self.leaf.as_ref()?;
+        if leaf.fixed_size != fixed_size
+            || leaf.data_type != T::DATA_TYPE
+            || !self.is_valid_row(row)
+        {
+            return None;
+        }
+        let width = fixed_size.unwrap_or(1);
+        let offsets = self.list.value_offsets();
+        let value = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
+        let (start, end) = (value(offsets.get(row)?)?, value(offsets.get(row + 1)?)?);
+        leaf.values.typed_data::<T::Native>().get(start..end)
+    }
+
+    /// Is `row` a row of this column, with a non-null cell?
+    fn is_valid_row(&self, row: usize) -> bool {
+        row < self.list.len() && self.list.is_valid(row)
     }
 
     /// Is the cell at `row` non-null?
@@ -1002,6 +1146,136 @@ mod tests {
             !flag(list(vec![0, 1, 1], Some(vec![true, false]))),
             "a null spanning none"
         );
+    }
+
+    /// Scalars and fixed-size lists read as slices of the right cells, through slicing at
+    /// every level; nulls, other types and other widths read as `None`.
+    #[test]
+    fn primitive_and_fixed_size_values_read_the_cells() {
+        use arrow_array::types::{Float32Type, Float64Type, Int64Type};
+        use arrow_array::{FixedSizeListArray, Float32Array, Float64Array};
+        use arrow_schema::Field;
+
+        // Cells [1.0, 2.0], null, [], [4.0], sliced out of a longer values array.
+        let values = Float64Array::from(vec![9.0, 1.0, 2.0, 3.0, 4.0]).slice(1, 4);
+        let scalars = ListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float64, true)),
+            arrow_buffer::OffsetBuffer::new(vec![0, 2, 3, 3, 4].into()),
+            Arc::new(values),
+            Some(arrow_buffer::NullBuffer::from(vec![
+                true, false, true, true,
+            ])),
+        );
+        let chunk = chunk_of(scalars);
+        let column = &chunk.components()[0];
+        assert_eq!(
+            column.primitive_values::<Float64Type>(0),
+            Some(&[1.0, 2.0][..])
+        );
+        assert_eq!(
+            column.primitive_values::<Float64Type>(1),
+            None,
+            "a null cell"
+        );
+        assert_eq!(column.primitive_values::<Float64Type>(2), Some(&[][..]));
+        assert_eq!(column.primitive_values::<Float64Type>(3), Some(&[4.0][..]));
+        assert_eq!(
+            column.primitive_values::<Float64Type>(4),
+            None,
+            "out of bounds"
+        );
+        assert_eq!(
+            column.primitive_values::<Int64Type>(0),
+            None,
+            "another type"
+        );
+        assert_eq!(
+            column.fixed_size_values::<Float64Type, 1>(0),
+            None,
+            "another shape"
+        );
+        assert_eq!(
+            chunk_of_points_1().components()[0].primitive_values::<Float64Type>(0),
+            None
+        );
+
+        // Points [0,1,2] | [3,4,5] [6,7,8], the list itself sliced past a first cell.
+        let floats = Float32Array::from_iter_values((0..12u8).map(f32::from));
+        let xyz = FixedSizeListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float32, false)),
+            3,
+            Arc::new(floats),
+            None,
+        );
+        let points = ListArray::new(
+            Arc::new(Field::new_list_field(xyz.data_type().clone(), false)),
+            arrow_buffer::OffsetBuffer::new(vec![0, 1, 3, 4].into()),
+            Arc::new(xyz),
+            None,
+        )
+        .slice(1, 2);
+        let chunk = chunk_of(points);
+        let column = &chunk.components()[0];
+        assert_eq!(
+            column.fixed_size_values::<Float32Type, 3>(0),
+            Some(&[[3.0, 4.0, 5.0], [6.0, 7.0, 8.0]][..])
+        );
+        assert_eq!(
+            column.fixed_size_values::<Float32Type, 3>(1),
+            Some(&[[9.0, 10.0, 11.0]][..])
+        );
+        assert_eq!(column.fixed_size_values::<Float32Type, 2>(0), None);
+        assert_eq!(column.fixed_size_values::<Float32Type, 0>(0), None);
+        assert_eq!(column.primitive_values::<Float32Type>(0), None);
+        chunk.sanity_check().unwrap();
+    }
+
+    /// One cell holding one fixed-size list of one `Float64`.
+    fn chunk_of_points_1() -> Chunk {
+        let xyz = arrow_array::FixedSizeListArray::new(
+            Arc::new(arrow_schema::Field::new_list_field(
+                DataType::Float64,
+                false,
+            )),
+            1,
+            Arc::new(arrow_array::Float64Array::from(vec![1.0])),
+            None,
+        );
+        chunk_of(ListArray::new(
+            Arc::new(arrow_schema::Field::new_list_field(
+                xyz.data_type().clone(),
+                false,
+            )),
+            arrow_buffer::OffsetBuffer::new(vec![0, 1].into()),
+            Arc::new(xyz),
+            None,
+        ))
+    }
+
+    /// A chunk built from arrays nobody else holds owns its buffers, although its columns
+    /// keep second handles on their leaf values; one whose arrays are also held elsewhere
+    /// does not.
+    #[test]
+    fn a_chunk_owns_buffers_only_nobody_else_holds() {
+        let list = || {
+            ListArray::new(
+                Arc::new(arrow_schema::Field::new_list_field(DataType::Float64, true)),
+                arrow_buffer::OffsetBuffer::new(vec![0, 1, 2].into()),
+                Arc::new(arrow_array::Float64Array::from(vec![1.0, 2.0])),
+                None,
+            )
+        };
+        let alone = chunk_of(list());
+        assert!(alone.components()[0].leaf.is_some());
+        assert!(alone.owns_all_buffers_now());
+        assert!(alone.owns_all_buffers());
+
+        let shared = list();
+        let sharing = chunk_of(shared.clone());
+        assert!(!sharing.owns_all_buffers_now());
+        assert!(!sharing.owns_all_buffers());
+        drop(shared);
+        assert!(sharing.owns_all_buffers_now(), "the other holder is gone");
     }
 
     /// The guided search finds exactly the partition point a binary search finds, for
