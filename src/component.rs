@@ -5,8 +5,40 @@ use std::fmt;
 use std::sync::Arc;
 
 /// The name of a component, e.g. `Points3D:positions`. Cheap to clone.
-#[derive(Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Eq)]
 pub struct ComponentName(Arc<str>);
+
+// Equal names are usually one shared allocation (see `ComponentName::new`), so the pointers
+// are compared first. `Arc<str>`'s own equality does not: std only takes that shortcut for
+// sized types, so every comparison of two names would otherwise be a `memcmp`.
+impl PartialEq for ComponentName {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0) || self.0 == other.0
+    }
+}
+
+// Hashes the text, as the equality above compares it (the pointer is only a shortcut).
+impl std::hash::Hash for ComponentName {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.0.hash(state);
+    }
+}
+
+impl PartialOrd for ComponentName {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for ComponentName {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        if Arc::ptr_eq(&self.0, &other.0) {
+            std::cmp::Ordering::Equal
+        } else {
+            self.0.cmp(&other.0)
+        }
+    }
+}
 
 impl ComponentName {
     /// The component that marks a row as a Clear; its boolean says whether it is recursive.
@@ -78,5 +110,34 @@ impl ComponentDescriptor {
 impl From<&str> for ComponentDescriptor {
     fn from(name: &str) -> Self {
         Self::new(name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Names compare, order and hash as their text does, whether or not they share one
+    /// allocation (a name past the shared set's cap, or built around its own `Arc`).
+    #[test]
+    fn names_compare_as_their_text() {
+        let shared = ComponentName::new("b");
+        let own = ComponentName(Arc::from("b"));
+        assert!(!Arc::ptr_eq(&shared.0, &own.0));
+        assert_eq!(shared, own);
+        assert_eq!(shared.cmp(&own), std::cmp::Ordering::Equal);
+        let hash = |n: &ComponentName| {
+            ahash::RandomState::with_seeds(1, 2, 3, 4).hash_one(n)
+        };
+        assert_eq!(hash(&shared), hash(&own));
+        let mut names: Vec<ComponentName> = ["c", "a", "b", "ab"]
+            .into_iter()
+            .map(ComponentName::new)
+            .chain([own])
+            .collect();
+        names.sort();
+        let texts: Vec<&str> = names.iter().map(ComponentName::as_str).collect();
+        assert_eq!(texts, ["a", "ab", "b", "b", "c"]);
+        assert_ne!(ComponentName::new("a"), ComponentName::new("ab"));
     }
 }

@@ -20,13 +20,33 @@ pub(crate) enum SmallMap<K, V> {
     Many(ahash::HashMap<K, V>),
 }
 
+/// Key equality with a shortcut: names are usually one shared allocation (see
+/// [`crate::shared`]), and `Arc<str>`'s own equality compares the bytes even then.
+pub(crate) trait SmallMapKey: Eq + Hash {
+    fn same_key(&self, other: &Self) -> bool {
+        self == other
+    }
+}
+
+impl SmallMapKey for std::sync::Arc<str> {
+    fn same_key(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(self, other) || self == other
+    }
+}
+
+/// Its equality already compares pointers first.
+impl SmallMapKey for crate::ComponentName {}
+
+#[cfg(test)]
+impl SmallMapKey for String {}
+
 impl<K, V> Default for SmallMap<K, V> {
     fn default() -> Self {
         Self::Few(Vec::new())
     }
 }
 
-impl<K: Eq + Hash, V> SmallMap<K, V> {
+impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn get<Q>(&self, key: &Q) -> Option<&V>
     where
         K: Borrow<Q>,
@@ -62,18 +82,19 @@ impl<K: Eq + Hash, V> SmallMap<K, V> {
     {
         if let Self::Few(entries) = self
             && entries.len() >= SMALL_MAP_MAX_KEYS
-            && !entries.iter().any(|(k, _)| *k == key)
+            && !entries.iter().any(|(k, _)| k.same_key(&key))
         {
             *self = Self::Many(std::mem::take(entries).into_iter().collect());
         }
         match self {
             Self::Few(entries) => {
-                let position = if let Some(position) = entries.iter().position(|(k, _)| *k == key) {
-                    position
-                } else {
-                    entries.push((key, V::default()));
-                    entries.len() - 1
-                };
+                let position =
+                    if let Some(position) = entries.iter().position(|(k, _)| k.same_key(&key)) {
+                        position
+                    } else {
+                        entries.push((key, V::default()));
+                        entries.len() - 1
+                    };
                 &mut entries[position].1
             }
             Self::Many(map) => map.entry(key).or_default(),

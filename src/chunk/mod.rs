@@ -151,13 +151,12 @@ impl PrimitiveLeaf {
             ),
             None => (list.values(), None),
         };
-        if !items.data_type().is_primitive() {
-            return None;
-        }
-        // A primitive array's data has one buffer, its values from its first element on.
-        let data = items.to_data();
+        let values = arrow_array::downcast_primitive_array!(
+            items => items.values().inner().clone(),
+            _ => return None
+        );
         Some(Self {
-            values: data.buffers().first()?.clone(),
+            values,
             data_type: items.data_type().clone(),
             fixed_size,
         })
