@@ -126,9 +126,7 @@ mod tests {
         assert!(!Arc::ptr_eq(&shared.0, &own.0));
         assert_eq!(shared, own);
         assert_eq!(shared.cmp(&own), std::cmp::Ordering::Equal);
-        let hash = |n: &ComponentName| {
-            ahash::RandomState::with_seeds(1, 2, 3, 4).hash_one(n)
-        };
+        let hash = |n: &ComponentName| ahash::RandomState::with_seeds(1, 2, 3, 4).hash_one(n);
         assert_eq!(hash(&shared), hash(&own));
         let mut names: Vec<ComponentName> = ["c", "a", "b", "ab"]
             .into_iter()

@@ -10,13 +10,18 @@
 use std::borrow::Borrow;
 use std::hash::Hash;
 
+use smallvec::SmallVec;
+
 /// Past this many keys, a [`SmallMap`] is a hash map.
 const SMALL_MAP_MAX_KEYS: usize = 16;
 
 /// A map; see the module docs. Iteration order is unspecified.
 #[derive(Clone, Debug)]
 pub(crate) enum SmallMap<K, V> {
-    Few(Vec<(K, V)>),
+    /// The first entry inline: most entities have one timeline and a few components, and an
+    /// inline entry is one pointer less to follow on every query (the hash map variant is
+    /// larger anyway, so it costs no room).
+    Few(SmallVec<[(K, V); 1]>),
     Many(ahash::HashMap<K, V>),
 }
 
@@ -42,7 +47,7 @@ impl SmallMapKey for String {}
 
 impl<K, V> Default for SmallMap<K, V> {
     fn default() -> Self {
-        Self::Few(Vec::new())
+        Self::Few(SmallVec::new())
     }
 }
 
