@@ -131,41 +131,48 @@ pub struct ComponentColumn {
 /// Kept so that reading a cell is the offsets and then the values. Through Arrow's arrays it
 /// is also one array struct per nesting level, each behind its own pointer: in a store far
 /// larger than the cache, a dependent cache miss each, on every query answer read.
+///
+/// Only the buffer handle is kept (24 bytes a column): the leaf's type and shape are read
+/// from the list's item field, which is the process-wide shared copy and so in cache.
 #[derive(Clone, Debug)]
 struct PrimitiveLeaf {
     /// Starting at the items' first value (any slicing already applied). A second handle on
     /// the leaf array's buffer: it shares the allocation.
     values: Buffer,
-    data_type: DataType,
-    /// `Some(n)` for items that are fixed-size lists of `n` values, `None` for values.
-    fixed_size: Option<usize>,
 }
 
 impl PrimitiveLeaf {
     /// The leaf of `list`'s items, if they are primitives or fixed-size lists of them.
     fn of(list: &ListArray) -> Option<Self> {
-        let (items, fixed_size) = match list.values().as_fixed_size_list_opt() {
-            Some(fixed) => (
-                fixed.values(),
-                Some(usize::try_from(fixed.value_length()).ok()?),
-            ),
-            None => (list.values(), None),
+        let items = match list.values().as_fixed_size_list_opt() {
+            Some(fixed) => fixed.values(),
+            None => list.values(),
         };
         let values = arrow_array::downcast_primitive_array!(
             items => items.values().inner().clone(),
             _ => return None
         );
-        Some(Self {
-            values,
-            data_type: items.data_type().clone(),
-            fixed_size,
-        })
+        Some(Self { values })
     }
 
-    /// The same values (the very same bytes, not equal ones), type and shape?
+    /// The same values: the very same bytes, not equal ones.
     fn is_the_same(&self, other: &Self) -> bool {
-        let key = |l: &Self| (l.values.as_ptr(), l.values.len(), l.fixed_size);
-        key(self) == key(other) && self.data_type == other.data_type
+        (self.values.as_ptr(), self.values.len()) == (other.values.as_ptr(), other.values.len())
+    }
+}
+
+/// The leaf type of a list type whose items are primitives or fixed-size lists of them,
+/// and the fixed size (`None` for primitive items). Arrow checks that a list's values have
+/// its item type, so this is the type of the values a [`PrimitiveLeaf`] holds.
+fn leaf_shape(list_type: &DataType) -> Option<(&DataType, Option<usize>)> {
+    let DataType::List(item) = list_type else {
+        return None;
+    };
+    match item.data_type() {
+        DataType::FixedSizeList(leaf, size) => {
+            Some((leaf.data_type(), Some(usize::try_from(*size).ok()?)))
+        }
+        primitive => Some((primitive, None)),
     }
 }
 
@@ -1046,10 +1053,8 @@ impl ComponentColumn {
         fixed_size: Option<usize>,
     ) -> Option<&[T::Native]> {
         let leaf = self.leaf.as_ref()?;
-        if leaf.fixed_size != fixed_size
-            || leaf.data_type != T::DATA_TYPE
-            || !self.is_valid_row(row)
-        {
+        let (leaf_type, shape) = leaf_shape(self.list.data_type())?;
+        if shape != fixed_size || *leaf_type != T::DATA_TYPE || !self.is_valid_row(row) {
             return None;
         }
         let width = fixed_size.unwrap_or(1);
