@@ -987,7 +987,7 @@ impl ComponentColumn {
 
     /// The cell at `row`, or `None` if out of bounds or null. Zero-copy.
     pub fn cell(&self, row: usize) -> Option<ArrayRef> {
-        (row < self.list.len() && self.list.is_valid(row)).then(|| self.list.value(row))
+        self.is_valid_row(row).then(|| self.list.value(row))
     }
 
     /// Does every cell span exactly one instance of the values array (a scalar series, a
