@@ -36,8 +36,9 @@ pub(crate) fn add_index_bytes(stats: &mut StoreStats, entity: &mut EntityStats, 
 /// Estimated heap of one entity's own bookkeeping, whatever its chunks: its slot in the
 /// entity map, its path, and its small maps (element types, chunk set, timelines,
 /// components, compaction groups). Measured with the counting allocator of
-/// `tests/memory.rs` on its many-entity shapes (about 1,800 bytes an entity in both, since the small maps keep their first entry inline);
-/// counted in `heap_bytes` and the entity's figure, in neither kind's.
+/// `tests/memory.rs` on its many-entity shapes (about 1,800 bytes an entity in both, since
+/// the small maps keep their first entry inline); counted in `heap_bytes` and the entity's
+/// figure, in neither kind's.
 pub(crate) const ENTITY_BYTES: u64 = 1_800;
 
 /// Estimated heap of the store's bookkeeping per chunk: its slot in the chunk map, in the
