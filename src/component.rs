@@ -8,16 +8,14 @@ use std::sync::Arc;
 #[derive(Clone, Eq)]
 pub struct ComponentName(Arc<str>);
 
-// Equal names are usually one shared allocation (see `ComponentName::new`), so the pointers
-// are compared first. `Arc<str>`'s own equality does not: std only takes that shortcut for
-// sized types, so every comparison of two names would otherwise be a `memcmp`.
+// Equal names are usually one shared allocation (see `ComponentName::new`): equality and
+// order compare the pointers first (`crate::shared::same_name`); the hash is the text's.
 impl PartialEq for ComponentName {
     fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.0, &other.0) || self.0 == other.0
+        crate::shared::same_name(&self.0, &other.0)
     }
 }
 
-// Hashes the text, as the equality above compares it (the pointer is only a shortcut).
 impl std::hash::Hash for ComponentName {
     fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
         self.0.hash(state);
@@ -32,11 +30,7 @@ impl PartialOrd for ComponentName {
 
 impl Ord for ComponentName {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        if Arc::ptr_eq(&self.0, &other.0) {
-            std::cmp::Ordering::Equal
-        } else {
-            self.0.cmp(&other.0)
-        }
+        crate::shared::cmp_names(&self.0, &other.0)
     }
 }
 

@@ -54,6 +54,22 @@ pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
         .is_some_and(|shared| Arc::ptr_eq(shared, field))
 }
 
+/// Are two names equal? Pointers first: equal names are usually the one shared copy, and
+/// std's `Arc` equality takes that shortcut only for sized types (for `str` it always
+/// compares the bytes).
+pub(crate) fn same_name(a: &Arc<str>, b: &Arc<str>) -> bool {
+    Arc::ptr_eq(a, b) || a == b
+}
+
+/// Orders two names by their text, with the same shortcut as [`same_name`].
+pub(crate) fn cmp_names(a: &Arc<str>, b: &Arc<str>) -> std::cmp::Ordering {
+    if Arc::ptr_eq(a, b) {
+        std::cmp::Ordering::Equal
+    } else {
+        a.cmp(b)
+    }
+}
+
 fn share_in<T: ?Sized + Hash + Eq>(set: &SharedSet<T>, cap: usize, value: Arc<T>) -> Arc<T> {
     if let Some(shared) = set.read().get(&*value) {
         return Arc::clone(shared);

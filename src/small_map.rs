@@ -35,7 +35,7 @@ pub(crate) trait SmallMapKey: Eq + Hash {
 
 impl SmallMapKey for std::sync::Arc<str> {
     fn same_key(&self, other: &Self) -> bool {
-        std::sync::Arc::ptr_eq(self, other) || self == other
+        crate::shared::same_name(self, other)
     }
 }
 

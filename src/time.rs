@@ -87,10 +87,38 @@ impl TimeType {
 /// A named timeline, e.g. `frame` (a sequence) or `log_time` (timestamps).
 ///
 /// Cheap to clone: the name is shared.
-#[derive(Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Eq)]
 pub struct Timeline {
     name: Arc<str>,
     time_type: TimeType,
+}
+
+// As for `ComponentName`: names compare their pointers first (`crate::shared::same_name`),
+// the hash is the text's, and the order is by name, then type.
+impl PartialEq for Timeline {
+    fn eq(&self, other: &Self) -> bool {
+        crate::shared::same_name(&self.name, &other.name) && self.time_type == other.time_type
+    }
+}
+
+impl std::hash::Hash for Timeline {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.name.hash(state);
+        self.time_type.hash(state);
+    }
+}
+
+impl PartialOrd for Timeline {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Timeline {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        crate::shared::cmp_names(&self.name, &other.name)
+            .then_with(|| self.time_type.cmp(&other.time_type))
+    }
 }
 
 impl Timeline {
@@ -157,5 +185,37 @@ mod tests {
             TimeType::from_arrow(&DataType::Duration(TimeUnit::Millisecond)),
             None
         );
+    }
+
+    /// Timelines compare, order and hash by name then type, whether or not their names
+    /// share one allocation.
+    #[test]
+    fn timelines_compare_as_their_name_and_type() {
+        let shared = Timeline::sequence("t");
+        let own = Timeline {
+            name: Arc::from("t"),
+            time_type: TimeType::Sequence,
+        };
+        assert!(!Arc::ptr_eq(&shared.name, &own.name));
+        assert_eq!(shared, own);
+        assert_eq!(shared.cmp(&own), std::cmp::Ordering::Equal);
+        let hash = |t: &Timeline| ahash::RandomState::with_seeds(1, 2, 3, 4).hash_one(t);
+        assert_eq!(hash(&shared), hash(&own));
+        assert_ne!(shared, Timeline::new("t", TimeType::TimestampNs));
+        let mut timelines = [
+            Timeline::sequence("b"),
+            Timeline::new("t", TimeType::TimestampNs),
+            own,
+            Timeline::sequence("a"),
+        ];
+        timelines.sort();
+        let keys: Vec<(&str, TimeType)> = timelines
+            .iter()
+            .map(|t| (t.name(), t.time_type()))
+            .collect();
+        let mut expected = keys.clone();
+        expected.sort_unstable();
+        assert_eq!(keys, expected);
+        assert_eq!(keys[0], ("a", TimeType::Sequence));
     }
 }
