@@ -137,6 +137,25 @@ fn out_of_order_rows_merge_into_time_sorted_chunks() {
 }
 
 #[test]
+fn merged_rows_of_one_time_are_ordered_by_row_id() {
+    let mut store = ChunkStore::new();
+    // Sixteen one-row chunks (one full fan): eight frames, two rows each, the greater row
+    // id of each frame arriving first.
+    for k in 0..16u8 {
+        let frame = i64::from(k / 2);
+        let row_id = 100 + u128::from(2 * (k / 2) + 1 - k % 2);
+        store
+            .insert(scalar("tie", "x", frame, row_id, frame as f64))
+            .unwrap();
+    }
+    assert_eq!(store.num_chunks(), 1);
+    let chunk = store.chunks().next().unwrap();
+    let expected: Vec<u128> = (100..116).collect();
+    let row_ids: Vec<u128> = chunk.row_ids().iter().map(|r| r.as_u128()).collect();
+    assert_eq!(row_ids, expected);
+}
+
+#[test]
 fn an_oversized_sorted_chunk_is_split_into_slices_without_copying() {
     let mut store = ChunkStore::new();
     let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10_000)
