@@ -36,8 +36,8 @@ use std::time::Instant;
 
 use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig, TimeInt};
 use common::{
-    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, entities, for_each_first_f64, points,
-    positions, scalars, store_with, temporal_chunk,
+    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, entities, for_each_first_f64, points, positions,
+    scalars, store_with, temporal_chunk,
 };
 
 const RUNS: usize = 7;
@@ -53,7 +53,11 @@ fn time(mut f: impl FnMut() -> (u64, u64)) -> (f64, f64, u64) {
         assert_eq!(*checksum.get_or_insert(sum), sum, "runs agree");
     }
     per_op.sort_by(f64::total_cmp);
-    (per_op[0], per_op[RUNS / 2], checksum.expect("at least one run"))
+    (
+        per_op[0],
+        per_op[RUNS / 2],
+        checksum.expect("at least one run"),
+    )
 }
 
 fn report(workload: &str, what: &str, (min, median, checksum): (f64, f64, u64)) {

@@ -1282,6 +1282,85 @@ mod tests {
         assert!(sharing.owns_all_buffers_now(), "the other holder is gone");
     }
 
+    /// The memory figures read from typed arrays equal those of Arrow's generic
+    /// `ArrayData` tree, for lists of primitives and of fixed-size lists of them, with
+    /// nulls at every level, sliced, and with item fields no other chunk shares.
+    #[test]
+    fn typed_memory_figures_equal_the_generic_ones() {
+        use arrow_array::{FixedSizeListArray, Float32Array, Int16Array};
+        use arrow_buffer::{NullBuffer, OffsetBuffer};
+        use arrow_schema::Field;
+
+        let nulls = |bits: &[bool]| Some(NullBuffer::from(bits.to_vec()));
+        let primitive = |leaf_nulls: Option<NullBuffer>| {
+            Arc::new(Int16Array::new(vec![1, 2, 3, 4, 5, 6].into(), leaf_nulls)) as ArrayRef
+        };
+        let points = |point_nulls: Option<NullBuffer>, leaf_nulls: Option<NullBuffer>| {
+            let leaf = Float32Array::new((0..12u8).map(f32::from).collect(), leaf_nulls);
+            Arc::new(FixedSizeListArray::new(
+                Arc::new(Field::new_list_field(DataType::Float32, true)),
+                2,
+                Arc::new(leaf),
+                point_nulls,
+            )) as ArrayRef
+        };
+        let list = |items: ArrayRef, list_nulls: Option<NullBuffer>, field_name: &str| {
+            ListArray::new(
+                Arc::new(Field::new(field_name, items.data_type().clone(), true)),
+                OffsetBuffer::new(vec![0, 2, 3, 3, 6].into()),
+                items,
+                list_nulls,
+            )
+        };
+        let some = [true, false, true, true];
+        let lists = vec![
+            list(primitive(None), None, "item"),
+            list(
+                primitive(nulls(&[true, false, true, true, false, true])),
+                nulls(&some),
+                "item",
+            ),
+            list(points(None, None), None, "item"),
+            list(
+                points(
+                    nulls(&[true, true, false, true, true, true]),
+                    nulls(&[true; 12]),
+                ),
+                nulls(&some),
+                "item",
+            ),
+            // Not the shared item field: the chunk owns its own.
+            list(primitive(None), None, "unshared"),
+            list(points(None, None), nulls(&some), "unshared").slice(1, 3),
+            list(primitive(None), None, "item").slice(2, 2),
+        ];
+        for list in lists {
+            let chunk = chunk_of(list);
+            assert!(chunk.components()[0].leaf.is_some());
+            let (typed, generic) = (
+                memory::ChunkMemory::of(&chunk),
+                memory::ChunkMemory::compute(&chunk, true),
+            );
+            assert_eq!(
+                (
+                    typed.own_bytes,
+                    typed.payload_bytes,
+                    typed.buffer_bytes,
+                    typed.buffers.len()
+                ),
+                (
+                    generic.own_bytes,
+                    generic.payload_bytes,
+                    generic.buffer_bytes,
+                    generic.buffers.len()
+                ),
+                "{:?}",
+                chunk.components()[0].list_array().data_type()
+            );
+            chunk.sanity_check().unwrap();
+        }
+    }
+
     /// The guided search finds exactly the partition point a binary search finds, for
     /// evenly spread, clustered, duplicated and extreme times, and targets inside, between
     /// and beyond them.
