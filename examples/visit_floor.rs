@@ -9,7 +9,7 @@
 //! Both workloads make the caller visit every value of every answer, and both implementations
 //! (ours and the reference's anchor) visit with the same loop and the same arithmetic
 //! (`f32`/`f64` → `u64` conversions, as WORKLOADS.md's checksums are defined). This program
-//! builds the workloads' stores exactly as `examples/workloads.rs` does, runs every query
+//! builds the workloads' stores with the generator `examples/workloads.rs` uses, runs every query
 //! **before** the timer, and then times only the visiting loops over the stored answers:
 //! what the phase would cost with a lookup that took no time at all. The reference's
 //! ns/op divided by this floor bounds the speed-up any store can show on the phase. It
@@ -36,8 +36,8 @@ use std::time::Instant;
 
 use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig, TimeInt};
 use common::{
-    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, entities, for_each_first_f64, points, positions,
-    scalars, store_with, temporal_chunk,
+    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, entities, for_each_first_f64, point_batches,
+    points, range_series, store_with,
 };
 
 const RUNS: usize = 7;
@@ -74,14 +74,10 @@ fn at(t: i64) -> TimeInt {
 fn latest_at_batch() {
     let mut rng = SplitMix64::new();
     let entity = EntityPath::parse("points").expect("a valid path");
-    let mut ids = RowIds::new();
-    let chunks: Vec<_> = (0..1000usize)
-        .map(|f| {
-            let pos = positions(1, 1000, |_, k| [f as f32, k as f32, 0.0]);
-            temporal_chunk(&mut ids, &entity, vec![f as i64], vec![(POSITION3D, pos)])
-        })
-        .collect();
-    let store = store_with(StoreConfig::COMPACTION_OFF, &chunks);
+    let store = store_with(
+        StoreConfig::COMPACTION_OFF,
+        &point_batches(&mut RowIds::new(), &entity),
+    );
     let queries: Vec<i64> = (0..10_000).map(|_| rng.uniform(1000) as i64).collect();
     let frame: Arc<str> = FRAME.into();
     let latest = |t: i64| {
@@ -124,24 +120,10 @@ fn latest_at_batch() {
 fn range_scalar() {
     let mut rng = SplitMix64::new();
     let entities = entities(10, |e| format!("series/{e}"));
-    let mut ids = RowIds::new();
-    let mut chunks = Vec::new();
-    for (e, entity) in entities.iter().enumerate() {
-        for c in 0..100usize {
-            let frames: Vec<i64> = (0..1000).map(|r| (c * 1000 + r) as i64).collect();
-            let values = frames
-                .iter()
-                .map(|&f| ((f as usize * 7 + e) % 1000) as f64)
-                .collect();
-            chunks.push(temporal_chunk(
-                &mut ids,
-                entity,
-                frames,
-                vec![(SCALAR, scalars(values))],
-            ));
-        }
-    }
-    let store = store_with(StoreConfig::COMPACTION_OFF, &chunks);
+    let store = store_with(
+        StoreConfig::COMPACTION_OFF,
+        &range_series(&mut RowIds::new(), &entities),
+    );
     let queries: Vec<(usize, i64)> = (0..1000)
         .map(|_| {
             let entity = rng.uniform_usize(10);

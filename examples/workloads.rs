@@ -33,8 +33,8 @@ use chunkstore::{
 };
 use common::{
     FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, clear_chunk, entities, first_text_len,
-    for_each_first_f64, latest_scalar, points, positions, scalars, static_chunk, store_with,
-    temporal_chunk, texts,
+    for_each_first_f64, latest_scalar, point_batches, points, positions, range_series, scalars,
+    static_chunk, store_with, temporal_chunk, texts,
 };
 
 const IMPL: &str = concat!("chunkstore-", env!("CARGO_PKG_VERSION"));
@@ -349,13 +349,7 @@ fn latest_at_mono() -> bool {
 fn latest_at_batch() -> bool {
     let mut rng = SplitMix64::new();
     let entity = EntityPath::parse("points").expect("a valid path");
-    let mut ids = RowIds::new();
-    let chunks: Vec<_> = (0..1000usize)
-        .map(|f| {
-            let pos = positions(1, 1000, |_, k| [f as f32, k as f32, 0.0]);
-            temporal_chunk(&mut ids, &entity, vec![f as i64], vec![(POSITION3D, pos)])
-        })
-        .collect();
+    let chunks = point_batches(&mut RowIds::new(), &entity);
     let store = store_with(OFF, &chunks);
     let queries: Vec<i64> = (0..10_000).map(|_| rng.uniform(1000) as i64).collect();
 
@@ -387,24 +381,7 @@ fn latest_at_batch() -> bool {
 fn range_scalar() -> bool {
     let mut rng = SplitMix64::new();
     let entities = entities(10, |e| format!("series/{e}"));
-    let mut ids = RowIds::new();
-    let mut chunks = Vec::new();
-    for (e, entity) in entities.iter().enumerate() {
-        for c in 0..100usize {
-            let frames: Vec<i64> = (0..1000).map(|r| (c * 1000 + r) as i64).collect();
-            let values = frames
-                .iter()
-                .map(|&f| ((f as usize * 7 + e) % 1000) as f64)
-                .collect();
-            chunks.push(temporal_chunk(
-                &mut ids,
-                entity,
-                frames,
-                vec![(SCALAR, scalars(values))],
-            ));
-        }
-    }
-    let store = store_with(OFF, &chunks);
+    let store = store_with(OFF, &range_series(&mut RowIds::new(), &entities));
     let queries: Vec<(usize, i64)> = (0..1000)
         .map(|_| {
             let entity = rng.uniform_usize(10);

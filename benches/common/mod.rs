@@ -290,6 +290,47 @@ pub fn scalar_series(
         .collect()
 }
 
+/// WORKLOADS.md's `latest_at_batch` data: 1,000 single-row chunks at `entity`, frame `f`
+/// in `0..1000`, each row with 1,000 `position3d` instances `[f, k, 0]`.
+#[expect(
+    clippy::cast_precision_loss,
+    reason = "bench values are small integers"
+)]
+pub fn point_batches(ids: &mut RowIds, entity: &EntityPath) -> Vec<Arc<Chunk>> {
+    (0..1000u16)
+        .map(|f| {
+            let pos = positions(1, 1000, |_, k| [f32::from(f), k as f32, 0.0]);
+            temporal_chunk(ids, entity, vec![i64::from(f)], vec![(POSITION3D, pos)])
+        })
+        .collect()
+}
+
+/// WORKLOADS.md's `range_scalar` data: per entity `e` of `entities`, frames `0..100_000`
+/// in chunks of 1,000 rows, `scalar` = `(frame * 7 + e) % 1000`.
+#[expect(
+    clippy::cast_precision_loss,
+    reason = "bench values are small integers"
+)]
+pub fn range_series(ids: &mut RowIds, entities: &[EntityPath]) -> Vec<Arc<Chunk>> {
+    let mut chunks = Vec::with_capacity(entities.len() * 100);
+    for (e, entity) in (0i64..).zip(entities) {
+        for c in 0..100i64 {
+            let frames: Vec<i64> = (0..1000).map(|r| c * 1000 + r).collect();
+            let values = frames
+                .iter()
+                .map(|&f| ((f * 7 + e) % 1000) as f64)
+                .collect();
+            chunks.push(temporal_chunk(
+                ids,
+                entity,
+                frames,
+                vec![(SCALAR, scalars(values))],
+            ));
+        }
+    }
+    chunks
+}
+
 /// `n` single-row `scalar` chunks per entity, interleaved across `entities` as a live
 /// stream of `entities.len()` series arrives: frame `k` of every series, then `k + 1`.
 pub fn interleaved_streams(ids: &mut RowIds, entities: &[EntityPath], n: usize) -> Vec<Arc<Chunk>> {
