@@ -34,10 +34,10 @@ use std::hint::black_box;
 use std::sync::Arc;
 use std::time::Instant;
 
-use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig, TimeInt};
+use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig};
 use common::{
-    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, entities, for_each_first_f64, point_batches,
-    points, range_series, store_with,
+    FRAME, POSITION3D, RowIds, SCALAR, at, entities, point_batch_queries, point_batches, points,
+    range_series, range_series_queries, store_with, sum_of_xy, visit_range_scalars,
 };
 
 const RUNS: usize = 7;
@@ -67,18 +67,13 @@ fn report(workload: &str, what: &str, (min, median, checksum): (f64, f64, u64)) 
     );
 }
 
-fn at(t: i64) -> TimeInt {
-    TimeInt::new(t).expect("a valid time")
-}
-
 fn latest_at_batch() {
-    let mut rng = SplitMix64::new();
     let entity = EntityPath::parse("points").expect("a valid path");
     let store = store_with(
         StoreConfig::COMPACTION_OFF,
         &point_batches(&mut RowIds::new(), &entity),
     );
-    let queries: Vec<i64> = (0..10_000).map(|_| rng.uniform(1000) as i64).collect();
+    let queries = point_batch_queries();
     let frame: Arc<str> = FRAME.into();
     let latest = |t: i64| {
         store.latest_at(
@@ -94,9 +89,7 @@ fn latest_at_batch() {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = &answers[black_box(t) as usize] {
-                for p in points(cell.component(), cell.row()) {
-                    sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
-                }
+                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
             }
         }
         (queries.len() as u64, sum)
@@ -105,9 +98,7 @@ fn latest_at_batch() {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = latest(t) {
-                for p in points(cell.component(), cell.row()) {
-                    sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
-                }
+                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
             }
         }
         (queries.len() as u64, sum)
@@ -118,18 +109,12 @@ fn latest_at_batch() {
 }
 
 fn range_scalar() {
-    let mut rng = SplitMix64::new();
     let entities = entities(10, |e| format!("series/{e}"));
     let store = store_with(
         StoreConfig::COMPACTION_OFF,
         &range_series(&mut RowIds::new(), &entities),
     );
-    let queries: Vec<(usize, i64)> = (0..1000)
-        .map(|_| {
-            let entity = rng.uniform_usize(10);
-            (entity, rng.uniform(100_000) as i64)
-        })
-        .collect();
+    let queries = range_series_queries();
     let frame: Arc<str> = FRAME.into();
     let range = |(e, start): (usize, i64)| {
         let query = RangeQuery::new(Arc::clone(&frame), at(start), at(start + 9_999));
@@ -137,25 +122,17 @@ fn range_scalar() {
     };
 
     let answers: Vec<_> = queries.iter().map(|&q| range(q)).collect();
-    let visit = |result: &chunkstore::RangeResult, rows: &mut u64, sum: &mut u64| {
-        for run in result.runs() {
-            for_each_first_f64(&run, |v| {
-                *sum = sum.wrapping_add(v as u64);
-                *rows += 1;
-            });
-        }
-    };
     let floor = time(|| {
         let (mut rows, mut sum) = (0u64, 0u64);
         for result in &answers {
-            visit(black_box(result), &mut rows, &mut sum);
+            visit_range_scalars(black_box(result), &mut rows, &mut sum);
         }
         (rows, sum)
     });
     let full = time(|| {
         let (mut rows, mut sum) = (0u64, 0u64);
         for &q in &queries {
-            visit(&range(q), &mut rows, &mut sum);
+            visit_range_scalars(&range(q), &mut rows, &mut sum);
         }
         (rows, sum)
     });

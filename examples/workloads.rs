@@ -29,12 +29,13 @@ use std::time::Instant;
 
 use chunkstore::{
     Chunk, ChunkStore, EntityPath, GcOptions, GcTarget, LatestAtQuery, QueryCell, RangeQuery,
-    StoreConfig, TimeInt,
+    StoreConfig,
 };
 use common::{
-    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, clear_chunk, entities, first_text_len,
-    for_each_first_f64, latest_scalar, point_batches, points, positions, range_series, scalars,
-    static_chunk, store_with, temporal_chunk, texts,
+    FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, at, clear_chunk, entities, first_text_len,
+    latest_scalar, point_batch_queries, point_batches, points, positions, range_series,
+    range_series_queries, scalars, static_chunk, store_with, sum_of_xy, temporal_chunk, texts,
+    visit_range_scalars,
 };
 
 const IMPL: &str = concat!("chunkstore-", env!("CARGO_PKG_VERSION"));
@@ -155,10 +156,6 @@ fn time_gc(base: &ChunkStore, options: &GcOptions) -> (ChunkStore, u64, f64) {
         last = Some(store);
     }
     (last.expect("at least one run"), dropped, median(per_op))
-}
-
-fn at(t: i64) -> TimeInt {
-    TimeInt::new(t).expect("workload times are valid")
 }
 
 fn latest_at(
@@ -347,20 +344,17 @@ fn latest_at_mono() -> bool {
 // --- latest_at_batch ---
 
 fn latest_at_batch() -> bool {
-    let mut rng = SplitMix64::new();
     let entity = EntityPath::parse("points").expect("a valid path");
     let chunks = point_batches(&mut RowIds::new(), &entity);
     let store = store_with(OFF, &chunks);
-    let queries: Vec<i64> = (0..10_000).map(|_| rng.uniform(1000) as i64).collect();
+    let queries = point_batch_queries();
 
     let frame: Arc<str> = FRAME.into();
     let (ops, ns_per_op, checksum) = time_query(|| {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = latest_at(&store, &frame, t, &entity, POSITION3D) {
-                for p in points(cell.component(), cell.row()) {
-                    sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
-                }
+                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
             }
         }
         (queries.len() as u64, sum)
@@ -379,28 +373,20 @@ fn latest_at_batch() -> bool {
 // --- range_scalar ---
 
 fn range_scalar() -> bool {
-    let mut rng = SplitMix64::new();
     let entities = entities(10, |e| format!("series/{e}"));
     let store = store_with(OFF, &range_series(&mut RowIds::new(), &entities));
-    let queries: Vec<(usize, i64)> = (0..1000)
-        .map(|_| {
-            let entity = rng.uniform_usize(10);
-            (entity, rng.uniform(100_000) as i64)
-        })
-        .collect();
+    let queries = range_series_queries();
 
     let frame: Arc<str> = FRAME.into();
     let (ops, ns_per_op, checksum) = time_query(|| {
         let (mut rows, mut sum) = (0u64, 0u64);
         for &(e, start) in &queries {
             let query = RangeQuery::new(Arc::clone(&frame), at(start), at(start + 9_999));
-            let result = store.range(&query, &entities[e], SCALAR);
-            for run in result.runs() {
-                for_each_first_f64(&run, |v| {
-                    sum = sum.wrapping_add(v as u64);
-                    rows += 1;
-                });
-            }
+            visit_range_scalars(
+                &store.range(&query, &entities[e], SCALAR),
+                &mut rows,
+                &mut sum,
+            );
         }
         (rows, sum) // op = one row visited
     });

@@ -25,7 +25,7 @@ use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, ComponentColumn, ComponentName, EntityPath, LatestAtQuery,
-    RangeRun, RowId, StoreConfig, TimeInt, Timeline,
+    RangeResult, RangeRun, RowId, StoreConfig, TimeInt, Timeline,
 };
 
 /// The timeline every workload logs on.
@@ -329,6 +329,59 @@ pub fn range_series(ids: &mut RowIds, entities: &[EntityPath]) -> Vec<Arc<Chunk>
         }
     }
     chunks
+}
+
+/// A workload's time (every generated one is valid).
+pub fn at(t: i64) -> TimeInt {
+    TimeInt::new(t).expect("workload times are valid")
+}
+
+/// WORKLOADS.md's `latest_at_batch` query times, drawn from a fresh generator.
+#[expect(clippy::cast_possible_wrap, reason = "times below 1,000")]
+pub fn point_batch_queries() -> Vec<i64> {
+    let mut rng = SplitMix64::new();
+    (0..10_000).map(|_| rng.uniform(1000) as i64).collect()
+}
+
+/// `latest_at_batch`'s visit of one answer: `x + y` of every point, each coordinate
+/// converted to `u64` as the reference's anchor does, summed with wrapping.
+#[expect(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "the checksum WORKLOADS.md defines: small non-negative integers"
+)]
+pub fn sum_of_xy(points: &[[f32; 3]]) -> u64 {
+    points
+        .iter()
+        .fold(0u64, |sum, p| sum.wrapping_add(p[0] as u64 + p[1] as u64))
+}
+
+/// WORKLOADS.md's `range_scalar` queries `(entity, start)`, drawn from a fresh generator.
+#[expect(clippy::cast_possible_wrap, reason = "starts below 100,000")]
+pub fn range_series_queries() -> Vec<(usize, i64)> {
+    let mut rng = SplitMix64::new();
+    (0..1000)
+        .map(|_| {
+            let entity = rng.uniform_usize(10);
+            (entity, rng.uniform(100_000) as i64)
+        })
+        .collect()
+}
+
+/// `range_scalar`'s visit of one answer: adds every row's first `scalar`, converted to
+/// `u64` as the reference's anchor does, to `sum`, and counts the rows in `rows`.
+#[expect(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    reason = "the checksum WORKLOADS.md defines: small non-negative integers"
+)]
+pub fn visit_range_scalars(result: &RangeResult, rows: &mut u64, sum: &mut u64) {
+    for run in result.runs() {
+        for_each_first_f64(&run, |v| {
+            *sum = sum.wrapping_add(v as u64);
+            *rows += 1;
+        });
+    }
 }
 
 /// `n` single-row `scalar` chunks per entity, interleaved across `entities` as a live
