@@ -127,6 +127,29 @@ pub enum ChunkError {
         /// The component.
         component: String,
     },
+    /// A builder row gave one timeline two times.
+    TimelineRepeatedInRow {
+        /// The row (0-based).
+        row: usize,
+        /// The timeline.
+        timeline: String,
+    },
+    /// A builder row gave one component two cells.
+    ComponentRepeatedInRow {
+        /// The row (0-based).
+        row: usize,
+        /// The component.
+        component: String,
+    },
+    /// A builder was given one timeline name with two types.
+    TimelineTypeMismatch {
+        /// The timeline.
+        timeline: String,
+        /// The type it was first given with.
+        first: TimeType,
+        /// The other type.
+        second: TimeType,
+    },
     /// A component or timeline name is empty.
     EmptyName {
         /// Which kind of column.
@@ -225,6 +248,20 @@ impl fmt::Display for ChunkError {
             Self::DuplicateComponent { component } => {
                 write!(f, "component {component:?} appears twice in one chunk")
             }
+            Self::TimelineRepeatedInRow { row, timeline } => {
+                write!(f, "row {row} gives timeline {timeline:?} two times")
+            }
+            Self::ComponentRepeatedInRow { row, component } => {
+                write!(f, "row {row} gives component {component:?} two cells")
+            }
+            Self::TimelineTypeMismatch {
+                timeline,
+                first,
+                second,
+            } => write!(
+                f,
+                "timeline {timeline:?} is given as {first:?} and as {second:?}"
+            ),
             Self::EmptyName { kind } => write!(f, "a {kind} name must not be empty"),
             Self::MissingRowIds => write!(f, "batch has no `rerun.controls.RowId` column"),
             Self::MissingMetadata { key } => write!(f, "batch schema lacks metadata {key:?}"),

@@ -181,6 +181,72 @@ fn builder_rejects_rows_missing_a_timeline_and_mixed_cell_types() {
     );
 }
 
+/// Issue 12, item 3: a row naming one component or timeline twice used to keep the last
+/// value silently.
+#[test]
+fn builder_rejects_a_row_that_names_a_component_or_timeline_twice() {
+    let cell = |v: f64| Arc::new(Float64Array::from(vec![v])) as ArrayRef;
+    let frame = Timeline::sequence("frame");
+    let twice_a_component = ChunkBuilder::new(ChunkId::new(), path("e"))
+        .with_row(rid(1), [(frame.clone(), 1)], [("c", cell(1.0))])
+        .with_row(
+            rid(2),
+            [(frame.clone(), 2)],
+            [("c", cell(2.0)), ("c", cell(3.0))],
+        )
+        .build();
+    assert!(
+        matches!(&twice_a_component, Err(ChunkError::ComponentRepeatedInRow { row: 1, component }) if component == "c"),
+        "{twice_a_component:?}"
+    );
+    let twice_a_timeline = ChunkBuilder::new(ChunkId::new(), path("e"))
+        .with_row(
+            rid(1),
+            [(frame.clone(), 1), (frame.clone(), 5)],
+            [("c", cell(1.0))],
+        )
+        .build();
+    assert!(
+        matches!(&twice_a_timeline, Err(ChunkError::TimelineRepeatedInRow { row: 0, timeline }) if timeline == "frame"),
+        "{twice_a_timeline:?}"
+    );
+    assert!(
+        twice_a_timeline
+            .unwrap_err()
+            .to_string()
+            .contains("row 0 gives timeline \"frame\" two times")
+    );
+}
+
+/// Issue 12, item 6: one timeline name with two types used to be reported as null times.
+#[test]
+fn builder_names_a_timeline_given_with_two_types() {
+    let cell = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+    let built = ChunkBuilder::new(ChunkId::new(), path("e"))
+        .with_row(
+            rid(1),
+            [(Timeline::sequence("t"), 1)],
+            [("c", Arc::clone(&cell))],
+        )
+        .with_row(
+            rid(2),
+            [(Timeline::new("t", TimeType::DurationNs), 2)],
+            [("c", cell)],
+        )
+        .build();
+    assert!(
+        matches!(
+            &built,
+            Err(ChunkError::TimelineTypeMismatch {
+                timeline,
+                first: TimeType::Sequence,
+                second: TimeType::DurationNs,
+            }) if timeline == "t"
+        ),
+        "{built:?}"
+    );
+}
+
 /// A valid transport batch, as the pieces to break it.
 fn transport_parts() -> (Vec<Field>, Vec<ArrayRef>, HashMap<String, String>) {
     let mut row_ids = FixedSizeBinaryBuilder::new(16);

@@ -102,6 +102,13 @@ impl ChunkMemory {
                 _ => memory.add_list(&column.list),
             };
         }
+        // One handle per allocation: columns may share one (a batch decoded from one IPC
+        // message). Sorted then deduplicated, so that a chunk of many columns costs
+        // O(n log n) rather than a search of every buffer before each.
+        memory.buffers.sort_unstable_by_key(buffer_address);
+        memory.buffers.dedup_by_key(|buffer| buffer_address(buffer));
+        memory.buffers.shrink_to_fit();
+        memory.own_bytes += BUFFER_HANDLE_BYTES * memory.buffers.len() as u64;
         memory.buffer_bytes = memory.buffers.iter().map(buffer_bytes).sum();
         memory
     }
@@ -188,12 +195,9 @@ impl ChunkMemory {
         }
     }
 
+    /// Records a buffer the chunk references (duplicates are removed once all are in).
     fn add_buffer(&mut self, buffer: &Buffer) {
-        let address = buffer_address(buffer);
-        if !self.buffers.iter().any(|b| buffer_address(b) == address) {
-            self.own_bytes += BUFFER_HANDLE_BYTES;
-            self.buffers.push(buffer.clone());
-        }
+        self.buffers.push(buffer.clone());
     }
 
     pub fn heap_size_bytes(&self) -> u64 {
@@ -205,12 +209,12 @@ impl ChunkMemory {
     /// `also_held` on the same allocation (the chunk's own further handles). Any further
     /// reference is another array (perhaps another chunk) sharing it.
     pub fn owns_all_buffers(&self, also_held: &[&Buffer]) -> bool {
+        let mut also_held: Vec<usize> = also_held.iter().map(|b| buffer_address(b)).collect();
+        also_held.sort_unstable();
         self.buffers.iter().all(|b| {
             let address = buffer_address(b);
-            let extra = also_held
-                .iter()
-                .filter(|held| buffer_address(held) == address)
-                .count();
+            let extra = also_held.partition_point(|&a| a <= address)
+                - also_held.partition_point(|&a| a < address);
             b.strong_count() == 2 + extra
         })
     }

@@ -288,19 +288,22 @@ impl Chunk {
         }
 
         let mut components: Vec<ComponentColumn> = Vec::with_capacity(raw_components.len());
-        for raw in raw_components {
+        // A set, not a search of the columns before each: a chunk may have 100,000.
+        let mut names: ahash::HashSet<&str> = ahash::HashSet::default();
+        names.reserve(raw_components.len());
+        for raw in &raw_components {
             let name = raw.descriptor.name.as_str();
             if name.is_empty() {
                 return Err(ChunkError::EmptyName { kind: "component" });
             }
-            if components
-                .iter()
-                .any(|c| c.descriptor.name.as_str() == name)
-            {
+            if !names.insert(name) {
                 return Err(ChunkError::DuplicateComponent {
                     component: name.to_owned(),
                 });
             }
+        }
+        drop(names);
+        for raw in raw_components {
             components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
         }
 
