@@ -49,14 +49,14 @@ fn gc(c: &mut Criterion) {
         c,
         "half_oldest_first_protect_latest/100_entities/20_chunks_each",
         &store,
-        &GcOptions::drop_at_least_fraction(0.5),
+        &GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"),
     );
     let cursor = GcOptions {
         order: GcOrder::FurthestFrom {
             timeline: FRAME.to_owned(),
             time: TimeInt::new(1000).expect("a valid time"),
         },
-        ..GcOptions::drop_at_least_fraction(0.5)
+        ..GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction")
     };
     bench_gc(
         c,

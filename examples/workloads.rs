@@ -490,7 +490,7 @@ fn gc_half() -> bool {
     let base = store_with(OFF, &chunks);
     // Oldest rows first (the default order), keeping the latest chunk of every entity.
     let options = GcOptions {
-        target: GcTarget::DropAtLeastFraction(0.5),
+        target: GcTarget::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"),
         protect_latest: 1,
         ..GcOptions::everything()
     };

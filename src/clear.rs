@@ -46,7 +46,7 @@ fn clear_rows(chunk: &Chunk) -> Vec<(usize, bool)> {
     (0..list.len())
         .filter(|&row| list.is_valid(row) && list.value_length(row) > 0)
         .map(|row| {
-            // A Clear holds one instance; a null flag is read as flat.
+            // A Clear holds exactly one non-null flag (checked on insert).
             let first = offsets[row].as_usize();
             (row, flags.is_valid(first) && flags.value(first))
         })

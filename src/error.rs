@@ -335,6 +335,37 @@ pub enum InsertError {
         /// The element type found.
         data_type: DataType,
     },
+    /// A `Clear:is_recursive` cell that is not exactly one boolean: a Clear says once
+    /// whether it is recursive (a null cell, meaning "no Clear in this row", is fine).
+    MalformedClear {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// Its entity.
+        entity_path: EntityPath,
+        /// The row (0-based).
+        row: usize,
+        /// How many instances the cell holds (not 1).
+        instances: usize,
+    },
+    /// A `Clear:is_recursive` cell whose one boolean is null: neither flat nor recursive.
+    NullClearFlag {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// Its entity.
+        entity_path: EntityPath,
+        /// The row (0-based).
+        row: usize,
+    },
+    /// The store holds a chunk with this id and other contents. Chunk ids name one chunk:
+    /// the same chunk inserted again changes nothing, another one under its id is refused.
+    ChunkIdConflict {
+        /// The id both chunks carry.
+        chunk_id: ChunkId,
+        /// The entity of the chunk the store holds.
+        held_entity: EntityPath,
+        /// The entity of the chunk refused.
+        incoming_entity: EntityPath,
+    },
 }
 
 impl fmt::Display for InsertError {
@@ -368,6 +399,34 @@ impl fmt::Display for InsertError {
             } => write!(
                 f,
                 "{chunk_id}: `Clear:is_recursive` must hold booleans, found {data_type}"
+            ),
+            Self::MalformedClear {
+                chunk_id,
+                entity_path,
+                row,
+                instances,
+            } => write!(
+                f,
+                "{chunk_id} ({entity_path}): the `Clear:is_recursive` cell of row {row} holds \
+                 {instances} booleans, not one"
+            ),
+            Self::NullClearFlag {
+                chunk_id,
+                entity_path,
+                row,
+            } => write!(
+                f,
+                "{chunk_id} ({entity_path}): the `Clear:is_recursive` cell of row {row} holds a \
+                 null boolean"
+            ),
+            Self::ChunkIdConflict {
+                chunk_id,
+                held_entity,
+                incoming_entity,
+            } => write!(
+                f,
+                "{chunk_id}: the store holds another chunk with this id (of {held_entity}); \
+                 refused the one of {incoming_entity}"
             ),
         }
     }
@@ -470,3 +529,27 @@ impl fmt::Display for ConfigError {
 }
 
 impl std::error::Error for ConfigError {}
+
+/// Garbage collection options that cannot mean what they say.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum GcOptionsError {
+    /// A fraction of the heap to free must be in `(0, 1]`.
+    FractionOutOfRange {
+        /// The fraction given.
+        fraction: f64,
+    },
+}
+
+impl fmt::Display for GcOptionsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::FractionOutOfRange { fraction } => write!(
+                f,
+                "gc options: a fraction of the heap must be in (0, 1], not {fraction}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for GcOptionsError {}

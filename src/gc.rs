@@ -11,6 +11,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::error::GcOptionsError;
 use crate::store::{DeletionReason, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, EntityPath, StoreEvent, TimeInt};
 
@@ -19,10 +20,63 @@ use crate::{Chunk, ChunkId, ChunkStore, EntityPath, StoreEvent, TimeInt};
 pub enum GcTarget {
     /// At least this many heap bytes ([`crate::StoreStats::heap_bytes`]).
     DropAtLeastBytes(u64),
-    /// At least this fraction (0 to 1) of the store's heap bytes.
-    DropAtLeastFraction(f64),
+    /// At least this fraction of the store's heap bytes.
+    DropAtLeastFraction(GcFraction),
     /// Every chunk that is not protected.
     Everything,
+}
+
+impl GcTarget {
+    /// [`GcTarget::DropAtLeastFraction`] of `fraction`, checked by [`GcFraction::new`].
+    ///
+    /// # Errors
+    /// If `fraction` is not in `(0, 1]`.
+    pub fn drop_at_least_fraction(fraction: f64) -> Result<Self, GcOptionsError> {
+        GcFraction::new(fraction).map(Self::DropAtLeastFraction)
+    }
+}
+
+/// A fraction of a store's heap in `(0, 1]`: a garbage collection target that means
+/// something. `NaN`, zero, negative and above-one fractions are refused where they are
+/// made, rather than making a collection silently do nothing (or everything).
+///
+/// ```
+/// use chunkstore::GcFraction;
+/// assert_eq!(GcFraction::new(0.25).unwrap().get(), 0.25);
+/// assert!(GcFraction::new(f64::NAN).is_err());
+/// assert!(GcFraction::new(0.0).is_err());
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, PartialOrd)]
+pub struct GcFraction(f64);
+
+impl GcFraction {
+    /// The whole heap.
+    pub const ALL: Self = Self(1.0);
+
+    /// `fraction`, if it is in `(0, 1]`.
+    ///
+    /// # Errors
+    /// [`GcOptionsError::FractionOutOfRange`] otherwise (`NaN` included).
+    pub fn new(fraction: f64) -> Result<Self, GcOptionsError> {
+        if fraction > 0.0 && fraction <= 1.0 {
+            Ok(Self(fraction))
+        } else {
+            Err(GcOptionsError::FractionOutOfRange { fraction })
+        }
+    }
+
+    /// The fraction, in `(0, 1]`.
+    pub fn get(self) -> f64 {
+        self.0
+    }
+}
+
+impl TryFrom<f64> for GcFraction {
+    type Error = GcOptionsError;
+
+    fn try_from(fraction: f64) -> Result<Self, Self::Error> {
+        Self::new(fraction)
+    }
 }
 
 /// Which chunks garbage collection drops first.
@@ -81,12 +135,15 @@ impl GcOptions {
 
     /// Drop at least `fraction` of the store's heap, oldest rows first, protecting the
     /// latest chunk of every (entity, timeline, component).
-    pub fn drop_at_least_fraction(fraction: f64) -> Self {
-        Self {
-            target: GcTarget::DropAtLeastFraction(fraction),
+    ///
+    /// # Errors
+    /// If `fraction` is not in `(0, 1]` (see [`GcFraction`]).
+    pub fn drop_at_least_fraction(fraction: f64) -> Result<Self, GcOptionsError> {
+        Ok(Self {
+            target: GcTarget::drop_at_least_fraction(fraction)?,
             protect_latest: 1,
             ..Self::everything()
-        }
+        })
     }
 }
 
@@ -115,10 +172,10 @@ impl ChunkStore {
                 clippy::cast_possible_truncation,
                 clippy::cast_sign_loss,
                 clippy::cast_precision_loss,
-                reason = "a fraction of a byte count, clamped to [0, 1]; NaN becomes 0"
+                reason = "a fraction in (0, 1] of a byte count"
             )]
             GcTarget::DropAtLeastFraction(fraction) => {
-                (fraction.clamp(0.0, 1.0) * self.stats.heap_bytes as f64).ceil() as u64
+                (fraction.get() * self.stats.heap_bytes as f64).ceil() as u64
             }
             GcTarget::Everything => u64::MAX,
         };

@@ -81,8 +81,8 @@ pub use component::{ComponentDescriptor, ComponentName};
 pub use entity_path::EntityPath;
 #[cfg(feature = "ipc")]
 pub use error::IoError;
-pub use error::{ChunkError, ConfigError, EntityPathError, InsertError};
-pub use gc::{GcOptions, GcOrder, GcPlan, GcTarget};
+pub use error::{ChunkError, ConfigError, EntityPathError, GcOptionsError, InsertError};
+pub use gc::{GcFraction, GcOptions, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
 pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 pub use stats::{EntityStats, StoreStats};

@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::sync::Arc;
 
+use arrow_array::Array;
 use arrow_schema::DataType;
 
 use crate::clear::ClearIndex;
@@ -477,11 +478,8 @@ impl ChunkStore {
         let entity = self.entities.get(chunk.entity_path());
         for column in chunk.components() {
             let incoming = column.element_type();
-            if column.name().is_clear() && *incoming != DataType::Boolean {
-                return Err(InsertError::ClearNotBoolean {
-                    chunk_id: chunk.id(),
-                    data_type: incoming.clone(),
-                });
+            if column.name().is_clear() {
+                check_clear_cells(chunk, column)?;
             }
             if let Some(existing) = entity.and_then(|e| e.element_types.get(column.name()))
                 && !existing.equals_datatype(incoming)
@@ -971,6 +969,43 @@ impl EntityIndex {
         }
         Ok(())
     }
+}
+
+/// A Clear column holds booleans, and each of its non-null cells exactly one non-null
+/// boolean (SEMANTICS.md section 5): the only shape that says whether a Clear is recursive.
+fn check_clear_cells(chunk: &Chunk, column: &crate::ComponentColumn) -> Result<(), InsertError> {
+    let list = column.list_array();
+    if *column.element_type() != DataType::Boolean {
+        return Err(InsertError::ClearNotBoolean {
+            chunk_id: chunk.id(),
+            data_type: column.element_type().clone(),
+        });
+    }
+    let offsets = list.value_offsets();
+    for row in (0..list.len()).filter(|&row| list.is_valid(row)) {
+        let (start, end) = (offsets[row], offsets[row + 1]);
+        let instances = usize::try_from(end - start).unwrap_or(0);
+        let problem = if instances != 1 {
+            Some(InsertError::MalformedClear {
+                chunk_id: chunk.id(),
+                entity_path: chunk.entity_path().clone(),
+                row,
+                instances,
+            })
+        } else if usize::try_from(start).is_ok_and(|flag| list.values().is_null(flag)) {
+            Some(InsertError::NullClearFlag {
+                chunk_id: chunk.id(),
+                entity_path: chunk.entity_path().clone(),
+                row,
+            })
+        } else {
+            None
+        };
+        if let Some(problem) = problem {
+            return Err(problem);
+        }
+    }
+    Ok(())
 }
 
 /// A deterministic listing of the store's chunks, sorted by entity then chunk id, so that

@@ -449,6 +449,68 @@ fn insert_rejects_a_component_with_another_type_and_leaves_the_store_unchanged()
     store.insert(other).unwrap();
 }
 
+/// Issue 12, item 4: a Clear cell says once whether the Clear is recursive. Empty cells,
+/// cells of several booleans and null booleans used to be accepted (and read as "no
+/// Clear" or by their first instance); they are refused, naming the row. A null cell (no
+/// Clear in that row) is fine.
+#[test]
+fn insert_rejects_clear_cells_that_are_not_one_boolean() {
+    use arrow_array::builder::{BooleanBuilder, ListBuilder};
+    let clears = |cells: &[Option<Vec<Option<bool>>>]| {
+        let mut builder = ListBuilder::new(BooleanBuilder::new());
+        for cell in cells {
+            match cell {
+                Some(flags) => {
+                    for flag in flags {
+                        builder.values().append_option(*flag);
+                    }
+                    builder.append(true);
+                }
+                None => builder.append(false),
+            }
+        }
+        Arc::new(builder.finish()) as ArrayRef
+    };
+    let mut store = ChunkStore::new();
+    for (cells, expected_row, expected) in [
+        (vec![Some(vec![Some(true), Some(false)])], 0, Some(2)),
+        (vec![Some(vec![Some(true)]), Some(vec![])], 1, Some(0)),
+        (vec![None, Some(vec![None])], 1, None),
+    ] {
+        let rows = cells.len();
+        let bad = chunk(
+            rows,
+            vec![frame((0..i64::try_from(rows).unwrap()).collect())],
+            vec![(ComponentName::CLEAR_IS_RECURSIVE, clears(&cells))],
+        )
+        .unwrap();
+        let error = store.insert(bad).unwrap_err();
+        match (&error, expected) {
+            (InsertError::MalformedClear { row, instances, .. }, Some(n)) => {
+                assert_eq!((*row, *instances), (expected_row, n), "{error}");
+            }
+            (InsertError::NullClearFlag { row, .. }, None) => assert_eq!(*row, expected_row),
+            _ => panic!("{cells:?}: {error:?}"),
+        }
+        assert!(
+            error.to_string().contains(&format!("row {expected_row}")),
+            "{error}"
+        );
+        assert_eq!(store.num_chunks(), 0, "a refused chunk leaves no trace");
+    }
+    let fine = chunk(
+        2,
+        vec![frame(vec![0, 1])],
+        vec![(
+            ComponentName::CLEAR_IS_RECURSIVE,
+            clears(&[None, Some(vec![Some(false)])]),
+        )],
+    )
+    .unwrap();
+    store.insert(fine).unwrap();
+    store.sanity_check().unwrap();
+}
+
 #[test]
 fn insert_rejects_a_clear_that_is_not_boolean() {
     let mut store = ChunkStore::new();

@@ -106,7 +106,7 @@ impl GcOp {
         GcOptions {
             target: match self.target {
                 0 => GcTarget::Everything,
-                1 => GcTarget::DropAtLeastFraction(0.5),
+                1 => GcTarget::drop_at_least_fraction(0.5).unwrap(),
                 _ => GcTarget::DropAtLeastBytes(1),
             },
             protect_latest: self.protect_latest,

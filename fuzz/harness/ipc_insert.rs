@@ -88,7 +88,7 @@ pub fn ipc_insert(bytes: &[u8]) {
             store.drop_time_range(timeline, TimeInt::saturating(-1), TimeInt::saturating(1));
             store.sanity_check().expect("sane after drop_time_range");
         }
-        store.gc(&GcOptions::drop_at_least_fraction(0.5));
+        store.gc(&GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"));
         store.sanity_check().expect("sane after gc");
         for entity in store.entity_paths() {
             store.drop_entity(&entity, false);
