@@ -63,6 +63,7 @@ mod component;
 mod entity_path;
 mod error;
 mod gc;
+mod held;
 mod ids;
 mod index;
 #[cfg(feature = "ipc")]

@@ -12,9 +12,11 @@ use std::sync::Arc;
 use arrow_array::Array;
 use arrow_schema::DataType;
 
+use crate::chunk::RowSource;
 use crate::clear::ClearIndex;
 use crate::compaction::{PendingGroups, StoreConfig};
 use crate::error::{ConfigError, InsertError};
+use crate::held::NewRows;
 use crate::index::{
     IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
 };
@@ -27,6 +29,15 @@ use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType}
 /// chunks, and after inserts that bring the rows inserted to a power of two (amortized
 /// O(1) per row) beyond.
 const DEBUG_SANITY_CHECK_MAX_CHUNKS: usize = 64;
+
+/// What [`ChunkStore::validate`] learned of a valid chunk.
+struct Validated {
+    /// Does the store already know every timeline of the chunk?
+    timelines_known: bool,
+    /// Could the store hold one of its rows already (see [`crate::held`])? Not when none
+    /// of its row ids is within those of its entity.
+    may_hold_rows: bool,
+}
 
 /// Why a chunk left the store.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -108,6 +119,10 @@ pub(crate) struct EntityIndex {
         SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Every chunk of the entity the store holds (unordered: `drop_entity` sorts them).
     pub chunk_ids: ahash::HashSet<ChunkId>,
+    /// At least the greatest row id of any chunk the entity holds (it never decreases while
+    /// the entity exists): a chunk whose row ids are all greater holds no row the entity
+    /// holds, which spares most inserts the search of [`crate::held`].
+    pub max_row_id: RowId,
     /// Temporal chunks still small enough for compaction on insert to grow.
     pub pending: PendingGroups,
     /// What the large indices add to the heap, kept as they change
@@ -203,18 +218,70 @@ impl ChunkStore {
     /// Inserts a chunk and returns what changed: its addition (or, if compaction split it,
     /// the additions of its parts), the deletion of any static chunk it made invisible
     /// (possibly itself, if newer static data shadows it), and whatever compaction merged
-    /// (deletions of the merged chunks, addition of the result). Inserting a chunk id the
-    /// store already holds changes nothing.
+    /// (deletions of the merged chunks, addition of the result).
+    ///
+    /// Ingest is idempotent (SEMANTICS.md section 6): rows the store already holds are not
+    /// stored twice, whether it holds them in this very chunk or in chunks compaction made
+    /// from it. A chunk the store holds entirely changes nothing and returns no event; one
+    /// it holds in part adds a chunk of its other rows (under a new id).
+    ///
+    /// ```
+    /// # use std::sync::Arc;
+    /// # use arrow_array::{ArrayRef, Float64Array};
+    /// # use chunkstore::*;
+    /// let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+    /// let chunk = Arc::new(
+    ///     ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/e").unwrap())
+    ///         .with_row(RowId::new(), [(Timeline::sequence("frame"), 1)], [("x", value)])
+    ///         .build()?,
+    /// );
+    /// let mut store = ChunkStore::new();
+    /// assert_eq!(store.insert(Arc::clone(&chunk))?.len(), 1);
+    /// assert!(store.insert(chunk)?.is_empty(), "the second insert changes nothing");
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     ///
     /// # Errors
-    /// If the chunk's timelines or component types conflict with the store; the store is
-    /// then unchanged.
+    /// If the chunk's timelines, component types or Clear cells conflict with the store or
+    /// its rules, or the store holds another chunk under its id; the store is then
+    /// unchanged.
     pub fn insert(&mut self, chunk: impl Into<Arc<Chunk>>) -> Result<Vec<StoreEvent>, InsertError> {
         let chunk = chunk.into();
-        if self.chunks.contains_key(&chunk.id()) {
-            return Ok(Vec::new());
+        if let Some(held) = self.chunks.get(&chunk.id()) {
+            if Arc::ptr_eq(&held.chunk, &chunk) || held.chunk.has_same_contents(&chunk) {
+                return Ok(Vec::new());
+            }
+            return Err(InsertError::ChunkIdConflict {
+                chunk_id: chunk.id(),
+                held_entity: held.chunk.entity_path().clone(),
+                incoming_entity: chunk.entity_path().clone(),
+            });
         }
-        let timelines_known = self.validate(&chunk)?;
+        let Validated {
+            timelines_known,
+            may_hold_rows,
+        } = self.validate(&chunk)?;
+        let new_rows = if may_hold_rows {
+            self.new_rows(&chunk)
+        } else {
+            NewRows::All
+        };
+        let chunk = match new_rows {
+            NewRows::All => chunk,
+            NewRows::None => return Ok(Vec::new()),
+            NewRows::Some(rows) => {
+                let rows: Vec<RowSource> = rows.into_iter().map(|row| (0, row)).collect();
+                match Chunk::gather(&[&chunk], &rows) {
+                    Ok(rest) => Arc::new(rest),
+                    Err(error) => {
+                        // Copying rows of a valid chunk does not fail; if it ever did, the
+                        // whole chunk goes in rather than losing its new rows.
+                        debug_assert!(false, "gathering the new rows of {}: {error}", chunk.id());
+                        chunk
+                    }
+                }
+            }
+        };
         if !timelines_known {
             for column in chunk.time_columns() {
                 let timeline = column.timeline();
@@ -277,6 +344,7 @@ impl ChunkStore {
             }
         }
         entity.chunk_ids.insert(chunk.id());
+        entity.max_row_id = entity.max_row_id.max(chunk.row_id_range().1);
         crate::stats::account(
             &chunk,
             ledgered,
@@ -456,9 +524,8 @@ impl ChunkStore {
         }
     }
 
-    /// Every check `insert` makes before touching anything; returns whether the store
-    /// already knows all the chunk's timelines.
-    fn validate(&self, chunk: &Chunk) -> Result<bool, InsertError> {
+    /// Every check `insert` makes before touching anything.
+    fn validate(&self, chunk: &Chunk) -> Result<Validated, InsertError> {
         let mut timelines_known = true;
         for column in chunk.time_columns() {
             let timeline = column.timeline();
@@ -493,7 +560,10 @@ impl ChunkStore {
                 });
             }
         }
-        Ok(timelines_known)
+        Ok(Validated {
+            timelines_known,
+            may_hold_rows: entity.is_some_and(|e| chunk.row_id_range().0 <= e.max_row_id),
+        })
     }
 
     /// The chunk with this id, if the store holds it.
@@ -900,6 +970,7 @@ impl EntityIndex {
             static_chunks,
             temporal_per_timeline_per_component,
             chunk_ids,
+            max_row_id,
             pending,
             large_index_bytes,
             stats: _,
@@ -918,6 +989,15 @@ impl EntityIndex {
                 .any(|id| chunks.get(id).is_none_or(|s| s.chunk.entity_path() != path))
         {
             return Err(format!("{path}: its chunk ids are non-empty and its own"));
+        }
+        if chunk_ids
+            .iter()
+            .filter_map(|id| chunks.get(id))
+            .any(|s| s.chunk.row_id_range().1 > *max_row_id)
+        {
+            return Err(format!(
+                "{path}: max_row_id bounds the row ids of its chunks"
+            ));
         }
         pending.sanity_check(path, chunks, config)?;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();

@@ -209,7 +209,7 @@ fn gc_plans_without_changing_anything_and_applies_exactly_its_plan() {
     ten_by_ten(&mut store, "g");
     let listing = store.to_string();
     let options = GcOptions {
-        target: GcTarget::DropAtLeastFraction(0.3),
+        target: GcTarget::drop_at_least_fraction(0.3).unwrap(),
         ..GcOptions::everything()
     };
     let plan = store.plan_gc(&options);
@@ -436,4 +436,200 @@ fn subscribers_see_every_mutation_and_clones_start_without_them() {
     assert_eq!(seen.lock().unwrap().len(), 2, "the clone has no subscriber");
     store.gc(&GcOptions::everything());
     assert_eq!(seen.lock().unwrap().len(), 2, "no events, no call");
+}
+
+/// Every row of every component of `entity` on `frame`, as `(time, row id, value)`.
+fn rows_of(store: &ChunkStore, entity: &str) -> Vec<(i64, u128, f64)> {
+    store
+        .range(&RangeQuery::everything("frame"), &path(entity), "x")
+        .iter()
+        .map(|row| {
+            (
+                row.time().unwrap().as_i64(),
+                row.row_id().as_u128(),
+                first_f64(&row.cell()),
+            )
+        })
+        .collect()
+}
+
+/// Issue 12, item 1: with the default configuration, 20 single-row chunks merge into 5;
+/// inserting chunk #0 again used to add its row a second time.
+#[test]
+fn regression_reinserting_a_chunk_compaction_absorbed_changes_nothing() {
+    let chunks: Vec<Arc<Chunk>> = (0..20)
+        .map(|i| Arc::new(scalar("e", "x", i, i as u128 + 1, i as f64)))
+        .collect();
+    let mut store = ChunkStore::new();
+    for chunk in &chunks {
+        store.insert(Arc::clone(chunk)).unwrap();
+    }
+    assert_eq!(store.num_chunks(), 5, "16 merged into one, 4 waiting");
+    assert!(
+        store.chunk(chunks[0].id()).is_none(),
+        "chunk #0 was absorbed"
+    );
+    let (listing, rows) = (store.to_string(), rows_of(&store, "e"));
+    assert_eq!(rows.len(), 20);
+    for chunk in &chunks {
+        // As the very same chunk, and as a copy decoded again from its transport batch.
+        let copy = Chunk::from_record_batch(&chunk.to_record_batch().unwrap()).unwrap();
+        assert!(store.insert(Arc::clone(chunk)).unwrap().is_empty());
+        assert!(store.insert(copy).unwrap().is_empty());
+    }
+    store.sanity_check().unwrap();
+    assert_eq!(store.to_string(), listing);
+    assert_eq!(rows_of(&store, "e"), rows);
+}
+
+/// A chunk split on insert (it exceeded a threshold) is held as its pieces: inserting it
+/// again changes nothing.
+#[test]
+fn reinserting_a_chunk_that_was_split_changes_nothing() {
+    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10)
+        .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
+        .collect();
+    let chunk = Arc::new(scalars("e", "x", &rows));
+    let mut store = ChunkStore::with_config(StoreConfig {
+        max_rows: 4,
+        ..StoreConfig::DEFAULT
+    })
+    .unwrap();
+    assert_eq!(store.insert(Arc::clone(&chunk)).unwrap().len(), 3);
+    assert!(store.insert(chunk).unwrap().is_empty());
+    assert_eq!(rows_of(&store, "e").len(), 10);
+    store.sanity_check().unwrap();
+}
+
+/// After garbage collection removed a chunk, inserting it again brings it back; after a
+/// range drop removed some of its rows, inserting it again brings back exactly those.
+#[test]
+fn a_removed_chunk_comes_back_and_a_cut_one_gets_back_only_its_dropped_rows() {
+    for config in [StoreConfig::COMPACTION_OFF, StoreConfig::DEFAULT] {
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..6)
+            .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
+            .collect();
+        let chunk = Arc::new(scalars("e", "x", &rows));
+        let mut store = ChunkStore::with_config(config).unwrap();
+        store.insert(Arc::clone(&chunk)).unwrap();
+        let all = rows_of(&store, "e");
+
+        store.drop_time_range("frame", t(2), t(3));
+        assert_eq!(rows_of(&store, "e").len(), 4);
+        let events = store.insert(Arc::clone(&chunk)).unwrap();
+        let added: Vec<usize> = events
+            .iter()
+            .filter_map(|e| match e {
+                StoreEvent::Addition(c) => Some(c.num_rows()),
+                StoreEvent::Deletion { .. } => None,
+            })
+            .collect();
+        assert_eq!(
+            added,
+            [2],
+            "{config:?}: only the two dropped rows come back"
+        );
+        assert_eq!(rows_of(&store, "e"), all, "{config:?}");
+
+        store.gc(&GcOptions::everything());
+        assert!(rows_of(&store, "e").is_empty());
+        assert!(!store.insert(Arc::clone(&chunk)).unwrap().is_empty());
+        assert_eq!(rows_of(&store, "e"), all, "{config:?}");
+        store.sanity_check().unwrap();
+    }
+}
+
+/// Rows equal to held ones are held whatever chunk carried them: a re-chunked copy of a
+/// recording adds nothing, and rows that differ in any cell or time are new.
+#[test]
+fn rows_equal_to_held_rows_are_not_stored_twice_whatever_their_chunk() {
+    let mut store = off();
+    store
+        .insert(scalars(
+            "e",
+            "x",
+            &[(1, 1, Some(vec![1.0])), (2, 2, Some(vec![2.0]))],
+        ))
+        .unwrap();
+    // The same rows, one per chunk, under new chunk ids.
+    assert!(
+        store
+            .insert(scalar("e", "x", 2, 2, 2.0))
+            .unwrap()
+            .is_empty()
+    );
+    assert!(
+        store
+            .insert(scalar("e", "x", 1, 1, 1.0))
+            .unwrap()
+            .is_empty()
+    );
+    // A reused row id with another value, another time, or at another entity: new rows.
+    for chunk in [
+        scalar("e", "x", 2, 2, 5.0),
+        scalar("e", "x", 3, 2, 2.0),
+        scalar("f", "x", 2, 2, 2.0),
+    ] {
+        assert_eq!(store.insert(chunk).unwrap().len(), 1);
+    }
+    assert_eq!(rows_of(&store, "e").len(), 4);
+    store.sanity_check().unwrap();
+}
+
+/// Issue 12, item 2: a chunk under an id the store holds, with other contents, used to be
+/// dropped silently; it is refused, naming both entities and the id.
+#[test]
+fn a_reused_chunk_id_with_other_contents_is_refused() {
+    let held = scalar("e", "x", 1, 1, 1.0);
+    let id = held.id();
+    let mut store = ChunkStore::new();
+    store.insert(held).unwrap();
+    let listing = store.to_string();
+    let other = Chunk::try_new(
+        id,
+        path("f"),
+        vec![common::rid(2)],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(vec![1])) as ArrayRef,
+        )],
+        vec![("x".into(), common::f64_list(&[Some(vec![1.0])]))],
+    )
+    .unwrap();
+    let error = store.insert(other).unwrap_err();
+    assert!(
+        matches!(
+            &error,
+            chunkstore::InsertError::ChunkIdConflict { chunk_id, held_entity, incoming_entity }
+                if *chunk_id == id && *held_entity == path("e") && *incoming_entity == path("f")
+        ),
+        "{error:?}"
+    );
+    let message = error.to_string();
+    assert!(message.contains(&id.to_string()) && message.contains("/e") && message.contains("/f"));
+    assert_eq!(store.to_string(), listing, "the store is unchanged");
+}
+
+/// Issue 12, item 5: fractions that cannot be met or mean nothing are refused where the
+/// options are made.
+#[test]
+fn gc_fractions_outside_zero_one_are_refused() {
+    for bad in [f64::NAN, 0.0, -0.5, 1.5, f64::INFINITY, f64::NEG_INFINITY] {
+        assert!(
+            matches!(
+                GcTarget::drop_at_least_fraction(bad),
+                Err(chunkstore::GcOptionsError::FractionOutOfRange { .. })
+            ),
+            "{bad}"
+        );
+        assert!(GcOptions::drop_at_least_fraction(bad).is_err(), "{bad}");
+        assert!(chunkstore::GcFraction::try_from(bad).is_err(), "{bad}");
+    }
+    for good in [1e-9, 0.5, 1.0] {
+        assert_eq!(
+            chunkstore::GcFraction::new(good).unwrap().get(),
+            good,
+            "{good}"
+        );
+    }
 }

@@ -3,6 +3,7 @@
 //! ranges per timeline and per component, static winners).
 
 mod builder;
+mod equality;
 pub(crate) mod memory;
 mod rewrite;
 mod transport;

@@ -15,34 +15,6 @@ use crate::{ChunkId, RowId};
 pub(crate) type RowSource = (usize, usize);
 
 impl Chunk {
-    /// Can rows of `self` and `other` live in one chunk? Same entity; same timelines with
-    /// the same types, in the same order; same components with the same Arrow types and
-    /// fields, in the same order; same schema metadata.
-    pub(crate) fn has_same_layout(&self, other: &Self) -> bool {
-        self.entity_path == other.entity_path
-            && self.time_columns.len() == other.time_columns.len()
-            && self.components.len() == other.components.len()
-            && self
-                .time_columns
-                .iter()
-                .zip(&other.time_columns)
-                .all(|(a, b)| {
-                    a.timeline == b.timeline
-                        && a.data_type == b.data_type
-                        && a.field_metadata == b.field_metadata
-                })
-            && self.components.iter().zip(&other.components).all(|(a, b)| {
-                a.descriptor == b.descriptor
-                    && match (&a.field, &b.field) {
-                        (None, None) => true,
-                        (Some(a), Some(b)) => Arc::ptr_eq(a, b) || a == b,
-                        _ => false,
-                    }
-                    && a.list.data_type() == b.list.data_type()
-            })
-            && self.extra_metadata == other.extra_metadata
-    }
-
     /// A new chunk holding `rows` of `chunks` (which share one layout), in that order.
     ///
     /// # Errors

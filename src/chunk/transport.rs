@@ -46,6 +46,17 @@ fn column_kind(field: &Field) -> Result<ColumnKind, ChunkError> {
     }
 }
 
+/// Does a component field's metadata hold only what [`Chunk::to_record_batch`] writes from
+/// the descriptor of component `name`?
+fn says_only_the_descriptor(meta: &HashMap<String, String>, name: &str) -> bool {
+    meta.iter().all(|(key, value)| match key.as_str() {
+        META_KIND => value == "data",
+        META_COMPONENT => value == name,
+        META_ARCHETYPE | META_COMPONENT_TYPE => true,
+        _ => false,
+    })
+}
+
 fn row_ids_from_arrow(array: &ArrayRef) -> Result<Vec<RowId>, ChunkError> {
     let bad_type = || ChunkError::BadRowIdType {
         data_type: array.data_type().clone(),
@@ -122,10 +133,20 @@ impl Chunk {
                             data_type: array.data_type().clone(),
                         }
                     })?;
+                    // What `to_record_batch` writes anyway is not kept: a decoded column
+                    // then has the layout of one built through the API, and a sorted one
+                    // that of an unsorted one (compaction merges them).
+                    let mut field_metadata = field.metadata().clone();
+                    field_metadata.retain(|key, value| match key.as_str() {
+                        META_KIND => value != "index",
+                        META_INDEX_NAME => value != name,
+                        META_IS_SORTED => false,
+                        _ => true,
+                    });
                     times.push(RawTimeColumn {
                         timeline: Timeline::new(name.as_str(), time_type),
                         times: RawTimes::Array(Arc::clone(array)),
-                        field_metadata: Metadata::new(field.metadata().clone()),
+                        field_metadata: Metadata::new(field_metadata),
                     });
                 }
                 ColumnKind::Component => {
@@ -141,9 +162,10 @@ impl Chunk {
                     components.push(RawComponentColumn {
                         descriptor,
                         array: Arc::clone(array),
-                        // A field saying nothing the descriptor does not is not kept: such
-                        // a column has the same layout as one built through the API.
-                        field: (field.name() != name || !meta.is_empty())
+                        // A field saying nothing the descriptor does not (what
+                        // `to_record_batch` writes from it) is not kept: such a column has
+                        // the same layout as one built through the API.
+                        field: (field.name() != name || !says_only_the_descriptor(meta, name))
                             .then(|| Arc::clone(field)),
                     });
                 }
