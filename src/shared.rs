@@ -10,46 +10,179 @@
 //! shared copy instead, so equal values are usually the same allocation (`Arc::ptr_eq`,
 //! which `Arc`'s equality checks first) and that one copy stays in cache.
 //!
-//! The sets only grow, so each is capped: past [`MAX_SHARED`] distinct values (far more
-//! than any schema has; only generated names get there) a new value keeps its own
-//! allocation, which is just as correct.
+//! The sets must not hold memory nobody uses, so each is bounded twice: by bytes
+//! ([`MAX_SHARED_BYTES`]) and by entries ([`MAX_SHARED`]), and a value larger than
+//! [`MAX_SHARED_VALUE_BYTES`] is never shared (a generated 100 KB component name is rare
+//! enough that sharing it saves nothing). When a set is full, it first forgets the values
+//! only it still holds (a sweep, at most once per half a set's worth of refused values, so
+//! that a set full of values in use costs O(1) per refusal); a value that still finds no
+//! room keeps its own allocation, which is just as correct.
 
 use std::hash::Hash;
 use std::sync::{Arc, OnceLock};
 
-use arrow_schema::{Field, FieldRef};
+use arrow_schema::{DataType, Field, FieldRef};
 use parking_lot::RwLock;
 
 /// How many distinct values of each kind are shared at most.
 pub(crate) const MAX_SHARED: usize = 16_384;
 
-type SharedSet<T> = RwLock<ahash::HashSet<Arc<T>>>;
+/// How many bytes the values of each kind take at most (estimated; see [`Shareable`]).
+pub(crate) const MAX_SHARED_BYTES: usize = 4 << 20;
 
-fn shared_names() -> &'static SharedSet<str> {
-    static NAMES: OnceLock<SharedSet<str>> = OnceLock::new();
-    NAMES.get_or_init(RwLock::default)
+/// The largest value that is shared.
+pub(crate) const MAX_SHARED_VALUE_BYTES: usize = 1024;
+
+/// A value a [`SharedSet`] can hold.
+pub(crate) trait Shareable: Hash + Eq {
+    /// Estimated heap of the value behind its `Arc`, with its slot in the set.
+    fn shared_bytes(&self) -> usize;
+
+    /// A new allocation of the value, for the set to hand out. (A caller's own `Arc` is not
+    /// adopted: a chunk built while the set was full keeps its own field, and counts it in
+    /// its memory, so that field must never become the shared copy later.)
+    fn fresh_copy(&self) -> Arc<Self>;
 }
 
-fn shared_fields() -> &'static SharedSet<Field> {
-    static FIELDS: OnceLock<SharedSet<Field>> = OnceLock::new();
-    FIELDS.get_or_init(RwLock::default)
+impl Shareable for str {
+    fn shared_bytes(&self) -> usize {
+        // The `Arc` header and the set's slot (a fat pointer and a control byte).
+        self.len() + 2 * size_of::<usize>() + 2 * size_of::<usize>() + 1
+    }
+
+    fn fresh_copy(&self) -> Arc<Self> {
+        Arc::from(self)
+    }
 }
 
-/// The shared copy of `name`: an earlier equal name's allocation if there is one, else
-/// `name` itself, now shared (while the set has room).
+impl Shareable for Field {
+    fn shared_bytes(&self) -> usize {
+        field_bytes(self) + 2 * size_of::<usize>() + size_of::<usize>() + 1
+    }
+
+    fn fresh_copy(&self) -> Arc<Self> {
+        Arc::new(self.clone())
+    }
+}
+
+/// Estimated heap of a field: the struct, its name and metadata, and the fields nested in
+/// its type.
+fn field_bytes(field: &Field) -> usize {
+    let metadata: usize = field
+        .metadata()
+        .iter()
+        .map(|(key, value)| key.len() + value.len() + 3 * size_of::<usize>())
+        .sum();
+    let nested: usize = match field.data_type() {
+        DataType::List(item)
+        | DataType::LargeList(item)
+        | DataType::ListView(item)
+        | DataType::LargeListView(item)
+        | DataType::FixedSizeList(item, _)
+        | DataType::Map(item, _) => field_bytes(item),
+        DataType::Struct(fields) => fields.iter().map(|f| field_bytes(f)).sum(),
+        DataType::Union(fields, _) => fields.iter().map(|(_, f)| field_bytes(f)).sum(),
+        DataType::Dictionary(..) | DataType::RunEndEncoded(..) => size_of::<Field>(),
+        _ => 0,
+    };
+    size_of::<Field>() + field.name().len() + metadata + nested
+}
+
+/// One kind of shared values, with the figures that bound it.
+struct SharedSet<T: ?Sized> {
+    values: ahash::HashSet<Arc<T>>,
+    /// [`Shareable::shared_bytes`] of `values`.
+    bytes: usize,
+    /// Values refused for lack of room since the last sweep.
+    refused_since_sweep: usize,
+    max_values: usize,
+    max_bytes: usize,
+}
+
+impl<T: ?Sized + Shareable> SharedSet<T> {
+    fn new(max_values: usize, max_bytes: usize) -> Self {
+        Self {
+            values: ahash::HashSet::default(),
+            bytes: 0,
+            refused_since_sweep: 0,
+            max_values,
+            max_bytes,
+        }
+    }
+
+    /// The estimated bytes the set holds.
+    #[cfg(test)]
+    fn bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// The number of values it holds.
+    #[cfg(test)]
+    fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    fn has_room_for(&self, bytes: usize) -> bool {
+        self.values.len() < self.max_values && self.bytes + bytes <= self.max_bytes
+    }
+
+    /// Forgets every value no one else holds.
+    fn sweep(&mut self) {
+        self.values.retain(|value| Arc::strong_count(value) > 1);
+        self.bytes = self.values.iter().map(|v| v.shared_bytes()).sum();
+        self.refused_since_sweep = 0;
+    }
+
+    /// The shared copy of a value equal to `value`, if there is or can be one.
+    fn share(&mut self, value: &T) -> Option<Arc<T>> {
+        if let Some(shared) = self.values.get(value) {
+            return Some(Arc::clone(shared));
+        }
+        let bytes = value.shared_bytes();
+        if bytes > MAX_SHARED_VALUE_BYTES {
+            return None;
+        }
+        if !self.has_room_for(bytes) && self.refused_since_sweep >= self.values.len() / 2 {
+            self.sweep();
+        }
+        if !self.has_room_for(bytes) {
+            self.refused_since_sweep += 1;
+            return None;
+        }
+        let shared = value.fresh_copy();
+        self.values.insert(Arc::clone(&shared));
+        self.bytes += bytes;
+        Some(shared)
+    }
+}
+
+type Shared<T> = RwLock<SharedSet<T>>;
+
+fn shared_names() -> &'static Shared<str> {
+    static NAMES: OnceLock<Shared<str>> = OnceLock::new();
+    NAMES.get_or_init(|| RwLock::new(SharedSet::new(MAX_SHARED, MAX_SHARED_BYTES)))
+}
+
+fn shared_fields() -> &'static Shared<Field> {
+    static FIELDS: OnceLock<Shared<Field>> = OnceLock::new();
+    FIELDS.get_or_init(|| RwLock::new(SharedSet::new(MAX_SHARED, MAX_SHARED_BYTES)))
+}
+
+/// The shared copy of `name` if there is or can be one, else `name` itself.
 pub(crate) fn share_name(name: Arc<str>) -> Arc<str> {
-    share_in(shared_names(), MAX_SHARED, name)
+    share_in(shared_names(), name)
 }
 
 /// The shared copy of a list's item field, as [`share_name`] does for names.
 pub(crate) fn share_field(field: &FieldRef) -> FieldRef {
-    share_in(shared_fields(), MAX_SHARED, Arc::clone(field))
+    share_in(shared_fields(), Arc::clone(field))
 }
 
 /// Is `field` the shared copy (so that no chunk owns it)?
 pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
     shared_fields()
         .read()
+        .values
         .get(&**field)
         .is_some_and(|shared| Arc::ptr_eq(shared, field))
 }
@@ -70,31 +203,28 @@ pub(crate) fn cmp_names(a: &Arc<str>, b: &Arc<str>) -> std::cmp::Ordering {
     }
 }
 
-fn share_in<T: ?Sized + Hash + Eq>(set: &SharedSet<T>, cap: usize, value: Arc<T>) -> Arc<T> {
-    if let Some(shared) = set.read().get(&*value) {
+fn share_in<T: ?Sized + Shareable>(set: &Shared<T>, value: Arc<T>) -> Arc<T> {
+    if let Some(shared) = set.read().values.get(&*value) {
         return Arc::clone(shared);
     }
-    let mut set = set.write();
-    if let Some(shared) = set.get(&*value) {
-        return Arc::clone(shared);
-    }
-    if set.len() < cap {
-        set.insert(Arc::clone(&value));
-    }
-    value
+    set.write().share(&value).unwrap_or(value)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn share(set: &Shared<str>, name: &str) -> Arc<str> {
+        share_in(set, Arc::from(name))
+    }
+
     #[test]
     fn equal_names_share_one_allocation() {
-        let names = SharedSet::<str>::default();
-        let a = share_in(&names, 8, Arc::from("frame"));
-        let b = share_in(&names, 8, Arc::from(String::from("frame")));
+        let names = RwLock::new(SharedSet::<str>::new(8, 1 << 20));
+        let a = share(&names, "frame");
+        let b = share_in(&names, Arc::from(String::from("frame")));
         assert!(Arc::ptr_eq(&a, &b));
-        let other = share_in(&names, 8, Arc::from("log_time"));
+        let other = share(&names, "log_time");
         assert!(!Arc::ptr_eq(&a, &other));
         assert_eq!(&*other, "log_time");
         // The process-wide set behind the public constructors does the same.
@@ -118,21 +248,57 @@ mod tests {
         let shared = share_field(&first);
         assert!(Arc::ptr_eq(&shared, &share_field(&second)));
         assert!(is_shared_field(&shared));
-        assert!(!is_shared_field(&second));
+        assert!(
+            !is_shared_field(&first) && !is_shared_field(&second),
+            "the set keeps a copy of its own, never a caller's field"
+        );
     }
 
     #[test]
     fn past_the_cap_names_keep_their_own_allocation() {
-        let names = SharedSet::<str>::default();
-        for i in 0..4 {
-            share_in(&names, 4, Arc::from(format!("fill-{i}")));
-        }
+        let names = RwLock::new(SharedSet::<str>::new(4, 1 << 20));
+        let held: Vec<Arc<str>> = (0..4)
+            .map(|i| share(&names, &format!("fill-{i}")))
+            .collect();
         let late = Arc::<str>::from("late");
-        let shared = share_in(&names, 4, Arc::clone(&late));
+        let shared = share_in(&names, Arc::clone(&late));
         assert!(Arc::ptr_eq(&late, &shared));
         assert_eq!(names.read().len(), 4);
         // An earlier name is still shared.
-        let again = share_in(&names, 4, Arc::from("fill-0"));
-        assert!(Arc::ptr_eq(&again, names.read().get("fill-0").unwrap()));
+        assert!(Arc::ptr_eq(&share(&names, "fill-0"), &held[0]));
+    }
+
+    #[test]
+    fn long_names_are_never_shared() {
+        let names = RwLock::new(SharedSet::<str>::new(8, 1 << 20));
+        let long = "x".repeat(MAX_SHARED_VALUE_BYTES);
+        let first = share(&names, &long);
+        assert!(!Arc::ptr_eq(&first, &share(&names, &long)));
+        assert_eq!(names.read().len(), 0);
+    }
+
+    /// A full set forgets the names nobody holds any more, rather than keeping them forever
+    /// (issue 12: 5,000 generated names stayed resident after every chunk was dropped).
+    #[test]
+    fn a_full_set_sweeps_the_names_nobody_holds() {
+        let per_name = "n-0000".shared_bytes();
+        let names = RwLock::new(SharedSet::<str>::new(1000, 10 * per_name));
+        let held: Vec<Arc<str>> = (0..10)
+            .map(|i| share(&names, &format!("n-{i:04}")))
+            .collect();
+        assert_eq!(names.read().bytes(), 10 * per_name, "full by bytes");
+        // Full of names in use: new ones keep their own allocation.
+        let refused = share(&names, "n-0010");
+        assert!(!Arc::ptr_eq(&refused, &share(&names, "n-0010")));
+        drop(held);
+        // Now every name is unused: the next refusals sweep them out, and new ones fit.
+        let mut shared_again = false;
+        for i in 11..30 {
+            let name = format!("n-{i:04}");
+            let first = share(&names, &name);
+            shared_again |= Arc::ptr_eq(&first, &share(&names, &name));
+        }
+        assert!(shared_again, "a sweep made room");
+        assert!(names.read().bytes() <= 10 * per_name);
     }
 }
