@@ -19,8 +19,17 @@
 //! - `--max-rows N`: most rows of a time-sorted chunk;
 //! - `--max-rows-unsorted N`: most rows of an unsorted chunk;
 //! - `--max-bytes N`: most payload bytes of a chunk;
-//! - `--compact`: run on-demand compaction once everything is loaded.
+//! - `--compact`: run on-demand compaction once everything is loaded;
+//! - `--skip-bad`: skip a file that cannot be read or a chunk the store refuses, with one
+//!   line on stderr for each, and load the rest (without it, the first one is an error).
+//!
+//! A query naming a timeline the directory does not use, or a range whose start is after its
+//! end, still answers (static data answers on every timeline, at every time) and exits 0,
+//! with one warning line on stderr so that a typo does not go unnoticed. `stats` lists the
+//! timelines (name, type, least and greatest time) and the entities.
 
+use std::cell::RefCell;
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -29,21 +38,74 @@ use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
 use chunkstore::{
     ChunkId, ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, StoreConfig, TimeInt,
+    TimeType,
 };
 
 const USAGE: &str = "usage: query [--max-rows N] [--max-rows-unsorted N] [--max-bytes N] \
-                     [--compact] <DIR> latest-at <TIMELINE> <TIME> | range <TIMELINE> <MIN> \
-                     <MAX> | stats";
+                     [--compact] [--skip-bad] <DIR> latest-at <TIMELINE> <TIME> | range \
+                     <TIMELINE> <MIN> <MAX> | stats";
+
+thread_local! {
+    /// The last panic's message and place, for the one line printed if a panic escapes.
+    static LAST_PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
+}
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(message) => {
-            eprintln!("error: {message}");
+    // The default panic hook prints every panic, even one the library contains and turns
+    // into an error (arrow-ipc panics on some malformed files; see `chunkstore::io`): the
+    // user would see two messages for one bad file. This hook prints nothing and keeps the
+    // message; a panic that escapes (a bug) is reported below, on one line.
+    std::panic::set_hook(Box::new(|info| {
+        let message = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".to_owned());
+        let place = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        LAST_PANIC.with(|last| *last.borrow_mut() = Some(format!("{message}{place}")));
+    }));
+    let args: Vec<OsString> = std::env::args_os().skip(1).collect();
+    match std::panic::catch_unwind(|| run(&args)) {
+        Ok(Ok(()) | Err(Failure::BrokenPipe)) => ExitCode::SUCCESS,
+        Ok(Err(Failure::Message(message))) => {
+            eprintln!("error: {}", one_line(&message));
             ExitCode::from(2)
         }
+        Err(_) => {
+            let message = LAST_PANIC
+                .with(|last| last.borrow_mut().take())
+                .unwrap_or_default();
+            eprintln!(
+                "error: internal error (a bug in chunkstore): {}",
+                one_line(&message)
+            );
+            ExitCode::from(101)
+        }
     }
+}
+
+/// Why the tool stopped early.
+enum Failure {
+    /// Bad arguments or input: one line on stderr, exit code 2.
+    Message(String),
+    /// Whoever read stdout stopped reading (`| head`): not an error.
+    BrokenPipe,
+}
+
+impl From<String> for Failure {
+    fn from(message: String) -> Self {
+        Self::Message(message)
+    }
+}
+
+/// `text` on one line: a message quoting a file's bytes or Arrow's multi-line errors must
+/// not spread over several.
+fn one_line(text: &str) -> String {
+    text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 enum Command {
@@ -67,9 +129,8 @@ fn parse_time(text: &str, what: &str) -> Result<TimeInt, String> {
         .ok_or_else(|| format!("{what} {value} is reserved (i64::MIN is never a valid time)"))
 }
 
-fn parse_command(args: &[String]) -> Result<Command, String> {
-    let strs: Vec<&str> = args.iter().map(String::as_str).collect();
-    match strs.as_slice() {
+fn parse_command(args: &[&str]) -> Result<Command, String> {
+    match args {
         ["latest-at", timeline, time] => Ok(Command::LatestAt {
             timeline: (*timeline).to_owned(),
             at: parse_time(time, "time")?,
@@ -88,37 +149,60 @@ fn parse_command(args: &[String]) -> Result<Command, String> {
     }
 }
 
-/// How to load: the store's configuration, and whether to compact afterwards.
+/// How to load: the store's configuration, whether to compact afterwards, and whether to
+/// skip what cannot be loaded.
 struct LoadOptions {
     config: StoreConfig,
     compact: bool,
+    skip_bad: bool,
+}
+
+/// An argument as text: every argument but `<DIR>` must be UTF-8.
+fn text(arg: &OsString, position: usize) -> Result<&str, String> {
+    arg.to_str().ok_or_else(|| {
+        format!(
+            "argument {position} ({:?}) is not valid UTF-8",
+            arg.to_string_lossy()
+        )
+    })
 }
 
 /// Parses the options before `<DIR>`; returns them and the arguments left.
-fn parse_options(mut args: &[String]) -> Result<(LoadOptions, &[String]), String> {
+fn parse_options(all: &[OsString]) -> Result<(LoadOptions, &[OsString]), String> {
     let mut options = LoadOptions {
         config: StoreConfig::DEFAULT,
         compact: false,
+        skip_bad: false,
     };
+    let mut args = all;
     while let [flag, rest @ ..] = args {
+        let position = all.len() - args.len() + 1;
+        let Some(flag) = flag.to_str() else {
+            break; // not an option: `<DIR>`, which may be any path
+        };
         if !flag.starts_with("--") || flag == "--help" {
             break;
         }
-        if flag == "--compact" {
-            options.compact = true;
+        if flag == "--compact" || flag == "--skip-bad" {
+            if flag == "--compact" {
+                options.compact = true;
+            } else {
+                options.skip_bad = true;
+            }
             args = rest;
             continue;
         }
         let [value, rest @ ..] = rest else {
             return Err(format!("{flag} needs a value; {USAGE}"));
         };
+        let value = text(value, position + 1)?;
         let number = || -> Result<u64, String> {
             value
                 .parse()
                 .map_err(|_| format!("{flag} {value:?} is not a non-negative integer"))
         };
         let as_usize = |n: u64| usize::try_from(n).map_err(|_| format!("{flag} {n} is too large"));
-        match flag.as_str() {
+        match flag {
             "--max-rows" => options.config.max_rows = as_usize(number()?)?,
             "--max-rows-unsorted" => options.config.max_rows_unsorted = as_usize(number()?)?,
             "--max-bytes" => options.config.max_bytes = number()?,
@@ -130,27 +214,67 @@ fn parse_options(mut args: &[String]) -> Result<(LoadOptions, &[String]), String
     Ok((options, args))
 }
 
-fn run(args: &[String]) -> Result<(), String> {
-    let (options, args) = parse_options(args)?;
-    let [dir, rest @ ..] = args else {
-        return Err(format!("missing <DIR>; {USAGE}"));
+fn run(args: &[OsString]) -> Result<(), Failure> {
+    let (options, rest) = parse_options(args)?;
+    let [dir, rest @ ..] = rest else {
+        return Err(format!("missing <DIR>; {USAGE}").into());
     };
     if dir == "-h" || dir == "--help" {
         println!("{USAGE}");
         return Ok(());
     }
-    let command = parse_command(rest)?;
-    let loaded = load(Path::new(dir), &options)?;
+    let first_command_arg = args.len() - rest.len() + 1;
+    let rest: Vec<&str> = rest
+        .iter()
+        .enumerate()
+        .map(|(i, arg)| text(arg, first_command_arg + i))
+        .collect::<Result<_, _>>()?;
+    let command = parse_command(&rest)?;
+    let dir = Path::new(dir);
+    let loaded = load(dir, &options)?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    match command {
+    let written = match command {
         Command::LatestAt { timeline, at } => {
+            warn_if_unknown(&loaded.store, &timeline, dir);
             latest_at(&loaded, &LatestAtQuery::new(timeline, at), &mut out)
         }
         Command::Range { timeline, min, max } => {
+            warn_if_unknown(&loaded.store, &timeline, dir);
+            if min > max {
+                eprintln!(
+                    "warning: the range [{min}, {max}] is empty (its start is after its end): \
+                     only static data answers"
+                );
+            }
             range(&loaded, &RangeQuery::new(timeline, min, max), &mut out)
         }
         Command::Stats => stats(&loaded.store, &mut out),
+    };
+    written?;
+    std::io::Write::flush(&mut out).map_err(|e| stdout_failure(&e))
+}
+
+/// One warning line if no chunk of the directory uses `timeline`: the query still answers
+/// (with static data only), but a misspelt name should not pass unnoticed.
+fn warn_if_unknown(store: &ChunkStore, timeline: &str, dir: &Path) {
+    if store.time_type(timeline).is_some() {
+        return;
     }
+    let known: Vec<String> = store
+        .timelines()
+        .iter()
+        .map(|t| format!("{:?}", t.name()))
+        .collect();
+    let known = if known.is_empty() {
+        "none".to_owned()
+    } else {
+        known.join(", ")
+    };
+    eprintln!(
+        "warning: no data of {} is on timeline {timeline:?} (its timelines: {known}): only \
+         static data answers",
+        dir.display()
+    );
 }
 
 fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
@@ -192,16 +316,46 @@ impl Loaded {
 fn load(dir: &Path, options: &LoadOptions) -> Result<Loaded, String> {
     let mut store = ChunkStore::with_config(options.config).map_err(|e| e.to_string())?;
     let mut source_chunk = ahash::HashMap::default();
+    // With `--skip-bad`, what was skipped: printed once something loaded, else the error
+    // names the first (one line either way).
+    let mut skipped: Vec<String> = Vec::new();
+    let mut num_loaded = 0;
     for file in chunk_files(dir)? {
         let name = file.display();
-        let chunks =
-            chunkstore::io::read_chunks_from_path(&file).map_err(|e| format!("{name}: {e}"))?;
-        for chunk in chunks {
-            for &row_id in chunk.row_ids() {
-                source_chunk.entry(row_id).or_insert(chunk.id());
+        let chunks = match chunkstore::io::read_chunks_from_path(&file) {
+            Ok(chunks) => chunks,
+            Err(error) if options.skip_bad => {
+                skipped.push(format!("{name}: {}", one_line(&error.to_string())));
+                continue;
             }
-            store.insert(chunk).map_err(|e| format!("{name}: {e}"))?;
+            Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
+        };
+        for chunk in chunks {
+            let id = chunk.id();
+            let row_ids = chunk.row_ids().to_vec();
+            match store.insert(chunk) {
+                Ok(_) => {}
+                Err(error) if options.skip_bad => {
+                    skipped.push(format!("{id} of {name}: {}", one_line(&error.to_string())));
+                    continue;
+                }
+                Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
+            }
+            for row_id in row_ids {
+                source_chunk.entry(row_id).or_insert(id);
+            }
         }
+        num_loaded += 1;
+    }
+    if num_loaded == 0 {
+        return Err(format!(
+            "{}: none of its files could be read (the first: {})",
+            dir.display(),
+            skipped.first().map_or("", String::as_str)
+        ));
+    }
+    for what in skipped {
+        eprintln!("warning: skipped {what}");
     }
     if options.compact {
         store.compact();
@@ -214,9 +368,17 @@ fn load(dir: &Path, options: &LoadOptions) -> Result<Loaded, String> {
 
 type Out<'a> = std::io::BufWriter<std::io::StdoutLock<'a>>;
 
-fn write_line(out: &mut Out<'_>, line: &str) -> Result<(), String> {
+fn write_line(out: &mut Out<'_>, line: &str) -> Result<(), Failure> {
     use std::io::Write as _;
-    writeln!(out, "{line}").map_err(|e| format!("stdout: {e}"))
+    writeln!(out, "{line}").map_err(|e| stdout_failure(&e))
+}
+
+/// A failed write to stdout: a reader that went away is no error of ours.
+fn stdout_failure(error: &std::io::Error) -> Failure {
+    match error.kind() {
+        std::io::ErrorKind::BrokenPipe => Failure::BrokenPipe,
+        _ => Failure::Message(format!("stdout: {error}")),
+    }
 }
 
 /// One answer as a JSON line, keys in the documented order.
@@ -255,7 +417,7 @@ fn render_cell(column: &ComponentColumn, row: usize) -> Result<String, String> {
         .ok_or_else(|| format!("unexpected JSON rendering {text:?}"))
 }
 
-fn latest_at(loaded: &Loaded, query: &LatestAtQuery, out: &mut Out<'_>) -> Result<(), String> {
+fn latest_at(loaded: &Loaded, query: &LatestAtQuery, out: &mut Out<'_>) -> Result<(), Failure> {
     let store = &loaded.store;
     for entity in store.entity_paths() {
         let entity_text = entity.to_string();
@@ -278,7 +440,7 @@ fn latest_at(loaded: &Loaded, query: &LatestAtQuery, out: &mut Out<'_>) -> Resul
     Ok(())
 }
 
-fn range(loaded: &Loaded, query: &RangeQuery, out: &mut Out<'_>) -> Result<(), String> {
+fn range(loaded: &Loaded, query: &RangeQuery, out: &mut Out<'_>) -> Result<(), Failure> {
     let store = &loaded.store;
     for entity in store.entity_paths() {
         let entity_text = entity.to_string();
@@ -300,8 +462,31 @@ fn range(loaded: &Loaded, query: &RangeQuery, out: &mut Out<'_>) -> Result<(), S
     Ok(())
 }
 
-fn stats(store: &ChunkStore, out: &mut Out<'_>) -> Result<(), String> {
+fn stats(store: &ChunkStore, out: &mut Out<'_>) -> Result<(), Failure> {
     let s = store.stats();
+    // What there is to query: each timeline with its type and the times its data spans.
+    let timelines: Vec<serde_json::Value> = store
+        .timelines()
+        .iter()
+        .map(|timeline| {
+            let range = store.time_range(timeline.name());
+            serde_json::json!({
+                "name": timeline.name(),
+                "type": match timeline.time_type() {
+                    TimeType::Sequence => "sequence",
+                    TimeType::DurationNs => "duration_ns",
+                    TimeType::TimestampNs => "timestamp_ns",
+                },
+                "min": range.map(|(min, _)| min.as_i64()),
+                "max": range.map(|(_, max)| max.as_i64()),
+            })
+        })
+        .collect();
+    let entities: Vec<String> = store
+        .entity_paths()
+        .iter()
+        .map(ToString::to_string)
+        .collect();
     let line = serde_json::json!({
         "num_chunks": s.num_chunks(),
         "num_static_chunks": s.num_static_chunks,
@@ -313,6 +498,8 @@ fn stats(store: &ChunkStore, out: &mut Out<'_>) -> Result<(), String> {
         "static_heap_bytes": s.static_heap_bytes,
         "temporal_heap_bytes": s.temporal_heap_bytes,
         "num_entities": store.entity_paths().len(),
+        "timelines": timelines,
+        "entities": entities,
     });
     write_line(out, &line.to_string())
 }

@@ -23,7 +23,7 @@ use crate::index::{
 use crate::ordered::OrderedSet;
 use crate::small_map::SmallMap;
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
-use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType};
+use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType, Timeline};
 
 /// Debug builds check the whole store after every insert while it holds at most this many
 /// chunks, and after inserts that bring the rows inserted to a power of two (amortized
@@ -594,6 +594,38 @@ impl ChunkStore {
     /// The type a timeline has in this store, if any chunk used it.
     pub fn time_type(&self, timeline: &str) -> Option<TimeType> {
         self.time_types.get(timeline).copied()
+    }
+
+    /// Every timeline any inserted chunk used, sorted by name. (A timeline keeps its type
+    /// once seen, even after all its data is gone; [`ChunkStore::time_range`] tells whether
+    /// any is left.)
+    pub fn timelines(&self) -> Vec<Timeline> {
+        let mut timelines: Vec<Timeline> = self
+            .time_types
+            .iter()
+            .map(|(name, &time_type)| Timeline::new(Arc::clone(name), time_type))
+            .collect();
+        timelines.sort();
+        timelines
+    }
+
+    /// The least and greatest time the store holds data at on `timeline`, or `None` if it
+    /// holds none there.
+    ///
+    /// Cost: O(1) from the store-wide time orders, plus a look at the small chunks
+    /// compaction keeps waiting (O(entities) when there are any).
+    pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
+        let ordered = self.temporal_per_timeline.get(timeline).and_then(|chunks| {
+            let (min, _) = chunks.by_min_time.iter().next()?;
+            let (max, _) = chunks.by_max_time.iter().next_back()?;
+            Some((*min, *max))
+        });
+        self.chunks_outside_global_orders()
+            .into_iter()
+            .filter_map(|chunk| chunk.time_column(timeline))
+            .map(crate::TimeColumn::time_range)
+            .chain(ordered)
+            .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
     }
 
     /// Every entity that holds data, sorted.

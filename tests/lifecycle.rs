@@ -633,3 +633,31 @@ fn gc_fractions_outside_zero_one_are_refused() {
         );
     }
 }
+
+/// `time_range` spans the data held on a timeline, whether compaction keeps chunks waiting
+/// or not, and follows removals; `timelines` keeps listing a timeline once seen.
+#[test]
+fn time_range_spans_the_data_held_and_follows_removals() {
+    for config in [StoreConfig::COMPACTION_OFF, StoreConfig::DEFAULT] {
+        let mut store = ChunkStore::with_config(config).unwrap();
+        assert_eq!(store.time_range("frame"), None);
+        for frame in (5..=20).rev() {
+            store
+                .insert(scalar("e", "x", frame, 100 - frame as u128, 1.0))
+                .unwrap();
+        }
+        store.insert(static_scalar("s", "x", 1, 1.0)).unwrap();
+        assert_eq!(store.time_range("frame"), Some((t(5), t(20))), "{config:?}");
+        assert_eq!(store.time_range("other"), None);
+        store.drop_time_range("frame", t(15), t(30));
+        assert_eq!(store.time_range("frame"), Some((t(5), t(14))), "{config:?}");
+        store.drop_time_range("frame", t(0), t(100));
+        assert_eq!(store.time_range("frame"), None, "{config:?}");
+        let names: Vec<String> = store
+            .timelines()
+            .iter()
+            .map(|t| t.name().to_owned())
+            .collect();
+        assert_eq!(names, ["frame"]);
+    }
+}
