@@ -10,62 +10,70 @@
 #[path = "../fuzz/harness/ipc_insert.rs"]
 mod harness;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-fn replay(dir: &str) -> usize {
+use chunkstore::IoError;
+
+/// The files of a directory of the repository (but its `README.md`), sorted. A directory
+/// that cannot be read fails the test: a replay of nothing proves nothing.
+fn files_in(dir: &str) -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(dir);
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        return 0;
-    };
-    let mut count = 0;
-    for entry in entries {
-        let path = entry.unwrap().path();
-        if path.is_file() && path.extension().is_none_or(|e| e != "md") {
-            let bytes = std::fs::read(&path).unwrap();
-            harness::ipc_insert(&bytes);
-            count += 1;
-        }
-    }
-    count
+    let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    let mut files: Vec<PathBuf> = entries
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.is_file() && path.extension().is_none_or(|e| e != "md"))
+        .collect();
+    files.sort();
+    files
 }
 
 #[test]
 fn fuzz_corpus_replays_without_panics() {
-    let count = replay("fuzz/corpus/ipc_insert");
-    assert!(count >= 10, "the corpus holds seeds ({count} found)");
+    let files = files_in("fuzz/corpus/ipc_insert");
+    assert!(
+        files.len() >= 10,
+        "the corpus holds seeds ({} found)",
+        files.len()
+    );
+    for file in files {
+        harness::ipc_insert(&std::fs::read(file).unwrap());
+    }
 }
 
+/// What decoding each crash must give now, with the root cause in
+/// `tests/fuzz_crashes/README.md`. A crash file without an entry here fails the test.
+const CRASH_OUTCOMES: &[(&str, fn(&Result<Vec<chunkstore::Chunk>, IoError>) -> bool)] = &[
+    // arrow-ipc panics on this input (a buffer offset past the message body); the library
+    // must turn that into an error.
+    ("ipc_buffer_offset_past_body", |r| {
+        matches!(r, Err(IoError::DecoderPanicked { .. }))
+    }),
+    // arrow-ipc would allocate the body size this file's footer claims (far beyond the
+    // file); the framing check must reject it first.
+    ("ipc_file_block_claims_huge_body", |r| {
+        matches!(r, Err(IoError::MalformedFraming { .. }))
+    }),
+];
+
+/// Issue 12, item 12: this test used to pass when its directory was missing (the replay
+/// returned 0 on a read error) and asserted nothing of each file's outcome.
 #[test]
 fn fuzz_crashes_stay_fixed() {
-    replay("tests/fuzz_crashes");
-}
-
-/// Decodes one file of `tests/fuzz_crashes/` with the library's IPC reader.
-fn decode_crash(name: &str) -> Result<Vec<chunkstore::Chunk>, chunkstore::IoError> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fuzz_crashes")
-        .join(name);
-    chunkstore::io::read_chunks_from_bytes(&std::fs::read(path).unwrap())
-}
-
-/// arrow-ipc panics on this input (a buffer offset past the message body); the library
-/// must turn that into an error.
-#[test]
-fn regression_ipc_decoder_panic_is_an_error() {
-    let result = decode_crash("ipc_buffer_offset_past_body");
-    assert!(
-        matches!(result, Err(chunkstore::IoError::DecoderPanicked { .. })),
-        "{result:?}"
+    let files = files_in("tests/fuzz_crashes");
+    assert_eq!(
+        files.len(),
+        CRASH_OUTCOMES.len(),
+        "one expected outcome per crash file: {files:?}"
     );
-}
-
-/// arrow-ipc would allocate the body size this file's footer claims (far beyond the
-/// file); the framing check must reject it first.
-#[test]
-fn regression_ipc_claimed_body_beyond_input_is_rejected_before_allocating() {
-    let result = decode_crash("ipc_file_block_claims_huge_body");
-    assert!(
-        matches!(result, Err(chunkstore::IoError::MalformedFraming { .. })),
-        "{result:?}"
-    );
+    for file in files {
+        let name = file.file_name().unwrap().to_str().unwrap();
+        let Some((_, expected)) = CRASH_OUTCOMES.iter().find(|(n, _)| *n == name) else {
+            panic!("{name}: no expected outcome in CRASH_OUTCOMES");
+        };
+        let bytes = std::fs::read(&file).unwrap();
+        let outcome = chunkstore::io::read_chunks_from_bytes(&bytes);
+        assert!(expected(&outcome), "{name}: {outcome:?}");
+        // And the whole fuzz target's body stays quiet on it.
+        harness::ipc_insert(&bytes);
+    }
 }
