@@ -109,8 +109,12 @@ pub(crate) struct StaticWinner {
 /// Everything the store knows about one entity.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct EntityIndex {
-    /// The element type each component was first seen with (static and temporal).
-    pub element_types: BTreeMap<ComponentName, DataType>,
+    /// Each component the entity holds chunks of (static or temporal), with its element
+    /// type (that of its first data) and how many of the entity's chunks have its column:
+    /// a component is forgotten with the last of them, so that what the store accepts
+    /// depends only on what it holds (not on whether compaction rewrote the chunks that
+    /// held a component's first data).
+    pub element_types: BTreeMap<ComponentName, ComponentType>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// How many components each static chunk of this entity answers for; a chunk that
     /// answers for none is invisible and leaves the store.
@@ -130,6 +134,13 @@ pub(crate) struct EntityIndex {
     pub large_index_bytes: u64,
     pub stats: EntityStats,
     pub ledger: BufferLedger,
+}
+
+/// A component's type at one entity, and how many of the entity's chunks have its column.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct ComponentType {
+    pub element_type: DataType,
+    pub num_chunks: usize,
 }
 
 /// A chunk as the store holds it.
@@ -337,10 +348,14 @@ impl ChunkStore {
             entity.stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
         for column in chunk.components() {
-            if !entity.element_types.contains_key(column.name()) {
-                entity
-                    .element_types
-                    .insert(column.name().clone(), column.element_type().clone());
+            if let Some(known) = entity.element_types.get_mut(column.name()) {
+                known.num_chunks += 1;
+            } else {
+                let known = ComponentType {
+                    element_type: column.element_type().clone(),
+                    num_chunks: 1,
+                };
+                entity.element_types.insert(column.name().clone(), known);
             }
         }
         entity.chunk_ids.insert(chunk.id());
@@ -481,6 +496,14 @@ impl ChunkStore {
                 }
             }
             entity.chunk_ids.remove(&id);
+            for column in chunk.components() {
+                if let Some(known) = entity.element_types.get_mut(column.name()) {
+                    known.num_chunks -= 1;
+                    if known.num_chunks == 0 {
+                        entity.element_types.remove(column.name());
+                    }
+                }
+            }
             crate::stats::account(
                 &chunk,
                 ledgered,
@@ -548,7 +571,9 @@ impl ChunkStore {
             if column.name().is_clear() {
                 check_clear_cells(chunk, column)?;
             }
-            if let Some(existing) = entity.and_then(|e| e.element_types.get(column.name()))
+            if let Some(existing) = entity
+                .and_then(|e| e.element_types.get(column.name()))
+                .map(|known| &known.element_type)
                 && !existing.equals_datatype(incoming)
             {
                 return Err(InsertError::ComponentTypeConflict {
@@ -635,7 +660,7 @@ impl ChunkStore {
         paths
     }
 
-    /// The components an entity has data for (static or temporal), sorted by name.
+    /// The components an entity holds chunks of (static or temporal), sorted by name.
     pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
         self.entities
             .get(entity)
@@ -648,6 +673,7 @@ impl ChunkStore {
         self.entities
             .get(entity)
             .and_then(|e| e.element_types.get(component))
+            .map(|known| &known.element_type)
     }
 
     /// Only a temporal chunk compaction waits for may be left out of the store-wide
@@ -1031,6 +1057,7 @@ impl EntityIndex {
                 "{path}: max_row_id bounds the row ids of its chunks"
             ));
         }
+        check_component_types(path, element_types, chunk_ids, chunks)?;
         pending.sanity_check(path, chunks, config)?;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
         for (component, winner) in static_winners.iter() {
@@ -1080,6 +1107,41 @@ impl EntityIndex {
             }
         }
         Ok(())
+    }
+}
+
+/// Each component an entity knows has the type of its chunks' columns and is counted once
+/// per chunk that has its column; no other is known (part of the entity's sanity check).
+fn check_component_types(
+    path: &EntityPath,
+    element_types: &BTreeMap<ComponentName, ComponentType>,
+    chunk_ids: &ahash::HashSet<ChunkId>,
+    chunks: &ahash::HashMap<ChunkId, StoredChunk>,
+) -> Result<(), String> {
+    let mut columns_per_component: BTreeMap<&ComponentName, (&DataType, usize)> = BTreeMap::new();
+    for stored in chunk_ids.iter().filter_map(|id| chunks.get(id)) {
+        for column in stored.chunk.components() {
+            let counted = columns_per_component
+                .entry(column.name())
+                .or_insert((column.element_type(), 0));
+            counted.1 += 1;
+        }
+    }
+    let types_match = columns_per_component.len() == element_types.len()
+        && columns_per_component
+            .iter()
+            .all(|(name, (data_type, count))| {
+                element_types.get(*name).is_some_and(|known| {
+                    known.num_chunks == *count && known.element_type.equals_datatype(data_type)
+                })
+            });
+    if types_match {
+        Ok(())
+    } else {
+        Err(format!(
+            "{path}: the component types are those of its chunks' columns, each counted once \
+             per chunk"
+        ))
     }
 }
 

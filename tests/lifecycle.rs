@@ -661,3 +661,58 @@ fn time_range_spans_the_data_held_and_follows_removals() {
         assert_eq!(names, ["frame"]);
     }
 }
+
+/// Found by the `chunk_build` fuzz target: a static chunk whose cells are all null wins
+/// nothing and leaves the store at once, but its component stayed known, with its type,
+/// until compaction happened to rewrite every chunk of the entity. What the store lists and
+/// accepts now depends only on the chunks it holds.
+#[test]
+fn regression_a_component_is_forgotten_with_the_last_chunk_holding_it() {
+    for config in [StoreConfig::COMPACTION_OFF, StoreConfig::DEFAULT] {
+        let mut store = ChunkStore::with_config(config).unwrap();
+        store.insert(scalar("e", "x", 1, 1, 1.0)).unwrap();
+        let all_null = Chunk::try_new(
+            ChunkId::new(),
+            path("e"),
+            vec![common::rid(2)],
+            vec![],
+            vec![("y".into(), common::f64_list(&[None]))],
+        )
+        .unwrap();
+        let events = store.insert(all_null).unwrap();
+        assert_eq!(deleted(&events, DeletionReason::Overwrite).len(), 1);
+        let names = |store: &ChunkStore| -> Vec<String> {
+            store
+                .component_names(&path("e"))
+                .iter()
+                .map(ToString::to_string)
+                .collect()
+        };
+        assert_eq!(names(&store), ["x"], "{config:?}");
+        assert_eq!(store.element_type(&path("e"), "y"), None);
+        store.compact();
+        assert_eq!(names(&store), ["x"], "{config:?}");
+        // No chunk of `e` has a `y` column: a `y` of another type is welcome.
+        let strings: ArrayRef = {
+            let mut list =
+                arrow_array::builder::ListBuilder::new(arrow_array::builder::StringBuilder::new());
+            list.values().append_value("text");
+            list.append(true);
+            Arc::new(list.finish())
+        };
+        let text = Chunk::try_new(
+            ChunkId::new(),
+            path("e"),
+            vec![common::rid(3)],
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(Int64Array::from(vec![2])) as ArrayRef,
+            )],
+            vec![("y".into(), strings)],
+        )
+        .unwrap();
+        store.insert(text).unwrap();
+        assert_eq!(names(&store), ["x", "y"], "{config:?}");
+        store.sanity_check().unwrap();
+    }
+}
