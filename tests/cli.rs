@@ -142,7 +142,7 @@ fn arguments_that_are_not_utf8_are_an_error_not_a_panic() {
 fn a_file_that_makes_arrow_panic_gives_one_line_on_stderr() {
     let dir = scratch_dir("arrow-panic");
     let crash = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fuzz_crashes/ipc_buffer_offset_past_body");
+        .join("tests/fuzz_crashes/ipc_insert/ipc_buffer_offset_past_body");
     std::fs::copy(crash, dir.join("bad.arrow")).unwrap();
     let line = fails(&[dir.as_os_str(), OsStr::new("stats")]);
     assert!(
@@ -163,7 +163,7 @@ fn skip_bad_reports_each_bad_file_and_loads_the_rest() {
     }
     std::fs::write(dir.join("0000-garbage.arrow"), b"not arrow at all").unwrap();
     let crash = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fuzz_crashes/ipc_buffer_offset_past_body");
+        .join("tests/fuzz_crashes/ipc_insert/ipc_buffer_offset_past_body");
     std::fs::copy(crash, dir.join("9999-arrow-panics.arrow")).unwrap();
 
     let line = fails(&[dir.as_os_str(), OsStr::new("stats")]);

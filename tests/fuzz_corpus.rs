@@ -1,5 +1,5 @@
-//! Replays the fuzz corpus (`fuzz/corpus/ipc_insert/`) and every crash ever found
-//! (`tests/fuzz_crashes/`) through the fuzz target's own body, as an ordinary test.
+//! Replays every fuzz target's corpus (`fuzz/corpus/<target>/`) and every crash ever found
+//! (`tests/fuzz_crashes/`) through the fuzz targets' own bodies, as ordinary tests.
 
 #![allow(
     clippy::unwrap_used,
@@ -7,7 +7,7 @@
     reason = "the harness asserts with expect, like the fuzz target; a replay fails loudly"
 )]
 
-#[path = "../fuzz/harness/ipc_insert.rs"]
+#[path = "../fuzz/harness/mod.rs"]
 mod harness;
 
 use std::path::{Path, PathBuf};
@@ -27,53 +27,91 @@ fn files_in(dir: &str) -> Vec<PathBuf> {
     files
 }
 
-#[test]
-fn fuzz_corpus_replays_without_panics() {
-    let files = files_in("fuzz/corpus/ipc_insert");
+/// Replays one target's corpus through its body; the corpus must hold seeds.
+fn replay_corpus(target: &str, body: fn(&[u8])) {
+    let files = files_in(&format!("fuzz/corpus/{target}"));
     assert!(
         files.len() >= 10,
-        "the corpus holds seeds ({} found)",
+        "{target}'s corpus holds seeds ({} found)",
         files.len()
     );
     for file in files {
-        harness::ipc_insert(&std::fs::read(file).unwrap());
+        body(&std::fs::read(file).unwrap());
     }
 }
 
-/// What decoding each crash must give now, with the root cause in
-/// `tests/fuzz_crashes/README.md`. A crash file without an entry here fails the test.
-const CRASH_OUTCOMES: &[(&str, fn(&Result<Vec<chunkstore::Chunk>, IoError>) -> bool)] = &[
+#[test]
+fn ipc_insert_corpus_replays_without_panics() {
+    replay_corpus("ipc_insert", harness::ipc_insert::ipc_insert);
+}
+
+#[test]
+fn chunk_build_corpus_replays_without_panics() {
+    replay_corpus("chunk_build", harness::chunk_build::chunk_build);
+}
+
+#[test]
+fn entity_path_corpus_replays_without_panics() {
+    replay_corpus("entity_path", harness::entity_path::entity_path);
+}
+
+/// What each crash must give now (the root causes are in `tests/fuzz_crashes/README.md`).
+enum Expected {
+    /// Decoding the bytes as Arrow IPC gives an error this accepts.
+    Decoding(fn(&Result<Vec<chunkstore::Chunk>, IoError>) -> bool),
+    /// The target's harness runs to its end: every one of its checks holds.
+    HarnessPasses,
+}
+
+/// Every crash file, by target and name. A crash file without an entry fails the test.
+const CRASHES: &[(&str, &str, Expected)] = &[
     // arrow-ipc panics on this input (a buffer offset past the message body); the library
     // must turn that into an error.
-    ("ipc_buffer_offset_past_body", |r| {
-        matches!(r, Err(IoError::DecoderPanicked { .. }))
-    }),
+    (
+        "ipc_insert",
+        "ipc_buffer_offset_past_body",
+        Expected::Decoding(|r| matches!(r, Err(IoError::DecoderPanicked { .. }))),
+    ),
     // arrow-ipc would allocate the body size this file's footer claims (far beyond the
     // file); the framing check must reject it first.
-    ("ipc_file_block_claims_huge_body", |r| {
-        matches!(r, Err(IoError::MalformedFraming { .. }))
-    }),
+    (
+        "ipc_insert",
+        "ipc_file_block_claims_huge_body",
+        Expected::Decoding(|r| matches!(r, Err(IoError::MalformedFraming { .. }))),
+    ),
+    // compact() changed which components an entity listed (see the README).
+    (
+        "chunk_build",
+        "component_type_outlived_its_chunks",
+        Expected::HarnessPasses,
+    ),
 ];
 
 /// Issue 12, item 12: this test used to pass when its directory was missing (the replay
 /// returned 0 on a read error) and asserted nothing of each file's outcome.
 #[test]
 fn fuzz_crashes_stay_fixed() {
-    let files = files_in("tests/fuzz_crashes");
-    assert_eq!(
-        files.len(),
-        CRASH_OUTCOMES.len(),
-        "one expected outcome per crash file: {files:?}"
-    );
-    for file in files {
-        let name = file.file_name().unwrap().to_str().unwrap();
-        let Some((_, expected)) = CRASH_OUTCOMES.iter().find(|(n, _)| *n == name) else {
-            panic!("{name}: no expected outcome in CRASH_OUTCOMES");
-        };
-        let bytes = std::fs::read(&file).unwrap();
-        let outcome = chunkstore::io::read_chunks_from_bytes(&bytes);
-        assert!(expected(&outcome), "{name}: {outcome:?}");
-        // And the whole fuzz target's body stays quiet on it.
-        harness::ipc_insert(&bytes);
+    let mut num_files = 0;
+    for (target, body) in [
+        ("ipc_insert", harness::ipc_insert::ipc_insert as fn(&[u8])),
+        ("chunk_build", harness::chunk_build::chunk_build),
+    ] {
+        for file in files_in(&format!("tests/fuzz_crashes/{target}")) {
+            num_files += 1;
+            let name = file.file_name().unwrap().to_str().unwrap();
+            let Some((_, _, expected)) =
+                CRASHES.iter().find(|(t, n, _)| *t == target && *n == name)
+            else {
+                panic!("{target}/{name}: no expected outcome in CRASHES");
+            };
+            let bytes = std::fs::read(&file).unwrap();
+            if let Expected::Decoding(accepts) = expected {
+                let outcome = chunkstore::io::read_chunks_from_bytes(&bytes);
+                assert!(accepts(&outcome), "{target}/{name}: {outcome:?}");
+            }
+            // The whole harness stays quiet on it (it panics on any broken check).
+            body(&bytes);
+        }
     }
+    assert_eq!(num_files, CRASHES.len(), "every listed crash has its file");
 }

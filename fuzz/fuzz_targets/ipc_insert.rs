@@ -1,7 +1,7 @@
 //! Fuzz target: arbitrary bytes as Arrow IPC → chunks → store → queries. See the harness.
 #![no_main]
 
-#[path = "../harness/ipc_insert.rs"]
+#[path = "../harness/mod.rs"]
 mod harness;
 
 libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
@@ -10,5 +10,5 @@ libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
     // caught; any panic that escapes still aborts in libfuzzer-sys, so it is still a crash.
     static QUIET_HOOK: std::sync::Once = std::sync::Once::new();
     QUIET_HOOK.call_once(|| std::panic::set_hook(Box::new(|_| {})));
-    harness::ipc_insert(bytes);
+    harness::ipc_insert::ipc_insert(bytes);
 });

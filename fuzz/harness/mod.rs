@@ -1,0 +1,13 @@
+//! The bodies of the fuzz targets, one module each, shared with the corpus replay test
+//! (`tests/fuzz_corpus.rs`) so that every corpus file and every crash ever found is
+//! replayed by `cargo test` through exactly the code the fuzzer ran.
+#![allow(dead_code, reason = "each fuzz target uses one of the bodies")]
+
+#[path = "chunk_build.rs"]
+pub mod chunk_build;
+#[path = "entity_path.rs"]
+pub mod entity_path;
+#[path = "ipc_insert.rs"]
+pub mod ipc_insert;
+#[path = "lifecycle.rs"]
+pub mod lifecycle;
