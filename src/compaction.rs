@@ -131,6 +131,21 @@ impl StoreConfig {
     }
 }
 
+/// Which on-demand rewrite made a chunk, and how many chunks it made.
+///
+/// `compact()` leaves alone a group of chunks that is exactly what one of its rewrites
+/// made: rewriting them again would make the same chunks. (The size figures cannot tell:
+/// rows of different sizes cut into pieces of equal row counts can leave a piece above the
+/// byte threshold, and payloads change by a byte or two when validity bitmaps are cut
+/// differently, so a check by size alone would rewrite such a group on every call.)
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct RewriteMark {
+    /// The rewrite, numbered per store.
+    pub rewrite: u64,
+    /// How many chunks it made.
+    pub num_pieces: usize,
+}
+
 /// The chunks of one entity still waiting to grow, per layout and level.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct PendingGroups {
@@ -333,25 +348,41 @@ fn rewrite(
     let by_rows = num_rows.div_ceil(max_rows);
     let by_bytes = usize::try_from(payload.div_ceil(config.max_bytes)).unwrap_or(usize::MAX);
     let num_pieces = by_rows.max(by_bytes).clamp(1, num_rows.max(1));
-    let piece_len = num_rows.div_ceil(num_pieces).max(1);
+    let pieces_rows = balanced_pieces(num_rows, num_pieces);
 
     let mut pieces = Vec::with_capacity(num_pieces);
     if let [single] = inputs
         && in_sequence
     {
         // Splitting a sorted chunk: slices share its buffers, nothing is copied.
-        for offset in (0..num_rows).step_by(piece_len) {
-            pieces.push(single.slice(offset, piece_len.min(num_rows - offset))?);
+        for piece in pieces_rows {
+            pieces.push(single.slice(piece.start, piece.len())?);
         }
         return Ok(pieces);
     }
-    for piece_rows in rows.chunks(piece_len) {
-        let piece = Chunk::gather(inputs, piece_rows)?;
+    for piece in pieces_rows {
+        let piece = Chunk::gather(inputs, &rows[piece])?;
         stats.rows_copied_by_compaction += piece.num_rows() as u64;
         stats.payload_bytes_copied_by_compaction += piece.payload_bytes();
         pieces.push(piece);
     }
     Ok(pieces)
+}
+
+/// `0..num_rows` cut into `num_pieces` consecutive ranges whose lengths differ by at most
+/// one (the longer first): exactly as many pieces as the thresholds ask for, none of them a
+/// small remainder.
+fn balanced_pieces(
+    num_rows: usize,
+    num_pieces: usize,
+) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let (base, longer) = (num_rows / num_pieces, num_rows % num_pieces);
+    (0..num_pieces).scan(0, move |start, piece| {
+        let len = base + usize::from(piece < longer);
+        let range = *start..*start + len;
+        *start += len;
+        Some(range)
+    })
 }
 
 /// Are `chunks` (one layout, sorted by least time on the first timeline) already what
@@ -454,6 +485,16 @@ impl ChunkStore {
         }
     }
 
+    /// Are `chunks` (a group of one entity and layout) exactly the chunks one rewrite of
+    /// `compact()` made?
+    fn is_one_rewrite(&self, chunks: &[Arc<Chunk>]) -> bool {
+        let mark = |chunk: &Arc<Chunk>| self.chunks.get(&chunk.id()).and_then(|s| s.rewritten_by);
+        let Some(first) = chunks.first().and_then(mark) else {
+            return false;
+        };
+        first.num_pieces == chunks.len() && chunks.iter().all(|c| mark(c) == Some(first))
+    }
+
     /// Rewrites the store's temporal chunks into chunks near the thresholds: per entity
     /// and layout, every set of chunks that is not already as few time-sorted,
     /// non-overlapping chunks as the thresholds allow is merged, sorted and cut again.
@@ -488,7 +529,7 @@ impl ChunkStore {
 
         let mut events = Vec::new();
         for chunks in groups {
-            if is_compact(&chunks, &config) {
+            if self.is_one_rewrite(&chunks) || is_compact(&chunks, &config) {
                 continue;
             }
             let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
@@ -499,14 +540,22 @@ impl ChunkStore {
             for chunk in &chunks {
                 self.remove_chunk(chunk.id(), DeletionReason::Compaction, &mut events);
             }
-            let num_pieces = pieces.len();
+            let mark = RewriteMark {
+                rewrite: self.num_rewrites,
+                num_pieces: pieces.len(),
+            };
+            self.num_rewrites += 1;
             let mut small = Vec::new();
             for piece in pieces {
                 let piece = Arc::new(piece);
-                if num_pieces == 1 && config.can_grow(&piece) {
+                if mark.num_pieces == 1 && config.can_grow(&piece) {
                     small.push(Arc::clone(&piece));
                 }
+                let id = piece.id();
                 self.add_chunk(piece, &mut events);
+                if let Some(stored) = self.chunks.get_mut(&id) {
+                    stored.rewritten_by = Some(mark);
+                }
             }
             // A lone small result may keep growing with later inserts.
             if config.compact_on_insert {

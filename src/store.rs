@@ -14,7 +14,7 @@ use arrow_schema::DataType;
 
 use crate::chunk::RowSource;
 use crate::clear::ClearIndex;
-use crate::compaction::{PendingGroups, StoreConfig};
+use crate::compaction::{PendingGroups, RewriteMark, StoreConfig};
 use crate::error::{ConfigError, InsertError};
 use crate::held::NewRows;
 use crate::index::{
@@ -156,6 +156,10 @@ pub(crate) struct StoredChunk {
     /// by one. Garbage collection and range drops read waiting chunks from the entities'
     /// compaction groups instead. Always true for static chunks (which no order holds).
     pub in_global_orders: bool,
+    /// The on-demand compaction that wrote the chunk, if one did: `compact()` leaves alone
+    /// a group that is exactly what one of its rewrites made (see
+    /// [`crate::compaction::RewriteMark`]).
+    pub rewritten_by: Option<RewriteMark>,
 }
 
 /// Temporal chunks of one timeline by least and greatest time, across entities: what
@@ -181,6 +185,8 @@ pub struct ChunkStore {
     pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
     /// Temporal chunks outside the store-wide orders (see [`StoredChunk::in_global_orders`]).
     pub(crate) num_outside_global_orders: usize,
+    /// How many rewrites `compact()` has made (it numbers them; see [`RewriteMark`]).
+    pub(crate) num_rewrites: u64,
     pub(crate) stats: StoreStats,
     pub(crate) ledgers: StoreLedgers,
     subscribers: Subscribers,
@@ -377,6 +383,7 @@ impl ChunkStore {
                 chunk,
                 ledgered,
                 in_global_orders: true,
+                rewritten_by: None,
             };
             self.chunks.insert(stored.chunk.id(), stored);
             for overwritten in overwritten {
@@ -398,6 +405,7 @@ impl ChunkStore {
                 chunk,
                 ledgered,
                 in_global_orders,
+                rewritten_by: None,
             };
             self.chunks.insert(stored.chunk.id(), stored);
         }
@@ -476,6 +484,7 @@ impl ChunkStore {
             chunk,
             ledgered,
             in_global_orders,
+            rewritten_by: _,
         } = stored;
         let id = chunk.id();
         if unindex && !chunk.is_static() {
@@ -747,6 +756,7 @@ impl ChunkStore {
             temporal_by_row_id: _,
             temporal_per_timeline: _,
             num_outside_global_orders: _,
+            num_rewrites,
             stats,
             ledgers: _,
             subscribers: _,
@@ -760,18 +770,23 @@ impl ChunkStore {
         let mut expected_by_row_id = OrderedSet::default();
         let mut expected_per_timeline: BTreeMap<&str, TimelineChunks> = BTreeMap::new();
         let mut outside_global_orders = 0;
+        let mut pieces_per_rewrite: ahash::HashMap<u64, usize> = ahash::HashMap::default();
         for (
             &id,
             StoredChunk {
                 chunk,
                 ledgered,
                 in_global_orders,
+                rewritten_by,
             },
         ) in chunks
         {
             chunk.sanity_check()?;
             if chunk.id() != id {
                 return Err(format!("{id} is keyed by its id"));
+            }
+            if let Some(mark) = rewritten_by {
+                check_rewrite_mark(chunk, *mark, *num_rewrites, &mut pieces_per_rewrite)?;
             }
             let (entity_stats, entity_ledger) =
                 expected_entities.entry(chunk.entity_path()).or_default();
@@ -826,8 +841,18 @@ impl ChunkStore {
             &expected_by_row_id,
             &expected_per_timeline,
         )?;
-        for (path, entity) in entities {
-            let counted = expected_entities.get(path).map(|e| e.0);
+        self.check_entities(&expected_entities)?;
+        clears.sanity_check()
+    }
+
+    /// Each entity's figures equal `expected` (a recount of its chunks), and its own
+    /// sanity check passes (part of [`ChunkStore::sanity_check`]).
+    fn check_entities(
+        &self,
+        expected: &ahash::HashMap<&EntityPath, (EntityStats, BufferLedger)>,
+    ) -> Result<(), String> {
+        for (path, entity) in &self.entities {
+            let counted = expected.get(path).map(|e| e.0);
             let num_chunks = counted.map_or(0, |c| c.num_static_chunks + c.num_temporal_chunks);
             if num_chunks != entity.chunk_ids.len() as u64 {
                 return Err(format!("{path}: chunk ids list all its chunks"));
@@ -838,9 +863,9 @@ impl ChunkStore {
                     entity.stats
                 ));
             }
-            entity.sanity_check(path, chunks, config)?;
+            entity.sanity_check(path, &self.chunks, &self.config)?;
         }
-        clears.sanity_check()
+        Ok(())
     }
 }
 
@@ -1108,6 +1133,25 @@ impl EntityIndex {
         }
         Ok(())
     }
+}
+
+/// A chunk marked by a rewrite of `compact()` is temporal and one of at most as many as
+/// that rewrite made (part of [`ChunkStore::sanity_check`]; `seen` counts per rewrite).
+fn check_rewrite_mark(
+    chunk: &Chunk,
+    mark: RewriteMark,
+    num_rewrites: u64,
+    seen: &mut ahash::HashMap<u64, usize>,
+) -> Result<(), String> {
+    let pieces = seen.entry(mark.rewrite).or_insert(0);
+    *pieces += 1;
+    if chunk.is_static() || *pieces > mark.num_pieces || mark.rewrite >= num_rewrites {
+        return Err(format!(
+            "{}: a rewrite's mark is on at most as many temporal chunks as it made",
+            chunk.id()
+        ));
+    }
+    Ok(())
 }
 
 /// Each component an entity knows has the type of its chunks' columns and is counted once
