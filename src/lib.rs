@@ -13,7 +13,8 @@
 //! - The [`ChunkStore`] indexes chunks and answers [`LatestAtQuery`] ("value as of `t`")
 //!   and [`RangeQuery`] ("every value in `[a, b]`"). Static data shadows temporal data;
 //!   Clears (component [`ComponentName::CLEAR_IS_RECURSIVE`]) hide older data at query
-//!   time. The exact rules are SEMANTICS.md's, summarised in `docs/ARCHITECTURE.md`.
+//!   time. Inserting rows the store already holds changes nothing. The exact rules are
+//!   in `docs/SEMANTICS.md`; `docs/ARCHITECTURE.md` maps the modules.
 //!
 //! ## Example
 //! ```
