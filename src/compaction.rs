@@ -497,10 +497,11 @@ impl ChunkStore {
 
     /// Rewrites the store's temporal chunks into chunks near the thresholds: per entity
     /// and layout, every set of chunks that is not already as few time-sorted,
-    /// non-overlapping chunks as the thresholds allow is merged, sorted and cut again.
-    /// For a store filled with compaction off, or fragmented by garbage collection.
-    /// Returns the deletions (reason [`DeletionReason::Compaction`]) and additions; no
-    /// query answer changes.
+    /// non-overlapping chunks as the thresholds allow (nor exactly what an earlier call
+    /// made of it) is merged, sorted and cut again. For a store filled with compaction
+    /// off, or fragmented by garbage collection. Returns the deletions (reason
+    /// [`DeletionReason::Compaction`]) and additions; no query answer changes, and a
+    /// second call in a row changes nothing.
     pub fn compact(&mut self) -> Vec<StoreEvent> {
         let config = self.config;
         // Group per entity and layout, in a deterministic order.
