@@ -1,5 +1,7 @@
 //! Insertion: whole chunks with compaction off, and single-row streams with compaction on
-//! (in order, out of order, all at one time, and a 2 kHz stream over many series).
+//! (in order, out of order, all at one time, and a 2 kHz stream over many series); and
+//! inserting again what the store holds (idempotent ingest), as the same chunks and as
+//! their rows under new ids.
 
 #![allow(
     clippy::expect_used,
@@ -84,5 +86,82 @@ fn insert(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, insert);
+/// Times inserting `again` into a clone of `store`, which holds their rows already; the
+/// clone is made, and dropped, untimed.
+fn bench_again(c: &mut Criterion, id: &str, store: &ChunkStore, again: &[Arc<Chunk>]) {
+    let mut group = c.benchmark_group("insert_again");
+    group.throughput(Throughput::Elements(
+        again.iter().map(|c| c.num_rows() as u64).sum(),
+    ));
+    group.sample_size(10);
+    group.bench_function(id, |b| {
+        b.iter_batched(
+            || store.clone(),
+            |mut store| {
+                for chunk in again {
+                    let events = store.insert(Arc::clone(chunk)).expect("held rows");
+                    assert!(events.is_empty(), "held rows change nothing");
+                }
+                store
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.finish();
+}
+
+/// Inserting again what the store holds: the same chunks (found by id), and the same rows
+/// re-chunked under new ids (found row by row through the index), with compaction off and
+/// on (where the rows live in merged chunks).
+fn insert_again(c: &mut Criterion) {
+    let mut ids = RowIds::new();
+    let one = entities(1, |_| "e".to_owned());
+    let frames: Vec<i64> = (0..100_000).collect();
+    let batched = scalar_series(&mut ids, &one[0], &frames, 1000);
+    // The same rows in chunks of 100 under new ids: what a re-chunked copy of a
+    // recording looks like.
+    let rechunked: Vec<Arc<Chunk>> = batched
+        .iter()
+        .flat_map(|chunk| (0..10).map(move |piece| (chunk, piece)))
+        .map(|(chunk, piece)| {
+            let rows = piece * 100..(piece + 1) * 100;
+            let batch = chunk
+                .to_record_batch()
+                .expect("a chunk encodes")
+                .slice(rows.start, rows.len());
+            let mut batch_meta = batch.schema().metadata().clone();
+            batch_meta.insert(
+                "rerun:id".to_owned(),
+                chunkstore::ChunkId::new().to_string(),
+            );
+            let schema = Arc::new(batch.schema().as_ref().clone().with_metadata(batch_meta));
+            let batch = arrow_array::RecordBatch::try_new(schema, batch.columns().to_vec())
+                .expect("the same columns");
+            Arc::new(Chunk::from_record_batch(&batch).expect("a valid chunk"))
+        })
+        .collect();
+    for (name, config) in [
+        ("compaction_off", StoreConfig::COMPACTION_OFF),
+        ("compaction_on", StoreConfig::DEFAULT),
+    ] {
+        let mut store = ChunkStore::with_config(config).expect("a valid config");
+        for chunk in &batched {
+            drop(store.insert(Arc::clone(chunk)).expect("consistent chunks"));
+        }
+        bench_again(
+            c,
+            &format!("same_chunks/100k_rows_in_1000_row_chunks/{name}"),
+            &store,
+            &batched,
+        );
+        bench_again(
+            c,
+            &format!("rechunked_under_new_ids/100k_rows_in_100_row_chunks/{name}"),
+            &store,
+            &rechunked,
+        );
+    }
+}
+
+criterion_group!(benches, insert, insert_again);
 criterion_main!(benches);
