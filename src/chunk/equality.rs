@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ListArray};
 
-use super::Chunk;
+use super::{Chunk, ComponentColumn};
 
 impl Chunk {
     /// Can rows of `self` and `other` live in one chunk? Same entity; same timelines with
@@ -94,7 +94,7 @@ impl Chunk {
                 .components
                 .iter()
                 .zip(&other.components)
-                .all(|(a, b)| cells_equal(&a.list, mine, &b.list, theirs))
+                .all(|(a, b)| cells_equal(a, mine, b, theirs))
     }
 
     /// Does some row have a null cell in every component? Such a row is in no index (no
@@ -107,11 +107,17 @@ impl Chunk {
     }
 }
 
-/// Are two list cells equal: both null, or both valid with equal instances?
-fn cells_equal(a: &ListArray, row_a: usize, b: &ListArray, row_b: usize) -> bool {
-    match (a.is_valid(row_a), b.is_valid(row_b)) {
+/// Are two cells of columns of one type equal: both null, or both valid with equal
+/// instances? Columns of primitives (or fixed-size lists of them) without null instances
+/// compare their bytes; others go through Arrow's logical equality.
+fn cells_equal(a: &ComponentColumn, row_a: usize, b: &ComponentColumn, row_b: usize) -> bool {
+    let (list_a, list_b): (&ListArray, &ListArray) = (&a.list, &b.list);
+    match (list_a.is_valid(row_a), list_b.is_valid(row_b)) {
         (false, false) => true,
-        (true, true) => a.value(row_a).as_ref() == b.value(row_b).as_ref(),
+        (true, true) => match (a.leaf_bytes(row_a), b.leaf_bytes(row_b)) {
+            (Some(bytes_a), Some(bytes_b)) => bytes_a == bytes_b,
+            _ => list_a.value(row_a).as_ref() == list_b.value(row_b).as_ref(),
+        },
         _ => false,
     }
 }

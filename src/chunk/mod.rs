@@ -1068,6 +1068,27 @@ impl ComponentColumn {
         leaf.values.typed_data::<T::Native>().get(start..end)
     }
 
+    /// The bytes of the cell at `row`'s values, when the column's items are primitives or
+    /// fixed-size lists of them without any null (then the bytes are the whole cell; a null
+    /// instance would hide whatever its slot holds). `None` otherwise, or for a null cell.
+    pub(crate) fn leaf_bytes(&self, row: usize) -> Option<&[u8]> {
+        let leaf = self.leaf.as_ref()?;
+        let (leaf_type, fixed_size) = leaf_shape(self.list.data_type())?;
+        let items = self.list.values();
+        let leaf_nulls = match fixed_size {
+            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
+            None => 0,
+        };
+        if items.null_count() + leaf_nulls > 0 || !self.is_valid_row(row) {
+            return None;
+        }
+        let width = leaf_type.primitive_width()? * fixed_size.unwrap_or(1);
+        let offsets = self.list.value_offsets();
+        let byte = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
+        let (start, end) = (byte(offsets.get(row)?)?, byte(offsets.get(row + 1)?)?);
+        leaf.values.as_slice().get(start..end)
+    }
+
     /// Is `row` a row of this column, with a non-null cell?
     fn is_valid_row(&self, row: usize) -> bool {
         row < self.list.len() && self.list.is_valid(row)
