@@ -629,33 +629,42 @@ impl Model {
         true
     }
 
+    /// Every temporal row of `entity` with a time on `timeline` and a non-null cell of
+    /// `component`, as an answer.
+    fn temporal_cells(
+        &self,
+        entity: usize,
+        component: usize,
+        timeline: usize,
+    ) -> impl Iterator<Item = Answer> + '_ {
+        self.rows.iter().filter_map(move |(e, timelines, row)| {
+            let time = (timelines & (1 << timeline) != 0).then_some(row.times[timeline])?;
+            let Content::Data(cells) = &row.content else {
+                return None;
+            };
+            let cell = cells[component].clone()?;
+            (*e == entity).then_some((Some(time), row.row_id, cell))
+        })
+    }
+
     /// Every acceptable latest-at answer (several when rows tie on `(time, row id)` with
     /// different cells); empty for none.
     fn latest_at(&self, entity: usize, component: usize, timeline: usize, at: i64) -> Vec<Answer> {
-        let candidates: Vec<Answer> = if let Some((_, winner)) =
-            self.static_winner(entity, component)
-        {
-            vec![winner]
-        } else {
-            let rows: Vec<Answer> = self
-                .rows
-                .iter()
-                .filter_map(|(e, timelines, row)| {
-                    let time = (timelines & (1 << timeline) != 0).then_some(row.times[timeline])?;
-                    let Content::Data(cells) = &row.content else {
-                        return None;
-                    };
-                    let cell = cells[component].clone()?;
-                    (*e == entity && time <= at).then_some((Some(time), row.row_id, cell))
-                })
-                .collect();
-            let Some(best) = rows.iter().map(|(time, id, _)| (*time, *id)).max() else {
-                return Vec::new();
+        let candidates: Vec<Answer> =
+            if let Some((_, winner)) = self.static_winner(entity, component) {
+                vec![winner]
+            } else {
+                let rows: Vec<Answer> = self
+                    .temporal_cells(entity, component, timeline)
+                    .filter(|(time, ..)| time.is_some_and(|time| time <= at))
+                    .collect();
+                let Some(best) = rows.iter().map(|(time, id, _)| (*time, *id)).max() else {
+                    return Vec::new();
+                };
+                rows.into_iter()
+                    .filter(|(time, id, _)| (*time, *id) == best)
+                    .collect()
             };
-            rows.into_iter()
-                .filter(|(time, id, _)| (*time, *id) == best)
-                .collect()
-        };
         candidates
             .into_iter()
             .filter(|(time, row_id, _)| !self.is_hidden(entity, timeline, at, *time, *row_id))
@@ -703,20 +712,8 @@ impl Model {
             return vec![winner];
         }
         let mut rows: Vec<Answer> = self
-            .rows
-            .iter()
-            .filter_map(|(e, timelines, row)| {
-                let time = (timelines & (1 << timeline) != 0).then_some(row.times[timeline])?;
-                let Content::Data(cells) = &row.content else {
-                    return None;
-                };
-                let cell = cells[component].clone()?;
-                (*e == entity && min <= time && time <= max).then_some((
-                    Some(time),
-                    row.row_id,
-                    cell,
-                ))
-            })
+            .temporal_cells(entity, component, timeline)
+            .filter(|(time, ..)| time.is_some_and(|time| min <= time && time <= max))
             .collect();
         rows.sort();
         rows
