@@ -105,7 +105,7 @@ impl From<String> for Failure {
 /// `text` on one line: a message quoting a file's bytes or Arrow's multi-line errors must
 /// not spread over several.
 fn one_line(text: &str) -> String {
-    text.split_whitespace().collect::<Vec<_>>().join(" ")
+    text.trim_end().replace(['\n', '\r'], " ")
 }
 
 enum Command {
