@@ -331,9 +331,9 @@ fn load(dir: &Path, options: &LoadOptions) -> Result<Loaded, String> {
             Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
         };
         for chunk in chunks {
+            let chunk = Arc::new(chunk);
             let id = chunk.id();
-            let row_ids = chunk.row_ids().to_vec();
-            match store.insert(chunk) {
+            match store.insert(Arc::clone(&chunk)) {
                 Ok(_) => {}
                 Err(error) if options.skip_bad => {
                     skipped.push(format!("{id} of {name}: {}", one_line(&error.to_string())));
@@ -341,7 +341,7 @@ fn load(dir: &Path, options: &LoadOptions) -> Result<Loaded, String> {
                 }
                 Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
             }
-            for row_id in row_ids {
+            for &row_id in chunk.row_ids() {
                 source_chunk.entry(row_id).or_insert(id);
             }
         }
