@@ -77,7 +77,7 @@ mod stats;
 mod store;
 mod time;
 
-pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, ComponentTimeBounds, TimeColumn};
+pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
 pub use compaction::StoreConfig;
 pub use component::{ComponentDescriptor, ComponentName};
 pub use entity_path::EntityPath;

@@ -1,0 +1,376 @@
+//! [`ComponentColumn`]: one component's cells in a chunk, with what the indices need from
+//! them (per-timeline bounds, the static winner's row) and zero-copy reads of primitive
+//! cells.
+
+use arrow_array::cast::AsArray;
+use arrow_array::{Array, ArrayRef, ArrowPrimitiveType, ListArray};
+use arrow_buffer::Buffer;
+use arrow_schema::{DataType, FieldRef};
+use smallvec::SmallVec;
+
+use super::time_column::TimeColumn;
+use crate::error::ChunkError;
+use crate::{ComponentDescriptor, ComponentName, RowId, TimeInt};
+
+/// The greatest and least index of a component's non-null cells on one timeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ComponentTimeBounds {
+    /// Least time of a non-null cell.
+    pub min_time: TimeInt,
+    /// Greatest time of a non-null cell.
+    pub max_time: TimeInt,
+    /// Greatest row id among the non-null cells at `max_time`.
+    pub max_row_id: RowId,
+    /// The row holding that cell.
+    pub max_row: u32,
+}
+
+/// One component's column in a chunk.
+#[derive(Debug)]
+pub struct ComponentColumn {
+    pub(super) descriptor: ComponentDescriptor,
+    pub(super) list: ListArray,
+    /// The column's field as given (its name and metadata), for lossless transport; `None`
+    /// for a column built through the API, whose field is named after the component and
+    /// carries no metadata (derived when needed rather than allocated per chunk).
+    pub(super) field: Option<FieldRef>,
+    /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
+    /// every cell is null.
+    pub(super) bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 1]>,
+    /// For every chunk: the row of the non-null cell with the greatest row id, or
+    /// [`NO_ROW`] if every cell is null. It is the static winner of a static chunk. (A
+    /// sentinel rather than an `Option`, so that the flag below fits in the same word.)
+    pub(super) best_cell_row: u32,
+    /// Does every cell span exactly one instance? See
+    /// [`ComponentColumn::has_one_instance_per_row`].
+    pub(super) one_instance_per_row: bool,
+    /// The primitive values beneath the items, when there are such; see [`PrimitiveLeaf`].
+    pub(super) leaf: Option<PrimitiveLeaf>,
+}
+
+/// The primitive values beneath a column's items, when the items are primitive values or
+/// fixed-size lists of them, such as scalars or 3D positions.
+///
+/// Kept so that reading a cell is the offsets and then the values. Through Arrow's arrays it
+/// is also one array struct per nesting level, each behind its own pointer: in a store far
+/// larger than the cache, a dependent cache miss each, on every query answer read.
+///
+/// Only the buffer handle is kept (24 bytes a column): the leaf's type and shape are read
+/// from the list's item field, which is the process-wide shared copy and so in cache.
+#[derive(Clone, Debug)]
+pub(super) struct PrimitiveLeaf {
+    /// Starting at the items' first value (any slicing already applied). A second handle on
+    /// the leaf array's buffer: it shares the allocation.
+    pub(super) values: Buffer,
+}
+
+impl PrimitiveLeaf {
+    /// The leaf of `list`'s items, if they are primitives or fixed-size lists of them.
+    pub(super) fn of(list: &ListArray) -> Option<Self> {
+        let items = match list.values().as_fixed_size_list_opt() {
+            Some(fixed) => fixed.values(),
+            None => list.values(),
+        };
+        let values = arrow_array::downcast_primitive_array!(
+            items => items.values().inner().clone(),
+            _ => return None
+        );
+        Some(Self { values })
+    }
+
+    /// The same values: the very same bytes, not equal ones.
+    pub(super) fn is_the_same(&self, other: &Self) -> bool {
+        (self.values.as_ptr(), self.values.len()) == (other.values.as_ptr(), other.values.len())
+    }
+}
+
+/// The leaf type of a list type whose items are primitives or fixed-size lists of them,
+/// and the fixed size (`None` for primitive items). Arrow checks that a list's values have
+/// its item type, so this is the type of the values a [`PrimitiveLeaf`] holds.
+pub(super) fn leaf_shape(list_type: &DataType) -> Option<(&DataType, Option<usize>)> {
+    let DataType::List(item) = list_type else {
+        return None;
+    };
+    match item.data_type() {
+        DataType::FixedSizeList(leaf, size) => {
+            Some((leaf.data_type(), Some(usize::try_from(*size).ok()?)))
+        }
+        primitive => Some((primitive, None)),
+    }
+}
+
+/// `list` with its item field replaced by the process-wide shared copy of an equal field
+/// (see [`crate::shared`]): the same data, and a type that compares by pointer.
+pub(super) fn with_shared_item_field(list: &ListArray) -> ListArray {
+    let DataType::List(field) = list.data_type() else {
+        return list.clone();
+    };
+    let shared = crate::shared::share_field(field);
+    if std::sync::Arc::ptr_eq(&shared, field) {
+        return list.clone();
+    }
+    // The parts come from a valid list and the field is equal, so this does not fail; if
+    // it ever did, the list keeps its own field.
+    ListArray::try_new(
+        shared,
+        list.offsets().clone(),
+        std::sync::Arc::clone(list.values()),
+        list.nulls().cloned(),
+    )
+    .unwrap_or_else(|_| list.clone())
+}
+
+/// Does every cell of `list` span exactly one value?
+pub(super) fn has_one_instance_per_row(list: &ListArray) -> bool {
+    list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1)
+}
+
+/// No row: a chunk has fewer than `u32::MAX` rows (checked in `Chunk::from_raw`), so its
+/// rows are numbered below this.
+pub(super) const NO_ROW: u32 = u32::MAX;
+
+pub(super) struct RawComponentColumn {
+    pub(super) descriptor: ComponentDescriptor,
+    pub(super) array: ArrayRef,
+    pub(super) field: Option<FieldRef>,
+}
+
+impl ComponentColumn {
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "rows < 2^32, checked in Chunk::from_raw"
+    )]
+    pub(super) fn try_new(
+        raw: RawComponentColumn,
+        row_ids: &[RowId],
+        time_columns: &[TimeColumn],
+    ) -> Result<Self, ChunkError> {
+        let RawComponentColumn {
+            descriptor,
+            array,
+            field,
+        } = raw;
+        let name = || descriptor.name.as_str().to_owned();
+        let Some(list) = array.as_any().downcast_ref::<ListArray>() else {
+            return Err(ChunkError::NotAList {
+                component: name(),
+                data_type: array.data_type().clone(),
+            });
+        };
+        if list.len() != row_ids.len() {
+            return Err(ChunkError::LengthMismatch {
+                column: name(),
+                expected: row_ids.len(),
+                actual: list.len(),
+            });
+        }
+        let list = with_shared_item_field(list);
+        let valid = |row: usize| list.is_valid(row);
+
+        let mut max_row_id_cell: Option<(RowId, u32)> = None;
+        for (row, &row_id) in row_ids.iter().enumerate() {
+            if valid(row) && max_row_id_cell.is_none_or(|(best, _)| row_id >= best) {
+                max_row_id_cell = Some((row_id, row as u32));
+            }
+        }
+        let best_cell_row = max_row_id_cell.map_or(NO_ROW, |(_, row)| row);
+        let one_instance_per_row = has_one_instance_per_row(&list);
+        let leaf = PrimitiveLeaf::of(&list);
+
+        let bounds_per_timeline = time_columns
+            .iter()
+            .map(|column| {
+                let mut bounds: Option<ComponentTimeBounds> = None;
+                for (row, (&time, &row_id)) in column.times.iter().zip(row_ids).enumerate() {
+                    if !valid(row) {
+                        continue;
+                    }
+                    let time = TimeInt::saturating(time);
+                    let b = bounds.get_or_insert(ComponentTimeBounds {
+                        min_time: time,
+                        max_time: time,
+                        max_row_id: row_id,
+                        max_row: row as u32,
+                    });
+                    b.min_time = b.min_time.min(time);
+                    if (time, row_id) >= (b.max_time, b.max_row_id) {
+                        (b.max_time, b.max_row_id, b.max_row) = (time, row_id, row as u32);
+                    }
+                }
+                bounds
+            })
+            .collect();
+
+        Ok(Self {
+            descriptor,
+            list,
+            field,
+            bounds_per_timeline,
+            best_cell_row,
+            one_instance_per_row,
+            leaf,
+        })
+    }
+
+    /// The descriptor (name and metadata).
+    pub fn descriptor(&self) -> &ComponentDescriptor {
+        &self.descriptor
+    }
+
+    /// The component's name.
+    pub fn name(&self) -> &ComponentName {
+        &self.descriptor.name
+    }
+
+    /// The whole column.
+    pub fn list_array(&self) -> &ListArray {
+        &self.list
+    }
+
+    /// The Arrow type of one element of a cell.
+    pub fn element_type(&self) -> &DataType {
+        self.list.value_type_ref()
+    }
+
+    /// The cell at `row`, or `None` if out of bounds or null. Zero-copy.
+    pub fn cell(&self, row: usize) -> Option<ArrayRef> {
+        self.is_valid_row(row).then(|| self.list.value(row))
+    }
+
+    /// Does every cell span exactly one instance of the values array (a scalar series, a
+    /// single pose per row)? Then the instances of rows `a..b` are the values
+    /// `offsets[a]..offsets[a] + (b − a)`: a reader can take them as one slice. Null cells
+    /// span one too when this holds; check [`Array::null_count`] on the list.
+    pub fn has_one_instance_per_row(&self) -> bool {
+        self.one_instance_per_row
+    }
+
+    /// The values of the cell at `row`, for a column of `List<T>` (e.g. scalars): one
+    /// zero-copy slice, read through the offsets and the values buffer only.
+    ///
+    /// `None` if `row` is out of bounds, the cell is null, or the items are not `T`
+    /// (compared with [`ArrowPrimitiveType::DATA_TYPE`]). Like Arrow's
+    /// `PrimitiveArray::values`, a null *instance* reads as whatever its slot holds.
+    ///
+    /// ```
+    /// use arrow_array::types::Float64Type;
+    /// # use std::sync::Arc;
+    /// # use arrow_array::{builder::{Float64Builder, ListBuilder}, ArrayRef, Int64Array};
+    /// # use chunkstore::{Chunk, ChunkId, EntityPath, RowId, Timeline};
+    /// # let mut scalars = ListBuilder::new(Float64Builder::new());
+    /// # scalars.values().append_value(1.5);
+    /// # scalars.values().append_value(2.5);
+    /// # scalars.append(true);
+    /// # let chunk = Chunk::try_new(
+    /// #     ChunkId::new(),
+    /// #     EntityPath::parse("sensor").unwrap(),
+    /// #     vec![RowId::new()],
+    /// #     vec![(Timeline::sequence("frame"), Arc::new(Int64Array::from(vec![0])) as ArrayRef)],
+    /// #     vec![("scalar".into(), Arc::new(scalars.finish()) as ArrayRef)],
+    /// # )
+    /// # .unwrap();
+    /// let column = &chunk.components()[0];
+    /// assert_eq!(column.primitive_values::<Float64Type>(0), Some(&[1.5, 2.5][..]));
+    /// ```
+    pub fn primitive_values<T: ArrowPrimitiveType>(&self, row: usize) -> Option<&[T::Native]> {
+        self.leaf_values::<T>(row, None)
+    }
+
+    /// The values of the cell at `row`, for a column of `List<FixedSizeList<T, N>>` (e.g.
+    /// 3D positions, `N = 3`): one zero-copy slice of `N`-arrays, read through the offsets
+    /// and the values buffer only.
+    ///
+    /// `None` if `row` is out of bounds, the cell is null, `N` is 0, or the items are not
+    /// fixed-size lists of `N` `T`s. As in [`ComponentColumn::primitive_values`], null
+    /// instances read as whatever their slots hold.
+    pub fn fixed_size_values<T: ArrowPrimitiveType, const N: usize>(
+        &self,
+        row: usize,
+    ) -> Option<&[[T::Native; N]]> {
+        if N == 0 {
+            return None;
+        }
+        self.leaf_values::<T>(row, Some(N))
+            .map(|values| values.as_chunks::<N>().0)
+    }
+
+    pub(super) fn leaf_values<T: ArrowPrimitiveType>(
+        &self,
+        row: usize,
+        fixed_size: Option<usize>,
+    ) -> Option<&[T::Native]> {
+        let leaf = self.leaf.as_ref()?;
+        let (leaf_type, shape) = leaf_shape(self.list.data_type())?;
+        if shape != fixed_size || *leaf_type != T::DATA_TYPE || !self.is_valid_row(row) {
+            return None;
+        }
+        let width = fixed_size.unwrap_or(1);
+        let offsets = self.list.value_offsets();
+        let value = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
+        let (start, end) = (value(offsets.get(row)?)?, value(offsets.get(row + 1)?)?);
+        leaf.values.typed_data::<T::Native>().get(start..end)
+    }
+
+    /// The bytes of the cell at `row`'s values, when the column's items are primitives or
+    /// fixed-size lists of them without any null (then the bytes are the whole cell; a null
+    /// instance would hide whatever its slot holds). `None` otherwise, or for a null cell.
+    pub(crate) fn leaf_bytes(&self, row: usize) -> Option<&[u8]> {
+        let leaf = self.leaf.as_ref()?;
+        let (leaf_type, fixed_size) = leaf_shape(self.list.data_type())?;
+        let items = self.list.values();
+        let leaf_nulls = match fixed_size {
+            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
+            None => 0,
+        };
+        if items.null_count() + leaf_nulls > 0 || !self.is_valid_row(row) {
+            return None;
+        }
+        let width = leaf_type.primitive_width()? * fixed_size.unwrap_or(1);
+        let offsets = self.list.value_offsets();
+        let byte = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
+        let (start, end) = (byte(offsets.get(row)?)?, byte(offsets.get(row + 1)?)?);
+        leaf.values.as_slice().get(start..end)
+    }
+
+    /// Is `row` a row of this column, with a non-null cell?
+    pub(super) fn is_valid_row(&self, row: usize) -> bool {
+        row < self.list.len() && self.list.is_valid(row)
+    }
+
+    /// Is the cell at `row` non-null?
+    #[inline]
+    pub fn is_valid(&self, row: usize) -> bool {
+        self.list.is_valid(row)
+    }
+
+    /// Bounds of the non-null cells on the chunk's `timeline_position`-th time column.
+    pub(crate) fn bounds(&self, timeline_position: usize) -> Option<ComponentTimeBounds> {
+        self.bounds_per_timeline
+            .get(timeline_position)
+            .copied()
+            .flatten()
+    }
+
+    /// The non-null cell with the greatest row id, as `(row id, row)`, given the chunk's
+    /// row ids.
+    pub(crate) fn max_row_id_cell(&self, row_ids: &[RowId]) -> Option<(RowId, u32)> {
+        let row = self.best_cell_row;
+        if row == NO_ROW {
+            return None;
+        }
+        Some((*row_ids.get(row as usize)?, row))
+    }
+}
+
+trait ListValueTypeRef {
+    fn value_type_ref(&self) -> &DataType;
+}
+
+impl ListValueTypeRef for ListArray {
+    fn value_type_ref(&self) -> &DataType {
+        match self.data_type() {
+            DataType::List(field) => field.data_type(),
+            other => other,
+        }
+    }
+}

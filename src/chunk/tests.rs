@@ -1,0 +1,316 @@
+//! Unit tests of the chunk's columns and memory figures.
+
+use std::sync::Arc;
+
+use arrow_array::{ArrayRef, ListArray};
+use arrow_schema::DataType;
+
+use super::time_column::guided_partition_point;
+use super::*;
+
+/// A chunk of one `frame` row per cell of `list` (times 0, 1, …).
+fn chunk_of(list: ListArray) -> Chunk {
+    let n = u32::try_from(list.len()).unwrap();
+    Chunk::try_new(
+        ChunkId::new(),
+        EntityPath::parse("a").unwrap(),
+        (1..=u128::from(n)).map(RowId::from_u128).collect(),
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(arrow_array::Int64Array::from_iter_values(0..i64::from(n))) as ArrayRef,
+        )],
+        vec![("x".into(), Arc::new(list) as ArrayRef)],
+    )
+    .unwrap()
+}
+
+/// The flag holds exactly when every cell spans one value, a null cell included.
+#[test]
+fn one_instance_per_row_follows_the_offsets() {
+    let list = |offsets: Vec<i32>, nulls: Option<Vec<bool>>| {
+        let len = usize::try_from(*offsets.last().unwrap()).unwrap();
+        ListArray::new(
+            Arc::new(arrow_schema::Field::new_list_field(DataType::Float64, true)),
+            arrow_buffer::OffsetBuffer::new(offsets.into()),
+            Arc::new(arrow_array::Float64Array::from(vec![1.0; len])),
+            nulls.map(arrow_buffer::NullBuffer::from),
+        )
+    };
+    let flag = |l: ListArray| chunk_of(l).components()[0].has_one_instance_per_row();
+    assert!(flag(list(vec![0, 1, 2, 3], None)));
+    assert!(flag(list(vec![0, 1, 2], Some(vec![true, false]))));
+    assert!(!flag(list(vec![0, 1, 3], None)), "a cell of two");
+    assert!(!flag(list(vec![0, 1, 1, 2], None)), "an empty cell");
+    assert!(
+        !flag(list(vec![0, 1, 1], Some(vec![true, false]))),
+        "a null spanning none"
+    );
+}
+
+/// Scalars and fixed-size lists read as slices of the right cells, through slicing at
+/// every level; nulls, other types and other widths read as `None`.
+#[test]
+fn primitive_and_fixed_size_values_read_the_cells() {
+    use arrow_array::types::{Float32Type, Float64Type, Int64Type};
+    use arrow_array::{FixedSizeListArray, Float32Array, Float64Array};
+    use arrow_schema::Field;
+
+    // Cells [1.0, 2.0], null, [], [4.0], sliced out of a longer values array.
+    let values = Float64Array::from(vec![9.0, 1.0, 2.0, 3.0, 4.0]).slice(1, 4);
+    let scalars = ListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float64, true)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 2, 3, 3, 4].into()),
+        Arc::new(values),
+        Some(arrow_buffer::NullBuffer::from(vec![
+            true, false, true, true,
+        ])),
+    );
+    let chunk = chunk_of(scalars);
+    let column = &chunk.components()[0];
+    assert_eq!(
+        column.primitive_values::<Float64Type>(0),
+        Some(&[1.0, 2.0][..])
+    );
+    assert_eq!(
+        column.primitive_values::<Float64Type>(1),
+        None,
+        "a null cell"
+    );
+    assert_eq!(column.primitive_values::<Float64Type>(2), Some(&[][..]));
+    assert_eq!(column.primitive_values::<Float64Type>(3), Some(&[4.0][..]));
+    assert_eq!(
+        column.primitive_values::<Float64Type>(4),
+        None,
+        "out of bounds"
+    );
+    assert_eq!(
+        column.primitive_values::<Int64Type>(0),
+        None,
+        "another type"
+    );
+    assert_eq!(
+        column.fixed_size_values::<Float64Type, 1>(0),
+        None,
+        "another shape"
+    );
+    assert_eq!(
+        chunk_of_points_1().components()[0].primitive_values::<Float64Type>(0),
+        None
+    );
+
+    // Points [0,1,2] | [3,4,5] [6,7,8], the list itself sliced past a first cell.
+    let floats = Float32Array::from_iter_values((0..12u8).map(f32::from));
+    let xyz = FixedSizeListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float32, false)),
+        3,
+        Arc::new(floats),
+        None,
+    );
+    let points = ListArray::new(
+        Arc::new(Field::new_list_field(xyz.data_type().clone(), false)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1, 3, 4].into()),
+        Arc::new(xyz),
+        None,
+    )
+    .slice(1, 2);
+    let chunk = chunk_of(points);
+    let column = &chunk.components()[0];
+    assert_eq!(
+        column.fixed_size_values::<Float32Type, 3>(0),
+        Some(&[[3.0, 4.0, 5.0], [6.0, 7.0, 8.0]][..])
+    );
+    assert_eq!(
+        column.fixed_size_values::<Float32Type, 3>(1),
+        Some(&[[9.0, 10.0, 11.0]][..])
+    );
+    assert_eq!(column.fixed_size_values::<Float32Type, 2>(0), None);
+    assert_eq!(column.fixed_size_values::<Float32Type, 0>(0), None);
+    assert_eq!(column.primitive_values::<Float32Type>(0), None);
+    chunk.sanity_check().unwrap();
+}
+
+/// One cell holding one fixed-size list of one `Float64`.
+fn chunk_of_points_1() -> Chunk {
+    let xyz = arrow_array::FixedSizeListArray::new(
+        Arc::new(arrow_schema::Field::new_list_field(
+            DataType::Float64,
+            false,
+        )),
+        1,
+        Arc::new(arrow_array::Float64Array::from(vec![1.0])),
+        None,
+    );
+    chunk_of(ListArray::new(
+        Arc::new(arrow_schema::Field::new_list_field(
+            xyz.data_type().clone(),
+            false,
+        )),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1].into()),
+        Arc::new(xyz),
+        None,
+    ))
+}
+
+/// A chunk built from arrays nobody else holds owns its buffers, although its columns
+/// keep second handles on their leaf values; one whose arrays are also held elsewhere
+/// does not.
+#[test]
+fn a_chunk_owns_buffers_only_nobody_else_holds() {
+    let list = || {
+        ListArray::new(
+            Arc::new(arrow_schema::Field::new_list_field(DataType::Float64, true)),
+            arrow_buffer::OffsetBuffer::new(vec![0, 1, 2].into()),
+            Arc::new(arrow_array::Float64Array::from(vec![1.0, 2.0])),
+            None,
+        )
+    };
+    let alone = chunk_of(list());
+    assert!(alone.components()[0].leaf.is_some());
+    assert!(alone.owns_all_buffers_now());
+    assert!(alone.owns_all_buffers());
+
+    let shared = list();
+    let sharing = chunk_of(shared.clone());
+    assert!(!sharing.owns_all_buffers_now());
+    assert!(!sharing.owns_all_buffers());
+    drop(shared);
+    assert!(sharing.owns_all_buffers_now(), "the other holder is gone");
+}
+
+/// The memory figures read from typed arrays equal those of Arrow's generic
+/// `ArrayData` tree, for lists of primitives and of fixed-size lists of them, with
+/// nulls at every level, sliced, and with item fields no other chunk shares.
+#[test]
+fn typed_memory_figures_equal_the_generic_ones() {
+    use arrow_array::{FixedSizeListArray, Float32Array, Int16Array};
+    use arrow_buffer::{NullBuffer, OffsetBuffer};
+    use arrow_schema::Field;
+
+    let nulls = |bits: &[bool]| Some(NullBuffer::from(bits.to_vec()));
+    let primitive = |leaf_nulls: Option<NullBuffer>| {
+        Arc::new(Int16Array::new(vec![1, 2, 3, 4, 5, 6].into(), leaf_nulls)) as ArrayRef
+    };
+    let points = |point_nulls: Option<NullBuffer>, leaf_nulls: Option<NullBuffer>| {
+        let leaf = Float32Array::new((0..12u8).map(f32::from).collect(), leaf_nulls);
+        Arc::new(FixedSizeListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float32, true)),
+            2,
+            Arc::new(leaf),
+            point_nulls,
+        )) as ArrayRef
+    };
+    let list = |items: ArrayRef, list_nulls: Option<NullBuffer>, field_name: &str| {
+        ListArray::new(
+            Arc::new(Field::new(field_name, items.data_type().clone(), true)),
+            OffsetBuffer::new(vec![0, 2, 3, 3, 6].into()),
+            items,
+            list_nulls,
+        )
+    };
+    let some = [true, false, true, true];
+    let lists = vec![
+        list(primitive(None), None, "item"),
+        list(
+            primitive(nulls(&[true, false, true, true, false, true])),
+            nulls(&some),
+            "item",
+        ),
+        list(points(None, None), None, "item"),
+        list(
+            points(
+                nulls(&[true, true, false, true, true, true]),
+                nulls(&[true; 12]),
+            ),
+            nulls(&some),
+            "item",
+        ),
+        // Not the shared item field: the chunk owns its own.
+        list(primitive(None), None, "unshared"),
+        list(points(None, None), nulls(&some), "unshared").slice(1, 3),
+        list(primitive(None), None, "item").slice(2, 2),
+    ];
+    for list in lists {
+        let chunk = chunk_of(list);
+        assert!(chunk.components()[0].leaf.is_some());
+        let (typed, generic) = (
+            memory::ChunkMemory::of(&chunk),
+            memory::ChunkMemory::compute(&chunk, true),
+        );
+        assert_eq!(
+            (
+                typed.own_bytes,
+                typed.payload_bytes,
+                typed.buffer_bytes,
+                typed.buffers.len()
+            ),
+            (
+                generic.own_bytes,
+                generic.payload_bytes,
+                generic.buffer_bytes,
+                generic.buffers.len()
+            ),
+            "{:?}",
+            chunk.components()[0].list_array().data_type()
+        );
+        chunk.sanity_check().unwrap();
+    }
+}
+
+/// The guided search finds exactly the partition point a binary search finds, for
+/// evenly spread, clustered, duplicated and extreme times, and targets inside, between
+/// and beyond them.
+#[test]
+fn guided_partition_point_agrees_with_a_binary_search() {
+    let mut state = 7u64;
+    let mut random = move |n: u64| {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1);
+        (state >> 33) % n
+    };
+    let shapes: Vec<Vec<i64>> = vec![
+        (0..1000).collect(),
+        (0..1000).map(|i| i / 10).collect(),
+        (0..200)
+            .map(|i| if i < 190 { i } else { 1_000_000 + i })
+            .collect(),
+        (0..300).map(|i| i * i * i).collect(),
+        vec![i64::MIN + 1, -5, 0, 0, 0, 3, i64::MAX - 1]
+            .into_iter()
+            .chain(std::iter::repeat_n(i64::MAX, 40))
+            .collect(),
+        {
+            let mut v: Vec<i64> = (0..500)
+                .map(|_| random(10_000).cast_signed() - 5_000)
+                .collect();
+            v.sort_unstable();
+            v
+        },
+    ];
+    for times in shapes {
+        let range = (
+            TimeInt::saturating(times[0]),
+            TimeInt::saturating(*times.last().unwrap()),
+        );
+        let targets = times
+            .iter()
+            .flat_map(|&t| [t.saturating_sub(1), t, t.saturating_add(1)])
+            .chain([i64::MIN, i64::MAX, 0]);
+        for target in targets {
+            for strict in [false, true] {
+                let holds = |time: i64| {
+                    if strict {
+                        time < target
+                    } else {
+                        time <= target
+                    }
+                };
+                assert_eq!(
+                    guided_partition_point(times.len(), range, target, |p| times[p], holds),
+                    times.partition_point(|&time| holds(time)),
+                    "target {target}, strict {strict}"
+                );
+            }
+        }
+    }
+}
