@@ -9,6 +9,7 @@ use std::sync::Arc;
 use arrow_array::{Array, BooleanArray};
 use arrow_buffer::ArrowNativeType;
 
+use crate::sanity::{SanityError, Structure, ensure};
 use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt};
 
 /// A multiset of indices, each with the chunk holding it (so removing a chunk removes
@@ -212,7 +213,7 @@ impl ClearIndex {
         false
     }
 
-    pub fn sanity_check(&self) -> Result<(), String> {
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
         let Self { clears, children } = self;
         if let Some(clears) = clears {
             let EntityClears {
@@ -230,7 +231,10 @@ impl ClearIndex {
                     .chain(static_recursive.values())
                     .all(|&n| n > 0);
             if !counts_positive || clears.is_empty() {
-                return Err("clear multisets hold positive counts and no empty sets".into());
+                return Err(SanityError::new(
+                    Structure::ClearIndex,
+                    "clear multisets hold positive counts and no empty sets",
+                ));
             }
             for (timeline, recursive) in recursive_per_timeline {
                 let any = any_per_timeline.get(timeline);
@@ -239,14 +243,19 @@ impl ClearIndex {
                     .all(|k| any.is_some_and(|a| a.contains_key(k)))
                     || static_recursive.keys().any(|k| !static_any.contains_key(k))
                 {
-                    return Err("every recursive Clear is also among all Clears".into());
+                    return Err(SanityError::new(
+                        Structure::ClearIndex,
+                        "every recursive Clear is also among all Clears",
+                    ));
                 }
             }
         }
         for child in children.values() {
-            if child.is_empty() {
-                return Err("clear index holds no empty subtrees".into());
-            }
+            ensure(
+                !child.is_empty(),
+                Structure::ClearIndex,
+                "clear index holds no empty subtrees",
+            )?;
             child.sanity_check()?;
         }
         Ok(())

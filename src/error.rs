@@ -61,6 +61,25 @@ pub enum ChunkError {
         /// The number of rows given.
         num_rows: usize,
     },
+    /// More time and component columns than a chunk can index (`u32::MAX`).
+    TooManyColumns {
+        /// The number of columns given.
+        num_columns: usize,
+    },
+    /// A slice of rows reaches past the chunk's end (or is empty).
+    SliceOutOfRange {
+        /// First row of the slice.
+        offset: usize,
+        /// Rows in the slice.
+        len: usize,
+        /// Rows in the chunk.
+        num_rows: usize,
+    },
+    /// A transport batch has two row-id columns.
+    DuplicateRowIds {
+        /// The second one.
+        column: String,
+    },
     /// The builder was given cells of different element types for one component.
     CellTypeMismatch {
         /// The component.
@@ -178,6 +197,7 @@ pub enum ChunkError {
 }
 
 impl fmt::Display for ChunkError {
+    #[expect(clippy::too_many_lines, reason = "one arm per variant")]
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::NoRows => write!(f, "a chunk needs at least one row"),
@@ -187,6 +207,22 @@ impl fmt::Display for ChunkError {
                     f,
                     "{num_rows} rows is more than a chunk can index (u32::MAX)"
                 )
+            }
+            Self::TooManyColumns { num_columns } => write!(
+                f,
+                "{num_columns} columns is more than a chunk can index (u32::MAX)"
+            ),
+            Self::SliceOutOfRange {
+                offset,
+                len,
+                num_rows,
+            } => write!(
+                f,
+                "rows {offset}..{} are not a non-empty slice of a chunk of {num_rows} rows",
+                offset.saturating_add(*len)
+            ),
+            Self::DuplicateRowIds { column } => {
+                write!(f, "column {column:?} is a second row-id column")
             }
             Self::CellTypeMismatch {
                 component,

@@ -221,7 +221,7 @@ impl ChunkStore {
             }
             self.take_out(stored, true, DeletionReason::Gc, &mut events);
         }
-        self.notify(events)
+        self.finish_mutation(events)
     }
 
     /// Plans and applies a garbage collection: see [`ChunkStore::plan_gc`].
@@ -442,7 +442,7 @@ impl ChunkStore {
                 self.add_chunk(std::sync::Arc::new(rest), &mut events);
             }
         }
-        self.notify(events)
+        self.finish_mutation(events)
     }
 
     /// Removes all of `entity`'s data, static included, and its Clears; with `recursive`,
@@ -460,7 +460,7 @@ impl ChunkStore {
             self.remove_chunk(id, DeletionReason::Drop, &mut events);
         }
         self.clears.remove_entity(entity, recursive);
-        self.notify(events)
+        self.finish_mutation(events)
     }
 }
 

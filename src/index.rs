@@ -30,6 +30,7 @@ use std::ops::Bound;
 use std::sync::Arc;
 
 use crate::chunk::ComponentTimeBounds;
+use crate::sanity::{SanityError, Structure};
 use crate::{Chunk, ChunkId, RowId, TimeInt};
 
 /// A chunk as the index sees it: the chunk, where its time column and component column are,
@@ -329,43 +330,42 @@ impl TemporalComponentIndex {
         }
     }
 
-    pub fn sanity_check(&self) -> Result<(), String> {
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
+        let fail = |invariant| SanityError::new(Structure::TemporalIndex, invariant);
         match self {
             Self::Small(entries) => {
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
-                    return Err(format!(
-                        "a small index holds at most {SMALL_INDEX_MAX_CHUNKS} chunks, not {}",
-                        entries.len()
-                    ));
+                    return Err(
+                        fail("a small index holds at most SMALL_INDEX_MAX_CHUNKS chunks")
+                            .at(format_args!("{} chunks", entries.len())),
+                    );
                 }
                 if !entries
                     .windows(2)
                     .all(|w| min_time_key(&w[0]) < min_time_key(&w[1]))
                 {
-                    return Err("a small index is sorted by (least time, chunk id)".into());
+                    return Err(fail("a small index is sorted by (least time, chunk id)"));
                 }
                 entries.iter().try_for_each(check_bounds)
             }
             Self::Sequence(entries) => {
                 if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    return Err(format!(
-                        "a sequence holds more than {} chunks, not {}",
-                        SMALL_INDEX_MAX_CHUNKS / 2,
-                        entries.len()
-                    ));
+                    return Err(fail(
+                        "a sequence holds more than SMALL_INDEX_MAX_CHUNKS / 2 chunks",
+                    )
+                    .at(format_args!("{} chunks", entries.len())));
                 }
                 if !in_sequence(entries.iter()) {
-                    return Err("a sequence's chunks each end before the next starts".into());
+                    return Err(fail("a sequence's chunks each end before the next starts"));
                 }
                 entries.iter().try_for_each(check_bounds)
             }
             Self::Large(large) => {
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    return Err(format!(
-                        "a large index holds more than {} chunks, not {}",
-                        SMALL_INDEX_MAX_CHUNKS / 2,
-                        large.len()
-                    ));
+                    return Err(fail(
+                        "a large index holds more than SMALL_INDEX_MAX_CHUNKS / 2 chunks",
+                    )
+                    .at(format_args!("{} chunks", large.len())));
                 }
                 large.sanity_check()
             }
@@ -380,21 +380,29 @@ fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Re
 }
 
 /// Do the entry's bounds equal what its chunk computed?
-fn check_bounds(entry: &IndexedChunk) -> Result<(), String> {
-    if entry.chunk_id != entry.chunk.id() {
-        return Err(format!("{} carries its chunk's id", entry.chunk.id()));
+fn check_bounds(entry: &IndexedChunk) -> Result<(), SanityError> {
+    let IndexedChunk {
+        chunk,
+        chunk_id,
+        time_column,
+        component_column,
+        bounds,
+    } = entry;
+    if *chunk_id != chunk.id() {
+        return Err(
+            SanityError::new(Structure::TemporalIndex, "an entry carries its chunk's id")
+                .at(chunk.id()),
+        );
     }
-    let component = entry
-        .chunk
-        .components()
-        .get(entry.component_column as usize);
-    if component.and_then(|c| c.bounds(entry.time_column as usize)) == Some(entry.bounds) {
+    let component = chunk.components().get(*component_column as usize);
+    if component.and_then(|c| c.bounds(*time_column as usize)) == Some(*bounds) {
         Ok(())
     } else {
-        Err(format!(
-            "{} has the bounds its chunk computed",
-            entry.chunk_id
-        ))
+        Err(SanityError::new(
+            Structure::TemporalIndex,
+            "an entry has the bounds its chunk computed",
+        )
+        .at(chunk_id))
     }
 }
 
@@ -596,7 +604,8 @@ impl LargeIndex {
         recent.for_each(f);
     }
 
-    fn sanity_check(&self) -> Result<(), String> {
+    fn sanity_check(&self) -> Result<(), SanityError> {
+        let fail = |invariant| SanityError::new(Structure::TemporalIndex, invariant);
         let Self {
             recent,
             chunks_by_max_index,
@@ -604,25 +613,26 @@ impl LargeIndex {
             spanning_chunk_ids_by_min_time_per_span_class,
         } = self;
         if recent.len() > LARGE_INDEX_RECENT_CHUNKS {
-            return Err(format!(
-                "a large index keeps at most {LARGE_INDEX_RECENT_CHUNKS} recent chunks"
-            ));
+            return Err(fail(
+                "a large index keeps at most LARGE_INDEX_RECENT_CHUNKS recent chunks",
+            )
+            .at(format_args!("{} recent", recent.len())));
         }
         for (i, entry) in recent.iter().enumerate() {
             let id = entry.chunk_id;
             if recent.iter().skip(i + 1).any(|e| e.chunk_id == id)
                 || chunks_by_min_time.contains_key(&(entry.bounds.min_time, id))
             {
-                return Err(format!("{id} is indexed once"));
+                return Err(fail("a chunk is indexed once").at(id));
             }
             check_bounds(entry)?;
         }
         if chunks_by_max_index.len() != chunks_by_min_time.len() {
-            return Err(format!(
-                "both views index the same chunks ({} by max index, {} by min time)",
+            return Err(fail("both views index the same chunks").at(format_args!(
+                "{} by max index, {} by min time",
                 chunks_by_max_index.len(),
                 chunks_by_min_time.len()
-            ));
+            )));
         }
         let mut num_spanning = 0;
         for (class, chunks) in spanning_chunk_ids_by_min_time_per_span_class
@@ -632,26 +642,24 @@ impl LargeIndex {
             for (key @ &(min, id), &max) in chunks {
                 num_spanning += 1;
                 if span_class(min, max) != Some(class) {
-                    return Err(format!("{id} sits in the span class of its span"));
+                    return Err(fail("a chunk sits in the span class of its span").at(id));
                 }
                 if chunks_by_min_time
                     .get(key)
                     .is_none_or(|e| e.bounds.max_time != max)
                 {
-                    return Err(format!(
-                        "{id}'s span class entry resolves to its own bounds"
-                    ));
+                    return Err(fail("a span class entry resolves to its chunk's bounds").at(id));
                 }
             }
         }
         for (key, entry) in chunks_by_max_index {
             let b = entry.bounds;
             if *key != max_index_key(entry) {
-                return Err(format!("{} is keyed by its greatest index", entry.chunk_id));
+                return Err(fail("a chunk is keyed by its greatest index").at(entry.chunk_id));
             }
             let by_min = chunks_by_min_time.get(&(b.min_time, entry.chunk_id));
             if by_min.is_none_or(|e| !Arc::ptr_eq(&e.chunk, &entry.chunk)) {
-                return Err(format!("{} is keyed by its least time", entry.chunk_id));
+                return Err(fail("a chunk is keyed by its least time").at(entry.chunk_id));
             }
             check_bounds(entry)?;
         }
@@ -660,7 +668,9 @@ impl LargeIndex {
             .filter(|e| e.bounds.min_time < e.bounds.max_time)
             .count();
         if num_spanning != expected_spanning {
-            return Err("exactly the chunks spanning several times are in span classes".into());
+            return Err(fail(
+                "exactly the chunks spanning several times are in span classes",
+            ));
         }
         Ok(())
     }

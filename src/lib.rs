@@ -67,10 +67,12 @@ mod gc;
 mod held;
 mod ids;
 mod index;
+mod insert;
 #[cfg(feature = "ipc")]
 pub mod io;
 mod ordered;
 mod query;
+mod sanity;
 mod shared;
 mod small_map;
 mod stats;
@@ -78,7 +80,7 @@ mod store;
 mod time;
 
 pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
-pub use compaction::StoreConfig;
+pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
 pub use entity_path::EntityPath;
 #[cfg(feature = "ipc")]
@@ -87,8 +89,9 @@ pub use error::{ChunkError, ConfigError, EntityPathError, GcOptionsError, Insert
 pub use gc::{GcFraction, GcOptions, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
 pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
+pub use sanity::{SanityError, Structure};
 pub use stats::{EntityStats, StoreStats};
-pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreEvent};
+pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent};
 pub use time::{TimeInt, TimeType, Timeline};
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.

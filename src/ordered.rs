@@ -11,6 +11,8 @@
 
 use std::collections::{BTreeSet, VecDeque, btree_set, vec_deque};
 
+use crate::sanity::{SanityError, Structure, ensure};
+
 /// Inserting or removing this far from the nearer end of a deque still shifts it; farther
 /// turns the set into a B-tree.
 const MAX_SHIFT: usize = 32;
@@ -129,14 +131,15 @@ impl<K: Ord + Copy> OrderedSet<K> {
     }
 
     /// Is the set sorted, without duplicates? (A B-tree always is.)
-    pub fn sanity_check(&self) -> Result<(), String> {
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
         match self {
             Self::Deque(keys) => {
-                if keys.iter().zip(keys.iter().skip(1)).all(|(a, b)| a < b) {
-                    Ok(())
-                } else {
-                    Err("an ordered set's deque is strictly ascending".into())
-                }
+                let ascending = keys.iter().zip(keys.iter().skip(1)).all(|(a, b)| a < b);
+                ensure(
+                    ascending,
+                    Structure::OrderedSet,
+                    "an ordered set's deque is strictly ascending",
+                )
             }
             Self::Tree(_) => Ok(()),
         }

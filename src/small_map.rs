@@ -12,6 +12,8 @@ use std::hash::Hash;
 
 use smallvec::SmallVec;
 
+use crate::sanity::{SanityError, Structure, ensure};
+
 /// Past this many keys, a [`SmallMap`] is a hash map.
 const SMALL_MAP_MAX_KEYS: usize = 16;
 
@@ -164,6 +166,23 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     /// The values, in no particular order.
     pub fn values(&self) -> impl Iterator<Item = &V> + '_ {
         self.iter().map(|(_, v)| v)
+    }
+
+    /// The vector holds at most [`SMALL_MAP_MAX_KEYS`] distinct keys. (The hash map does
+    /// not shrink back: it may hold fewer.)
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
+        let Self::Few(entries) = self else {
+            return Ok(());
+        };
+        let distinct = entries
+            .iter()
+            .enumerate()
+            .all(|(i, (key, _))| entries[..i].iter().all(|(other, _)| !other.same_key(key)));
+        ensure(
+            entries.len() <= SMALL_MAP_MAX_KEYS && distinct,
+            Structure::SmallMap,
+            "a small map's vector holds at most SMALL_MAP_MAX_KEYS distinct keys",
+        )
     }
 }
 

@@ -125,7 +125,7 @@ pub struct EntityStats {
 
 /// Reference counts of the Arrow allocations held by chunks that share buffers, so each
 /// allocation is counted once.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub(crate) struct BufferLedger {
     /// Allocation address → (references by chunks, bytes).
     references: ahash::HashMap<usize, (u32, u64)>,
@@ -166,7 +166,7 @@ impl BufferLedger {
 }
 
 /// The store's share of memory accounting: the ledgers for the whole store and per kind.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub(crate) struct StoreLedgers {
     pub all: BufferLedger,
     pub static_: BufferLedger,

@@ -354,6 +354,47 @@ fn transport_rejects_null_row_ids_wrong_row_id_type_and_missing_row_ids() {
 }
 
 #[test]
+fn transport_names_a_second_row_id_column() {
+    let (mut fields, mut columns, meta) = transport_parts();
+    fields.push(fields[0].clone().with_name("second_row_ids"));
+    columns.push(Arc::clone(&columns[0]));
+    let error = decode(fields, columns, meta).unwrap_err();
+    assert!(
+        matches!(&error, ChunkError::DuplicateRowIds { column } if column == "second_row_ids"),
+        "{error}"
+    );
+}
+
+#[test]
+fn try_from_a_record_batch_is_from_record_batch() {
+    let (fields, columns, meta) = transport_parts();
+    let batch =
+        RecordBatch::try_new(Arc::new(Schema::new_with_metadata(fields, meta)), columns).unwrap();
+    let chunk = Chunk::try_from(&batch).unwrap();
+    let direct = Chunk::from_record_batch(&batch).unwrap();
+    assert_eq!(
+        chunk.to_record_batch().unwrap(),
+        direct.to_record_batch().unwrap()
+    );
+    assert_eq!(
+        chunk.id().to_string(),
+        batch.schema().metadata()["rerun:id"]
+    );
+    let mut no_id = batch.schema().metadata().clone();
+    no_id.remove("rerun:id");
+    let fields = batch.schema().fields().clone();
+    let batch = RecordBatch::try_new(
+        Arc::new(Schema::new_with_metadata(fields, no_id)),
+        batch.columns().to_vec(),
+    )
+    .unwrap();
+    assert!(matches!(
+        Chunk::try_from(&batch),
+        Err(ChunkError::MissingMetadata { key: "rerun:id" })
+    ));
+}
+
+#[test]
 fn transport_rejects_unknown_column_kinds_and_bad_time_columns() {
     let (mut fields, columns, meta) = transport_parts();
     fields[2] = fields[2].clone().with_metadata(HashMap::from([(

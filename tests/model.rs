@@ -1499,7 +1499,7 @@ proptest! {
         for config in [TINY_ON_DEMAND, StoreConfig::COMPACTION_OFF] {
             let mut store = run_with(config, &ops, &shuffles)?.store;
             store.compact();
-            store.sanity_check().map_err(TestCaseError::fail)?;
+            store.sanity_check().map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert_eq!(&all_answers(&store), &expected, "after compact() with {:?}", config);
             // A second pass finds nothing left to do.
             let again = store.compact();
@@ -1572,7 +1572,7 @@ proptest! {
             let before = answers_at_infinity(&store);
             let options = GcOp { target: 0, protect_latest, cursor, protected: None, zero_budget: false }.options();
             store.gc(&options);
-            store.sanity_check().map_err(TestCaseError::fail)?;
+            store.sanity_check().map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert_eq!(answers_at_infinity(&store), before);
         }
     }

@@ -10,6 +10,7 @@ use smallvec::SmallVec;
 
 use super::time_column::TimeColumn;
 use crate::error::ChunkError;
+use crate::sanity::{SanityError, Structure};
 use crate::{ComponentDescriptor, ComponentName, RowId, TimeInt};
 
 /// The greatest and least index of a component's non-null cells on one timeline.
@@ -136,10 +137,6 @@ pub(super) struct RawComponentColumn {
 }
 
 impl ComponentColumn {
-    #[expect(
-        clippy::cast_possible_truncation,
-        reason = "rows < 2^32, checked in Chunk::from_raw"
-    )]
     pub(super) fn try_new(
         raw: RawComponentColumn,
         row_ids: &[RowId],
@@ -165,40 +162,12 @@ impl ComponentColumn {
             });
         }
         let list = with_shared_item_field(list);
-        let valid = |row: usize| list.is_valid(row);
-
-        let mut max_row_id_cell: Option<(RowId, u32)> = None;
-        for (row, &row_id) in row_ids.iter().enumerate() {
-            if valid(row) && max_row_id_cell.is_none_or(|(best, _)| row_id >= best) {
-                max_row_id_cell = Some((row_id, row as u32));
-            }
-        }
-        let best_cell_row = max_row_id_cell.map_or(NO_ROW, |(_, row)| row);
+        let best_cell_row = best_cell_row(&list, row_ids);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
-
         let bounds_per_timeline = time_columns
             .iter()
-            .map(|column| {
-                let mut bounds: Option<ComponentTimeBounds> = None;
-                for (row, (&time, &row_id)) in column.times.iter().zip(row_ids).enumerate() {
-                    if !valid(row) {
-                        continue;
-                    }
-                    let time = TimeInt::saturating(time);
-                    let b = bounds.get_or_insert(ComponentTimeBounds {
-                        min_time: time,
-                        max_time: time,
-                        max_row_id: row_id,
-                        max_row: row as u32,
-                    });
-                    b.min_time = b.min_time.min(time);
-                    if (time, row_id) >= (b.max_time, b.max_row_id) {
-                        (b.max_time, b.max_row_id, b.max_row) = (time, row_id, row as u32);
-                    }
-                }
-                bounds
-            })
+            .map(|column| time_bounds(&list, &column.times, row_ids))
             .collect();
 
         Ok(Self {
@@ -337,9 +306,16 @@ impl ComponentColumn {
         row < self.list.len() && self.list.is_valid(row)
     }
 
-    /// Is the cell at `row` non-null?
+    /// Is the cell at `row` non-null? `false` for a row out of bounds.
     #[inline]
     pub fn is_valid(&self, row: usize) -> bool {
+        self.is_valid_row(row)
+    }
+
+    /// [`ComponentColumn::is_valid`] for a row known to be in bounds (the queries' rows
+    /// come from the chunk's own time column), without the bounds check.
+    #[inline]
+    pub(crate) fn is_valid_in_bounds(&self, row: usize) -> bool {
         self.list.is_valid(row)
     }
 
@@ -372,5 +348,100 @@ impl ListValueTypeRef for ListArray {
             DataType::List(field) => field.data_type(),
             other => other,
         }
+    }
+}
+
+/// The row of `list`'s non-null cell with the greatest row id (the last of equals), or
+/// [`NO_ROW`] if every cell is null.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn best_cell_row(list: &ListArray, row_ids: &[RowId]) -> u32 {
+    let mut best: Option<(RowId, u32)> = None;
+    for (row, &row_id) in row_ids.iter().enumerate() {
+        if list.is_valid(row) && best.is_none_or(|(id, _)| row_id >= id) {
+            best = Some((row_id, row as u32));
+        }
+    }
+    best.map_or(NO_ROW, |(_, row)| row)
+}
+
+/// The bounds of `list`'s non-null cells on one time column, `None` if every cell is null.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn time_bounds(list: &ListArray, times: &[i64], row_ids: &[RowId]) -> Option<ComponentTimeBounds> {
+    let mut bounds: Option<ComponentTimeBounds> = None;
+    for (row, (&time, &row_id)) in times.iter().zip(row_ids).enumerate() {
+        if !list.is_valid(row) {
+            continue;
+        }
+        let time = TimeInt::saturating(time);
+        let b = bounds.get_or_insert(ComponentTimeBounds {
+            min_time: time,
+            max_time: time,
+            max_row_id: row_id,
+            max_row: row as u32,
+        });
+        b.min_time = b.min_time.min(time);
+        if (time, row_id) >= (b.max_time, b.max_row_id) {
+            (b.max_time, b.max_row_id, b.max_row) = (time, row_id, row as u32);
+        }
+    }
+    bounds
+}
+
+impl ComponentColumn {
+    /// Recomputes everything the column derived from its cells.
+    pub(super) fn sanity_check(
+        &self,
+        row_ids: &[RowId],
+        time_columns: &[TimeColumn],
+    ) -> Result<(), SanityError> {
+        let Self {
+            descriptor,
+            list,
+            field,
+            bounds_per_timeline,
+            best_cell_row: best_row,
+            one_instance_per_row,
+            leaf,
+        } = self;
+        let fail = |invariant| {
+            Err(SanityError::new(Structure::ComponentColumn, invariant).at(&descriptor.name))
+        };
+        if list.len() != row_ids.len() {
+            return fail("a component column has one cell per row");
+        }
+        if field
+            .as_ref()
+            .is_some_and(|field| !field.data_type().equals_datatype(list.data_type()))
+        {
+            return fail("the field kept for transport has the column's type");
+        }
+        let fresh_bounds = time_columns
+            .iter()
+            .map(|column| time_bounds(list, &column.times, row_ids));
+        if bounds_per_timeline.len() != time_columns.len()
+            || !bounds_per_timeline.iter().copied().eq(fresh_bounds)
+        {
+            return fail("the bounds on each timeline are those of the non-null cells");
+        }
+        if *best_row != best_cell_row(list, row_ids) {
+            return fail("the best cell is the non-null cell of the greatest row id");
+        }
+        if *one_instance_per_row != has_one_instance_per_row(list) {
+            return fail("the one-instance flag matches the offsets");
+        }
+        let leaf_matches = match (leaf, &PrimitiveLeaf::of(list)) {
+            (Some(kept), Some(fresh)) => kept.is_the_same(fresh),
+            (kept, fresh) => kept.is_none() && fresh.is_none(),
+        };
+        if !leaf_matches {
+            return fail("the primitive leaf is the items' values");
+        }
+        Ok(())
     }
 }

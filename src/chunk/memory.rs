@@ -11,6 +11,7 @@ use smallvec::SmallVec;
 
 use super::{Chunk, ComponentColumn, TimeColumn};
 use crate::RowId;
+use crate::sanity::{SanityError, Structure};
 
 /// Heap of one Arrow array node besides its buffers: the array struct behind an `Arc`, its
 /// `DataType` and child vector. An estimate; the counting-allocator test holds it to
@@ -219,18 +220,33 @@ impl ChunkMemory {
         })
     }
 
-    pub fn sanity_check(&self, chunk: &Chunk) -> Result<(), String> {
+    /// Recounts every figure from the chunk's columns.
+    pub fn sanity_check(&self, chunk: &Chunk) -> Result<(), SanityError> {
+        let Self {
+            buffers,
+            buffer_bytes,
+            own_bytes,
+            payload_bytes,
+        } = self;
         let fresh = Self::compute(chunk, true);
-        let addresses = |m: &Self| {
-            let mut a: Vec<usize> = m.buffers.iter().map(buffer_address).collect();
+        let addresses = |buffers: &[Buffer]| {
+            let mut a: Vec<usize> = buffers.iter().map(buffer_address).collect();
             a.sort_unstable();
             a
         };
-        if addresses(&fresh) != addresses(self)
-            || (fresh.own_bytes, fresh.payload_bytes, fresh.buffer_bytes)
-                != (self.own_bytes, self.payload_bytes, self.buffer_bytes)
-        {
-            return Err("memory figures match the chunk's columns".into());
+        let fail =
+            |invariant| Err(SanityError::new(Structure::ChunkMemory, invariant).at(chunk.id()));
+        if addresses(&fresh.buffers) != addresses(buffers) {
+            return fail("the buffers are the distinct allocations of the chunk's columns");
+        }
+        if fresh.buffer_bytes != *buffer_bytes {
+            return fail("buffer bytes are the buffers' capacities, each counted once");
+        }
+        if fresh.own_bytes != *own_bytes {
+            return fail("own bytes are the chunk's own allocations");
+        }
+        if fresh.payload_bytes != *payload_bytes {
+            return fail("payload bytes are the bytes the rows use");
         }
         Ok(())
     }

@@ -16,12 +16,13 @@ use arrow_buffer::Buffer;
 use smallvec::SmallVec;
 
 use crate::error::ChunkError;
+use crate::sanity::{SanityError, Structure};
 use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeInt, Timeline};
 
 pub use builder::ChunkBuilder;
 pub use component_column::ComponentColumn;
 pub(crate) use component_column::ComponentTimeBounds;
-use component_column::{PrimitiveLeaf, RawComponentColumn, has_one_instance_per_row};
+use component_column::RawComponentColumn;
 use metadata::Metadata;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;
@@ -164,8 +165,8 @@ impl Chunk {
         }
         // Indices address columns by u32 too; no real batch comes near.
         if u32::try_from(raw_times.len() + raw_components.len()).is_err() {
-            return Err(ChunkError::TooManyRows {
-                num_rows: raw_times.len() + raw_components.len(),
+            return Err(ChunkError::TooManyColumns {
+                num_columns: raw_times.len() + raw_components.len(),
             });
         }
         if raw_components.is_empty() {
@@ -364,15 +365,15 @@ impl Chunk {
         self.memory.payload_bytes
     }
 
-    /// Checks every invariant of the chunk; construction guarantees them, so an error here
-    /// is a bug in this crate.
+    /// Checks every invariant of the chunk, its columns and its memory figures;
+    /// construction guarantees them, so an error here is a bug in this crate.
     ///
     /// # Errors
-    /// A description of the first broken invariant.
-    pub fn sanity_check(&self) -> Result<(), String> {
+    /// The first broken invariant.
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
         let Self {
-            id: _,
-            entity_path: _,
+            id,
+            entity_path: _, // parsed and validated by its own type
             row_ids,
             is_sorted_by_row_id,
             has_clears,
@@ -384,59 +385,54 @@ impl Chunk {
             max_row_id_row,
             memory,
         } = self;
+        let fail = |invariant| Err(SanityError::new(Structure::Chunk, invariant).at(id));
         let n = row_ids.len();
         if n == 0 || components.is_empty() {
-            return Err("a chunk has rows and components".into());
+            return fail("a chunk has rows and components");
+        }
+        if u32::try_from(n).is_err()
+            || u32::try_from(time_columns.len() + components.len()).is_err()
+        {
+            return fail("rows and columns are numbered by u32");
         }
         if *is_sorted_by_row_id != row_ids.is_sorted() {
-            return Err("is_sorted_by_row_id matches the row ids".into());
+            return fail("is_sorted_by_row_id matches the row ids");
         }
         if *has_clears != components.iter().any(|c| c.descriptor.name.is_clear()) {
-            return Err("has_clears matches the components".into());
+            return fail("has_clears matches the components");
         }
         if *max_row_id_row as usize >= n
             || row_ids.iter().min() != Some(min_row_id)
             || row_ids.iter().max() != Some(&row_ids[*max_row_id_row as usize])
         {
-            return Err("row_id_range spans the row ids".into());
+            return fail("row_id_range spans the row ids");
         }
-        memory.sanity_check(self)?;
         if extra_metadata.contains_key(transport::META_ID)
             || extra_metadata.contains_key(transport::META_ENTITY_PATH)
         {
-            return Err("id and entity path are not duplicated in extra metadata".into());
+            return fail("id and entity path are not duplicated in extra metadata");
         }
-        for column in time_columns {
+        for (position, column) in time_columns.iter().enumerate() {
+            let name = column.timeline.name();
+            if name.is_empty()
+                || time_columns[..position]
+                    .iter()
+                    .any(|c| c.timeline.name() == name)
+            {
+                return fail("timelines are named, each once");
+            }
             column.sanity_check(row_ids)?;
         }
+        let mut names = ahash::HashSet::default();
         for column in components {
-            if column.list.len() != n {
-                return Err(format!(
-                    "component {} has one cell per row",
-                    column.descriptor.name
-                ));
+            if column.descriptor.name.as_str().is_empty()
+                || !names.insert(column.descriptor.name.as_str())
+            {
+                return fail("components are named, each once");
             }
-            if column.bounds_per_timeline.len() != time_columns.len() {
-                return Err("component bounds exist for every timeline".into());
-            }
-            if column.one_instance_per_row != has_one_instance_per_row(&column.list) {
-                return Err(format!(
-                    "component {}'s one-instance flag matches its offsets",
-                    column.descriptor.name
-                ));
-            }
-            let leaf_matches = match (&column.leaf, &PrimitiveLeaf::of(&column.list)) {
-                (Some(kept), Some(fresh)) => kept.is_the_same(fresh),
-                (kept, fresh) => kept.is_none() && fresh.is_none(),
-            };
-            if !leaf_matches {
-                return Err(format!(
-                    "component {}'s primitive leaf is its items' values",
-                    column.descriptor.name
-                ));
-            }
+            column.sanity_check(row_ids, time_columns)?;
         }
-        Ok(())
+        memory.sanity_check(self)
     }
 }
 

@@ -59,8 +59,16 @@ impl Chunk {
     /// # Errors
     /// If the range is empty or out of bounds.
     pub(crate) fn slice(&self, offset: usize, len: usize) -> Result<Self, ChunkError> {
-        if len == 0 || offset + len > self.num_rows() {
-            return Err(ChunkError::NoRows);
+        if len == 0
+            || offset
+                .checked_add(len)
+                .is_none_or(|end| end > self.num_rows())
+        {
+            return Err(ChunkError::SliceOutOfRange {
+                offset,
+                len,
+                num_rows: self.num_rows(),
+            });
         }
         let times = self
             .time_columns

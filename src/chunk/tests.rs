@@ -7,6 +7,7 @@ use arrow_schema::DataType;
 
 use super::time_column::guided_partition_point;
 use super::*;
+use crate::error::ChunkError;
 
 /// A chunk of one `frame` row per cell of `list` (times 0, 1, …).
 fn chunk_of(list: ListArray) -> Chunk {
@@ -313,4 +314,29 @@ fn guided_partition_point_agrees_with_a_binary_search() {
             }
         }
     }
+}
+
+/// A slice past the end names the problem; so does an empty one.
+#[test]
+fn a_slice_out_of_range_is_named_as_such() {
+    let chunk = chunk_of_points_1();
+    let rows = chunk.num_rows();
+    assert!(chunk.slice(0, rows).is_ok());
+    for (offset, len) in [(0, rows + 1), (rows, 1), (usize::MAX, 2), (0, 0)] {
+        let error = chunk.slice(offset, len).unwrap_err();
+        assert!(
+            matches!(error, ChunkError::SliceOutOfRange { num_rows, .. } if num_rows == rows),
+            "{offset}+{len}: {error}"
+        );
+    }
+}
+
+/// `is_valid` answers for any row: a row past the end holds no cell.
+#[test]
+fn is_valid_is_false_past_the_last_row() {
+    let chunk = chunk_of_points_1();
+    let column = &chunk.components()[0];
+    assert!(column.is_valid(0));
+    assert!(!column.is_valid(chunk.num_rows()));
+    assert!(!column.is_valid(usize::MAX));
 }

@@ -7,6 +7,7 @@ use arrow_schema::DataType;
 
 use super::metadata::Metadata;
 use crate::error::ChunkError;
+use crate::sanity::{SanityError, Structure};
 use crate::{RowId, TimeInt, Timeline};
 
 /// One timeline's times in a chunk.
@@ -115,49 +116,53 @@ impl TimeColumn {
         })
     }
 
-    pub(super) fn sanity_check(&self, row_ids: &[RowId]) -> Result<(), String> {
+    pub(super) fn sanity_check(&self, row_ids: &[RowId]) -> Result<(), SanityError> {
         let Self {
             timeline,
             times,
             data_type,
-            field_metadata: _,
+            field_metadata: _, // as given, for transport only
             is_sorted,
             index_order,
             time_range,
         } = self;
-        let name = timeline.name();
+        let fail =
+            |invariant| Err(SanityError::new(Structure::TimeColumn, invariant).at(timeline.name()));
         if times.len() != row_ids.len() {
-            return Err(format!("time column {name} has one time per row"));
+            return fail("a time column has one time per row");
         }
         if crate::TimeType::from_arrow(data_type) != Some(timeline.time_type()) {
-            return Err(format!(
-                "time column {name}'s Arrow type matches its timeline"
-            ));
+            return fail("the Arrow type matches the timeline's type");
+        }
+        if times.contains(&i64::MIN) {
+            return fail("no time is the reserved i64::MIN");
         }
         if *is_sorted != times.is_sorted() {
-            return Err(format!(
-                "time column {name}'s is_sorted flag matches its times"
-            ));
+            return fail("is_sorted matches the times");
         }
         let (lo, hi) = (times.iter().min(), times.iter().max());
         if (lo.copied(), hi.copied()) != (Some(time_range.0.as_i64()), Some(time_range.1.as_i64()))
         {
-            return Err(format!("time column {name}'s range matches its times"));
+            return fail("the time range spans the times");
         }
         let key = |i: usize| (times[i], row_ids[i]);
         let ordered = match index_order {
             Some(order) => {
-                order.len() == times.len()
+                let mut seen = order.to_vec();
+                seen.sort_unstable();
+                seen.iter().enumerate().all(|(i, &row)| row as usize == i)
                     && order
                         .windows(2)
                         .all(|w| key(w[0] as usize) <= key(w[1] as usize))
+                    && !(1..times.len()).all(|i| key(i - 1) <= key(i))
             }
             None => (1..times.len()).all(|i| key(i - 1) <= key(i)),
         };
         if !ordered {
-            return Err(format!(
-                "time column {name}'s index order sorts by (time, row id)"
-            ));
+            return fail(
+                "the index order is a permutation sorting by (time, row id), kept only when \
+                 row order is not",
+            );
         }
         Ok(())
     }

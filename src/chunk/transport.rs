@@ -89,6 +89,29 @@ fn row_ids_to_arrow(row_ids: &[RowId]) -> ArrayRef {
     Arc::new(FixedSizeBinaryArray::new(16, Buffer::from_vec(bytes), None))
 }
 
+/// [`Chunk::from_record_batch`], for code generic over conversions.
+///
+/// ```
+/// # use std::sync::Arc;
+/// # use arrow_array::{ArrayRef, Float64Array, RecordBatch};
+/// # use chunkstore::*;
+/// let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+/// let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/e").unwrap())
+///     .with_row(RowId::new(), [(Timeline::sequence("frame"), 1)], [("x", value)])
+///     .build()?;
+/// let batch: RecordBatch = chunk.to_record_batch()?;
+/// let back = Chunk::try_from(&batch)?;
+/// assert_eq!(back.id(), chunk.id());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+impl TryFrom<&RecordBatch> for Chunk {
+    type Error = ChunkError;
+
+    fn try_from(batch: &RecordBatch) -> Result<Self, Self::Error> {
+        Self::from_record_batch(batch)
+    }
+}
+
 impl Chunk {
     /// Decodes a chunk from a `RecordBatch` in the transport layout.
     ///
@@ -116,8 +139,8 @@ impl Chunk {
             match column_kind(field)? {
                 ColumnKind::RowId => {
                     if row_ids.is_some() {
-                        return Err(ChunkError::DuplicateComponent {
-                            component: field.name().clone(),
+                        return Err(ChunkError::DuplicateRowIds {
+                            column: field.name().clone(),
                         });
                     }
                     row_ids = Some(row_ids_from_arrow(array)?);

@@ -142,7 +142,7 @@ fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
     (0..end)
         .rev()
         .map(|pos| times.row_at(pos))
-        .find(|&row| column.is_valid(row))
+        .find(|&row| column.is_valid_in_bounds(row))
         .map(|row| Candidate {
             time: TimeInt::saturating(times.times()[row]),
             entry,

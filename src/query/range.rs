@@ -234,7 +234,7 @@ impl RangeResult {
     pub fn iter(&self) -> impl Iterator<Item = RangeRow<'_>> + '_ {
         self.runs().flat_map(|run| {
             run.rows()
-                .filter(move |&row| run.column.is_valid(row))
+                .filter(move |&row| run.column.is_valid_in_bounds(row))
                 .map(move |row| run.row_at(row))
         })
     }

@@ -1,0 +1,101 @@
+//! Carrying out a [`CompactionPlan`]: each group's rows rewritten, the group removed, the
+//! pieces added and marked as one rewrite.
+
+use std::sync::Arc;
+
+use super::plan::{CompactionGroup, CompactionPlan};
+use super::rewrite::rewrite;
+use crate::store::{DeletionReason, RewriteMark};
+use crate::{Chunk, ChunkStore, StoreEvent};
+
+impl ChunkStore {
+    /// Rewrites the store's temporal chunks into chunks near the thresholds: per entity
+    /// and layout, every set of chunks that is not already as few time-sorted,
+    /// non-overlapping chunks as the thresholds allow (nor exactly what an earlier call
+    /// made of it) is merged, sorted and cut again. For a store filled with compaction
+    /// off, or fragmented by garbage collection. Returns the deletions (reason
+    /// [`DeletionReason::Compaction`]) and additions; no query answer changes, and a
+    /// second call in a row changes nothing.
+    ///
+    /// The same as [`ChunkStore::plan_compaction`] then [`ChunkStore::apply_compaction`].
+    pub fn compact(&mut self) -> Vec<StoreEvent> {
+        let plan = self.plan_compaction();
+        self.apply_compaction(&plan)
+    }
+
+    /// Rewrites the groups of `plan`. A group the store no longer holds exactly as
+    /// planned (one of its chunks left, or they are not all temporal chunks of its entity
+    /// and one layout: a plan made before other changes, or by hand) is skipped whole, so
+    /// applying any plan keeps every query's answer.
+    pub fn apply_compaction(&mut self, plan: &CompactionPlan) -> Vec<StoreEvent> {
+        let mut events = Vec::new();
+        for group in &plan.groups {
+            if let Some(chunks) = self.planned_chunks(group) {
+                self.rewrite_group(&chunks, &mut events);
+            }
+        }
+        self.finish_mutation(events)
+    }
+
+    /// The chunks of `group`, if the store holds them all and they can be rewritten
+    /// together.
+    fn planned_chunks(&self, group: &CompactionGroup) -> Option<Vec<Arc<Chunk>>> {
+        let chunks: Vec<Arc<Chunk>> = group
+            .chunk_ids
+            .iter()
+            .map(|id| self.chunk(*id).cloned())
+            .collect::<Option<_>>()?;
+        let first = chunks.first()?;
+        let fits = chunks.iter().all(|c| {
+            !c.is_static() && c.entity_path() == &group.entity_path && c.has_same_layout(first)
+        });
+        let distinct = {
+            let mut ids: Vec<_> = group.chunk_ids.clone();
+            ids.sort_unstable();
+            ids.windows(2).all(|w| w[0] != w[1])
+        };
+        (fits && distinct).then_some(chunks)
+    }
+
+    /// Rewrites one group (chunks of one entity and layout held by the store).
+    fn rewrite_group(&mut self, chunks: &[Arc<Chunk>], events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
+        let pieces = match rewrite(&inputs, &config, &mut self.stats) {
+            Ok(pieces) => pieces,
+            Err(error) => {
+                // Copying rows of valid chunks of one layout does not fail; if it ever
+                // did, the group stays as it is.
+                debug_assert!(false, "rewriting a compaction group: {error}");
+                return;
+            }
+        };
+        // Removed first, as in `merge_cascade`: the pieces cover the same times.
+        for chunk in chunks {
+            self.remove_chunk(chunk.id(), DeletionReason::Compaction, events);
+        }
+        let mark = RewriteMark {
+            rewrite: self.num_rewrites,
+            num_pieces: pieces.len(),
+        };
+        self.num_rewrites += 1;
+        let mut small = Vec::new();
+        for piece in pieces {
+            let piece = Arc::new(piece);
+            if mark.num_pieces == 1 && config.can_grow(&piece) {
+                small.push(Arc::clone(&piece));
+            }
+            let id = piece.id();
+            self.add_chunk(piece, events);
+            if let Some(stored) = self.chunks.get_mut(&id) {
+                stored.rewritten_by = Some(mark);
+            }
+        }
+        // A lone small result may keep growing with later inserts.
+        if config.compact_on_insert {
+            for chunk in small {
+                self.merge_cascade(chunk, events);
+            }
+        }
+    }
+}

@@ -1,0 +1,120 @@
+//! Compaction on insert: a temporal chunk is split if oversized, else added; a small one
+//! waits in its entity's [`PendingGroups`](crate::store) and full fans of waiting chunks
+//! are merged, level after level. What happens to a chunk is decided by [`placement`] (a
+//! pure function of the configuration and the chunk) and by the waiting groups' own
+//! `take_full_fan`; the cascade here carries it out.
+
+use std::sync::Arc;
+
+use super::rewrite::rewrite;
+use crate::store::{DeletionReason, StoreConfig};
+use crate::{Chunk, ChunkStore, StoreEvent};
+
+/// Where compaction on insert puts a temporal chunk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Placement {
+    /// It exceeds a threshold: its parts go in instead.
+    Split,
+    /// It could still double: it waits to be merged with others of its layout.
+    Wait,
+    /// It goes in as it is, for good.
+    Settle,
+}
+
+/// Where compaction on insert puts `chunk`.
+pub(crate) fn placement(config: &StoreConfig, chunk: &Chunk) -> Placement {
+    if config.is_oversized(chunk) {
+        Placement::Split
+    } else if config.can_grow(chunk) {
+        Placement::Wait
+    } else {
+        Placement::Settle
+    }
+}
+
+impl ChunkStore {
+    /// Inserts a validated temporal chunk with compaction: splits it if it exceeds a
+    /// threshold, else adds it and merges full fans, level after level.
+    pub(crate) fn insert_compacting(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        let placement = placement(&config, &chunk);
+        if placement == Placement::Split {
+            match rewrite(&[&chunk], &config, &mut self.stats) {
+                Ok(pieces) => {
+                    // The chunk itself never enters the store: its parts do.
+                    for piece in pieces {
+                        self.add_chunk(Arc::new(piece), events);
+                    }
+                    return;
+                }
+                // Cutting a valid chunk does not fail; if it ever did, it goes in whole.
+                Err(error) => debug_assert!(false, "splitting {}: {error}", chunk.id()),
+            }
+        }
+        // A chunk that will wait to be merged stays out of the store-wide orders.
+        let waits = placement == Placement::Wait;
+        self.add_chunk_to_orders(Arc::clone(&chunk), !waits, events);
+        if waits {
+            self.merge_cascade(chunk, events);
+        }
+    }
+
+    /// Adds a small chunk to its entity's waiting chunks and merges every full fan this
+    /// completes.
+    pub(super) fn merge_cascade(&mut self, member: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        let path = member.entity_path().clone();
+        let Some(entity) = self.entities.get_mut(&path) else {
+            self.settle_in_global_orders(member.id());
+            return;
+        };
+        let (mut group, mut level) = entity.pending.push(member, &config);
+        loop {
+            let Some(entity) = self.entities.get_mut(&path) else {
+                return;
+            };
+            let Some(fan) = entity.pending.take_full_fan(group, level, &config) else {
+                return;
+            };
+            // The merge's events at once: growing one push at a time reallocated the
+            // vector four times per merge.
+            events.reserve(fan.len() + 1);
+            let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
+            let pieces = match rewrite(&inputs, &config, &mut self.stats) {
+                Ok(pieces) => pieces,
+                Err(error) => {
+                    // Merging valid chunks of one layout does not fail; if it ever did,
+                    // the fan would stay in the store as it is, no longer waiting.
+                    debug_assert!(false, "merging a fan of waiting chunks: {error}");
+                    for chunk in &fan {
+                        self.settle_in_global_orders(chunk.id());
+                    }
+                    return;
+                }
+            };
+            // Remove before adding: the result covers the fan's times, so adding it first
+            // would overlap them and turn an in-order entity's sequence index into the
+            // general one. (If the fan was all the entity held, the entity goes and comes
+            // back with the result; it had nothing else waiting.)
+            for merged in &fan {
+                self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
+            }
+            let mut grown = None;
+            let num_pieces = pieces.len();
+            for piece in pieces {
+                let piece = Arc::new(piece);
+                let waits = num_pieces == 1 && config.can_grow(&piece);
+                if waits {
+                    grown = Some(Arc::clone(&piece));
+                }
+                self.add_chunk_to_orders(piece, !waits, events);
+            }
+            let Some(next) = grown else { return };
+            let Some(entity) = self.entities.get_mut(&path) else {
+                self.settle_in_global_orders(next.id());
+                return;
+            };
+            (group, level) = entity.pending.push(next, &config);
+        }
+    }
+}

@@ -1,0 +1,242 @@
+//! [`ChunkStore`]: owns the chunks and every index over them.
+//!
+//! The store's core lives here, below everything that changes or reads it through its
+//! methods elsewhere (insertion in [`crate::insert`], compaction, garbage collection,
+//! drops, queries). Every mutation goes through two primitives of [`membership`],
+//! `add_chunk` and `remove_chunk`, which keep the indices, the figures and the event list
+//! in step; [`sanity`] checks that they did.
+
+mod config;
+mod entity;
+mod events;
+mod membership;
+mod pending;
+mod sanity;
+
+use std::fmt;
+use std::sync::Arc;
+
+use arrow_schema::DataType;
+
+use crate::clear::ClearIndex;
+use crate::error::ConfigError;
+use crate::ordered::OrderedSet;
+use crate::stats::{EntityStats, StoreLedgers, StoreStats};
+use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType, Timeline};
+
+pub use config::StoreConfig;
+pub(crate) use entity::EntityIndex;
+use events::Subscribers;
+pub use events::{DeletionReason, EventSubscriber, StoreEvent};
+pub(crate) use pending::RewriteMark;
+
+/// A chunk as the store holds it.
+#[derive(Clone, Debug)]
+pub(crate) struct StoredChunk {
+    pub chunk: Arc<Chunk>,
+    /// Does the chunk's memory go through the buffer ledgers (it shares buffers)? Decided
+    /// once, on addition, so removal undoes exactly what addition did.
+    pub ledgered: bool,
+    /// Is a temporal chunk in the store-wide orders (`temporal_by_row_id`,
+    /// `temporal_per_timeline`)? A chunk compaction will soon merge away enters them only
+    /// if it stops waiting: streamed rows would otherwise pass through those orders one
+    /// by one. Garbage collection and range drops read waiting chunks from the entities'
+    /// compaction groups instead. Always true for static chunks (which no order holds).
+    pub in_global_orders: bool,
+    /// The on-demand compaction that wrote the chunk, if one did: `compact()` leaves alone
+    /// a group that is exactly what one of its rewrites made (see
+    /// [`crate::compaction::RewriteMark`]).
+    pub rewritten_by: Option<RewriteMark>,
+}
+
+/// Temporal chunks of one timeline by least and greatest time, across entities: what
+/// time-ordered garbage collection and range drops walk.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct TimelineChunks {
+    pub by_min_time: OrderedSet<(TimeInt, ChunkId)>,
+    pub by_max_time: OrderedSet<(TimeInt, ChunkId)>,
+}
+
+/// An in-memory store of chunks, answering latest-at and range queries.
+///
+/// See the crate documentation for an example.
+#[derive(Clone, Debug, Default)]
+pub struct ChunkStore {
+    pub(crate) config: StoreConfig,
+    pub(crate) chunks: ahash::HashMap<ChunkId, StoredChunk>,
+    pub(crate) time_types: ahash::HashMap<Arc<str>, TimeType>,
+    pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
+    pub(crate) clears: ClearIndex,
+    /// Temporal chunks by least row id: the garbage collector's default order.
+    pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
+    pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
+    /// Temporal chunks outside the store-wide orders (see [`StoredChunk::in_global_orders`]).
+    pub(crate) num_outside_global_orders: usize,
+    /// How many rewrites `compact()` has made (it numbers them; see [`RewriteMark`]).
+    pub(crate) num_rewrites: u64,
+    pub(crate) stats: StoreStats,
+    pub(crate) ledgers: StoreLedgers,
+    /// Public mutations made so far: the debug sanity check's schedule.
+    pub(crate) num_mutations: u64,
+    subscribers: Subscribers,
+}
+
+impl ChunkStore {
+    /// An empty store with the default configuration ([`StoreConfig::DEFAULT`]:
+    /// compaction on insert).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// An empty store with this configuration.
+    ///
+    /// # Errors
+    /// If a threshold of the configuration is zero.
+    pub fn with_config(config: StoreConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            ..Self::default()
+        })
+    }
+
+    /// The configuration the store was created with.
+    pub fn config(&self) -> &StoreConfig {
+        &self.config
+    }
+
+    /// Calls `subscriber` with the events of every later mutation, after the mutation and
+    /// before it returns the same events. A store without subscribers pays nothing.
+    pub fn subscribe(&mut self, subscriber: impl Fn(&[StoreEvent]) + Send + Sync + 'static) {
+        self.subscribers.0.push(Arc::new(subscriber));
+    }
+
+    /// Ends every public mutation: counts it, checks the whole store on the debug
+    /// schedule ([`ChunkStore::debug_check_on_schedule`]), then hands its events to the
+    /// subscribers, and back to the caller.
+    pub(crate) fn finish_mutation(&mut self, events: Vec<StoreEvent>) -> Vec<StoreEvent> {
+        self.num_mutations += 1;
+        self.debug_check_on_schedule();
+        if !events.is_empty() {
+            for subscriber in &self.subscribers.0 {
+                subscriber(&events);
+            }
+        }
+        events
+    }
+
+    /// The chunk with this id, if the store holds it.
+    pub fn chunk(&self, id: ChunkId) -> Option<&Arc<Chunk>> {
+        self.chunks.get(&id).map(|stored| &stored.chunk)
+    }
+
+    /// Every chunk, in no particular order.
+    pub fn chunks(&self) -> impl Iterator<Item = &Arc<Chunk>> {
+        self.chunks.values().map(|stored| &stored.chunk)
+    }
+
+    /// Number of chunks, static and temporal.
+    pub fn num_chunks(&self) -> usize {
+        self.chunks.len()
+    }
+
+    /// Totals of chunks, rows and heap bytes, and what compaction copied. O(1).
+    pub fn stats(&self) -> StoreStats {
+        self.stats
+    }
+
+    /// The figures of one entity (its own data, not its descendants'). O(1).
+    pub fn entity_stats(&self, entity: &EntityPath) -> Option<EntityStats> {
+        self.entities.get(entity).map(|e| e.stats)
+    }
+
+    /// The type a timeline has in this store, if any chunk used it.
+    pub fn time_type(&self, timeline: &str) -> Option<TimeType> {
+        self.time_types.get(timeline).copied()
+    }
+
+    /// Every timeline any inserted chunk used, sorted by name. (A timeline keeps its type
+    /// once seen, even after all its data is gone; [`ChunkStore::time_range`] tells whether
+    /// any is left.)
+    pub fn timelines(&self) -> Vec<Timeline> {
+        let mut timelines: Vec<Timeline> = self
+            .time_types
+            .iter()
+            .map(|(name, &time_type)| Timeline::new(Arc::clone(name), time_type))
+            .collect();
+        timelines.sort();
+        timelines
+    }
+
+    /// The least and greatest time the store holds data at on `timeline`, or `None` if it
+    /// holds none there.
+    ///
+    /// Cost: O(1) from the store-wide time orders, plus a look at the small chunks
+    /// compaction keeps waiting (O(entities) when there are any).
+    pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
+        let ordered = self.temporal_per_timeline.get(timeline).and_then(|chunks| {
+            let (min, _) = chunks.by_min_time.iter().next()?;
+            let (max, _) = chunks.by_max_time.iter().next_back()?;
+            Some((*min, *max))
+        });
+        self.chunks_outside_global_orders()
+            .into_iter()
+            .filter_map(|chunk| chunk.time_column(timeline))
+            .map(crate::TimeColumn::time_range)
+            .chain(ordered)
+            .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
+    }
+
+    /// Every entity that holds data, sorted.
+    pub fn entity_paths(&self) -> Vec<EntityPath> {
+        let mut paths: Vec<EntityPath> = self.entities.keys().cloned().collect();
+        paths.sort();
+        paths
+    }
+
+    /// The components an entity holds chunks of (static or temporal), sorted by name.
+    pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
+        self.entities
+            .get(entity)
+            .map(|e| e.element_types.keys().cloned().collect())
+            .unwrap_or_default()
+    }
+
+    /// The Arrow type of one element of a component's cells at an entity.
+    pub fn element_type(&self, entity: &EntityPath, component: &str) -> Option<&DataType> {
+        self.entities
+            .get(entity)
+            .and_then(|e| e.element_types.get(component))
+            .map(|known| &known.element_type)
+    }
+}
+
+/// A deterministic listing of the store's chunks, sorted by entity then chunk id, so that
+/// changes to what a store holds are reviewable as text.
+impl fmt::Display for ChunkStore {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut chunks: Vec<&Arc<Chunk>> = self.chunks().collect();
+        chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
+        writeln!(f, "ChunkStore: {} chunks", chunks.len())?;
+        for chunk in chunks {
+            write!(
+                f,
+                "  {} {} rows={}",
+                chunk.entity_path(),
+                chunk.id(),
+                chunk.num_rows()
+            )?;
+            for column in chunk.time_columns() {
+                let (lo, hi) = column.time_range();
+                write!(f, " {}=[{lo}, {hi}]", column.timeline().name())?;
+            }
+            let names: Vec<&str> = chunk
+                .components()
+                .iter()
+                .map(|c| c.name().as_str())
+                .collect();
+            writeln!(f, " components={names:?}")?;
+        }
+        Ok(())
+    }
+}
