@@ -51,13 +51,12 @@ fn gc(c: &mut Criterion) {
         &store,
         &GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"),
     );
-    let cursor = GcOptions {
-        order: GcOrder::FurthestFrom {
-            timeline: FRAME.to_owned(),
-            time: TimeInt::new(1000).expect("a valid time"),
-        },
-        ..GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction")
-    };
+    let cursor = GcOptions::drop_at_least_fraction(0.5)
+        .expect("0.5 is a valid fraction")
+        .with_order(GcOrder::furthest_from(
+            FRAME,
+            TimeInt::new(1000).expect("a valid time"),
+        ));
     bench_gc(
         c,
         "half_furthest_from_cursor/100_entities/20_chunks_each",

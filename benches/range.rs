@@ -8,7 +8,7 @@
 
 mod common;
 
-use chunkstore::{ChunkStore, EntityPath, RangeQuery, StoreConfig, TimeInt};
+use chunkstore::{ChunkStore, EntityPath, RangeQuery, StoreConfig, TimeInt, TimeRange};
 use common::{FRAME, RowIds, SplitMix64, entities, for_each_first_f64, scalar_series, store_with};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
@@ -20,7 +20,11 @@ fn visit(store: &ChunkStore, entity: &EntityPath, starts: &[i64], len: i64) -> (
         let (Some(min), Some(max)) = bounds else {
             continue;
         };
-        let result = store.range(&RangeQuery::new(FRAME, min, max), entity, common::SCALAR);
+        let result = store.range(
+            &RangeQuery::new(FRAME, TimeRange::new(min, max)),
+            entity,
+            common::SCALAR,
+        );
         for run in result.runs() {
             for_each_first_f64(&run, |v| {
                 rows += 1;

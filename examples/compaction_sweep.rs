@@ -110,11 +110,9 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for max_rows in [1024, 4096, 16_384] {
         for merge_fanout in [4, 8, 16] {
-            let config = StoreConfig {
-                max_rows,
-                merge_fanout,
-                ..StoreConfig::DEFAULT
-            };
+            let config = StoreConfig::DEFAULT
+                .with_max_rows(max_rows)
+                .with_merge_fanout(merge_fanout);
             for (shape, run) in [
                 (
                     "insert_streaming",

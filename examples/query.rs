@@ -38,7 +38,7 @@ use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
 use chunkstore::{
     ChunkId, ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, StoreConfig, TimeInt,
-    TimeType,
+    TimeRange, TimeType,
 };
 
 const USAGE: &str = "usage: query [--max-rows N] [--max-rows-unsorted N] [--max-bytes N] \
@@ -246,7 +246,11 @@ fn run(args: &[OsString]) -> Result<(), Failure> {
                      only static data answers"
                 );
             }
-            range(&loaded, &RangeQuery::new(timeline, min, max), &mut out)
+            range(
+                &loaded,
+                &RangeQuery::new(timeline, TimeRange::new(min, max)),
+                &mut out,
+            )
         }
         Command::Stats => stats(&loaded.store, &mut out),
     };

@@ -34,7 +34,7 @@ use std::hint::black_box;
 use std::sync::Arc;
 use std::time::Instant;
 
-use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig};
+use chunkstore::{EntityPath, LatestAtQuery, QueryCell, RangeQuery, StoreConfig, TimeRange};
 use common::{
     FRAME, POSITION3D, RowIds, SCALAR, at, entities, point_batch_queries, point_batches, points,
     range_series, range_series_queries, store_with, sum_of_xy, visit_range_scalars,
@@ -117,7 +117,10 @@ fn range_scalar() {
     let queries = range_series_queries();
     let frame: Arc<str> = FRAME.into();
     let range = |(e, start): (usize, i64)| {
-        let query = RangeQuery::new(Arc::clone(&frame), at(start), at(start + 9_999));
+        let query = RangeQuery::new(
+            Arc::clone(&frame),
+            TimeRange::new(at(start), at(start + 9_999)),
+        );
         store.range(&query, &entities[e], SCALAR)
     };
 

@@ -28,8 +28,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use chunkstore::{
-    Chunk, ChunkStore, EntityPath, GcOptions, GcTarget, LatestAtQuery, QueryCell, RangeQuery,
-    StoreConfig,
+    Chunk, ChunkStore, EntityPath, GcOptions, LatestAtQuery, QueryCell, RangeQuery, StoreConfig,
+    TimeRange,
 };
 use common::{
     FRAME, POSITION3D, RowIds, SCALAR, SplitMix64, TEXT, at, clear_chunk, entities, first_text_len,
@@ -381,7 +381,10 @@ fn range_scalar() -> bool {
     let (ops, ns_per_op, checksum) = time_query(|| {
         let (mut rows, mut sum) = (0u64, 0u64);
         for &(e, start) in &queries {
-            let query = RangeQuery::new(Arc::clone(&frame), at(start), at(start + 9_999));
+            let query = RangeQuery::new(
+                Arc::clone(&frame),
+                TimeRange::new(at(start), at(start + 9_999)),
+            );
             visit_range_scalars(
                 &store.range(&query, &entities[e], SCALAR),
                 &mut rows,
@@ -489,11 +492,7 @@ fn gc_half() -> bool {
     }
     let base = store_with(OFF, &chunks);
     // Oldest rows first (the default order), keeping the latest chunk of every entity.
-    let options = GcOptions {
-        target: GcTarget::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"),
-        protect_latest: 1,
-        ..GcOptions::everything()
-    };
+    let options = GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction");
     let (store, ops, ns_per_op) = time_gc(&base, &options);
 
     let frame: Arc<str> = FRAME.into();

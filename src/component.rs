@@ -81,6 +81,7 @@ impl std::borrow::Borrow<str> for ComponentName {
 
 /// A component name plus the optional metadata Rerun attaches to it.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub struct ComponentDescriptor {
     /// The key: the component's name.
     pub name: ComponentName,
@@ -98,6 +99,20 @@ impl ComponentDescriptor {
             archetype: None,
             component_type: None,
         }
+    }
+
+    /// The same descriptor, of the archetype `archetype`.
+    #[must_use]
+    pub fn with_archetype(mut self, archetype: impl Into<Arc<str>>) -> Self {
+        self.archetype = Some(archetype.into());
+        self
+    }
+
+    /// The same descriptor, of the semantic type `component_type`.
+    #[must_use]
+    pub fn with_component_type(mut self, component_type: impl Into<Arc<str>>) -> Self {
+        self.component_type = Some(component_type.into());
+        self
     }
 }
 

@@ -13,10 +13,11 @@ use std::time::{Duration, Instant};
 
 use crate::error::GcOptionsError;
 use crate::store::{DeletionReason, StoredChunk};
-use crate::{Chunk, ChunkId, ChunkStore, EntityPath, StoreEvent, TimeInt};
+use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
 
 /// How much garbage collection should free.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum GcTarget {
     /// At least this many heap bytes ([`crate::StoreStats::heap_bytes`]).
     DropAtLeastBytes(u64),
@@ -81,6 +82,7 @@ impl TryFrom<f64> for GcFraction {
 
 /// Which chunks garbage collection drops first.
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum GcOrder {
     /// The chunks holding the oldest rows (smallest least row id) first.
     OldestRowIdsFirst,
@@ -89,14 +91,29 @@ pub enum GcOrder {
     /// timeline go last, oldest first.
     FurthestFrom {
         /// The timeline.
-        timeline: String,
+        timeline: Arc<str>,
         /// The cursor.
         time: TimeInt,
     },
 }
 
-/// What garbage collection may drop, and how far it should go.
+/// What garbage collection may drop, and how far it should go. Made by
+/// [`GcOptions::everything`] or [`GcOptions::drop_at_least_fraction`], then adjusted with
+/// the `with_*` methods.
+///
+/// ```
+/// # use std::time::Duration;
+/// # use chunkstore::*;
+/// let t = |v| TimeInt::new(v).unwrap();
+/// let options = GcOptions::drop_at_least_fraction(0.25)?
+///     .with_protect_latest(2)
+///     .with_protected_time_range("frame", TimeRange::new(t(100), t(200)))
+///     .with_time_budget(Duration::from_millis(5));
+/// assert_eq!(options.protect_latest, 2);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct GcOptions {
     /// How much to free.
     pub target: GcTarget,
@@ -104,9 +121,8 @@ pub struct GcOptions {
     /// holding the `n` latest Clears of every entity and timeline. With `n ≥ 1`, every
     /// latest-at at `+∞` answers as before.
     pub protect_latest: usize,
-    /// Keep every chunk with rows in one of these inclusive ranges: `(timeline, min,
-    /// max)`.
-    pub protected_time_ranges: Vec<(String, TimeInt, TimeInt)>,
+    /// Keep every chunk with rows in one of these ranges of a timeline.
+    pub protected_time_ranges: Vec<(Arc<str>, TimeRange)>,
     /// Stop planning once this much time has passed, but only after choosing at least one
     /// chunk to drop: a call that finds collectable data always frees some.
     pub time_budget: Option<Duration>,
@@ -145,10 +161,61 @@ impl GcOptions {
             ..Self::everything()
         })
     }
+
+    /// The same options, freeing `target`.
+    #[must_use]
+    pub fn with_target(mut self, target: GcTarget) -> Self {
+        self.target = target;
+        self
+    }
+
+    /// The same options, keeping the `n` latest chunks of every (entity, timeline,
+    /// component) (see [`GcOptions::protect_latest`]).
+    #[must_use]
+    pub fn with_protect_latest(mut self, n: usize) -> Self {
+        self.protect_latest = n;
+        self
+    }
+
+    /// The same options, also keeping every chunk with rows in `range` of `timeline`.
+    #[must_use]
+    pub fn with_protected_time_range(
+        mut self,
+        timeline: impl Into<Arc<str>>,
+        range: TimeRange,
+    ) -> Self {
+        self.protected_time_ranges.push((timeline.into(), range));
+        self
+    }
+
+    /// The same options, planning for at most `budget` (see [`GcOptions::time_budget`]).
+    #[must_use]
+    pub fn with_time_budget(mut self, budget: Duration) -> Self {
+        self.time_budget = Some(budget);
+        self
+    }
+
+    /// The same options, dropping chunks in `order`.
+    #[must_use]
+    pub fn with_order(mut self, order: GcOrder) -> Self {
+        self.order = order;
+        self
+    }
+}
+
+impl GcOrder {
+    /// [`GcOrder::FurthestFrom`] `time` on `timeline`.
+    pub fn furthest_from(timeline: impl Into<Arc<str>>, time: TimeInt) -> Self {
+        Self::FurthestFrom {
+            timeline: timeline.into(),
+            time,
+        }
+    }
 }
 
 /// The chunks one garbage collection will drop, in order.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct GcPlan {
     /// The chunks to drop.
     pub chunk_ids: Vec<ChunkId>,
@@ -260,14 +327,13 @@ impl ChunkStore {
             .filter_map(|c| on_timeline(c).map(|((min, _), id)| (min, id)))
             .collect();
         outside_by_min_desc.sort_unstable_by(|a, b| b.cmp(a));
-        let (by_max_time, by_min_time_desc) =
-            match self.temporal_per_timeline.get(timeline.as_str()) {
-                Some(chunks) => (
-                    Some(chunks.by_max_time.iter().copied()),
-                    Some(chunks.by_min_time.iter().rev().copied()),
-                ),
-                None => (None, None),
-            };
+        let (by_max_time, by_min_time_desc) = match self.temporal_per_timeline.get(&**timeline) {
+            Some(chunks) => (
+                Some(chunks.by_max_time.iter().copied()),
+                Some(chunks.by_min_time.iter().rev().copied()),
+            ),
+            None => (None, None),
+        };
         if by_max_time.is_none() && outside_by_max.is_empty() {
             return Box::new(by_row_id);
         }
@@ -325,15 +391,12 @@ impl ChunkStore {
         if chunk.is_static() {
             return true;
         }
-        let in_protected_range = options
-            .protected_time_ranges
-            .iter()
-            .any(|(name, min, max)| {
-                chunk.time_column(name).is_some_and(|column| {
-                    let (lo, hi) = column.time_range();
-                    lo <= *max && *min <= hi
-                })
-            });
+        let in_protected_range = options.protected_time_ranges.iter().any(|(name, range)| {
+            chunk.time_column(name).is_some_and(|column| {
+                let (lo, hi) = column.time_range();
+                range.intersects(TimeRange::new(lo, hi))
+            })
+        });
         if in_protected_range {
             return true;
         }
@@ -380,88 +443,6 @@ impl ChunkStore {
         }
         bytes
     }
-
-    /// Removes every row whose time on `timeline` is in `[min, max]`, from all its
-    /// timelines; static data is untouched. A chunk partly in the range is replaced by a
-    /// chunk of its other rows (a deletion, then an addition). Returns the events.
-    ///
-    /// Cost: the chunks of the timeline that end at or after `min`, times `log n`, plus
-    /// the rows rewritten.
-    pub fn drop_time_range(
-        &mut self,
-        timeline: &str,
-        min: TimeInt,
-        max: TimeInt,
-    ) -> Vec<StoreEvent> {
-        let mut events = Vec::new();
-        if min > max {
-            return events;
-        }
-        let ordered = self
-            .temporal_per_timeline
-            .get(timeline)
-            .into_iter()
-            .flat_map(|chunks| chunks.by_max_time.iter_from(&(min, ChunkId::ZERO)))
-            .map(|&(_, id)| id);
-        let outside = self.chunks_outside_global_orders();
-        let touched: Vec<ChunkId> = ordered
-            .chain(outside.iter().map(|c| c.id()))
-            .filter(|id| {
-                self.chunks
-                    .get(id)
-                    .and_then(|s| s.chunk.time_column(timeline))
-                    .is_some_and(|c| c.time_range().0 <= max && min <= c.time_range().1)
-            })
-            .collect();
-        for id in touched {
-            let Some(chunk) = self.chunk(id).cloned() else {
-                continue;
-            };
-            let Some(times) = chunk.time_column(timeline).map(crate::TimeColumn::times) else {
-                continue;
-            };
-            let kept: Vec<(usize, usize)> = (0..chunk.num_rows())
-                .filter(|&row| !(min.as_i64()..=max.as_i64()).contains(&times[row]))
-                .map(|row| (0, row))
-                .collect();
-            let rest = if kept.is_empty() {
-                None
-            } else {
-                match Chunk::gather(&[&chunk], &kept) {
-                    Ok(rest) => Some(rest),
-                    // Copying rows of a valid chunk does not fail; if it ever did, the
-                    // chunk stays whole rather than losing rows outside the range.
-                    Err(_) => continue,
-                }
-            };
-            // Removed before its rest is added: the rest covers the chunk's times, so
-            // adding it first would overlap them and turn an in-order entity's sequence
-            // index into the general one.
-            self.remove_chunk(id, DeletionReason::Drop, &mut events);
-            if let Some(rest) = rest {
-                self.add_chunk(std::sync::Arc::new(rest), &mut events);
-            }
-        }
-        self.finish_mutation(events)
-    }
-
-    /// Removes all of `entity`'s data, static included, and its Clears; with `recursive`,
-    /// its descendants' too. Returns the events.
-    pub fn drop_entity(&mut self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {
-        let mut targets: Vec<ChunkId> = Vec::new();
-        for (path, index) in &self.entities {
-            if path == entity || (recursive && entity.is_ancestor_of(path)) {
-                targets.extend(index.chunk_ids.iter().copied());
-            }
-        }
-        targets.sort_unstable();
-        let mut events = Vec::with_capacity(targets.len());
-        for id in targets {
-            self.remove_chunk(id, DeletionReason::Drop, &mut events);
-        }
-        self.clears.remove_entity(entity, recursive);
-        self.finish_mutation(events)
-    }
 }
 
 /// Merges `extra` into `ordered`, both sorted by `first` (`first(a, b)`: `a` goes before
@@ -478,59 +459,4 @@ fn merge_sorted<T>(
         (Some(_), _) => ordered.next(),
         (None, _) => extra.next(),
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use std::sync::Arc;
-
-    use arrow_array::{ArrayRef, Float64Array};
-
-    use super::*;
-    use crate::index::TemporalComponentIndex;
-    use crate::{ChunkBuilder, RowId, StoreConfig, Timeline};
-
-    /// A range drop inside one chunk of an in-order entity keeps its index a sequence: the
-    /// chunk leaves before the rest of its rows come back.
-    #[test]
-    fn a_partial_range_drop_keeps_a_sequence() {
-        let mut store = ChunkStore::with_config(StoreConfig {
-            compact_on_insert: false,
-            ..StoreConfig::default()
-        })
-        .unwrap();
-        let (frame, entity) = (Timeline::sequence("frame"), EntityPath::parse("e").unwrap());
-        for c in 0..40i64 {
-            let mut builder = ChunkBuilder::new(ChunkId::new(), entity.clone());
-            for r in 0..10 {
-                let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
-                builder =
-                    builder.with_row(RowId::new(), [(frame.clone(), c * 10 + r)], [("x", value)]);
-            }
-            store.insert(builder.build().unwrap()).unwrap();
-        }
-        let is_sequence = |store: &ChunkStore| {
-            let index = store.entities[&entity]
-                .temporal_per_timeline_per_component
-                .get("frame")
-                .and_then(|per_component| per_component.get("x"));
-            matches!(index, Some(TemporalComponentIndex::Sequence(_)))
-        };
-        assert!(is_sequence(&store));
-        // Inside the last chunk, the first, and one in the middle.
-        for (min, max) in [(393, 395), (2, 4), (203, 205)] {
-            let (min, max) = (TimeInt::new(min).unwrap(), TimeInt::new(max).unwrap());
-            let events = store.drop_time_range("frame", min, max);
-            assert_eq!(
-                events.len(),
-                2,
-                "the chunk's deletion, then its rest's addition"
-            );
-            assert!(matches!(events[0], StoreEvent::Deletion { .. }));
-            assert!(matches!(events[1], StoreEvent::Addition(_)));
-            store.sanity_check().unwrap();
-            assert!(is_sequence(&store));
-        }
-        assert_eq!(store.stats().num_temporal_rows, 400 - 9);
-    }
 }

@@ -61,6 +61,7 @@ mod chunk;
 mod clear;
 mod compaction;
 mod component;
+mod drop;
 mod entity_path;
 mod error;
 mod gc;
@@ -92,7 +93,7 @@ pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, Ran
 pub use sanity::{SanityError, Structure};
 pub use stats::{EntityStats, StoreStats};
 pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent};
-pub use time::{TimeInt, TimeType, Timeline};
+pub use time::{TimeInt, TimeRange, TimeType, Timeline};
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.
 #[cfg(doctest)]

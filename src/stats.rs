@@ -56,6 +56,7 @@ const STATIC_BYTES_PER_ENTRY: u64 = 490;
 /// in `static_heap_bytes` and `temporal_heap_bytes` once per kind, so the two kinds can
 /// add up to more than `heap_bytes` when static and temporal chunks share a buffer.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct StoreStats {
     /// Static chunks held.
     pub num_static_chunks: u64,
@@ -110,6 +111,7 @@ impl StoreStats {
 /// The figures of one entity, kept like [`StoreStats`]. A buffer shared by chunks of
 /// several entities counts once in each.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct EntityStats {
     /// Static chunks held.
     pub num_static_chunks: u64,

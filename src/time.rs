@@ -52,6 +52,74 @@ impl fmt::Display for TimeInt {
     }
 }
 
+/// An inclusive range of times, `[min, max]`: how every API names a span of a timeline
+/// (range queries, garbage collection's protected ranges, range drops), always beside the
+/// timeline's name. Empty when `min > max`.
+///
+/// ```
+/// use chunkstore::{TimeInt, TimeRange};
+/// let t = |v| TimeInt::new(v).unwrap();
+/// let range = TimeRange::new(t(10), t(20));
+/// assert!(range.contains(t(10)) && range.contains(t(20)) && !range.contains(t(21)));
+/// assert!(range.intersects(TimeRange::new(t(20), t(30))));
+/// assert!(TimeRange::new(t(2), t(1)).is_empty());
+/// assert_eq!(TimeRange::at(t(5)), TimeRange::new(t(5), t(5)));
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TimeRange {
+    min: TimeInt,
+    max: TimeInt,
+}
+
+impl TimeRange {
+    /// Every time a timeline can hold.
+    pub const EVERYTHING: Self = Self {
+        min: TimeInt::MIN,
+        max: TimeInt::MAX,
+    };
+
+    /// `[min, max]`, both ends included (empty if `min > max`).
+    pub const fn new(min: TimeInt, max: TimeInt) -> Self {
+        Self { min, max }
+    }
+
+    /// The one time `t`.
+    pub const fn at(t: TimeInt) -> Self {
+        Self { min: t, max: t }
+    }
+
+    /// The least time included.
+    pub const fn min(self) -> TimeInt {
+        self.min
+    }
+
+    /// The greatest time included.
+    pub const fn max(self) -> TimeInt {
+        self.max
+    }
+
+    /// Does the range include no time (`min > max`)?
+    pub fn is_empty(self) -> bool {
+        self.min > self.max
+    }
+
+    /// Is `t` in the range?
+    pub fn contains(self, t: TimeInt) -> bool {
+        self.min <= t && t <= self.max
+    }
+
+    /// Do the ranges share a time?
+    pub fn intersects(self, other: Self) -> bool {
+        !self.is_empty() && !other.is_empty() && self.min <= other.max && other.min <= self.max
+    }
+}
+
+impl fmt::Display for TimeRange {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "[{}, {}]", self.min, self.max)
+    }
+}
+
 /// How the values of a timeline are typed, in Rust and in Arrow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum TimeType {

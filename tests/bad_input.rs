@@ -17,7 +17,7 @@ use arrow_array::{ArrayRef, Float64Array, Int32Array, Int64Array, RecordBatch, S
 use arrow_schema::{DataType, Field, Schema, TimeUnit};
 use chunkstore::{
     Chunk, ChunkBuilder, ChunkError, ChunkId, ChunkStore, ComponentName, InsertError,
-    LatestAtQuery, RowId, TimeType, Timeline,
+    LatestAtQuery, RowId, TimeRange, TimeType, Timeline,
 };
 use common::*;
 
@@ -641,7 +641,7 @@ fn duplicated_row_ids_never_crash() {
         "a clear with an equal index hides"
     );
     let result = store.range(
-        &chunkstore::RangeQuery::new("frame", t(0), t(5)),
+        &chunkstore::RangeQuery::new("frame", TimeRange::new(t(0), t(5))),
         &path("e"),
         "c",
     );

@@ -15,7 +15,7 @@
 mod common;
 
 use chunkstore::{
-    ChunkStore, GcOptions, GcOrder, GcTarget, LatestAtQuery, RangeQuery, StoreConfig,
+    ChunkStore, GcOptions, GcOrder, GcTarget, LatestAtQuery, RangeQuery, StoreConfig, TimeRange,
 };
 use common::{first_f64, path, scalars, t};
 
@@ -87,7 +87,7 @@ fn check(store: &ChunkStore) {
                 .copied()
                 .collect();
             let result = store.range(
-                &RangeQuery::new("frame", t(min), t(max)),
+                &RangeQuery::new("frame", TimeRange::new(t(min), t(max))),
                 &entity,
                 COMPONENT,
             );
@@ -107,11 +107,9 @@ fn store() -> ChunkStore {
 /// Drops at least one chunk, in `order`; returns how many went.
 fn collect_one(store: &mut ChunkStore, order: GcOrder) -> usize {
     let before = store.num_chunks();
-    store.gc(&GcOptions {
-        target: GcTarget::DropAtLeastBytes(1),
-        order,
-        ..GcOptions::everything()
-    });
+    store.gc(&GcOptions::everything()
+        .with_target(GcTarget::DropAtLeastBytes(1))
+        .with_order(order));
     before - store.num_chunks()
 }
 
@@ -192,11 +190,11 @@ fn a_drop_in_the_middle_of_a_long_sequence() {
             .unwrap();
     }
     check(&store);
-    store.drop_time_range("frame", t(450), t(452));
+    store.drop_time_range("frame", TimeRange::new(t(450), t(452)));
     check(&store);
-    store.drop_time_range("frame", t(3), t(5));
+    store.drop_time_range("frame", TimeRange::new(t(3), t(5)));
     check(&store);
-    store.drop_time_range("frame", t(0), t(600));
+    store.drop_time_range("frame", TimeRange::new(t(0), t(600)));
     check(&store);
 }
 

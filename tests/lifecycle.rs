@@ -19,7 +19,7 @@ use std::time::Duration;
 use arrow_array::{ArrayRef, Int64Array};
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, ConfigError, DeletionReason, GcOptions, GcOrder, GcTarget,
-    LatestAtQuery, RangeQuery, StoreConfig, StoreEvent, Timeline,
+    LatestAtQuery, RangeQuery, StoreConfig, StoreEvent, TimeRange, Timeline,
 };
 use common::{clear, first_f64, path, scalar, scalars, static_scalar, t};
 
@@ -66,18 +66,12 @@ fn deleted(events: &[StoreEvent], reason: DeletionReason) -> Vec<Arc<Chunk>> {
 
 #[test]
 fn config_rejects_zero_thresholds_and_fanouts_below_two() {
-    let zero_rows = StoreConfig {
-        max_rows: 0,
-        ..StoreConfig::DEFAULT
-    };
+    let zero_rows = StoreConfig::DEFAULT.with_max_rows(0);
     assert_eq!(
         ChunkStore::with_config(zero_rows).unwrap_err(),
         ConfigError::ZeroThreshold { field: "max_rows" }
     );
-    let fanout = StoreConfig {
-        merge_fanout: 1,
-        ..StoreConfig::DEFAULT
-    };
+    let fanout = StoreConfig::DEFAULT.with_merge_fanout(1);
     let error = ChunkStore::with_config(fanout).unwrap_err();
     assert!(error.to_string().contains("merge_fanout"), "{error}");
 }
@@ -96,6 +90,7 @@ fn streaming_rows_merge_into_sorted_chunks_copying_each_row_a_few_times() {
                     assert_eq!(*reason, DeletionReason::Compaction);
                 }
                 StoreEvent::Addition(chunk) => assert!(chunk.num_rows() > 1),
+                other => panic!("an event of an unknown kind: {other:?}"),
             }
         }
     }
@@ -208,10 +203,8 @@ fn gc_plans_without_changing_anything_and_applies_exactly_its_plan() {
     let mut store = off();
     ten_by_ten(&mut store, "g");
     let listing = store.to_string();
-    let options = GcOptions {
-        target: GcTarget::drop_at_least_fraction(0.3).unwrap(),
-        ..GcOptions::everything()
-    };
+    let options =
+        GcOptions::everything().with_target(GcTarget::drop_at_least_fraction(0.3).unwrap());
     let plan = store.plan_gc(&options);
     assert_eq!(store.to_string(), listing, "planning changes nothing");
     assert_eq!(store.plan_gc(&options), plan, "planning is deterministic");
@@ -237,14 +230,9 @@ fn gc_plans_without_changing_anything_and_applies_exactly_its_plan() {
 fn gc_furthest_from_a_cursor_drops_the_far_chunks_first() {
     let mut store = off();
     ten_by_ten(&mut store, "g");
-    let options = GcOptions {
-        target: GcTarget::DropAtLeastBytes(1),
-        order: GcOrder::FurthestFrom {
-            timeline: "frame".into(),
-            time: t(52),
-        },
-        ..GcOptions::everything()
-    };
+    let options = GcOptions::everything()
+        .with_target(GcTarget::DropAtLeastBytes(1))
+        .with_order(GcOrder::furthest_from("frame", t(52)));
     // [0, 9] ends 43 before the cursor; [90, 99] starts 38 after it.
     let first = store.gc(&options);
     assert_eq!(
@@ -257,13 +245,8 @@ fn gc_furthest_from_a_cursor_drops_the_far_chunks_first() {
         91
     );
     // The chunk holding the cursor goes last.
-    let rest = store.gc(&GcOptions {
-        order: GcOrder::FurthestFrom {
-            timeline: "frame".into(),
-            time: t(52),
-        },
-        ..GcOptions::everything()
-    });
+    let rest =
+        store.gc(&GcOptions::everything().with_order(GcOrder::furthest_from("frame", t(52))));
     let last = deleted(&rest, DeletionReason::Gc).pop().unwrap();
     assert_eq!(last.row_ids()[0].as_u128(), 51);
 }
@@ -273,11 +256,9 @@ fn gc_never_touches_static_data_and_keeps_the_protected() {
     let mut store = off();
     ten_by_ten(&mut store, "g");
     store.insert(static_scalar("s", "x", 1000, 7.0)).unwrap();
-    let events = store.gc(&GcOptions {
-        protect_latest: 1,
-        protected_time_ranges: vec![("frame".into(), t(35), t(35))],
-        ..GcOptions::everything()
-    });
+    let events = store.gc(&GcOptions::everything()
+        .with_protect_latest(1)
+        .with_protected_time_range("frame", TimeRange::new(t(35), t(35))));
     assert_eq!(deleted(&events, DeletionReason::Gc).len(), 8);
     assert_eq!(store.stats().num_static_chunks, 1);
     let frames: Vec<i64> = range_values(&store, "g").iter().map(|r| r.0).collect();
@@ -292,10 +273,7 @@ fn protect_latest_keeps_a_recursive_clear_behind_a_newer_flat_one() {
     store.insert(clear("p", Some(10), 2, true)).unwrap();
     store.insert(clear("p", Some(20), 3, false)).unwrap();
     assert_eq!(latest(&store, "p/c", 100), None);
-    store.gc(&GcOptions {
-        protect_latest: 1,
-        ..GcOptions::everything()
-    });
+    store.gc(&GcOptions::everything().with_protect_latest(1));
     // The recursive Clear is not the latest Clear of `p`, but it is the latest recursive
     // one: dropping it would make the child's value reappear at +∞.
     assert_eq!(latest(&store, "p/c", 100), None);
@@ -306,11 +284,9 @@ fn a_zero_time_budget_still_frees_a_chunk_past_the_protected_ones() {
     let mut store = off();
     ten_by_ten(&mut store, "g");
     // The oldest eight chunks are protected, so the walk skips them before finding one.
-    let options = GcOptions {
-        protected_time_ranges: vec![("frame".into(), t(0), t(79))],
-        time_budget: Some(Duration::ZERO),
-        ..GcOptions::everything()
-    };
+    let options = GcOptions::everything()
+        .with_protected_time_range("frame", TimeRange::new(t(0), t(79)))
+        .with_time_budget(Duration::ZERO);
     let plan = store.plan_gc(&options);
     assert_eq!(
         plan.chunk_ids.len(),
@@ -321,10 +297,8 @@ fn a_zero_time_budget_still_frees_a_chunk_past_the_protected_ones() {
     let events = store.apply_gc(&plan);
     assert_eq!(deleted(&events, DeletionReason::Gc).len(), 1);
     // When nothing is collectable, nothing is dropped however long it may take.
-    let everything_protected = GcOptions {
-        protected_time_ranges: vec![("frame".into(), t(0), t(99))],
-        ..options
-    };
+    let everything_protected =
+        options.with_protected_time_range("frame", TimeRange::new(t(0), t(99)));
     assert!(store.gc(&everything_protected).is_empty());
 }
 
@@ -332,7 +306,7 @@ fn a_zero_time_budget_still_frees_a_chunk_past_the_protected_ones() {
 fn drop_time_range_rewrites_a_chunk_that_straddles_the_range() {
     let mut store = off();
     ten_by_ten(&mut store, "g");
-    let events = store.drop_time_range("frame", t(15), t(24));
+    let events = store.drop_time_range("frame", TimeRange::new(t(15), t(24)));
     // [10, 19] and [20, 29] each lose half: two deletions, two additions.
     assert_eq!(deleted(&events, DeletionReason::Drop).len(), 2);
     assert_eq!(
@@ -346,10 +320,16 @@ fn drop_time_range_rewrites_a_chunk_that_straddles_the_range() {
     assert_eq!(frames, (0..15).chain(25..100).collect::<Vec<_>>());
     assert_eq!(latest(&store, "g", 20), Some(14.0));
     assert!(
-        store.drop_time_range("frame", t(5), t(4)).is_empty(),
+        store
+            .drop_time_range("frame", TimeRange::new(t(5), t(4)))
+            .is_empty(),
         "empty range"
     );
-    assert!(store.drop_time_range("other", t(0), t(99)).is_empty());
+    assert!(
+        store
+            .drop_time_range("other", TimeRange::new(t(0), t(99)))
+            .is_empty()
+    );
 }
 
 #[test]
@@ -376,7 +356,7 @@ fn drop_time_range_removes_rows_from_all_their_timelines() {
     )
     .unwrap();
     store.insert(chunk).unwrap();
-    store.drop_time_range("tick", t(150), t(250));
+    store.drop_time_range("tick", TimeRange::new(t(150), t(250)));
     assert_eq!(range_values(&store, "two"), [(1, 1.0)]);
 }
 
@@ -490,11 +470,7 @@ fn reinserting_a_chunk_that_was_split_changes_nothing() {
         .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
         .collect();
     let chunk = Arc::new(scalars("e", "x", &rows));
-    let mut store = ChunkStore::with_config(StoreConfig {
-        max_rows: 4,
-        ..StoreConfig::DEFAULT
-    })
-    .unwrap();
+    let mut store = ChunkStore::with_config(StoreConfig::DEFAULT.with_max_rows(4)).unwrap();
     assert_eq!(store.insert(Arc::clone(&chunk)).unwrap().len(), 3);
     assert!(store.insert(chunk).unwrap().is_empty());
     assert_eq!(rows_of(&store, "e").len(), 10);
@@ -514,14 +490,14 @@ fn a_removed_chunk_comes_back_and_a_cut_one_gets_back_only_its_dropped_rows() {
         store.insert(Arc::clone(&chunk)).unwrap();
         let all = rows_of(&store, "e");
 
-        store.drop_time_range("frame", t(2), t(3));
+        store.drop_time_range("frame", TimeRange::new(t(2), t(3)));
         assert_eq!(rows_of(&store, "e").len(), 4);
         let events = store.insert(Arc::clone(&chunk)).unwrap();
         let added: Vec<usize> = events
             .iter()
             .filter_map(|e| match e {
                 StoreEvent::Addition(c) => Some(c.num_rows()),
-                StoreEvent::Deletion { .. } => None,
+                _ => None,
             })
             .collect();
         assert_eq!(
@@ -649,9 +625,9 @@ fn time_range_spans_the_data_held_and_follows_removals() {
         store.insert(static_scalar("s", "x", 1, 1.0)).unwrap();
         assert_eq!(store.time_range("frame"), Some((t(5), t(20))), "{config:?}");
         assert_eq!(store.time_range("other"), None);
-        store.drop_time_range("frame", t(15), t(30));
+        store.drop_time_range("frame", TimeRange::new(t(15), t(30)));
         assert_eq!(store.time_range("frame"), Some((t(5), t(14))), "{config:?}");
-        store.drop_time_range("frame", t(0), t(100));
+        store.drop_time_range("frame", TimeRange::new(t(0), t(100)));
         assert_eq!(store.time_range("frame"), None, "{config:?}");
         let names: Vec<String> = store
             .timelines()
@@ -748,13 +724,13 @@ fn regression_compact_leaves_its_own_output_alone_when_rows_differ_in_size() {
         .unwrap()
     };
     for max_bytes in (40..300).step_by(7) {
-        let mut store = ChunkStore::with_config(StoreConfig {
-            compact_on_insert: false,
-            max_rows: 4,
-            max_rows_unsorted: 3,
-            max_bytes,
-            merge_fanout: 2,
-        })
+        let mut store = ChunkStore::with_config(
+            StoreConfig::COMPACTION_OFF
+                .with_max_rows(4)
+                .with_max_rows_unsorted(3)
+                .with_max_bytes(max_bytes)
+                .with_merge_fanout(2),
+        )
         .unwrap();
         let long = Some(vec!["a long string value", "and another one"]);
         store

@@ -39,8 +39,8 @@ use arrow_array::types::{Float64Type, Int32Type};
 use arrow_array::{Array, ArrayRef, BooleanArray, Int64Array, PrimitiveArray};
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, ComponentName, DeletionReason, GcOptions, GcOrder, GcTarget,
-    InsertError, LatestAtQuery, RangeQuery, RowId, StoreConfig, StoreEvent, TimeInt, TimeType,
-    Timeline,
+    InsertError, LatestAtQuery, RangeQuery, RowId, StoreConfig, StoreEvent, TimeInt, TimeRange,
+    TimeType, Timeline,
 };
 use common::{bool_list, path, t};
 use proptest::prelude::*;
@@ -360,27 +360,25 @@ struct GcOp {
 
 impl GcOp {
     fn options(&self) -> GcOptions {
-        GcOptions {
-            target: match self.target {
+        let mut options = GcOptions::everything()
+            .with_target(match self.target {
                 0 => GcTarget::Everything,
                 1 => GcTarget::drop_at_least_fraction(0.5).unwrap(),
                 _ => GcTarget::DropAtLeastBytes(1),
-            },
-            protect_latest: self.protect_latest,
-            protected_time_ranges: self
-                .protected
-                .iter()
-                .map(|&(timeline, min, max)| (TIMELINES[timeline].0.to_owned(), t(min), t(max)))
-                .collect(),
-            time_budget: self.zero_budget.then_some(std::time::Duration::ZERO),
-            order: match self.cursor {
-                Some((timeline, time)) => GcOrder::FurthestFrom {
-                    timeline: TIMELINES[timeline].0.to_owned(),
-                    time: t(time),
-                },
+            })
+            .with_protect_latest(self.protect_latest)
+            .with_order(match self.cursor {
+                Some((timeline, time)) => GcOrder::furthest_from(TIMELINES[timeline].0, t(time)),
                 None => GcOrder::OldestRowIdsFirst,
-            },
+            });
+        if let Some((timeline, min, max)) = self.protected {
+            options = options
+                .with_protected_time_range(TIMELINES[timeline].0, TimeRange::new(t(min), t(max)));
         }
+        if self.zero_budget {
+            options = options.with_time_budget(std::time::Duration::ZERO);
+        }
+        options
     }
 }
 
@@ -770,13 +768,11 @@ impl RowIds {
 /// thresholds so small that nearly every insert merges or splits.
 const CONFIGS: [StoreConfig; 2] = [
     StoreConfig::COMPACTION_OFF,
-    StoreConfig {
-        compact_on_insert: true,
-        max_rows: 4,
-        max_rows_unsorted: 3,
-        max_bytes: 256,
-        merge_fanout: 2,
-    },
+    StoreConfig::DEFAULT
+        .with_max_rows(4)
+        .with_max_rows_unsorted(3)
+        .with_max_bytes(256)
+        .with_merge_fanout(2),
 ];
 
 /// A chunk the test built and inserted (`chunk` is `model` built, or a copy of it).
@@ -821,6 +817,7 @@ impl Harness {
                     let before = self.replayed.remove(&chunk.id());
                     prop_assert!(before.is_some(), "{} deleted before added", chunk.id());
                 }
+                other => prop_assert!(false, "an event of an unknown kind: {other:?}"),
             }
         }
         Ok(())
@@ -1076,7 +1073,7 @@ impl Harness {
             Op::DropTimeRange { timeline, min, max } => {
                 let events = self
                     .store
-                    .drop_time_range(TIMELINES[*timeline].0, t(*min), t(*max));
+                    .drop_time_range(TIMELINES[*timeline].0, TimeRange::new(t(*min), t(*max)));
                 self.replay(&events)?;
                 let in_range = |time: Option<i64>| time.is_some_and(|t| *min <= t && t <= *max);
                 self.model.rows.retain(|(_, timelines, row)| {
@@ -1215,10 +1212,10 @@ fn protected_chunks(store: &ChunkStore, options: &GcOptions) -> HashSet<ChunkId>
             protected.insert(chunk.id());
             continue;
         }
-        for (name, min, max) in &options.protected_time_ranges {
+        for (name, range) in &options.protected_time_ranges {
             if let Some(column) = chunk.time_column(name) {
                 let (lo, hi) = column.time_range();
-                if lo <= *max && *min <= hi {
+                if range.min() <= range.max() && lo <= range.max() && range.min() <= hi {
                     protected.insert(chunk.id());
                 }
             }
@@ -1300,7 +1297,7 @@ fn range_answer(
     min: i64,
     max: i64,
 ) -> Vec<Answer> {
-    let query = RangeQuery::new(TIMELINES[timeline].0, t(min), t(max));
+    let query = RangeQuery::new(TIMELINES[timeline].0, TimeRange::new(t(min), t(max)));
     let rows: Vec<Answer> = store
         .range(&query, &path(ENTITIES[entity]), COMPONENTS[component])
         .iter()
@@ -1389,10 +1386,7 @@ fn cases(default: u32) -> u32 {
 
 /// A store with compaction on insert off but tiny thresholds, so that `compact()` cuts
 /// nearly every set of chunks into several.
-const TINY_ON_DEMAND: StoreConfig = StoreConfig {
-    compact_on_insert: false,
-    ..CONFIGS[1]
-};
+const TINY_ON_DEMAND: StoreConfig = CONFIGS[1].with_compact_on_insert(false);
 
 /// Every answer of the full sweep, in order (a range sorted as in [`check_range`]).
 fn all_answers(store: &ChunkStore) -> Vec<Vec<Answer>> {
@@ -1591,6 +1585,7 @@ proptest! {
                     match event {
                         StoreEvent::Addition(chunk) => { seen.insert(chunk.id(), Arc::clone(chunk)); }
                         StoreEvent::Deletion { chunk, .. } => { seen.remove(&chunk.id()); }
+                        other => panic!("an event of an unknown kind: {other:?}"),
                     }
                 }
             });

@@ -12,7 +12,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use arrow_array::{Array, ArrayRef, ListArray, RecordBatch};
-use chunkstore::{Chunk, ChunkStore, EntityPath, LatestAtQuery, RangeQuery, TimeInt, io};
+use chunkstore::{
+    Chunk, ChunkStore, EntityPath, LatestAtQuery, RangeQuery, TimeInt, TimeRange, io,
+};
 
 const RECORDING: &str = "testdata/rerun-0.41/a_robot";
 const TIMELINES: [&str; 3] = ["frame_id", "sim_time", "log_time"];
@@ -186,8 +188,7 @@ fn range_matches_rerun_on_every_range_and_timeline() {
             let (lo, hi) = (spec["lo"].as_i64().unwrap(), spec["hi"].as_i64().unwrap());
             let query = RangeQuery::new(
                 timeline,
-                TimeInt::new(lo).unwrap(),
-                TimeInt::new(hi).unwrap(),
+                TimeRange::new(TimeInt::new(lo).unwrap(), TimeInt::new(hi).unwrap()),
             );
             let (times, columns) = split_table(batch, Some(timeline));
             for column in &columns {

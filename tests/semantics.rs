@@ -10,7 +10,7 @@
 
 mod common;
 
-use chunkstore::{ChunkStore, LatestAtQuery, RangeQuery};
+use chunkstore::{ChunkStore, LatestAtQuery, RangeQuery, TimeRange};
 use common::*;
 
 fn store_with(chunks: impl IntoIterator<Item = chunkstore::Chunk>) -> ChunkStore {
@@ -52,7 +52,7 @@ fn range(
 ) -> Vec<(i64, u128, f64)> {
     store
         .range(
-            &RangeQuery::new("frame", t(min), t(max)),
+            &RangeQuery::new("frame", TimeRange::new(t(min), t(max))),
             &path(entity),
             component,
         )
@@ -234,7 +234,11 @@ fn answer_says_which_chunk_and_row_it_came_from() {
 #[test]
 fn range_of_static_data_is_exactly_the_static_winner() {
     let store = store_with([scalar("e", "c", 1, 1, 1.0), static_scalar("e", "c", 2, 7.0)]);
-    let result = store.range(&RangeQuery::new("frame", t(100), t(200)), &path("e"), "c");
+    let result = store.range(
+        &RangeQuery::new("frame", TimeRange::new(t(100), t(200))),
+        &path("e"),
+        "c",
+    );
     let rows: Vec<_> = result.iter().collect();
     assert_eq!(rows.len(), 1);
     assert!(rows[0].time().is_none());

@@ -12,7 +12,7 @@ use arrow_array::{Array, ArrowPrimitiveType};
 use arrow_buffer::ToByteSlice;
 use chunkstore::{
     Chunk, ChunkStore, ComponentColumn, GcOptions, InsertError, LatestAtQuery, RangeQuery, RowId,
-    StoreConfig, TimeInt,
+    StoreConfig, TimeInt, TimeRange,
 };
 
 /// Query times worth probing: extremes, and around zero.
@@ -22,13 +22,13 @@ const PROBES: [i64; 5] = [i64::MIN + 1, -1, 0, 1, i64::MAX];
 pub fn exercise(chunks: Vec<Chunk>) {
     let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).expect("a valid config");
     // Tiny thresholds: nearly every chunk is split, merged or both.
-    let mut compacting = ChunkStore::with_config(StoreConfig {
-        compact_on_insert: true,
-        max_rows: 2,
-        max_rows_unsorted: 1,
-        max_bytes: 64,
-        merge_fanout: 2,
-    })
+    let mut compacting = ChunkStore::with_config(
+        StoreConfig::DEFAULT
+            .with_max_rows(2)
+            .with_max_rows_unsorted(1)
+            .with_max_bytes(64)
+            .with_merge_fanout(2),
+    )
     .expect("a valid config");
     let mut timelines = Vec::new();
     for chunk in chunks {
@@ -84,7 +84,10 @@ pub fn exercise(chunks: Vec<Chunk>) {
     );
     for store in [&mut store, &mut compacting] {
         if let Some(timeline) = timelines.first() {
-            store.drop_time_range(timeline, TimeInt::saturating(-1), TimeInt::saturating(1));
+            store.drop_time_range(
+                timeline,
+                TimeRange::new(TimeInt::saturating(-1), TimeInt::saturating(1)),
+            );
             store.sanity_check().expect("sane after drop_time_range");
         }
         store.gc(&GcOptions::drop_at_least_fraction(0.5).expect("0.5 is a valid fraction"));

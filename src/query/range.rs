@@ -12,29 +12,29 @@ use std::sync::Arc;
 use arrow_array::ArrayRef;
 
 use crate::index::IndexedChunk;
-use crate::{Chunk, ChunkStore, ComponentColumn, EntityPath, RowId, TimeColumn, TimeInt};
+use crate::{
+    Chunk, ChunkStore, ComponentColumn, EntityPath, RowId, TimeColumn, TimeInt, TimeRange,
+};
 
-/// "Everything in `[min, max]` (inclusive) on `timeline`".
+/// "Everything in `range` (inclusive) on `timeline`".
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RangeQuery {
     timeline: Arc<str>,
-    min: TimeInt,
-    max: TimeInt,
+    range: TimeRange,
 }
 
 impl RangeQuery {
-    /// A query on the named timeline over `[min, max]`, both ends included.
-    pub fn new(timeline: impl Into<Arc<str>>, min: TimeInt, max: TimeInt) -> Self {
+    /// A query on the named timeline over `range`, both ends included.
+    pub fn new(timeline: impl Into<Arc<str>>, range: TimeRange) -> Self {
         Self {
             timeline: timeline.into(),
-            min,
-            max,
+            range,
         }
     }
 
     /// Everything ever logged on the timeline.
     pub fn everything(timeline: impl Into<Arc<str>>) -> Self {
-        Self::new(timeline, TimeInt::MIN, TimeInt::MAX)
+        Self::new(timeline, TimeRange::EVERYTHING)
     }
 
     /// The timeline's name.
@@ -42,9 +42,9 @@ impl RangeQuery {
         &self.timeline
     }
 
-    /// The inclusive bounds.
-    pub fn bounds(&self) -> (TimeInt, TimeInt) {
-        (self.min, self.max)
+    /// The inclusive range.
+    pub fn range(&self) -> TimeRange {
+        self.range
     }
 }
 
@@ -308,7 +308,7 @@ impl ChunkStore {
             });
             return result;
         }
-        let (min, max) = query.bounds();
+        let (min, max) = (query.range.min(), query.range.max());
         if min > max {
             return result;
         }

@@ -8,7 +8,20 @@ use crate::error::ConfigError;
 ///
 /// The defaults ([`StoreConfig::DEFAULT`]) and the measurements behind them are
 /// documented in `docs/PERFORMANCE.md`.
+///
+/// Made from [`StoreConfig::DEFAULT`] or [`StoreConfig::COMPACTION_OFF`] and adjusted with
+/// the `with_*` methods (so a field added later breaks no caller):
+///
+/// ```
+/// use chunkstore::{ChunkStore, StoreConfig};
+/// let config = StoreConfig::DEFAULT.with_max_rows(1024).with_merge_fanout(8);
+/// let store = ChunkStore::with_config(config)?;
+/// assert_eq!(store.config().max_rows, 1024);
+/// assert!(ChunkStore::with_config(StoreConfig::DEFAULT.with_max_bytes(0)).is_err());
+/// # Ok::<(), chunkstore::ConfigError>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct StoreConfig {
     /// Merge small chunks and split big ones on insert.
     pub compact_on_insert: bool,
@@ -44,6 +57,41 @@ impl StoreConfig {
         compact_on_insert: false,
         ..Self::DEFAULT
     };
+
+    /// The same configuration, merging and splitting on insert or not.
+    #[must_use]
+    pub const fn with_compact_on_insert(mut self, compact_on_insert: bool) -> Self {
+        self.compact_on_insert = compact_on_insert;
+        self
+    }
+
+    /// The same configuration with [`StoreConfig::max_rows`] set.
+    #[must_use]
+    pub const fn with_max_rows(mut self, max_rows: usize) -> Self {
+        self.max_rows = max_rows;
+        self
+    }
+
+    /// The same configuration with [`StoreConfig::max_rows_unsorted`] set.
+    #[must_use]
+    pub const fn with_max_rows_unsorted(mut self, max_rows_unsorted: usize) -> Self {
+        self.max_rows_unsorted = max_rows_unsorted;
+        self
+    }
+
+    /// The same configuration with [`StoreConfig::max_bytes`] set.
+    #[must_use]
+    pub const fn with_max_bytes(mut self, max_bytes: u64) -> Self {
+        self.max_bytes = max_bytes;
+        self
+    }
+
+    /// The same configuration with [`StoreConfig::merge_fanout`] set.
+    #[must_use]
+    pub const fn with_merge_fanout(mut self, merge_fanout: usize) -> Self {
+        self.merge_fanout = merge_fanout;
+        self
+    }
 
     /// Checks that every chunk could hold a row.
     ///

@@ -22,6 +22,7 @@ pub enum DeletionReason {
 /// One change to the set of chunks a store holds. Replaying every event a store returned,
 /// in order, on an empty set yields exactly the store's chunks.
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub enum StoreEvent {
     /// The chunk entered the store.
     Addition(Arc<Chunk>),
