@@ -17,6 +17,14 @@
 //!
 //! The named properties of the lifecycle (SEMANTICS.md sections 6 to 8) reuse the same
 //! generator and harness, each in its own test.
+//!
+//! Size: `PROPTEST_CASES` sets the cases of every property (default [`NUM_CASES`] for the
+//! main one, [`PROPERTY_CASES`] for the others), `CHUNKSTORE_MODEL_OPS` the longest
+//! sequence (default [`MAX_OPS`]). The defaults apply about 110,000 operations to stores in
+//! one `cargo test --test model` (45 s in a debug build here);
+//! `CHUNKSTORE_MODEL_REPORT=1 cargo test --test model -- --nocapture` prints the count.
+//! A longer run: `PROPTEST_CASES=5000 CHUNKSTORE_MODEL_OPS=100 cargo test --release --test
+//! model`.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -928,6 +936,7 @@ impl Harness {
         op: &Op,
         randomness: &mut impl Iterator<Item = u64>,
     ) -> Result<(), TestCaseError> {
+        count_op();
         match op {
             Op::Temporal {
                 entity,
@@ -1194,6 +1203,16 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
     Ok(())
 }
 
+/// Counts one operation applied to a store in [`OPS_APPLIED`]; with
+/// `CHUNKSTORE_MODEL_REPORT` set, prints the total at every ten thousand (the last line a
+/// run prints is its total, to within that).
+fn count_op() {
+    let total = OPS_APPLIED.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+    if total % 10_000 == 0 && std::env::var_os("CHUNKSTORE_MODEL_REPORT").is_some() {
+        eprintln!("model: {total} operations applied");
+    }
+}
+
 /// `(time, row id, chunk)`: how the store orders cells and Clears across chunks.
 type IndexKey = (i64, RowId, ChunkId);
 
@@ -1447,8 +1466,26 @@ fn rows_held(store: &ChunkStore) -> Vec<(u128, [Option<i64>; 3])> {
     rows
 }
 
+/// Most operations in one random sequence by default; `CHUNKSTORE_MODEL_OPS` in the
+/// environment overrides it. Sequences are 1 to this long, uniformly, so a run of `N`
+/// cases applies about `N × (this + 1) / 2` operations per property.
+const MAX_OPS: usize = 60;
+
+/// [`MAX_OPS`], or `CHUNKSTORE_MODEL_OPS` from the environment.
+fn max_ops() -> usize {
+    std::env::var("CHUNKSTORE_MODEL_OPS")
+        .ok()
+        .and_then(|ops| ops.parse().ok())
+        .filter(|&ops| ops >= 1)
+        .unwrap_or(MAX_OPS)
+}
+
+/// Operations applied to a store so far by this test binary, every property together (an
+/// operation run on two stores counts twice): see [`count_op`].
+static OPS_APPLIED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
 fn ops() -> impl Strategy<Value = Vec<Op>> {
-    prop::collection::vec(op(), 1..40)
+    prop::collection::vec(op(), 1..=max_ops())
 }
 
 fn shuffles() -> impl Strategy<Value = Vec<u64>> {
