@@ -1208,7 +1208,7 @@ fn run(ops: &[Op], shuffles: &[u64]) -> Result<(), TestCaseError> {
 /// run prints is its total, to within that).
 fn count_op() {
     let total = OPS_APPLIED.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-    if total % 10_000 == 0 && std::env::var_os("CHUNKSTORE_MODEL_REPORT").is_some() {
+    if total.is_multiple_of(10_000) && std::env::var_os("CHUNKSTORE_MODEL_REPORT").is_some() {
         eprintln!("model: {total} operations applied");
     }
 }

@@ -170,3 +170,187 @@ fn reason_to_rewrite(chunks: &[Arc<Chunk>], config: &StoreConfig) -> Option<Comp
         .max(1);
     (chunks.len() > fewest).then_some(CompactionReason::Fragmented)
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Float64Array};
+
+    use super::*;
+    use crate::compaction::on_insert::{Placement, placement};
+    use crate::{ChunkBuilder, RowId, Timeline};
+
+    fn value() -> ArrayRef {
+        Arc::new(Float64Array::from(vec![1.0]))
+    }
+
+    /// A chunk of `entity` with one row per frame of `frames`, in that order, under
+    /// component `component`.
+    fn chunk(entity: &str, component: &str, frames: &[i64]) -> Chunk {
+        let mut builder = ChunkBuilder::new(ChunkId::new(), EntityPath::parse(entity).unwrap());
+        for &frame in frames {
+            builder = builder.with_row(
+                RowId::new(),
+                [(Timeline::sequence("frame"), frame)],
+                [(component, value())],
+            );
+        }
+        builder.build().unwrap()
+    }
+
+    fn store_of(chunks: Vec<Chunk>) -> (ChunkStore, Vec<ChunkId>) {
+        let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap();
+        let ids = chunks.iter().map(Chunk::id).collect();
+        for chunk in chunks {
+            store.insert(chunk).unwrap();
+        }
+        (store, ids)
+    }
+
+    #[test]
+    fn small_chunks_in_sequence_are_one_fragmented_group_in_time_order() {
+        let (store, ids) = store_of(vec![
+            chunk("e", "x", &[2]),
+            chunk("e", "x", &[0]),
+            chunk("e", "x", &[1]),
+        ]);
+        let listing = store.to_string();
+        let plan = store.plan_compaction();
+        assert_eq!(store.to_string(), listing, "planning changes nothing");
+        assert_eq!(plan.groups.len(), 1);
+        let group = &plan.groups[0];
+        assert_eq!(group.reason, CompactionReason::Fragmented);
+        assert_eq!(group.entity_path, EntityPath::parse("e").unwrap());
+        assert_eq!(group.chunk_ids, vec![ids[1], ids[2], ids[0]]);
+        assert_eq!((plan.num_chunks(), plan.num_groups_left_alone), (3, 0));
+    }
+
+    #[test]
+    fn overlapping_or_unsorted_chunks_are_out_of_sequence() {
+        let (store, _) = store_of(vec![chunk("e", "x", &[0, 5]), chunk("e", "x", &[3, 8])]);
+        let plan = store.plan_compaction();
+        assert_eq!(plan.groups[0].reason, CompactionReason::OutOfSequence);
+        let (store, _) = store_of(vec![chunk("e", "x", &[5, 1])]);
+        assert_eq!(
+            store.plan_compaction().groups[0].reason,
+            CompactionReason::OutOfSequence
+        );
+    }
+
+    #[test]
+    fn a_chunk_over_a_threshold_is_oversized() {
+        let frames: Vec<i64> = (0..10).collect();
+        let config = StoreConfig::COMPACTION_OFF.with_max_rows(4);
+        let mut store = ChunkStore::with_config(config).unwrap();
+        store.insert(chunk("e", "x", &frames)).unwrap();
+        let plan = store.plan_compaction();
+        assert_eq!(plan.groups[0].reason, CompactionReason::Oversized);
+        store.apply_compaction(&plan);
+        assert_eq!(store.num_chunks(), 3, "10 rows in pieces of at most 4");
+        assert!(store.plan_compaction().is_empty());
+    }
+
+    #[test]
+    fn compact_groups_and_one_rewrites_output_are_left_alone() {
+        let (mut store, _) = store_of(vec![chunk("e", "x", &[0, 1, 2]), chunk("f", "x", &[0])]);
+        let plan = store.plan_compaction();
+        assert!(plan.is_empty());
+        assert_eq!(plan.num_groups_left_alone, 2);
+
+        store.insert(chunk("e", "x", &[3])).unwrap();
+        let plan = store.plan_compaction();
+        assert_eq!(plan.groups.len(), 1);
+        let events = store.apply_compaction(&plan);
+        assert_eq!(events.len(), 3, "two deletions, one addition");
+        let again = store.plan_compaction();
+        assert!(again.is_empty(), "{again:?}");
+        assert!(store.compact().is_empty());
+    }
+
+    #[test]
+    fn layouts_are_grouped_apart() {
+        let (store, ids) = store_of(vec![
+            chunk("e", "x", &[0]),
+            chunk("e", "y", &[1]),
+            chunk("e", "x", &[2]),
+            chunk("e", "y", &[3]),
+        ]);
+        let plan = store.plan_compaction();
+        let mut groups: Vec<Vec<ChunkId>> =
+            plan.groups.iter().map(|g| g.chunk_ids.clone()).collect();
+        groups.sort();
+        let mut expected = vec![vec![ids[0], ids[2]], vec![ids[1], ids[3]]];
+        expected.sort();
+        assert_eq!(groups, expected);
+    }
+
+    #[test]
+    fn a_stale_or_mixed_plan_changes_nothing_it_should_not() {
+        let (mut store, ids) = store_of(vec![
+            chunk("e", "x", &[0]),
+            chunk("e", "x", &[1]),
+            chunk("f", "x", &[2]),
+            chunk("e", "y", &[3]),
+        ]);
+        let stale = store.plan_compaction();
+        store.drop_entity(&EntityPath::parse("e").unwrap(), false);
+        let listing = store.to_string();
+        assert!(store.apply_compaction(&stale).is_empty());
+        assert_eq!(store.to_string(), listing);
+
+        let (mut store, _) = store_of(vec![
+            chunk("e", "x", &[0]),
+            chunk("e", "x", &[1]),
+            chunk("f", "x", &[2]),
+            chunk("e", "y", &[3]),
+        ]);
+        let listing = store.to_string();
+        let mixed = |chunk_ids: Vec<ChunkId>| CompactionPlan {
+            groups: vec![CompactionGroup {
+                entity_path: EntityPath::parse("e").unwrap(),
+                chunk_ids,
+                reason: CompactionReason::Fragmented,
+            }],
+            num_groups_left_alone: 0,
+        };
+        let of = |entity: &str, component: &str| -> Vec<ChunkId> {
+            let mut ids: Vec<ChunkId> = store
+                .chunks()
+                .filter(|c| c.entity_path().to_string() == entity)
+                .filter(|c| c.component(component).is_some())
+                .map(|c| c.id())
+                .collect();
+            ids.sort();
+            ids
+        };
+        let (e_x, f_x, e_y) = (of("/e", "x"), of("/f", "x"), of("/e", "y"));
+        for bad in [
+            vec![e_x[0], f_x[0]],
+            vec![e_x[0], e_y[0]],
+            vec![e_x[0], e_x[0]],
+            vec![e_x[0], ids[0]],
+        ] {
+            assert!(store.apply_compaction(&mixed(bad)).is_empty());
+            assert_eq!(store.to_string(), listing);
+        }
+        assert_eq!(store.apply_compaction(&mixed(e_x)).len(), 3);
+    }
+
+    #[test]
+    fn placement_splits_the_oversized_keeps_the_small_waiting_and_settles_the_rest() {
+        let config = StoreConfig::DEFAULT.with_max_rows(8);
+        let sorted = |n: i64| chunk("e", "x", &(0..n).collect::<Vec<_>>());
+        assert_eq!(placement(&config, &sorted(1)), Placement::Wait);
+        assert_eq!(placement(&config, &sorted(4)), Placement::Wait);
+        assert_eq!(placement(&config, &sorted(5)), Placement::Settle);
+        assert_eq!(placement(&config, &sorted(8)), Placement::Settle);
+        assert_eq!(placement(&config, &sorted(9)), Placement::Split);
+        // Unsorted rows have their own, smaller threshold.
+        let unsorted = config.with_max_rows_unsorted(2);
+        assert_eq!(
+            placement(&unsorted, &chunk("e", "x", &[3, 1, 2])),
+            Placement::Split
+        );
+    }
+}
