@@ -7,7 +7,44 @@ use std::fmt::{self, Write as _};
 use std::hash::{BuildHasher, Hash, Hasher};
 use std::sync::Arc;
 
-use crate::error::EntityPathError;
+/// An entity path's text could not be parsed.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum EntityPathError {
+    /// The empty string is not a path (the root is `/`).
+    Empty,
+    /// A part between two `/` is empty (`a//b`, or a trailing `/`).
+    EmptyPart {
+        /// The path as given.
+        path: String,
+        /// Which part (0-based) is empty.
+        index: usize,
+    },
+    /// A `\` escape is malformed.
+    BadEscape {
+        /// The path as given.
+        path: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for EntityPathError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Empty => write!(f, "empty entity path (the root is `/`)"),
+            Self::EmptyPart { path, index } => {
+                write!(
+                    f,
+                    "entity path {path:?} has an empty part at position {index}"
+                )
+            }
+            Self::BadEscape { path, reason } => write!(f, "entity path {path:?}: {reason}"),
+        }
+    }
+}
+
+impl std::error::Error for EntityPathError {}
 
 /// A path in the entity tree, e.g. `/world/robot/camera`. The root is `/` (no parts).
 ///

@@ -1,51 +1,14 @@
-//! Error types, one `#[non_exhaustive]` enum per family: entity paths, chunk construction
-//! (including transport decoding), insertion, and IO. Every variant names the offending
+//! Error types, one `#[non_exhaustive]` enum per family: chunk construction (including
+//! transport decoding), insertion, IO, configuration and GC options; the entity path's own
+//! [`EntityPathError`] lives with the parser and is re-exported here. Every variant names the offending
 //! column, timeline, component or path in a typed field.
 
 use std::fmt;
 
 use arrow_schema::{ArrowError, DataType};
 
+pub use crate::entity_path::EntityPathError;
 use crate::{ChunkId, EntityPath, TimeType};
-
-/// An entity path's text could not be parsed.
-#[derive(Debug, Clone, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum EntityPathError {
-    /// The empty string is not a path (the root is `/`).
-    Empty,
-    /// A part between two `/` is empty (`a//b`, or a trailing `/`).
-    EmptyPart {
-        /// The path as given.
-        path: String,
-        /// Which part (0-based) is empty.
-        index: usize,
-    },
-    /// A `\` escape is malformed.
-    BadEscape {
-        /// The path as given.
-        path: String,
-        /// What is wrong with it.
-        reason: &'static str,
-    },
-}
-
-impl fmt::Display for EntityPathError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Empty => write!(f, "empty entity path (the root is `/`)"),
-            Self::EmptyPart { path, index } => {
-                write!(
-                    f,
-                    "entity path {path:?} has an empty part at position {index}"
-                )
-            }
-            Self::BadEscape { path, reason } => write!(f, "entity path {path:?}: {reason}"),
-        }
-    }
-}
-
-impl std::error::Error for EntityPathError {}
 
 /// A chunk could not be built: from arrays, from a builder, or from a transport
 /// `RecordBatch`.
