@@ -516,7 +516,7 @@ type HeldRow = (usize, u8, ModelRow);
 #[derive(Default)]
 struct Model {
     rows: Vec<HeldRow>,
-    /// Every Clear that hides (an overwritten static Clear keeps hiding, SEMANTICS.md 5).
+    /// Every Clear that hides (an overwritten static Clear keeps hiding, SEMANTICS.md section 5).
     clears: Vec<ModelClear>,
     /// The static chunks the store holds, oldest first: each answers for at least one
     /// component (the Clear component counts for a static Clear chunk).

@@ -1,5 +1,5 @@
 //! Lossless conversion between a [`Chunk`] and an Arrow `RecordBatch` in the layout Rerun
-//! uses on the wire (SEMANTICS.md, "Transport").
+//! uses on the wire (SEMANTICS.md section 2, "Transport").
 
 use std::collections::HashMap;
 use std::sync::Arc;

@@ -55,7 +55,7 @@ impl Candidate<'_> {
 }
 
 impl ChunkStore {
-    /// The cell of `component` at `entity` as of the query's time, per SEMANTICS.md:
+    /// The cell of `component` at `entity` as of the query's time, per SEMANTICS.md section 3:
     /// static data wins outright; otherwise the non-null cell with the greatest
     /// `(time, row id)` at or before the time; then a Clear may hide it (`None`).
     ///

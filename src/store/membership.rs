@@ -70,7 +70,7 @@ impl ChunkStore {
             self.chunks.insert(stored.chunk.id(), stored);
             for overwritten in overwritten {
                 // An overwritten static Clear keeps hiding what it hid: its index entry
-                // stays, as the static winner semantics of section 5 ask.
+                // stays, as SEMANTICS.md section 5 asks.
                 if let Some(stored) = self.chunks.remove(&overwritten.id()) {
                     self.take_out(stored, false, DeletionReason::Overwrite, events);
                 }
