@@ -112,7 +112,9 @@ fn every_docs_file_mentioned_exists() {
                 .take_while(|c| c.is_alphanumeric() || matches!(c, '/' | '_' | '.' | '-'))
                 .collect();
             let name = name.trim_end_matches('.');
-            if !name.ends_with(".md")
+            if !Path::new(name)
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("md"))
                 || text[..at].ends_with("shared/")
                 || text[..at].ends_with("../")
             {
