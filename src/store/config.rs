@@ -51,7 +51,7 @@ impl StoreConfig {
         merge_fanout: 16,
     };
 
-    /// Chunks are stored exactly as inserted; [`ChunkStore::compact`] still uses the
+    /// Chunks are stored exactly as inserted; [`crate::ChunkStore::compact`] still uses the
     /// default thresholds.
     pub const COMPACTION_OFF: Self = Self {
         compact_on_insert: false,
