@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use arrow_schema::DataType;
 
-use super::entity::{ComponentType, EntityIndex};
+use super::entity::{ComponentType, EntityIndex, StaticWinner};
 use super::{ChunkStore, RewriteMark, StoreConfig, StoredChunk, TimelineChunks};
 use crate::ordered::OrderedSet;
 use crate::sanity::{SanityError, Structure, ensure};
@@ -353,14 +353,16 @@ impl EntityIndex {
         pending.sanity_check(path, chunks, config)?;
         let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
         for (component, winner) in static_winners.iter() {
-            *wins.entry(winner.chunk.id()).or_default() += 1;
-            let column = winner
-                .chunk
-                .components()
-                .get(winner.component_column as usize);
+            let StaticWinner {
+                row_id,
+                chunk,
+                component_column,
+                row,
+            } = winner;
+            *wins.entry(chunk.id()).or_default() += 1;
+            let column = chunk.components().get(*component_column as usize);
             if column.map(crate::ComponentColumn::name) != Some(component)
-                || column.and_then(|c| c.max_row_id_cell(winner.chunk.row_ids()))
-                    != Some((winner.row_id, winner.row))
+                || column.and_then(|c| c.max_row_id_cell(chunk.row_ids())) != Some((*row_id, *row))
             {
                 return Err(fail("a static winner is its chunk's best cell")
                     .at(format_args!("{path}: {component}")));
@@ -455,7 +457,11 @@ fn check_component_types(
             .iter()
             .all(|(name, (data_type, count))| {
                 element_types.get(*name).is_some_and(|known| {
-                    known.num_chunks == *count && known.element_type.equals_datatype(data_type)
+                    let ComponentType {
+                        element_type,
+                        num_chunks,
+                    } = known;
+                    num_chunks == count && element_type.equals_datatype(data_type)
                 })
             });
     if types_match {
