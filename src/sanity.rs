@@ -37,6 +37,8 @@ pub enum Structure {
     OrderedSet,
     /// A small map (linear while small, hashed beyond).
     SmallMap,
+    /// A process-wide set of shared names or fields.
+    SharedSet,
 }
 
 impl fmt::Display for Structure {
@@ -56,6 +58,7 @@ impl fmt::Display for Structure {
             Self::ClearIndex => "clear index",
             Self::OrderedSet => "ordered set",
             Self::SmallMap => "small map",
+            Self::SharedSet => "shared set",
         };
         f.write_str(name)
     }

@@ -24,6 +24,8 @@ use std::sync::{Arc, OnceLock};
 use arrow_schema::{DataType, Field, FieldRef};
 use parking_lot::RwLock;
 
+use crate::sanity::{SanityError, Structure, ensure};
+
 /// How many distinct values of each kind are shared at most.
 pub(crate) const MAX_SHARED: usize = 16_384;
 
@@ -122,6 +124,30 @@ impl<T: ?Sized + Shareable> SharedSet<T> {
         self.values.len()
     }
 
+    /// The byte count is that of its values, within the caps; every value is at most
+    /// [`MAX_SHARED_VALUE_BYTES`]. Checked in debug builds after every sweep, and by the
+    /// tests.
+    fn sanity_check(&self) -> Result<(), SanityError> {
+        let Self {
+            values,
+            bytes,
+            refused_since_sweep: _, // a count of refusals: nothing to check it against
+            max_values,
+            max_bytes,
+        } = self;
+        let counted: usize = values.iter().map(|v| v.shared_bytes()).sum();
+        ensure(
+            counted == *bytes
+                && values.len() <= *max_values
+                && *bytes <= *max_bytes
+                && values
+                    .iter()
+                    .all(|v| v.shared_bytes() <= MAX_SHARED_VALUE_BYTES),
+            Structure::SharedSet,
+            "a shared set counts its values' bytes, within its caps",
+        )
+    }
+
     fn has_room_for(&self, bytes: usize) -> bool {
         self.values.len() < self.max_values && self.bytes + bytes <= self.max_bytes
     }
@@ -131,6 +157,7 @@ impl<T: ?Sized + Shareable> SharedSet<T> {
         self.values.retain(|value| Arc::strong_count(value) > 1);
         self.bytes = self.values.iter().map(|v| v.shared_bytes()).sum();
         self.refused_since_sweep = 0;
+        debug_assert!(self.sanity_check().is_ok(), "{:?}", self.sanity_check());
     }
 
     /// The shared copy of a value equal to `value`, if there is or can be one.
@@ -300,5 +327,6 @@ mod tests {
         }
         assert!(shared_again, "a sweep made room");
         assert!(names.read().bytes() <= 10 * per_name);
+        names.read().sanity_check().unwrap();
     }
 }

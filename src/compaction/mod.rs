@@ -3,9 +3,8 @@
 //!
 //! **On insert**, every entity keeps, per chunk layout, the chunks still small enough to
 //! grow, bucketed by *level*: `⌊log_K(rows)⌋` with `K` = [`StoreConfig::merge_fanout`].
-//! A chunk enters
-//! the bucket of its level; when a bucket holds `K` chunks, they are merged into one,
-//! whose level is at least one higher, and the cascade goes on from there. A row is
+//! A chunk enters the bucket of its level; when a bucket holds `K` chunks, they are merged
+//! into one, whose level is at least one higher, and the cascade goes on from there. A row is
 //! therefore copied at most `log_K(max_rows)` times (3 with the defaults), unlike the
 //! re-copy of one growing chunk on every insert that costs `O(max_rows)` copies per row.
 //! A chunk stops growing once it holds half of a threshold: merging it again could not
@@ -28,5 +27,8 @@ mod apply;
 mod on_insert;
 mod plan;
 mod rewrite;
+
+#[cfg(doc)]
+use crate::{ChunkStore, StoreConfig};
 
 pub use plan::{CompactionGroup, CompactionPlan, CompactionReason};

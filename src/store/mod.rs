@@ -45,7 +45,7 @@ pub(crate) struct StoredChunk {
     pub in_global_orders: bool,
     /// The on-demand compaction that wrote the chunk, if one did: `compact()` leaves alone
     /// a group that is exactly what one of its rewrites made (see
-    /// [`crate::compaction::RewriteMark`]).
+    /// [`RewriteMark`]).
     pub rewritten_by: Option<RewriteMark>,
 }
 
