@@ -365,7 +365,7 @@ fn latest_at_batch() -> bool {
         ops,
         ns_per_op,
         checksum: Some(checksum),
-        expected: Some(10_023_934_000),
+        expected: Some(22_700_673_843_200_000),
     }
     .emit(&store)
 }
@@ -399,7 +399,7 @@ fn range_scalar() -> bool {
         ops,
         ns_per_op,
         checksum: Some(checksum),
-        expected: Some(4_773_643_647),
+        expected: Some(6_328_903_278_687_944_704),
     }
     .emit(&store)
 }

@@ -343,17 +343,13 @@ pub fn point_batch_queries() -> Vec<i64> {
     (0..10_000).map(|_| rng.uniform(1000) as i64).collect()
 }
 
-/// `latest_at_batch`'s visit of one answer: `x + y` of every point, each coordinate
-/// converted to `u64` as the reference's anchor does, summed with wrapping.
-#[expect(
-    clippy::cast_possible_truncation,
-    clippy::cast_sign_loss,
-    reason = "the checksum WORKLOADS.md defines: small non-negative integers"
-)]
+/// `latest_at_batch`'s visit of one answer: the IEEE-754 bit patterns of `x` and `y` of
+/// every point (`f32::to_bits`, widened to `u64`), summed with wrapping, as WORKLOADS.md
+/// defines it: the values are read as a viewer's upload would, with no float conversion.
 pub fn sum_of_xy(points: &[[f32; 3]]) -> u64 {
-    points
-        .iter()
-        .fold(0u64, |sum, p| sum.wrapping_add(p[0] as u64 + p[1] as u64))
+    points.iter().fold(0u64, |sum, p| {
+        sum.wrapping_add(u64::from(p[0].to_bits()) + u64::from(p[1].to_bits()))
+    })
 }
 
 /// WORKLOADS.md's `range_scalar` queries `(entity, start)`, drawn from a fresh generator.
@@ -368,17 +364,13 @@ pub fn range_series_queries() -> Vec<(usize, i64)> {
         .collect()
 }
 
-/// `range_scalar`'s visit of one answer: adds every row's first `scalar`, converted to
-/// `u64` as the reference's anchor does, to `sum`, and counts the rows in `rows`.
-#[expect(
-    clippy::cast_possible_truncation,
-    clippy::cast_sign_loss,
-    reason = "the checksum WORKLOADS.md defines: small non-negative integers"
-)]
+/// `range_scalar`'s visit of one answer: adds the IEEE-754 bit pattern of every row's
+/// first `scalar` (`f64::to_bits`) to `sum`, wrapping, as WORKLOADS.md defines it, and
+/// counts the rows in `rows`.
 pub fn visit_range_scalars(result: &RangeResult, rows: &mut u64, sum: &mut u64) {
     for run in result.runs() {
         for_each_first_f64(&run, |v| {
-            *sum = sum.wrapping_add(v as u64);
+            *sum = sum.wrapping_add(v.to_bits());
             *rows += 1;
         });
     }
