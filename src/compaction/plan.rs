@@ -287,24 +287,22 @@ mod tests {
 
     #[test]
     fn a_stale_or_mixed_plan_changes_nothing_it_should_not() {
-        let (mut store, ids) = store_of(vec![
-            chunk("e", "x", &[0]),
-            chunk("e", "x", &[1]),
-            chunk("f", "x", &[2]),
-            chunk("e", "y", &[3]),
-        ]);
+        let four_chunks = || {
+            vec![
+                chunk("e", "x", &[0]),
+                chunk("e", "x", &[1]),
+                chunk("f", "x", &[2]),
+                chunk("e", "y", &[3]),
+            ]
+        };
+        let (mut store, ids) = store_of(four_chunks());
         let stale = store.plan_compaction();
         store.drop_entity(&EntityPath::parse("e").unwrap(), false);
         let listing = store.to_string();
         assert!(store.apply_compaction(&stale).is_empty());
         assert_eq!(store.to_string(), listing);
 
-        let (mut store, _) = store_of(vec![
-            chunk("e", "x", &[0]),
-            chunk("e", "x", &[1]),
-            chunk("f", "x", &[2]),
-            chunk("e", "y", &[3]),
-        ]);
+        let (mut store, _) = store_of(four_chunks());
         let listing = store.to_string();
         let mixed = |chunk_ids: Vec<ChunkId>| CompactionPlan {
             groups: vec![CompactionGroup {
