@@ -1,6 +1,6 @@
 //! Compaction on insert: a temporal chunk is split if oversized, else added; a small one
-//! waits in its entity's [`PendingGroups`](crate::store) and full fans of waiting chunks
-//! are merged, level after level. What happens to a chunk is decided by [`placement`] (a
+//! waits among its entity's waiting chunks (`store/pending.rs`) and full fans of them are
+//! merged, level after level. What happens to a chunk is decided by [`placement`] (a
 //! pure function of the configuration and the chunk) and by the waiting groups' own
 //! `take_full_fan`; the cascade here carries it out.
 

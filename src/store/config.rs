@@ -143,7 +143,7 @@ impl Default for StoreConfig {
     }
 }
 
-pub(crate) fn is_time_sorted(chunk: &Chunk) -> bool {
+fn is_time_sorted(chunk: &Chunk) -> bool {
     chunk
         .time_columns()
         .iter()
@@ -151,7 +151,7 @@ pub(crate) fn is_time_sorted(chunk: &Chunk) -> bool {
 }
 
 impl StoreConfig {
-    pub(crate) fn level(&self, num_rows: usize) -> usize {
+    pub(super) fn level(&self, num_rows: usize) -> usize {
         num_rows.max(1).ilog(self.merge_fanout.max(2)) as usize
     }
 }
