@@ -34,7 +34,10 @@ impl ChunkStore {
                 self.chunks
                     .get(id)
                     .and_then(|s| s.chunk.time_column(timeline))
-                    .is_some_and(|c| c.time_range().0 <= max && min <= c.time_range().1)
+                    .is_some_and(|c| {
+                        let (lo, hi) = c.time_range();
+                        range.intersects(TimeRange::new(lo, hi))
+                    })
             })
             .collect();
         for id in touched {
