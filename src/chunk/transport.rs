@@ -22,6 +22,23 @@ const META_ARCHETYPE: &str = "rerun:archetype";
 const META_COMPONENT_TYPE: &str = "rerun:component_type";
 const ROW_ID_COLUMN: &str = "rerun.controls.RowId";
 
+/// The row-id column's field as Rerun writes it: a control column holding the
+/// `rerun.datatypes.TUID` extension type.
+pub(crate) fn row_id_field() -> Field {
+    let meta = HashMap::from([
+        (META_KIND.to_owned(), "control".to_owned()),
+        (
+            "ARROW:extension:name".to_owned(),
+            "rerun.datatypes.TUID".to_owned(),
+        ),
+        (
+            "ARROW:extension:metadata".to_owned(),
+            r#"{"namespace":"row"}"#.to_owned(),
+        ),
+    ]);
+    Field::new(ROW_ID_COLUMN, DataType::FixedSizeBinary(16), false).with_metadata(meta)
+}
+
 /// What a transport column holds.
 enum ColumnKind {
     RowId,
@@ -215,17 +232,13 @@ impl Chunk {
             Vec::with_capacity(1 + self.time_columns.len() + self.components.len());
         let mut columns: Vec<ArrayRef> = Vec::with_capacity(fields.capacity());
 
-        let row_id_meta = HashMap::from([
-            (META_KIND.to_owned(), "control".to_owned()),
-            (
-                META_IS_SORTED.to_owned(),
-                self.is_sorted_by_row_id.to_string(),
-            ),
-        ]);
-        fields.push(Arc::new(
-            Field::new(ROW_ID_COLUMN, DataType::FixedSizeBinary(16), false)
-                .with_metadata(row_id_meta),
-        ));
+        let row_id = row_id_field();
+        let mut row_id_meta = row_id.metadata().clone();
+        row_id_meta.insert(
+            META_IS_SORTED.to_owned(),
+            self.is_sorted_by_row_id.to_string(),
+        );
+        fields.push(Arc::new(row_id.with_metadata(row_id_meta)));
         columns.push(row_ids_to_arrow(&self.row_ids));
 
         for column in &self.time_columns {
