@@ -5,7 +5,8 @@ use std::io::{Cursor, Write};
 use std::path::Path;
 
 use arrow_array::RecordBatch;
-use arrow_ipc::reader::{FileReader, StreamReader};
+use arrow_buffer::Buffer;
+use arrow_ipc::reader::{FileReader, StreamDecoder, StreamReader};
 use arrow_ipc::writer::FileWriter;
 use arrow_schema::ArrowError;
 
@@ -63,13 +64,42 @@ pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoErr
 /// [`IoError::Ipc`] or [`IoError::DecoderPanicked`] if the bytes are not valid Arrow IPC.
 pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IoError> {
     check_framing(bytes)?;
-    let decode = || -> Result<Vec<RecordBatch>, ArrowError> {
+    contain_panics(|| {
         if bytes.starts_with(FILE_MAGIC) {
             FileReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
         } else {
             StreamReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
         }
-    };
+    })
+}
+
+/// Decodes the record batches of an Arrow IPC *stream* held in an Arrow [`Buffer`],
+/// without copying: the batches' buffers are slices of `buffer` (which they keep alive).
+/// Checked and contained as [`read_batches`] is.
+///
+/// # Errors
+/// As [`read_batches`].
+pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IoError> {
+    check_stream_messages(buffer.as_slice())?;
+    contain_panics(move || {
+        let mut buffer = buffer;
+        let mut decoder = StreamDecoder::new();
+        let mut batches = Vec::new();
+        while !buffer.is_empty() {
+            if let Some(batch) = decoder.decode(&mut buffer)? {
+                batches.push(batch);
+            }
+        }
+        decoder.finish()?;
+        Ok(batches)
+    })
+}
+
+/// Runs an arrow-ipc decode, turning a panic into [`IoError::DecoderPanicked`] (see
+/// [`read_batches`]).
+fn contain_panics(
+    decode: impl FnOnce() -> Result<Vec<RecordBatch>, ArrowError>,
+) -> Result<Vec<RecordBatch>, IoError> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)) {
         Ok(batches) => batches.map_err(IoError::Ipc),
         Err(payload) => {
