@@ -55,6 +55,9 @@
 //! ## Crate features
 //! - `ipc` (default): [`io`], reading chunks from Arrow IPC files and streams and writing
 //!   them. Needs `arrow-ipc`.
+//! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
+//!   `lz4_flex` and `xxhash-rust`.
+//! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`).
 #![forbid(unsafe_code)]
 
 mod chunk;
@@ -73,6 +76,8 @@ mod insert;
 pub mod io;
 mod ordered;
 mod query;
+#[cfg(feature = "rrd")]
+pub mod rrd;
 mod sanity;
 mod shared;
 mod small_map;

@@ -1,0 +1,162 @@
+//! [`RrdError`]: what is wrong with an `.rrd` input, and where.
+
+use std::fmt;
+
+use crate::error::ChunkError;
+use crate::error::IoError;
+
+/// A fault in an `.rrd` input: the byte offset from the start of the stream where it was
+/// found, and what it is.
+#[derive(Debug)]
+pub struct RrdError {
+    /// Byte offset from the start of the input.
+    pub offset: u64,
+    /// What is wrong.
+    pub kind: RrdErrorKind,
+}
+
+/// What is wrong with an `.rrd` input.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum RrdErrorKind {
+    /// Reading or writing failed.
+    Io(std::io::Error),
+    /// The input does not start with an `RRF2` stream header.
+    NotAnRrd {
+        /// The first four bytes.
+        found: [u8; 4],
+    },
+    /// An `.rrd` from before the `RRF2` framing (Rerun < 0.23): not supported.
+    OldFraming {
+        /// The magic found (`RRF0` or `RRF1`).
+        found: [u8; 4],
+    },
+    /// The stream was written by a Rerun version whose encoding this crate cannot read
+    /// (before 0.23, when the current framing was fixed).
+    UnsupportedVersion {
+        /// The `major.minor.patch` in the header.
+        version: (u8, u8, u8),
+    },
+    /// The header's encoding options are unknown.
+    BadOptions {
+        /// What is wrong.
+        reason: String,
+    },
+    /// The input ends in the middle of something.
+    Truncated {
+        /// What was being read.
+        what: &'static str,
+        /// Bytes it needs.
+        needed: u64,
+        /// Bytes there were.
+        available: u64,
+    },
+    /// A message header names a kind this crate does not know.
+    UnknownMessageKind {
+        /// The kind.
+        kind: u64,
+    },
+    /// A protobuf message is malformed.
+    Protobuf {
+        /// What is wrong.
+        reason: String,
+    },
+    /// A message lacks a field it needs.
+    MissingField {
+        /// The message.
+        message: &'static str,
+        /// The field.
+        field: &'static str,
+    },
+    /// A payload's compression or encoding is unknown, or its LZ4 block is corrupt.
+    Payload {
+        /// What is wrong.
+        reason: String,
+    },
+    /// The Arrow IPC payload is not a valid record batch.
+    Ipc(IoError),
+    /// The record batch is not a valid chunk.
+    Chunk(ChunkError),
+    /// The footer (stream footer, `RrdFooter` or manifest) is malformed or disagrees with
+    /// the body.
+    Footer {
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+impl RrdError {
+    pub(crate) fn new(offset: u64, kind: RrdErrorKind) -> Self {
+        Self { offset, kind }
+    }
+
+    /// Does the error end the stream (the framing is lost), or only spoil one message
+    /// (its payload), so that a reader told to keep going can go on with the next one?
+    pub fn is_fatal(&self) -> bool {
+        !matches!(
+            self.kind,
+            RrdErrorKind::Protobuf { .. }
+                | RrdErrorKind::MissingField { .. }
+                | RrdErrorKind::Payload { .. }
+                | RrdErrorKind::Ipc(_)
+                | RrdErrorKind::Chunk(_)
+                | RrdErrorKind::UnknownMessageKind { .. }
+        )
+    }
+}
+
+impl fmt::Display for RrdError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "at byte {}: ", self.offset)?;
+        match &self.kind {
+            RrdErrorKind::Io(e) => write!(f, "{e}"),
+            RrdErrorKind::NotAnRrd { found } => write!(
+                f,
+                "not an .rrd file (it starts with {:?}, not \"RRF2\")",
+                String::from_utf8_lossy(found)
+            ),
+            RrdErrorKind::OldFraming { found } => write!(
+                f,
+                "an .rrd from before Rerun 0.23 ({:?} framing), which this crate does not \
+                 read; convert it with a newer `rerun rrd migrate`",
+                String::from_utf8_lossy(found)
+            ),
+            RrdErrorKind::UnsupportedVersion { version: (a, b, c) } => write!(
+                f,
+                "written by Rerun {a}.{b}.{c}, whose encoding this crate does not read \
+                 (0.23 or newer is needed)"
+            ),
+            RrdErrorKind::BadOptions { reason } => write!(f, "bad stream header: {reason}"),
+            RrdErrorKind::Truncated {
+                what,
+                needed,
+                available,
+            } => write!(
+                f,
+                "truncated {what}: needs {needed} bytes, {available} remain"
+            ),
+            RrdErrorKind::UnknownMessageKind { kind } => {
+                write!(f, "unknown message kind {kind}")
+            }
+            RrdErrorKind::Protobuf { reason } => write!(f, "malformed protobuf: {reason}"),
+            RrdErrorKind::MissingField { message, field } => {
+                write!(f, "{message} has no {field}")
+            }
+            RrdErrorKind::Payload { reason } => write!(f, "bad payload: {reason}"),
+            RrdErrorKind::Ipc(e) => write!(f, "payload: {e}"),
+            RrdErrorKind::Chunk(e) => write!(f, "payload is not a valid chunk: {e}"),
+            RrdErrorKind::Footer { reason } => write!(f, "bad footer: {reason}"),
+        }
+    }
+}
+
+impl std::error::Error for RrdError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match &self.kind {
+            RrdErrorKind::Io(e) => Some(e),
+            RrdErrorKind::Ipc(e) => Some(e),
+            RrdErrorKind::Chunk(e) => Some(e),
+            _ => None,
+        }
+    }
+}

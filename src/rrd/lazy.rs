@@ -1,0 +1,472 @@
+//! [`LazyRecording`]: an `.rrd` file opened through its footer's chunk manifest, which
+//! decodes only the chunks a query needs.
+//!
+//! Opening reads the stream header, the store info and the footer (a few KB per thousand
+//! chunks) and nothing else. A query picks candidate chunks from the manifest (entity,
+//! component, per-timeline time range of the component's cells), reads and decodes just
+//! those, inserts them into a private [`ChunkStore`] (compaction off, so ids stay those of
+//! the file), and answers from it: the answer is the one the whole recording gives,
+//! because every chunk that could change it was loaded.
+//!
+//! Which chunks a latest-at at `t` needs: every candidate chunk has a cell at its
+//! component's least time `min ≤ t`, so the answer's time is at least `S`, the greatest
+//! such `min`; only chunks whose component range reaches `S` (`max ≥ S`) can hold it.
+//! Static chunks of the component are loaded too (static data wins), and the chunks of the
+//! entity and its ancestors that log Clears at or before `t` and at or after `S` (they may
+//! hide the answer).
+//!
+//! The file is read with positioned reads, not memory-mapped: a memory map needs `unsafe`
+//! (this crate forbids it) and is undefined behaviour if another process truncates the
+//! file; and since payloads are LZ4-compressed, a decoded chunk is a copy either way.
+
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
+use std::sync::Arc;
+
+use arrow_buffer::Buffer;
+
+use super::error::{RrdError, RrdErrorKind};
+use super::frames::{
+    self, MESSAGE_HEADER_LEN, MessageKind, STREAM_FOOTER_LEN, STREAM_HEADER_LEN, StreamFooter,
+    StreamHeader,
+};
+use super::manifest::{self, Manifest, ManifestEntry};
+use super::messages::{ArrowMsg, StoreInfo, StoreKind};
+use super::payload;
+use crate::query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult};
+use crate::{
+    ChunkId, ChunkStore, ComponentName, EntityPath, StoreConfig, TimeInt, TimeRange, Timeline,
+};
+
+/// What a [`LazyRecording`] has read so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LazyStats {
+    /// The file's size.
+    pub file_bytes: u64,
+    /// Bytes read from the file (header, store info, footer, and decoded chunks' messages).
+    pub bytes_read: u64,
+    /// Chunks the file holds.
+    pub chunks_in_file: usize,
+    /// Chunks decoded so far.
+    pub chunks_decoded: usize,
+}
+
+/// An `.rrd` recording opened lazily: see the module documentation.
+///
+/// ```no_run
+/// use chunkstore::{EntityPath, LatestAtQuery, TimeInt};
+/// use chunkstore::rrd::LazyRecording;
+/// let mut recording = LazyRecording::open("big.rrd".as_ref())?.expect("the file has a footer");
+/// let robot = EntityPath::parse("/world/robot")?;
+/// let at = LatestAtQuery::new("frame_id", TimeInt::new(30).unwrap());
+/// let cell = recording.latest_at(&at, &robot, "Transform3D:translation")?;
+/// println!("{} of {} chunks decoded", recording.stats().chunks_decoded, recording.stats().chunks_in_file);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct LazyRecording<R = std::fs::File> {
+    input: R,
+    store_info: Option<StoreInfo>,
+    manifest: Manifest,
+    /// Per entity, its entries (indices into the manifest), in file order.
+    by_entity: ahash::HashMap<EntityPath, Vec<usize>>,
+    loaded: ahash::HashSet<ChunkId>,
+    store: ChunkStore,
+    stats: LazyStats,
+}
+
+impl LazyRecording<std::fs::File> {
+    /// Opens a file lazily; `Ok(None)` if it has no footer (read it with
+    /// [`super::read_rrd`] instead).
+    ///
+    /// # Errors
+    /// If the file cannot be read, is not an `.rrd`, or its footer is corrupt.
+    pub fn open(path: &Path) -> Result<Option<Self>, RrdError> {
+        let file = std::fs::File::open(path).map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
+        Self::from_reader(file)
+    }
+}
+
+impl<R: Read + Seek> LazyRecording<R> {
+    /// Opens a seekable input lazily; `Ok(None)` if it has no footer.
+    ///
+    /// # Errors
+    /// If the input cannot be read, is not an `.rrd`, or its footer is corrupt.
+    pub fn from_reader(mut input: R) -> Result<Option<Self>, RrdError> {
+        let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
+        let file_bytes = input.seek(SeekFrom::End(0)).map_err(io(0))?;
+        let mut stats = LazyStats {
+            file_bytes,
+            ..LazyStats::default()
+        };
+        let mut header = [0u8; STREAM_HEADER_LEN];
+        read_at(
+            &mut input,
+            0,
+            &mut header,
+            file_bytes,
+            "stream header",
+            &mut stats,
+        )?;
+        StreamHeader::parse(&header).map_err(|kind| RrdError::new(0, kind))?;
+        if file_bytes < (STREAM_HEADER_LEN + STREAM_FOOTER_LEN) as u64 {
+            return Ok(None);
+        }
+        let tail_at = file_bytes - STREAM_FOOTER_LEN as u64;
+        let mut tail = [0u8; STREAM_FOOTER_LEN];
+        read_at(
+            &mut input,
+            tail_at,
+            &mut tail,
+            file_bytes,
+            "stream footer",
+            &mut stats,
+        )?;
+        let Some(footer) = StreamFooter::parse(&tail) else {
+            return Ok(None);
+        };
+        let footer_bad = |reason: String| RrdError::new(tail_at, RrdErrorKind::Footer { reason });
+        let fits = footer
+            .footer_start
+            .checked_add(footer.footer_len)
+            .is_some_and(|end| end <= tail_at && footer.footer_start >= MESSAGE_HEADER_LEN as u64);
+        if !fits {
+            return Err(footer_bad(format!(
+                "the footer claims {} bytes at {}, outside the {file_bytes}-byte file",
+                footer.footer_len, footer.footer_start
+            )));
+        }
+        let body = read_vec(
+            &mut input,
+            footer.footer_start,
+            footer.footer_len,
+            file_bytes,
+            &mut stats,
+        )?;
+        if frames::crc(&body) != footer.crc {
+            return Err(footer_bad(format!(
+                "checksum {:#x} of the footer at {} is not the {:#x} the stream footer says",
+                frames::crc(&body),
+                footer.footer_start,
+                footer.crc
+            )));
+        }
+        let manifests = manifest::decode_footer(&body)
+            .map_err(|(at, kind)| RrdError::new(footer.footer_start + at as u64, kind))?;
+        let Some(manifest) = manifests
+            .into_iter()
+            .find(|m| m.store_id.kind == StoreKind::Recording)
+        else {
+            return Ok(None);
+        };
+        let store_info = read_store_info(&mut input, file_bytes, &mut stats);
+        let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
+        for (i, entry) in manifest.entries.iter().enumerate() {
+            by_entity
+                .entry(entry.entity_path.clone())
+                .or_default()
+                .push(i);
+        }
+        stats.chunks_in_file = manifest.entries.len();
+        let store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF)
+            .map_err(|e| footer_bad(e.to_string()))?;
+        Ok(Some(Self {
+            input,
+            store_info,
+            manifest,
+            by_entity,
+            loaded: ahash::HashSet::default(),
+            store,
+            stats,
+        }))
+    }
+
+    /// The recording's store info (the first `SetStoreInfo` of the file), if it has one.
+    pub fn store_info(&self) -> Option<&StoreInfo> {
+        self.store_info.as_ref()
+    }
+
+    /// The footer's manifest of the recording.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// What has been read so far.
+    pub fn stats(&self) -> LazyStats {
+        self.stats
+    }
+
+    /// The chunks decoded so far, in a store.
+    pub fn loaded_store(&self) -> &ChunkStore {
+        &self.store
+    }
+
+    /// Every entity with data, sorted.
+    pub fn entity_paths(&self) -> Vec<EntityPath> {
+        let mut paths: Vec<EntityPath> = self.by_entity.keys().cloned().collect();
+        paths.sort();
+        paths
+    }
+
+    /// The components `entity` has data for, sorted.
+    pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
+        let mut names: Vec<ComponentName> = self
+            .entries_of(entity)
+            .flat_map(|e| e.components.iter().map(|c| c.name.clone()))
+            .collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+
+    /// Every timeline, sorted by name, with the least and greatest time of its data.
+    pub fn timelines(&self) -> Vec<(Timeline, TimeInt, TimeInt)> {
+        let mut out: std::collections::BTreeMap<String, (Timeline, TimeInt, TimeInt)> =
+            std::collections::BTreeMap::new();
+        for range in self.manifest.entries.iter().flat_map(|e| &e.ranges) {
+            let slot = out.entry(range.timeline.name().to_owned()).or_insert((
+                range.timeline.clone(),
+                range.min,
+                range.max,
+            ));
+            slot.1 = slot.1.min(range.min);
+            slot.2 = slot.2.max(range.max);
+        }
+        out.into_values().collect()
+    }
+
+    fn entries_of<'a>(
+        &'a self,
+        entity: &EntityPath,
+    ) -> impl Iterator<Item = &'a ManifestEntry> + 'a {
+        self.by_entity
+            .get(entity)
+            .into_iter()
+            .flatten()
+            .map(|&i| &self.manifest.entries[i])
+    }
+
+    /// The latest-at answer, as the whole recording gives it, decoding only the chunks
+    /// that could hold or hide it.
+    ///
+    /// # Errors
+    /// If a chunk the query needs cannot be read or decoded, or disagrees with the manifest.
+    pub fn latest_at(
+        &mut self,
+        query: &LatestAtQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Result<Option<QueryCell>, RrdError> {
+        let t = query.at();
+        let timeline = query.timeline();
+        let component_range = |entry: &ManifestEntry, name: &str| {
+            entry
+                .components
+                .iter()
+                .find(|c| c.name.as_str() == name)
+                .map(|c| {
+                    c.ranges
+                        .iter()
+                        .find(|r| r.timeline.name() == timeline)
+                        .map(|r| (r.min, r.max))
+                })
+        };
+        let mut needed: Vec<usize> = Vec::new();
+        let mut candidates: Vec<(usize, TimeInt, TimeInt)> = Vec::new();
+        for &i in self.by_entity.get(entity).into_iter().flatten() {
+            let entry = &self.manifest.entries[i];
+            match component_range(entry, component) {
+                Some(_) if entry.is_static => needed.push(i),
+                Some(Some((min, max))) if min <= t => candidates.push((i, min, max)),
+                _ => {}
+            }
+        }
+        let floor = candidates.iter().map(|c| c.1).max();
+        if let Some(floor) = floor {
+            needed.extend(candidates.iter().filter(|c| c.2 >= floor).map(|c| c.0));
+            // Clears of the entity and its ancestors between the floor and `t`, and static ones.
+            let clear = ComponentName::CLEAR_IS_RECURSIVE;
+            for path in std::iter::once(entity.clone()).chain(entity.ancestors()) {
+                for &i in self.by_entity.get(&path).into_iter().flatten() {
+                    let entry = &self.manifest.entries[i];
+                    match component_range(entry, clear) {
+                        Some(_) if entry.is_static => needed.push(i),
+                        Some(Some((min, max))) if min <= t && max >= floor => needed.push(i),
+                        _ => {}
+                    }
+                }
+            }
+        }
+        self.load(&needed)?;
+        Ok(self.store.latest_at(query, entity, component))
+    }
+
+    /// The range answer, as the whole recording gives it, decoding only the chunks whose
+    /// cells of `component` overlap the range (and static ones).
+    ///
+    /// # Errors
+    /// As [`LazyRecording::latest_at`].
+    pub fn range(
+        &mut self,
+        query: &RangeQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Result<RangeResult, RrdError> {
+        let range = query.range();
+        let needed: Vec<usize> = self
+            .by_entity
+            .get(entity)
+            .into_iter()
+            .flatten()
+            .copied()
+            .filter(|&i| {
+                let entry = &self.manifest.entries[i];
+                entry
+                    .components
+                    .iter()
+                    .find(|c| c.name.as_str() == component)
+                    .is_some_and(|c| {
+                        entry.is_static
+                            || c.ranges.iter().any(|r| {
+                                r.timeline.name() == query.timeline()
+                                    && TimeRange::new(r.min, r.max).intersects(range)
+                            })
+                    })
+            })
+            .collect();
+        self.load(&needed)?;
+        Ok(self.store.range(query, entity, component))
+    }
+
+    /// Decodes every chunk not decoded yet: the whole recording, in its store.
+    ///
+    /// # Errors
+    /// As [`LazyRecording::latest_at`].
+    pub fn load_all(&mut self) -> Result<&ChunkStore, RrdError> {
+        let all: Vec<usize> = (0..self.manifest.entries.len()).collect();
+        self.load(&all)?;
+        Ok(&self.store)
+    }
+
+    fn load(&mut self, entries: &[usize]) -> Result<(), RrdError> {
+        for &i in entries {
+            let entry = &self.manifest.entries[i];
+            if self.loaded.contains(&entry.chunk_id) {
+                continue;
+            }
+            let (id, at, len) = (entry.chunk_id, entry.byte_offset, entry.byte_size);
+            let body = read_vec(
+                &mut self.input,
+                at,
+                len,
+                self.stats.file_bytes,
+                &mut self.stats,
+            )?;
+            let within =
+                |(offset, kind): (usize, RrdErrorKind)| RrdError::new(at + offset as u64, kind);
+            let msg = ArrowMsg::decode(&body).map_err(within)?;
+            let payload_at = at + msg.payload.start as u64;
+            let body = Buffer::from_vec(body);
+            let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
+            let chunk = payload::decode_chunk(bytes, msg.compression, msg.uncompressed_size)
+                .map_err(|kind| RrdError::new(payload_at, kind))?;
+            if chunk.id() != id {
+                return Err(RrdError::new(
+                    at,
+                    RrdErrorKind::Footer {
+                        reason: format!(
+                            "the manifest says chunk {id} is here, the file has chunk {}",
+                            chunk.id()
+                        ),
+                    },
+                ));
+            }
+            self.store.insert(Arc::new(chunk)).map_err(|e| {
+                RrdError::new(
+                    at,
+                    RrdErrorKind::Footer {
+                        reason: e.to_string(),
+                    },
+                )
+            })?;
+            self.loaded.insert(id);
+            self.stats.chunks_decoded += 1;
+        }
+        Ok(())
+    }
+}
+
+/// Reads `out.len()` bytes at `at`, checked against the file's size first.
+fn read_at<R: Read + Seek>(
+    input: &mut R,
+    at: u64,
+    out: &mut [u8],
+    file_bytes: u64,
+    what: &'static str,
+    stats: &mut LazyStats,
+) -> Result<(), RrdError> {
+    let len = out.len() as u64;
+    if at.checked_add(len).is_none_or(|end| end > file_bytes) {
+        return Err(RrdError::new(
+            at,
+            RrdErrorKind::Truncated {
+                what,
+                needed: len,
+                available: file_bytes.saturating_sub(at),
+            },
+        ));
+    }
+    input
+        .seek(SeekFrom::Start(at))
+        .and_then(|_| input.read_exact(out))
+        .map_err(|e| RrdError::new(at, RrdErrorKind::Io(e)))?;
+    stats.bytes_read += len;
+    Ok(())
+}
+
+/// Reads `len` bytes at `at` into a new vector, after checking that the file holds them
+/// (so a corrupt manifest never makes us allocate what it claims).
+fn read_vec<R: Read + Seek>(
+    input: &mut R,
+    at: u64,
+    len: u64,
+    file_bytes: u64,
+    stats: &mut LazyStats,
+) -> Result<Vec<u8>, RrdError> {
+    let fits = at.checked_add(len).is_some_and(|end| end <= file_bytes);
+    let size = usize::try_from(len).ok().filter(|_| fits).ok_or_else(|| {
+        RrdError::new(
+            at,
+            RrdErrorKind::Footer {
+                reason: format!("{len} bytes at {at} are outside the {file_bytes}-byte file"),
+            },
+        )
+    })?;
+    let mut out = vec![0u8; size];
+    read_at(input, at, &mut out, file_bytes, "message", stats)?;
+    Ok(out)
+}
+
+/// The first message, if it is a store info (best effort: a file without one still opens).
+fn read_store_info<R: Read + Seek>(
+    input: &mut R,
+    file_bytes: u64,
+    stats: &mut LazyStats,
+) -> Option<StoreInfo> {
+    let mut header = [0u8; MESSAGE_HEADER_LEN];
+    read_at(
+        input,
+        STREAM_HEADER_LEN as u64,
+        &mut header,
+        file_bytes,
+        "message header",
+        stats,
+    )
+    .ok()?;
+    let (kind, len) = frames::parse_message_header(&header);
+    if MessageKind::from_u64(kind) != Some(MessageKind::SetStoreInfo) {
+        return None;
+    }
+    let at = (STREAM_HEADER_LEN + MESSAGE_HEADER_LEN) as u64;
+    let body = read_vec(input, at, len, file_bytes, stats).ok()?;
+    StoreInfo::decode_set_store_info(&body).ok()
+}

@@ -1,0 +1,267 @@
+//! The little of the protobuf wire format that `.rrd` messages use: varints, fixed64 and
+//! length-delimited fields, read with bounds checks and written by hand.
+//!
+//! Why not `prost`: the messages are six small structs, read once each; a reader of our
+//! own names the byte offset of a fault in the file, checks every length against the bytes
+//! that remain before taking them (so a hostile length never allocates), hands out
+//! zero-copy slices of the payload, and costs no derive macros in the build.
+
+use super::error::RrdErrorKind;
+
+/// The wire types protobuf uses (3 and 4, groups, are long deprecated and refused).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum WireValue<'a> {
+    Varint(u64),
+    Fixed64(u64),
+    Bytes(&'a [u8]),
+    Fixed32(u32),
+}
+
+/// A field read from a message: its number, its value and where the value starts in the
+/// message (to name offsets in errors and to slice payloads without copying).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct WireField<'a> {
+    pub(crate) number: u32,
+    pub(crate) value: WireValue<'a>,
+    pub(crate) value_start: usize,
+}
+
+/// Iterates over the fields of one encoded message.
+pub(crate) struct FieldReader<'a> {
+    bytes: &'a [u8],
+    position: usize,
+}
+
+/// A fault inside a message: the offset in the message and what is wrong.
+pub(crate) type WireError = (usize, RrdErrorKind);
+
+impl<'a> FieldReader<'a> {
+    pub(crate) fn new(bytes: &'a [u8]) -> Self {
+        Self { bytes, position: 0 }
+    }
+
+    fn varint(&mut self) -> Result<u64, WireError> {
+        let start = self.position;
+        let mut value = 0u64;
+        for shift in (0..64).step_by(7) {
+            let Some(&byte) = self.bytes.get(self.position) else {
+                return Err((start, protobuf("varint runs past the end of the message")));
+            };
+            self.position += 1;
+            value |= u64::from(byte & 0x7f) << shift;
+            if byte < 0x80 {
+                return Ok(value);
+            }
+        }
+        Err((start, protobuf("varint longer than ten bytes")))
+    }
+
+    fn take(&mut self, len: u64) -> Result<&'a [u8], WireError> {
+        let start = self.position;
+        let remaining = self.bytes.len() - self.position;
+        match usize::try_from(len) {
+            Ok(len) if len <= remaining => {
+                self.position += len;
+                Ok(&self.bytes[start..start + len])
+            }
+            _ => Err((
+                start,
+                protobuf(&format!(
+                    "field claims {len} bytes but the message has {remaining} left"
+                )),
+            )),
+        }
+    }
+
+    /// The next field, `None` at the end of the message.
+    pub(crate) fn next_field(&mut self) -> Result<Option<WireField<'a>>, WireError> {
+        if self.position == self.bytes.len() {
+            return Ok(None);
+        }
+        let key_start = self.position;
+        let key = self.varint()?;
+        let number = u32::try_from(key >> 3)
+            .ok()
+            .filter(|&n| n != 0)
+            .ok_or((key_start, protobuf(&format!("invalid field key {key}"))))?;
+        let value_start = self.position;
+        let value = match key & 7 {
+            0 => WireValue::Varint(self.varint()?),
+            1 => {
+                let b = self.take(8)?;
+                let mut le = [0u8; 8];
+                le.copy_from_slice(b);
+                WireValue::Fixed64(u64::from_le_bytes(le))
+            }
+            2 => {
+                let len = self.varint()?;
+                let value_start = self.position;
+                let bytes = self.take(len)?;
+                return Ok(Some(WireField {
+                    number,
+                    value: WireValue::Bytes(bytes),
+                    value_start,
+                }));
+            }
+            5 => {
+                let b = self.take(4)?;
+                WireValue::Fixed32(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            }
+            other => {
+                return Err((
+                    key_start,
+                    protobuf(&format!("unsupported wire type {other} (field {number})")),
+                ));
+            }
+        };
+        Ok(Some(WireField {
+            number,
+            value,
+            value_start,
+        }))
+    }
+}
+
+fn protobuf(reason: &str) -> RrdErrorKind {
+    RrdErrorKind::Protobuf {
+        reason: reason.to_owned(),
+    }
+}
+
+impl<'a> WireField<'a> {
+    /// The value as a varint, or an error naming the field.
+    pub(crate) fn varint(&self, message: &str) -> Result<u64, WireError> {
+        match self.value {
+            WireValue::Varint(v) => Ok(v),
+            _ => Err(self.wrong_type(message, "a varint")),
+        }
+    }
+
+    pub(crate) fn fixed64(&self, message: &str) -> Result<u64, WireError> {
+        match self.value {
+            WireValue::Fixed64(v) => Ok(v),
+            _ => Err(self.wrong_type(message, "a fixed64")),
+        }
+    }
+
+    pub(crate) fn bytes(&self, message: &str) -> Result<&'a [u8], WireError> {
+        match self.value {
+            WireValue::Bytes(b) => Ok(b),
+            _ => Err(self.wrong_type(message, "length-delimited")),
+        }
+    }
+
+    pub(crate) fn string(&self, message: &str) -> Result<String, WireError> {
+        let bytes = self.bytes(message)?;
+        std::str::from_utf8(bytes).map(str::to_owned).map_err(|_| {
+            (
+                self.value_start,
+                protobuf(&format!("{message} field {} is not UTF-8", self.number)),
+            )
+        })
+    }
+
+    fn wrong_type(&self, message: &str, expected: &str) -> WireError {
+        (
+            self.value_start,
+            protobuf(&format!(
+                "{message} field {} should be {expected}",
+                self.number
+            )),
+        )
+    }
+}
+
+/// Appends protobuf fields to a buffer.
+#[derive(Default)]
+pub(crate) struct FieldWriter {
+    pub(crate) bytes: Vec<u8>,
+}
+
+impl FieldWriter {
+    fn raw_varint(&mut self, mut value: u64) {
+        while value >= 0x80 {
+            self.bytes.push(value.to_le_bytes()[0] | 0x80);
+            value >>= 7;
+        }
+        self.bytes.push(value.to_le_bytes()[0]);
+    }
+
+    fn key(&mut self, number: u32, wire_type: u64) {
+        self.raw_varint((u64::from(number) << 3) | wire_type);
+    }
+
+    pub(crate) fn varint(&mut self, number: u32, value: u64) -> &mut Self {
+        self.key(number, 0);
+        self.raw_varint(value);
+        self
+    }
+
+    pub(crate) fn fixed64(&mut self, number: u32, value: u64) -> &mut Self {
+        self.key(number, 1);
+        self.bytes.extend_from_slice(&value.to_le_bytes());
+        self
+    }
+
+    pub(crate) fn bytes(&mut self, number: u32, value: &[u8]) -> &mut Self {
+        self.key(number, 2);
+        self.raw_varint(value.len() as u64);
+        self.bytes.extend_from_slice(value);
+        self
+    }
+
+    /// A nested message, written by `build` into its own buffer.
+    pub(crate) fn message(&mut self, number: u32, build: impl FnOnce(&mut Self)) -> &mut Self {
+        let mut inner = Self::default();
+        build(&mut inner);
+        self.bytes(number, &inner.bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fields_round_trip_and_unknown_ones_are_readable() {
+        let mut w = FieldWriter::default();
+        w.varint(1, 300)
+            .fixed64(2, u64::MAX)
+            .bytes(3, b"abc")
+            .message(4, |m| {
+                m.varint(1, 7);
+            });
+        let mut r = FieldReader::new(&w.bytes);
+        let f = r.next_field().unwrap().unwrap();
+        assert_eq!((f.number, f.varint("t").unwrap()), (1, 300));
+        let f = r.next_field().unwrap().unwrap();
+        assert_eq!(f.fixed64("t").unwrap(), u64::MAX);
+        let f = r.next_field().unwrap().unwrap();
+        assert_eq!(f.bytes("t").unwrap(), b"abc");
+        assert!(f.varint("t").is_err(), "a wrong wire type is an error");
+        let f = r.next_field().unwrap().unwrap();
+        assert_eq!(f.bytes("t").unwrap(), &[0x08, 7]);
+        assert!(r.next_field().unwrap().is_none());
+    }
+
+    #[test]
+    fn hostile_lengths_and_varints_are_errors() {
+        // Field 1, length-delimited, claiming 2^63 bytes.
+        let mut w = FieldWriter::default();
+        w.key(1, 2);
+        w.raw_varint(1 << 63);
+        let err = FieldReader::new(&w.bytes).next_field().unwrap_err();
+        assert_eq!(err.0, 1);
+        assert!(matches!(
+            FieldReader::new(&[0x08, 0xff]).next_field(),
+            Err((1, _))
+        ));
+        assert!(FieldReader::new(&[0x08]).next_field().is_err(), "no value");
+        let eleven = [
+            0x08, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0x01,
+        ];
+        assert!(FieldReader::new(&eleven).next_field().is_err());
+        assert!(FieldReader::new(&[0x0b]).next_field().is_err(), "groups");
+        assert!(FieldReader::new(&[0x00]).next_field().is_err(), "field 0");
+    }
+}

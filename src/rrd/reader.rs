@@ -1,0 +1,510 @@
+//! [`RrdReader`]: a streaming decoder of `.rrd` files and streams, yielding store infos,
+//! chunks and the footer's manifests in stream order.
+
+use std::io::Read;
+
+use arrow_buffer::Buffer;
+
+use super::error::{RrdError, RrdErrorKind};
+use super::frames::{
+    self, MESSAGE_HEADER_LEN, MessageKind, STREAM_FOOTER_LEN, STREAM_HEADER_LEN, StreamFooter,
+    StreamHeader,
+};
+use super::manifest::{self, Manifest};
+use super::messages::{ArrowMsg, StoreId, StoreInfo, StoreKind};
+use super::payload;
+use crate::Chunk;
+
+/// What an `.rrd` stream holds, item by item.
+#[derive(Debug)]
+#[non_exhaustive]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "chunks are the common item, and each item is moved once"
+)]
+pub enum RrdItem {
+    /// A store's description.
+    StoreInfo(StoreInfo),
+    /// A chunk of a recording.
+    Chunk {
+        /// The recording.
+        store_id: StoreId,
+        /// The chunk.
+        chunk: Chunk,
+        /// Where its message's body starts in the input.
+        offset: u64,
+    },
+    /// A message of a blueprint (a viewer layout): skipped, never mixed into the data.
+    SkippedBlueprint {
+        /// Where the message's body starts.
+        offset: u64,
+    },
+    /// The footer's manifests (one per recording), where the stream has a footer.
+    Footer(Vec<Manifest>),
+}
+
+/// Where the bytes come from: a reader, or a buffer already in memory (whose payloads are
+/// then decoded without a copy).
+enum Input<R> {
+    Stream(R),
+    Buffer(Buffer),
+}
+
+/// A streaming `.rrd` decoder.
+///
+/// Iterating yields [`RrdItem`]s in stream order, each or an [`RrdError`] naming the byte
+/// offset of the fault. An error in one message's payload (corrupt LZ4, bad protobuf, a
+/// batch that is not a chunk) spoils only that message: iteration goes on with the next
+/// (stop at the first error to be strict). An error in the framing (truncation, a bad
+/// header) ends the iteration: what follows cannot be found.
+///
+/// ```
+/// # use chunkstore::*;
+/// # use chunkstore::rrd::{RrdItem, RrdReader, RrdWriter, StoreId};
+/// # use arrow_array::{ArrayRef, Float64Array};
+/// # use std::sync::Arc;
+/// let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/e").unwrap())
+///     .with_row(RowId::new(), [(Timeline::sequence("frame"), 1)],
+///               [("x", Arc::new(Float64Array::from(vec![1.0])) as ArrayRef)])
+///     .build()?;
+/// let mut file = Vec::new();
+/// let mut writer = RrdWriter::new(&mut file, StoreId::recording("app", "rec"))?;
+/// writer.write_chunk(&Arc::new(chunk))?;
+/// writer.finish()?;
+///
+/// let chunks: Vec<Chunk> = RrdReader::new(file.as_slice())?
+///     .filter_map(|item| match item {
+///         Ok(RrdItem::Chunk { chunk, .. }) => Some(Ok(chunk)),
+///         Ok(_) => None,
+///         Err(e) => Some(Err(e)),
+///     })
+///     .collect::<Result<_, _>>()?;
+/// assert_eq!(chunks.len(), 1);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct RrdReader<R> {
+    input: Input<R>,
+    /// Bytes read back (a peek that was not a stream footer), consumed before the input.
+    pushback: Vec<u8>,
+    position: u64,
+    /// Where the current stream started (offsets in a footer count from there).
+    stream_start: u64,
+    header: StreamHeader,
+    /// Kinds of the stores seen, to tell blueprint chunks from data.
+    store_kinds: ahash::HashMap<StoreId, StoreKind>,
+    /// The last `End` message's body: where it started, and its bytes.
+    end_message: Option<(u64, Vec<u8>)>,
+    done: bool,
+}
+
+impl<R: Read> RrdReader<R> {
+    /// Reads the stream header.
+    ///
+    /// # Errors
+    /// If the input is not an `.rrd` stream this crate reads.
+    pub fn new(reader: R) -> Result<Self, RrdError> {
+        Self::start(Input::Stream(reader))
+    }
+}
+
+impl RrdReader<std::io::Empty> {
+    /// A reader over bytes in memory (a file read whole, or any `Buffer`): uncompressed
+    /// payloads decode without a copy, their chunks' buffers slices of `bytes`.
+    ///
+    /// # Errors
+    /// If the input is not an `.rrd` stream this crate reads.
+    pub fn from_buffer(bytes: Buffer) -> Result<Self, RrdError> {
+        Self::start(Input::Buffer(bytes))
+    }
+}
+
+impl<R: Read> RrdReader<R> {
+    fn start(input: Input<R>) -> Result<Self, RrdError> {
+        let mut reader = Self {
+            input,
+            pushback: Vec::new(),
+            position: 0,
+            stream_start: 0,
+            header: StreamHeader {
+                version: [0; 4],
+                compressed: false,
+            },
+            store_kinds: ahash::HashMap::default(),
+            end_message: None,
+            done: false,
+        };
+        reader.header = reader.read_stream_header()?;
+        Ok(reader)
+    }
+
+    /// The stream header (of the first stream, if several were concatenated).
+    pub fn header(&self) -> StreamHeader {
+        self.header
+    }
+
+    /// Bytes consumed so far.
+    pub fn position(&self) -> u64 {
+        self.position
+    }
+
+    fn read_stream_header(&mut self) -> Result<StreamHeader, RrdError> {
+        let at = self.position;
+        let mut bytes = [0u8; STREAM_HEADER_LEN];
+        let got = self.read_up_to(&mut bytes)?;
+        if got < 4 {
+            return Err(RrdError::new(
+                at,
+                RrdErrorKind::Truncated {
+                    what: "stream header",
+                    needed: STREAM_HEADER_LEN as u64,
+                    available: got as u64,
+                },
+            ));
+        }
+        if got < STREAM_HEADER_LEN {
+            // A wrong magic says more than a short read.
+            let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
+            if magic != frames::MAGIC {
+                let kind = StreamHeader::parse(&bytes)
+                    .err()
+                    .unwrap_or(RrdErrorKind::NotAnRrd { found: magic });
+                return Err(RrdError::new(at, kind));
+            }
+            return Err(RrdError::new(
+                at,
+                RrdErrorKind::Truncated {
+                    what: "stream header",
+                    needed: STREAM_HEADER_LEN as u64,
+                    available: got as u64,
+                },
+            ));
+        }
+        StreamHeader::parse(&bytes).map_err(|kind| RrdError::new(at, kind))
+    }
+
+    /// Fills as much of `out` as the input has; returns how much.
+    fn read_up_to(&mut self, out: &mut [u8]) -> Result<usize, RrdError> {
+        let mut filled = 0;
+        if !self.pushback.is_empty() {
+            let n = self.pushback.len().min(out.len());
+            out[..n].copy_from_slice(&self.pushback[..n]);
+            self.pushback.drain(..n);
+            filled = n;
+        }
+        match &mut self.input {
+            Input::Buffer(buffer) => {
+                let n = buffer.len().min(out.len() - filled);
+                out[filled..filled + n].copy_from_slice(&buffer.as_slice()[..n]);
+                *buffer = buffer.slice(n);
+                filled += n;
+            }
+            Input::Stream(reader) => {
+                while filled < out.len() {
+                    match reader.read(&mut out[filled..]) {
+                        Ok(0) => break,
+                        Ok(n) => filled += n,
+                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                        Err(e) => return Err(RrdError::new(self.position, RrdErrorKind::Io(e))),
+                    }
+                }
+            }
+        }
+        self.position += filled as u64;
+        Ok(filled)
+    }
+
+    /// Exactly `len` bytes (a message body), or a truncation error. Never allocates more
+    /// than what the input really holds: a buffer is sliced; a stream is read in steps.
+    fn read_body(&mut self, len: u64, what: &'static str) -> Result<Buffer, RrdError> {
+        if self.pushback.is_empty() {
+            return self.read_input(len, what);
+        }
+        // Bytes peeked after a footer (at most 32): rare, so a copy is fine.
+        let from_pushback = self
+            .pushback
+            .len()
+            .min(usize::try_from(len).unwrap_or(usize::MAX));
+        let mut body: Vec<u8> = self.pushback.drain(..from_pushback).collect();
+        self.position += from_pushback as u64;
+        let rest = self.read_input(len - from_pushback as u64, what)?;
+        body.extend_from_slice(rest.as_slice());
+        Ok(Buffer::from_vec(body))
+    }
+
+    fn read_input(&mut self, len: u64, what: &'static str) -> Result<Buffer, RrdError> {
+        let at = self.position;
+        let truncated = |available: u64| {
+            RrdError::new(
+                at,
+                RrdErrorKind::Truncated {
+                    what,
+                    needed: len,
+                    available,
+                },
+            )
+        };
+        match &mut self.input {
+            Input::Buffer(buffer) => {
+                let available = buffer.len() as u64;
+                let n = usize::try_from(len)
+                    .ok()
+                    .filter(|&n| n <= buffer.len())
+                    .ok_or_else(|| truncated(available))?;
+                let body = buffer.slice_with_length(0, n);
+                *buffer = buffer.slice(n);
+                self.position += len;
+                Ok(body)
+            }
+            Input::Stream(reader) => {
+                let mut body = Vec::with_capacity(usize::try_from(len.min(1 << 20)).unwrap_or(0));
+                let got = reader
+                    .by_ref()
+                    .take(len)
+                    .read_to_end(&mut body)
+                    .map_err(|e| RrdError::new(at, RrdErrorKind::Io(e)))?;
+                self.position += got as u64;
+                if (got as u64) < len {
+                    return Err(truncated(got as u64));
+                }
+                Ok(Buffer::from_vec(body))
+            }
+        }
+    }
+
+    /// The next item, or `None` at the end of the stream.
+    fn next_item(&mut self) -> Option<Result<RrdItem, RrdError>> {
+        loop {
+            if self.done {
+                return None;
+            }
+            let result = self.step();
+            match result {
+                Ok(Some(item)) => return Some(Ok(item)),
+                Ok(None) => {}
+                Err(error) => {
+                    if error.is_fatal() {
+                        self.done = true;
+                    }
+                    return Some(Err(error));
+                }
+            }
+        }
+    }
+
+    /// Reads one message; `Ok(None)` for one that yields nothing (a stream's end).
+    fn step(&mut self) -> Result<Option<RrdItem>, RrdError> {
+        if self.end_message.is_some() {
+            return self.after_end();
+        }
+        let at = self.position;
+        let mut header = [0u8; MESSAGE_HEADER_LEN];
+        let got = self.read_up_to(&mut header)?;
+        if got == 0 {
+            self.done = true; // a stream without an `End` message (e.g. cut after a message)
+            return Ok(None);
+        }
+        if got < MESSAGE_HEADER_LEN {
+            return Err(RrdError::new(
+                at,
+                RrdErrorKind::Truncated {
+                    what: "message header",
+                    needed: MESSAGE_HEADER_LEN as u64,
+                    available: got as u64,
+                },
+            ));
+        }
+        let (kind, len) = frames::parse_message_header(&header);
+        let body_at = self.position;
+        let Some(kind) = MessageKind::from_u64(kind) else {
+            // From a newer format, perhaps: skipped whole (if its length holds), reported.
+            self.read_body(len, "message body")?;
+            return Err(RrdError::new(at, RrdErrorKind::UnknownMessageKind { kind }));
+        };
+        let body = self.read_body(len, "message body")?;
+        let within =
+            |(offset, kind): (usize, RrdErrorKind)| RrdError::new(body_at + offset as u64, kind);
+        match kind {
+            MessageKind::SetStoreInfo => {
+                let info = StoreInfo::decode_set_store_info(body.as_slice()).map_err(within)?;
+                self.store_kinds
+                    .insert(info.store_id.clone(), info.store_id.kind);
+                Ok(Some(RrdItem::StoreInfo(info)))
+            }
+            MessageKind::ArrowMsg => {
+                let msg = ArrowMsg::decode(body.as_slice()).map_err(within)?;
+                let kind = self
+                    .store_kinds
+                    .get(&msg.store_id)
+                    .copied()
+                    .unwrap_or(msg.store_id.kind);
+                if kind != StoreKind::Recording {
+                    return Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }));
+                }
+                let payload_at = body_at + msg.payload.start as u64;
+                let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
+                let chunk = payload::decode_chunk(bytes, msg.compression, msg.uncompressed_size)
+                    .map_err(|kind| RrdError::new(payload_at, kind))?;
+                if let Some(is_static) = msg.is_static
+                    && is_static != chunk.is_static()
+                {
+                    return Err(RrdError::new(
+                        body_at,
+                        RrdErrorKind::Payload {
+                            reason: format!(
+                                "the message says is_static = {is_static}, its chunk {} is not",
+                                chunk.id()
+                            ),
+                        },
+                    ));
+                }
+                if let Some(id) = msg.chunk_id
+                    && id != chunk.id()
+                {
+                    return Err(RrdError::new(
+                        body_at,
+                        RrdErrorKind::Payload {
+                            reason: format!(
+                                "the message says chunk {id}, its payload is chunk {}",
+                                chunk.id()
+                            ),
+                        },
+                    ));
+                }
+                Ok(Some(RrdItem::Chunk {
+                    store_id: msg.store_id,
+                    chunk,
+                    offset: body_at,
+                }))
+            }
+            MessageKind::BlueprintActivationCommand => {
+                Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }))
+            }
+            MessageKind::End => {
+                self.end_message = Some((body_at, body.as_slice().to_vec()));
+                if body.is_empty() {
+                    return Ok(None);
+                }
+                let manifests = manifest::decode_footer(body.as_slice()).map_err(within)?;
+                Ok(Some(RrdItem::Footer(manifests)))
+            }
+        }
+    }
+
+    /// After an `End` message: the end of the input, a stream footer (checked against the
+    /// `End` message), or another concatenated stream.
+    fn after_end(&mut self) -> Result<Option<RrdItem>, RrdError> {
+        let Some((end_at, end_body)) = self.end_message.take() else {
+            return Ok(None);
+        };
+        let at = self.position;
+        let mut tail = [0u8; STREAM_FOOTER_LEN];
+        let got = self.read_up_to(&mut tail)?;
+        if got == 0 {
+            self.done = true;
+            return Ok(None);
+        }
+        if got == STREAM_FOOTER_LEN
+            && let Some(footer) = StreamFooter::parse(&tail)
+        {
+            let expected = StreamFooter::for_footer(end_at - self.stream_start, &end_body);
+            if footer != expected {
+                self.done = true;
+                return Err(RrdError::new(
+                    at,
+                    RrdErrorKind::Footer {
+                        reason: format!(
+                            "the stream footer points at {} bytes at {} with checksum {:#x}, \
+                             the End message has {} bytes at {} with checksum {:#x}",
+                            footer.footer_len,
+                            footer.footer_start,
+                            footer.crc,
+                            expected.footer_len,
+                            expected.footer_start,
+                            expected.crc
+                        ),
+                    },
+                ));
+            }
+            // Another stream may follow (concatenated files).
+            let mut magic = [0u8; 4];
+            let more = self.read_up_to(&mut magic)?;
+            if more == 0 {
+                self.done = true;
+                return Ok(None);
+            }
+            self.pushback.extend_from_slice(&magic[..more]);
+            self.position -= more as u64;
+        } else {
+            self.pushback.extend_from_slice(&tail[..got]);
+            self.position -= got as u64;
+        }
+        self.stream_start = self.position;
+        self.read_stream_header()?;
+        Ok(None)
+    }
+}
+
+impl<R: Read> Iterator for RrdReader<R> {
+    type Item = Result<RrdItem, RrdError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_item()
+    }
+}
+
+/// What [`read_rrd`] found in a whole stream.
+#[derive(Debug, Default)]
+pub struct RrdContents {
+    /// The store infos, in stream order.
+    pub store_infos: Vec<StoreInfo>,
+    /// The recordings' chunks, in stream order, with their store.
+    pub chunks: Vec<(StoreId, Chunk)>,
+    /// How many blueprint messages were skipped.
+    pub skipped_blueprint_messages: usize,
+    /// The footer's manifests, if there was a footer.
+    pub manifests: Option<Vec<Manifest>>,
+    /// The errors met, in order, when told to keep going (see [`read_rrd`]).
+    pub errors: Vec<RrdError>,
+}
+
+/// Reads a whole `.rrd` stream from bytes in memory.
+///
+/// With `keep_going`, a message that cannot be decoded is recorded in
+/// [`RrdContents::errors`] and skipped, and what was decoded before a framing fault is
+/// returned; without it, the first error is returned.
+///
+/// # Errors
+/// The first [`RrdError`], unless `keep_going`; even then, if the stream header is bad.
+pub fn read_rrd(bytes: Buffer, keep_going: bool) -> Result<RrdContents, RrdError> {
+    collect(RrdReader::from_buffer(bytes)?, keep_going)
+}
+
+/// [`read_rrd`] over any reader.
+///
+/// # Errors
+/// As [`read_rrd`].
+pub fn read_rrd_from(reader: impl Read, keep_going: bool) -> Result<RrdContents, RrdError> {
+    collect(RrdReader::new(reader)?, keep_going)
+}
+
+fn collect<R: Read>(reader: RrdReader<R>, keep_going: bool) -> Result<RrdContents, RrdError> {
+    let mut contents = RrdContents::default();
+    for item in reader {
+        match item {
+            Ok(RrdItem::StoreInfo(info)) => contents.store_infos.push(info),
+            Ok(RrdItem::Chunk {
+                store_id, chunk, ..
+            }) => contents.chunks.push((store_id, chunk)),
+            Ok(RrdItem::SkippedBlueprint { .. }) => contents.skipped_blueprint_messages += 1,
+            Ok(RrdItem::Footer(manifests)) => {
+                contents
+                    .manifests
+                    .get_or_insert_with(Vec::new)
+                    .extend(manifests);
+            }
+            Err(error) if keep_going => contents.errors.push(error),
+            Err(error) => return Err(error),
+        }
+    }
+    Ok(contents)
+}

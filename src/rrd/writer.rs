@@ -1,0 +1,201 @@
+//! [`RrdWriter`]: chunks out as an `.rrd` stream Rerun 0.41 opens, with the footer's chunk
+//! manifest; and [`write_rrd_file`], which writes a file atomically.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use super::error::{RrdError, RrdErrorKind};
+use super::frames::{self, MessageKind, StreamFooter, StreamHeader};
+use super::manifest::{self, WrittenChunk};
+use super::messages::{ArrowMsg, Compression, StoreId, StoreInfo};
+use super::payload;
+use crate::Chunk;
+
+/// Writes one recording as an `.rrd` stream: the stream header and store info at once,
+/// each chunk as it comes, and the footer (chunk manifest) on [`RrdWriter::finish`].
+/// Without `finish`, the stream has no footer (readers still read its chunks).
+pub struct RrdWriter<W: Write> {
+    out: W,
+    position: u64,
+    store_id: StoreId,
+    compress: bool,
+    written: Vec<WrittenChunk>,
+}
+
+impl<W: Write> RrdWriter<W> {
+    /// Starts a stream for the recording `store_id`, LZ4-compressed (as Rerun writes).
+    ///
+    /// # Errors
+    /// If writing fails.
+    pub fn new(out: W, store_id: StoreId) -> Result<Self, RrdError> {
+        Self::with_store_info(out, &StoreInfo::new(store_id), true)
+    }
+
+    /// Starts a stream with the given store info (e.g. the one read from a source file, so
+    /// that a copy says which SDK logged it), compressing payloads or not.
+    ///
+    /// # Errors
+    /// If writing fails.
+    pub fn with_store_info(out: W, info: &StoreInfo, compress: bool) -> Result<Self, RrdError> {
+        let mut writer = Self {
+            out,
+            position: 0,
+            store_id: info.store_id.clone(),
+            compress,
+            written: Vec::new(),
+        };
+        let header = StreamHeader {
+            version: frames::WRITTEN_VERSION,
+            compressed: compress,
+        };
+        writer.write_bytes(&header.encode())?;
+        let row_id = crate::RowId::new().as_u128();
+        writer.write_message(
+            MessageKind::SetStoreInfo,
+            &info.encode_set_store_info(row_id),
+        )?;
+        Ok(writer)
+    }
+
+    fn write_bytes(&mut self, bytes: &[u8]) -> Result<(), RrdError> {
+        self.out
+            .write_all(bytes)
+            .map_err(|e| RrdError::new(self.position, RrdErrorKind::Io(e)))?;
+        self.position += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Writes a message; returns where its body starts.
+    fn write_message(&mut self, kind: MessageKind, body: &[u8]) -> Result<u64, RrdError> {
+        self.write_bytes(&frames::encode_message_header(kind, body.len() as u64))?;
+        let at = self.position;
+        self.write_bytes(body)?;
+        Ok(at)
+    }
+
+    /// Writes one chunk.
+    ///
+    /// # Errors
+    /// If encoding or writing fails.
+    pub fn write_chunk(&mut self, chunk: &Arc<Chunk>) -> Result<(), RrdError> {
+        let (payload, uncompressed_size) = payload::encode_chunk(chunk, self.compress)
+            .map_err(|e| RrdError::new(self.position, RrdErrorKind::Ipc(e)))?;
+        let compression = if self.compress {
+            Compression::Lz4
+        } else {
+            Compression::None
+        };
+        let body = ArrowMsg::encode(
+            &self.store_id,
+            chunk.id(),
+            chunk.is_static(),
+            compression,
+            uncompressed_size,
+            &payload,
+        );
+        let at = self.write_message(MessageKind::ArrowMsg, &body)?;
+        self.written.push(WrittenChunk::new(
+            chunk,
+            at,
+            body.len() as u64,
+            uncompressed_size,
+        ));
+        Ok(())
+    }
+
+    /// Bytes written so far.
+    pub fn position(&self) -> u64 {
+        self.position
+    }
+
+    /// Writes the footer (the `End` message with the chunk manifest, then the stream
+    /// footer), flushes, and gives back the output.
+    ///
+    /// # Errors
+    /// If encoding or writing fails.
+    pub fn finish(mut self) -> Result<W, RrdError> {
+        let footer = manifest::encode_footer(&self.store_id, &self.written).map_err(|e| {
+            RrdError::new(
+                self.position,
+                RrdErrorKind::Ipc(crate::error::IoError::Ipc(e)),
+            )
+        })?;
+        let at = self.write_message(MessageKind::End, &footer)?;
+        self.write_bytes(&StreamFooter::for_footer(at, &footer).encode())?;
+        self.out
+            .flush()
+            .map_err(|e| RrdError::new(self.position, RrdErrorKind::Io(e)))?;
+        Ok(self.out)
+    }
+}
+
+/// Writes `chunks` as an `.rrd` file at `path`, atomically: into a temporary file in the
+/// same directory, synced, then renamed over `path`. If anything fails (or the process
+/// dies), `path` is untouched and the temporary file is removed (or, after a crash, left
+/// under a name starting with `.` and ending `.tmp`). `progress` is called after each
+/// chunk with the bytes written so far.
+///
+/// # Errors
+/// [`RrdErrorKind::Io`] if the file cannot be created, written, synced or renamed.
+pub fn write_rrd_file<'a>(
+    path: &Path,
+    info: &StoreInfo,
+    chunks: impl IntoIterator<Item = &'a Arc<Chunk>>,
+    mut progress: impl FnMut(u64),
+) -> Result<u64, RrdError> {
+    atomic_write(path, |file| {
+        let mut writer = RrdWriter::with_store_info(std::io::BufWriter::new(file), info, true)?;
+        for chunk in chunks {
+            writer.write_chunk(chunk)?;
+            progress(writer.position());
+        }
+        let size = writer.position();
+        let out = writer.finish()?;
+        let file = out
+            .into_inner()
+            .map_err(|e| RrdError::new(size, RrdErrorKind::Io(e.into_error())))?;
+        Ok((file, size))
+    })
+}
+
+/// Runs `write` on a temporary file beside `path`, then syncs it and renames it over
+/// `path`; removes it on failure.
+pub(crate) fn atomic_write<T>(
+    path: &Path,
+    write: impl FnOnce(std::fs::File) -> Result<(std::fs::File, T), RrdError>,
+) -> Result<T, RrdError> {
+    let io = |e: std::io::Error| RrdError::new(0, RrdErrorKind::Io(e));
+    let temp = temporary_path(path);
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&temp)
+        .map_err(io)?;
+    let result = write(file).and_then(|(file, value)| {
+        file.sync_all().map_err(io)?;
+        drop(file);
+        std::fs::rename(&temp, path).map_err(io)?;
+        // The rename itself is durable once the directory is synced (where that is possible).
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty())
+            && let Ok(dir) = std::fs::File::open(dir)
+        {
+            let _ = dir.sync_all();
+        }
+        Ok(value)
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result
+}
+
+fn temporary_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // A fresh row id is unique within the process, the pid across processes.
+    let unique = crate::RowId::new().as_u128();
+    path.with_file_name(format!(".{name}.{}-{unique:x}.tmp", std::process::id()))
+}
