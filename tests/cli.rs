@@ -1,7 +1,8 @@
-//! The query tool (`examples/query.rs`) from outside, as a user meets it: answers that do
-//! not depend on how a directory is chunked or duplicated, one line on stderr per error
-//! and exit code 2, never a panic, warnings for queries that can only find static data,
-//! and `--skip-bad` to load what can be loaded.
+//! The `chunkstore` tool from outside, as a user meets it: answers that do not depend on
+//! how a source is chunked, duplicated or encoded (`.rrd` or chunk files, lazy or not), one
+//! line on stderr per error and exit code 2, never a panic, warnings for queries that can
+//! only find static data, `--skip-bad` to load what can be loaded, `print`, `convert`
+//! (atomic, checked by reading back), and `--help` with an example on every command.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -18,10 +19,15 @@ fn recording_chunks() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(CHUNKS)
 }
 
+const RRD: &str = "testdata/rerun-0.41/a_robot/a_robot.rrd";
+
+fn recording_rrd() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(RRD)
+}
+
 /// Runs the tool with these arguments.
 fn run<S: AsRef<OsStr>>(args: &[S]) -> Output {
-    std::process::Command::new(env!("CARGO"))
-        .args(["run", "--quiet", "--example", "query", "--"])
+    std::process::Command::new(env!("CARGO_BIN_EXE_chunkstore"))
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
@@ -105,7 +111,7 @@ fn duplicated_files_answer_like_the_recording_under_every_compaction_option() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// Issue 12, item 9: an argument that is not UTF-8 used to panic (exit code 101). `<DIR>`
+/// Issue 12, item 9: an argument that is not UTF-8 used to panic (exit code 101). `<SOURCE>`
 /// may be any path; every other argument must be text.
 #[test]
 fn arguments_that_are_not_utf8_are_an_error_not_a_panic() {
@@ -128,7 +134,11 @@ fn arguments_that_are_not_utf8_are_an_error_not_a_panic() {
         vec![chunks.as_os_str(), bad],
     ] {
         let line = fails(&args);
-        assert!(line.contains("is not valid UTF-8"), "{line}");
+        // clap names the argument it could not take (lossily) or says it is not UTF-8.
+        assert!(
+            line.contains("invalid UTF-8") || line.contains("unexpected argument 'fr\u{fffd}me'"),
+            "{line}"
+        );
     }
     // A directory that does not exist, named by bytes that are not UTF-8: a plain error.
     let line = fails(&[bad, OsStr::new("stats")]);
@@ -252,4 +262,331 @@ fn stats_lists_the_timelines_and_entities() {
         usize::try_from(stats["num_entities"].as_u64().unwrap()).unwrap()
     );
     assert!(entities.contains(&serde_json::json!("/world/robot/camera/rgb")));
+}
+
+/// Runs the tool with `options` before `source` and `command` after it; returns its
+/// standard output.
+fn cli_on(source: &Path, options: &[&str], command: &[&str]) -> String {
+    let mut args: Vec<&OsStr> = options.iter().map(OsStr::new).collect();
+    args.push(source.as_os_str());
+    args.extend(command.iter().map(OsStr::new));
+    ok(&args).0
+}
+
+/// [`cli_on`] the recording's chunk files.
+fn cli(options: &[&str], command: &[&str]) -> String {
+    cli_on(&recording_chunks(), options, command)
+}
+
+#[test]
+fn cli_answers_are_the_same_whatever_the_compaction_options() {
+    let chunk_count = |options: &[&str]| {
+        let stats: serde_json::Value = serde_json::from_str(&cli(options, &["stats"])).unwrap();
+        stats["num_chunks"].as_u64().unwrap()
+    };
+    let variants: [&[&str]; 4] = [
+        &[
+            "--max-rows",
+            "2",
+            "--max-rows-unsorted",
+            "1",
+            "--max-bytes",
+            "4096",
+        ],
+        &["--compact"],
+        &["--max-rows", "7", "--max-bytes", "100000", "--compact"],
+        &["--max-rows-unsorted", "3"],
+    ];
+    let plain_chunks = chunk_count(&[]);
+    let mut counts = vec![plain_chunks];
+    for command in [
+        &["latest-at", "frame_id", "30"][..],
+        &["latest-at", "sim_time", "1500000000"],
+        &["range", "frame_id", "0", "59"],
+        &["range", "log_time", "0", "9223372036854775807"],
+    ] {
+        let expected = cli(&[], command);
+        assert!(expected.lines().count() > 10, "{command:?} answers");
+        for options in variants {
+            assert_eq!(cli(options, command), expected, "{options:?} {command:?}");
+        }
+    }
+    for options in variants {
+        counts.push(chunk_count(options));
+    }
+    // The options do change the store: splitting into tiny chunks, merging into few.
+    assert!(counts[1] > plain_chunks * 3, "{counts:?}");
+    assert!(counts[2] < plain_chunks, "{counts:?}");
+}
+
+#[test]
+fn cli_rejects_bad_options() {
+    for (options, message) in [
+        (&["--max-rows", "0"][..], "max_rows must be at least 1"),
+        (
+            &["--max-bytes", "lots"],
+            "invalid value 'lots' for '--max-bytes <N>'",
+        ),
+        (&["--max-rows"], "invalid value"), // it took the source as its value
+        (&["--frobnicate", "1"], "unexpected argument '--frobnicate'"),
+    ] {
+        let mut args: Vec<&OsStr> = options.iter().map(OsStr::new).collect();
+        let chunks = recording_chunks();
+        args.push(chunks.as_os_str());
+        args.push(OsStr::new("stats"));
+        let line = fails(&args);
+        assert!(line.contains(message), "{options:?}: {line}");
+    }
+}
+
+#[test]
+fn cli_answers_on_the_robot_recording() {
+    let lines: Vec<serde_json::Value> = cli(&[], &["latest-at", "frame_id", "30"])
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let find = |entity: &str, component: &str| {
+        lines
+            .iter()
+            .find(|l| l["entity"] == entity && l["component"] == component)
+            .unwrap()
+    };
+    let cost = find("/metrics/planner/cost", "Scalars:scalars");
+    assert_eq!(cost["time"], 30);
+    assert_eq!(cost["value"], serde_json::json!([2.239_023_101_159_236]));
+    assert_eq!(
+        find("/world", "ViewCoordinates:xyz")["time"],
+        serde_json::Value::Null
+    );
+    assert_eq!(
+        find("/world", "ViewCoordinates:xyz")["value"],
+        serde_json::json!([[3, 5, 1]])
+    );
+    let keys: Vec<(String, String)> = lines
+        .iter()
+        .map(|l| {
+            (
+                l["entity"].as_str().unwrap().to_owned(),
+                l["component"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    assert!(
+        keys.is_sorted(),
+        "lines are ordered by entity then component"
+    );
+    assert_eq!(
+        keys.len(),
+        14,
+        "every (entity, component) answers at frame 30"
+    );
+}
+
+/// Issue 14: the `.rrd` Rerun wrote answers exactly as its chunk files do, lazily (through
+/// the footer) or eagerly, on every timeline.
+#[test]
+fn the_rrd_answers_like_the_chunk_files_lazily_or_not() {
+    let rrd = recording_rrd();
+    for command in [
+        &["latest-at", "frame_id", "30"][..],
+        &["latest-at", "frame_id", "-5"],
+        &["latest-at", "sim_time", "1500000000"],
+        &["latest-at", "log_time", "9223372036854775807"],
+        &["range", "frame_id", "0", "59"],
+        &["range", "sim_time", "100", "2000000000"],
+        &["range", "log_time", "0", "9223372036854775807"],
+    ] {
+        let expected = cli(&[], command);
+        assert!(!expected.is_empty(), "{command:?}");
+        assert_eq!(cli_on(&rrd, &[], command), expected, "lazy {command:?}");
+        assert_eq!(
+            cli_on(&rrd, &["--eager"], command),
+            expected,
+            "eager {command:?}"
+        );
+    }
+    let stats = |source: &Path| -> serde_json::Value {
+        serde_json::from_str(&cli_on(source, &[], &["stats"])).unwrap()
+    };
+    let (a, b) = (stats(&rrd), stats(&recording_chunks()));
+    for key in [
+        "num_chunks",
+        "num_rows",
+        "num_entities",
+        "timelines",
+        "entities",
+    ] {
+        assert_eq!(a[key], b[key], "{key}");
+    }
+}
+
+/// Issue 14: `print` lists the chunks in file order, as text or JSON lines.
+#[test]
+fn print_lists_every_chunk_in_file_order() {
+    let json = cli_on(&recording_rrd(), &[], &["print", "--json"]);
+    let lines: Vec<serde_json::Value> = json
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 37);
+    let first = &lines[0];
+    assert_eq!(first["entity"], "/__properties");
+    assert_eq!(first["static"], true);
+    assert_eq!(first["chunk_id"], "chunk_18ea10afd776aa1f6deffa92d8abe82a");
+    assert_eq!(
+        lines
+            .iter()
+            .map(|l| l["rows"].as_u64().unwrap())
+            .sum::<u64>(),
+        261
+    );
+    let robot = &lines[1];
+    assert_eq!(
+        robot["timelines"][0],
+        serde_json::json!({"name": "frame_id", "type": "sequence", "min": 0, "max": 17})
+    );
+    // The same listing from the chunk files, and as text.
+    assert_eq!(cli(&[], &["print", "--json"]), json);
+    let text = cli_on(&recording_rrd(), &[], &["print"]);
+    assert_eq!(text.lines().count(), 37);
+    assert!(
+        text.lines()
+            .nth(1)
+            .unwrap()
+            .contains("/world/robot rows=18 frame_id=[0, 17]"),
+        "{text}"
+    );
+}
+
+/// Issue 14: `convert` writes an `.rrd` or a directory that read back to the same answers,
+/// with or without compaction; it never writes over its source or into a non-empty
+/// directory, and leaves nothing behind when it fails.
+#[test]
+fn convert_round_trips_and_is_careful_with_files() {
+    let dir = scratch_dir("convert");
+    let rrd = recording_rrd();
+    let copy = dir.join("copy.rrd");
+    let compacted = dir.join("compacted.rrd");
+    let as_dir = dir.join("chunks");
+    let back = dir.join("back.rrd");
+    ok(&[rrd.as_os_str(), OsStr::new("convert"), copy.as_os_str()]);
+    ok(&[
+        OsStr::new("--compact"),
+        rrd.as_os_str(),
+        OsStr::new("convert"),
+        compacted.as_os_str(),
+    ]);
+    ok(&[rrd.as_os_str(), OsStr::new("convert"), as_dir.as_os_str()]);
+    ok(&[as_dir.as_os_str(), OsStr::new("convert"), back.as_os_str()]);
+    // Without --compact, the chunks are the file's, in order.
+    let listing = cli_on(&rrd, &[], &["print", "--json"]);
+    assert_eq!(cli_on(&copy, &[], &["print", "--json"]), listing);
+    assert_eq!(cli_on(&as_dir, &[], &["print", "--json"]), listing);
+    assert_eq!(cli_on(&back, &[], &["print", "--json"]), listing);
+    let compacted_chunks = cli_on(&compacted, &[], &["print"]).lines().count();
+    assert!(compacted_chunks < 37, "{compacted_chunks}");
+    // Every answer is the same (chunk ids aside, for the compacted file).
+    let without_chunk_ids = |text: String| -> Vec<serde_json::Value> {
+        text.lines()
+            .map(|l| {
+                let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+                v.as_object_mut().unwrap().remove("chunk_id");
+                v
+            })
+            .collect()
+    };
+    for command in [
+        &["latest-at", "frame_id", "30"][..],
+        &["range", "sim_time", "0", "9000000000"],
+    ] {
+        let expected = cli_on(&rrd, &[], command);
+        for source in [&copy, &as_dir, &back] {
+            assert_eq!(
+                cli_on(source, &[], command),
+                expected,
+                "{source:?} {command:?}"
+            );
+        }
+        assert_eq!(
+            without_chunk_ids(cli_on(&compacted, &[], command)),
+            without_chunk_ids(expected)
+        );
+    }
+    // The store info of an .rrd source is kept; chunk files get the given ids.
+    let info = std::fs::read(&copy).unwrap();
+    assert!(info.windows(25).any(|w| w == b"rerun_example_robot_scene"));
+
+    // Never over the source, never into a non-empty directory.
+    let line = fails(&[copy.as_os_str(), OsStr::new("convert"), copy.as_os_str()]);
+    assert!(line.contains("overwrite the source"), "{line}");
+    let line = fails(&[rrd.as_os_str(), OsStr::new("convert"), as_dir.as_os_str()]);
+    assert!(line.contains("not empty"), "{line}");
+    // A failed write leaves nothing: not the target, not a temporary file.
+    let nowhere = dir.join("missing/out.rrd");
+    fails(&[rrd.as_os_str(), OsStr::new("convert"), nowhere.as_os_str()]);
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["back.rrd", "chunks", "compacted.rrd", "copy.rrd"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Issue 14: a damaged `.rrd` is one line naming the byte offset; `--skip-bad` loads what
+/// comes before the damage and says what it skipped.
+#[test]
+fn a_damaged_rrd_is_one_line_and_skip_bad_keeps_the_rest() {
+    let dir = scratch_dir("damaged");
+    let bytes = std::fs::read(recording_rrd()).unwrap();
+    let truncated = dir.join("truncated.rrd");
+    std::fs::write(&truncated, &bytes[..150_000]).unwrap();
+    for command in [&["stats"][..], &["latest-at", "frame_id", "30"], &["print"]] {
+        let mut args = vec![truncated.as_os_str()];
+        args.extend(command.iter().map(OsStr::new));
+        let line = fails(&args);
+        assert!(
+            line.contains("at byte") && line.contains("truncated"),
+            "{line}"
+        );
+    }
+    let (out, warnings) = ok(&[
+        OsStr::new("--skip-bad"),
+        truncated.as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    let stats: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(stats["num_rows"].as_u64().unwrap() > 50, "{stats}");
+    assert_eq!(warnings.lines().count(), 1, "{warnings}");
+    assert!(warnings.contains("stopped reading"), "{warnings}");
+
+    let not_rrd = dir.join("notes.txt");
+    std::fs::write(&not_rrd, b"hello").unwrap();
+    let line = fails(&[not_rrd.as_os_str(), OsStr::new("stats")]);
+    assert!(line.contains("neither an .rrd"), "{line}");
+    let mut old = bytes.clone();
+    old[..4].copy_from_slice(b"RRF1");
+    let old_file = dir.join("old.rrd");
+    std::fs::write(&old_file, &old).unwrap();
+    let line = fails(&[old_file.as_os_str(), OsStr::new("stats")]);
+    assert!(line.contains("before Rerun 0.23"), "{line}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Issue 14: `--help` on the tool and on every command exits 0 and shows an example.
+#[test]
+fn every_command_has_help_with_an_example() {
+    let output = run(&["--help"]);
+    assert!(output.status.success());
+    let text = String::from_utf8(output.stdout).unwrap();
+    assert!(
+        text.contains("Examples:") && text.contains("latest-at"),
+        "{text}"
+    );
+    for command in ["latest-at", "range", "stats", "print", "convert"] {
+        let output = run(&[RRD, command, "--help"]);
+        assert!(output.status.success(), "{command}");
+        let text = String::from_utf8(output.stdout).unwrap();
+        assert!(text.contains("Example"), "{command}: {text}");
+    }
 }

@@ -47,7 +47,10 @@ fn modules() -> Vec<Module> {
         for entry in std::fs::read_dir(&dir).unwrap() {
             let path = entry.unwrap().path();
             if path.is_dir() {
-                stack.push(path);
+                // `src/bin/`: the tool is a crate of its own, a user of the library.
+                if path != src.join("bin") {
+                    stack.push(path);
+                }
                 continue;
             }
             if path.extension().is_none_or(|e| e != "rs") {

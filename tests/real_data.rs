@@ -1,6 +1,7 @@
 //! Chunks written by Rerun 0.41's own SDK, and Rerun's own answers for them
 //! (`testdata/rerun-0.41/README.md`): every latest-at probe and every range of the oracle,
-//! on all three timelines, must match cell by cell.
+//! on all three timelines, must match cell by cell, whether the recording is loaded from
+//! its chunk files or from its `.rrd`.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -45,6 +46,18 @@ fn load_store() -> ChunkStore {
         store.sanity_check().unwrap();
     }
     store
+}
+
+/// The recording loaded from its chunk files, and from the `.rrd` Rerun wrote.
+fn stores() -> [ChunkStore; 2] {
+    let bytes = std::fs::read(recording().join("a_robot.rrd")).unwrap();
+    let contents = chunkstore::rrd::read_rrd(arrow_buffer::Buffer::from_vec(bytes), false).unwrap();
+    let mut from_rrd = ChunkStore::new();
+    for (_, chunk) in contents.chunks {
+        from_rrd.insert(chunk).unwrap();
+    }
+    from_rrd.sanity_check().unwrap();
+    [load_store(), from_rrd]
 }
 
 fn oracle(name: &str) -> Vec<RecordBatch> {
@@ -138,8 +151,13 @@ fn every_chunk_loads_and_round_trips_through_transport() {
 
 #[test]
 fn latest_at_matches_rerun_on_every_probe_and_timeline() {
-    let store = load_store();
-    let expected_columns = temporal_view_columns(&store);
+    for store in stores() {
+        latest_at_matches(&store);
+    }
+}
+
+fn latest_at_matches(store: &ChunkStore) {
+    let expected_columns = temporal_view_columns(store);
     let mut num_checked = 0;
     for timeline in TIMELINES {
         let batches = oracle(&format!("latest_at__{timeline}.arrow"));
@@ -174,7 +192,12 @@ fn latest_at_matches_rerun_on_every_probe_and_timeline() {
 
 #[test]
 fn range_matches_rerun_on_every_range_and_timeline() {
-    let store = load_store();
+    for store in stores() {
+        range_matches(&store);
+    }
+}
+
+fn range_matches(store: &ChunkStore) {
     let mut num_checked = 0;
     for timeline in TIMELINES {
         let json: serde_json::Value = serde_json::from_slice(
@@ -244,7 +267,12 @@ fn range_matches_rerun_on_every_range_and_timeline() {
 
 #[test]
 fn static_answers_match_rerun() {
-    let store = load_store();
+    for store in stores() {
+        static_answers_match(&store);
+    }
+}
+
+fn static_answers_match(store: &ChunkStore) {
     let batches = oracle("static.arrow");
     let (_, columns) = split_table(&batches[0], None);
     assert_eq!(columns.len(), 2);
@@ -262,129 +290,4 @@ fn static_answers_match_rerun() {
             );
         }
     }
-}
-
-/// Runs the query CLI with `options` before the recording's directory and `command`
-/// after it; returns its standard output.
-fn cli(options: &[&str], command: &[&str]) -> String {
-    let output = std::process::Command::new(env!("CARGO"))
-        .args(["run", "--quiet", "--example", "query", "--"])
-        .args(options)
-        .arg(recording().join("chunks"))
-        .args(command)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap();
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    String::from_utf8(output.stdout).unwrap()
-}
-
-#[test]
-fn cli_answers_are_the_same_whatever_the_compaction_options() {
-    let chunk_count = |options: &[&str]| {
-        let stats: serde_json::Value = serde_json::from_str(&cli(options, &["stats"])).unwrap();
-        stats["num_chunks"].as_u64().unwrap()
-    };
-    let variants: [&[&str]; 4] = [
-        &[
-            "--max-rows",
-            "2",
-            "--max-rows-unsorted",
-            "1",
-            "--max-bytes",
-            "4096",
-        ],
-        &["--compact"],
-        &["--max-rows", "7", "--max-bytes", "100000", "--compact"],
-        &["--max-rows-unsorted", "3"],
-    ];
-    let plain_chunks = chunk_count(&[]);
-    let mut counts = vec![plain_chunks];
-    for command in [
-        &["latest-at", "frame_id", "30"][..],
-        &["latest-at", "sim_time", "1500000000"],
-        &["range", "frame_id", "0", "59"],
-        &["range", "log_time", "0", "9223372036854775807"],
-    ] {
-        let expected = cli(&[], command);
-        assert!(expected.lines().count() > 10, "{command:?} answers");
-        for options in variants {
-            assert_eq!(cli(options, command), expected, "{options:?} {command:?}");
-        }
-    }
-    for options in variants {
-        counts.push(chunk_count(options));
-    }
-    // The options do change the store: splitting into tiny chunks, merging into few.
-    assert!(counts[1] > plain_chunks * 3, "{counts:?}");
-    assert!(counts[2] < plain_chunks, "{counts:?}");
-}
-
-#[test]
-fn cli_rejects_bad_options() {
-    for (options, message) in [
-        (&["--max-rows", "0"][..], "max_rows must be at least 1"),
-        (&["--max-bytes", "lots"], "is not a non-negative integer"),
-        (&["--max-rows"], "is not a non-negative integer"), // it took <DIR> as its value
-        (&["--frobnicate", "1"], "unknown option"),
-    ] {
-        let output = std::process::Command::new(env!("CARGO"))
-            .args(["run", "--quiet", "--example", "query", "--"])
-            .args(options)
-            .arg(recording().join("chunks"))
-            .arg("stats")
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .output()
-            .unwrap();
-        assert_eq!(output.status.code(), Some(2), "{options:?}");
-        let stderr = String::from_utf8_lossy(&output.stderr);
-        assert!(stderr.contains(message), "{options:?}: {stderr}");
-    }
-}
-
-#[test]
-fn cli_answers_on_the_robot_recording() {
-    let lines: Vec<serde_json::Value> = cli(&[], &["latest-at", "frame_id", "30"])
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    let find = |entity: &str, component: &str| {
-        lines
-            .iter()
-            .find(|l| l["entity"] == entity && l["component"] == component)
-            .unwrap()
-    };
-    let cost = find("/metrics/planner/cost", "Scalars:scalars");
-    assert_eq!(cost["time"], 30);
-    assert_eq!(cost["value"], serde_json::json!([2.239_023_101_159_236]));
-    assert_eq!(
-        find("/world", "ViewCoordinates:xyz")["time"],
-        serde_json::Value::Null
-    );
-    assert_eq!(
-        find("/world", "ViewCoordinates:xyz")["value"],
-        serde_json::json!([[3, 5, 1]])
-    );
-    let keys: Vec<(String, String)> = lines
-        .iter()
-        .map(|l| {
-            (
-                l["entity"].as_str().unwrap().to_owned(),
-                l["component"].as_str().unwrap().to_owned(),
-            )
-        })
-        .collect();
-    assert!(
-        keys.is_sorted(),
-        "lines are ordered by entity then component"
-    );
-    assert_eq!(
-        keys.len(),
-        14,
-        "every (entity, component) answers at frame 30"
-    );
 }

@@ -94,9 +94,11 @@ impl<'a> FieldReader<'a> {
                 WireValue::Fixed64(u64::from_le_bytes(le))
             }
             2 => {
+                let len_start = self.position;
                 let len = self.varint()?;
                 let value_start = self.position;
-                let bytes = self.take(len)?;
+                // A bad length is reported where the length field starts.
+                let bytes = self.take(len).map_err(|(_, e)| (len_start, e))?;
                 return Ok(Some(WireField {
                     number,
                     value: WireValue::Bytes(bytes),

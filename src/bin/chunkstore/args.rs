@@ -1,0 +1,156 @@
+//! The tool's arguments (clap), apart from everything else so that the `cli_args` fuzz
+//! target can parse arbitrary argument lists with exactly this code: nothing here may
+//! panic, whatever the arguments.
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+use chunkstore::{StoreConfig, TimeInt};
+
+const EXAMPLES: &str = "\
+Examples:
+  chunkstore recording.rrd latest-at frame_id 30
+  chunkstore recording.rrd range sim_time 0 1000000000
+  chunkstore chunks/ stats
+  chunkstore recording.rrd print --json
+  chunkstore --compact recording.rrd convert optimized.rrd";
+
+/// Look inside recordings: latest-at and range queries, statistics, a chunk listing, and
+/// conversion between `.rrd` files and directories of Arrow IPC chunk files.
+#[derive(Parser, Debug)]
+#[command(name = "chunkstore", version, after_help = EXAMPLES)]
+pub struct Cli {
+    #[command(flatten)]
+    pub load: LoadArgs,
+
+    /// An `.rrd` file, a directory of Arrow IPC chunk files, or one such file (told apart
+    /// by their contents, not their names).
+    pub source: PathBuf,
+
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// How to load the source. The compaction options change how the store chunks the data,
+/// never an answer (only `stats` shows the difference); defaults are `StoreConfig::DEFAULT`.
+#[derive(Args, Debug)]
+pub struct LoadArgs {
+    /// Most rows of a time-sorted chunk.
+    #[arg(long, global = true, value_name = "N")]
+    pub max_rows: Option<usize>,
+    /// Most rows of an unsorted chunk.
+    #[arg(long, global = true, value_name = "N")]
+    pub max_rows_unsorted: Option<usize>,
+    /// Most payload bytes of a chunk.
+    #[arg(long, global = true, value_name = "N")]
+    pub max_bytes: Option<u64>,
+    /// Run on-demand compaction once everything is loaded (`convert`: what `rerun rrd
+    /// optimize` does).
+    #[arg(long, global = true)]
+    pub compact: bool,
+    /// Skip a file, message or chunk that cannot be read, with one line on stderr for
+    /// each, and load the rest (without it, the first one is an error).
+    #[arg(long, global = true)]
+    pub skip_bad: bool,
+    /// Decode a whole `.rrd` before answering, even where its footer would let a query
+    /// decode only the chunks it needs.
+    #[arg(long, global = true)]
+    pub eager: bool,
+}
+
+impl LoadArgs {
+    pub fn config(&self) -> Result<StoreConfig, String> {
+        let mut config = StoreConfig::DEFAULT;
+        if let Some(n) = self.max_rows {
+            config = config.with_max_rows(n);
+        }
+        if let Some(n) = self.max_rows_unsorted {
+            config = config.with_max_rows_unsorted(n);
+        }
+        if let Some(n) = self.max_bytes {
+            config = config.with_max_bytes(n);
+        }
+        config.validate().map_err(|e| e.to_string())?;
+        Ok(config)
+    }
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// The latest value of every entity and component at a time, one JSON line each.
+    #[command(
+        after_help = "Example:\n  chunkstore recording.rrd latest-at frame_id 30",
+        allow_negative_numbers = true
+    )]
+    LatestAt {
+        /// The timeline.
+        timeline: String,
+        /// The time (an integer: nanoseconds on duration and timestamp timelines).
+        #[arg(value_parser = parse_time)]
+        time: TimeInt,
+    },
+    /// Every value of every entity and component in `[MIN, MAX]`, one JSON line each.
+    #[command(
+        after_help = "Example:\n  chunkstore recording.rrd range frame_id 10 20",
+        allow_negative_numbers = true
+    )]
+    Range {
+        /// The timeline.
+        timeline: String,
+        /// The range's start (included).
+        #[arg(value_parser = parse_time)]
+        min: TimeInt,
+        /// The range's end (included).
+        #[arg(value_parser = parse_time)]
+        max: TimeInt,
+    },
+    /// The store's statistics, timelines and entities, as one JSON line.
+    #[command(after_help = "Example:\n  chunkstore recording.rrd stats")]
+    Stats,
+    /// One line per chunk, in source order: id, entity, rows, timelines with their
+    /// least and greatest time, components.
+    #[command(after_help = "Example:\n  chunkstore recording.rrd print --json | head")]
+    Print {
+        /// JSON lines instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write the source as an `.rrd` file (OUT ends in `.rrd`) or as a directory of Arrow
+    /// IPC chunk files (any other OUT), atomically: OUT appears whole or not at all.
+    /// Chunks are written as loaded (in source order), or compacted with `--compact`.
+    #[command(
+        after_help = "Examples:\n  chunkstore chunks/ convert recording.rrd\n  \
+                            chunkstore --compact recording.rrd convert optimized.rrd\n  \
+                            chunkstore recording.rrd convert chunks/"
+    )]
+    Convert {
+        /// Where to write.
+        out: PathBuf,
+        /// The application id of an `.rrd` written from chunk files (from an `.rrd`, its
+        /// own store info is kept).
+        #[arg(long, default_value = "chunkstore")]
+        application_id: String,
+        /// The recording id of an `.rrd` written from chunk files (default: the source's
+        /// name).
+        #[arg(long)]
+        recording_id: Option<String>,
+    },
+}
+
+fn parse_time(text: &str) -> Result<TimeInt, String> {
+    let value: i64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not an i64"))?;
+    TimeInt::new(value)
+        .ok_or_else(|| format!("{value} is reserved (i64::MIN is never a valid time)"))
+}
+
+/// Parses the arguments (the first is the program's name).
+///
+/// # Errors
+/// clap's error: usage problems, and `--help` / `--version` (which are not failures).
+pub fn parse(args: &[OsString]) -> Result<Cli, clap::Error> {
+    Cli::try_parse_from(args)
+}

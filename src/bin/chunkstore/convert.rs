@@ -1,0 +1,119 @@
+//! `convert`: the source written as an `.rrd` file or a directory of chunk files,
+//! atomically, never over the source.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use chunkstore::rrd::{StoreId, StoreInfo};
+use chunkstore::{Chunk, StoreConfig};
+
+use crate::Failure;
+use crate::load::{self, Options};
+
+pub fn convert(
+    source: &Path,
+    out: &Path,
+    options: &Options,
+    application_id: &str,
+    recording_id: Option<&str>,
+) -> Result<(), Failure> {
+    if let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
+        && a == b
+    {
+        return Err(format!("{}: the output would overwrite the source", out.display()).into());
+    }
+    // Without `--compact`, the chunks go out as they came in: no compaction on insert.
+    let load_options = Options {
+        config: if options.compact {
+            options.config
+        } else {
+            StoreConfig::COMPACTION_OFF
+        },
+        compact: options.compact,
+        skip_bad: options.skip_bad,
+    };
+    let loaded = load::load_in_order(source, &load_options)?;
+    let chunks: Vec<Arc<Chunk>> = if options.compact {
+        let mut chunks: Vec<Arc<Chunk>> = loaded.store.chunks().cloned().collect();
+        // Entity by entity, each in time order: what a reader scans best.
+        chunks.sort_by_cached_key(|c| {
+            let start = c.time_columns().first().map(|t| t.time_range().0);
+            (c.entity_path().clone(), start, c.id())
+        });
+        chunks
+    } else {
+        loaded.in_order
+    };
+    let is_rrd = out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("rrd"));
+    if is_rrd {
+        let info = loaded.store_info.unwrap_or_else(|| {
+            let recording = recording_id.map_or_else(
+                || {
+                    source.file_stem().map_or_else(
+                        || "recording".to_owned(),
+                        |s| s.to_string_lossy().into_owned(),
+                    )
+                },
+                str::to_owned,
+            );
+            StoreInfo::new(StoreId::recording(application_id, recording))
+        });
+        let bar = load::progress(chunks.len() as u64, "writing", false);
+        let result = chunkstore::rrd::write_rrd_file(out, &info, &chunks, |_| bar.inc(1));
+        bar.finish_and_clear();
+        result.map_err(|e| format!("{}: {e}", out.display()))?;
+    } else {
+        write_directory(out, &chunks)?;
+    }
+    Ok(())
+}
+
+/// Writes one IPC file per chunk into a temporary directory beside `out`, then renames it
+/// to `out` (which must not exist, or be an empty directory).
+fn write_directory(out: &Path, chunks: &[Arc<Chunk>]) -> Result<(), String> {
+    let name = out.display();
+    if let Ok(mut entries) = std::fs::read_dir(out)
+        && entries.next().is_some()
+    {
+        return Err(format!("{name}: the directory exists and is not empty"));
+    }
+    if out.is_file() {
+        return Err(format!(
+            "{name}: a file exists there (an .rrd output needs a name ending .rrd)"
+        ));
+    }
+    let file_name = out
+        .file_name()
+        .map_or_else(|| "out".to_owned(), |n| n.to_string_lossy().into_owned());
+    let temp: PathBuf = out.with_file_name(format!(".{file_name}.{}.tmp", std::process::id()));
+    let result = (|| -> Result<(), String> {
+        std::fs::create_dir(&temp).map_err(|e| format!("{}: {e}", temp.display()))?;
+        let width = chunks.len().to_string().len().max(4);
+        let bar = load::progress(chunks.len() as u64, "writing", false);
+        for (i, chunk) in chunks.iter().enumerate() {
+            let path = temp.join(format!("{i:0width$}.arrow"));
+            let file =
+                std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+            let mut writer = std::io::BufWriter::new(file);
+            chunkstore::io::write_chunk_ipc_file(chunk, &mut writer)
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+            let file = writer
+                .into_inner()
+                .map_err(|e| format!("{}: {}", path.display(), e.error()))?;
+            file.sync_all()
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        if out.is_dir() {
+            std::fs::remove_dir(out).map_err(|e| format!("{name}: {e}"))?;
+        }
+        std::fs::rename(&temp, out).map_err(|e| format!("{name}: {e}"))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&temp);
+    }
+    result
+}

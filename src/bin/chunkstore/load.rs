@@ -1,0 +1,414 @@
+//! Loading a source: an `.rrd` file (eagerly, or lazily through its footer), a directory of
+//! Arrow IPC chunk files, or one such file; told apart by content. Long loads show a
+//! progress bar on stderr when it is a terminal.
+
+use std::io::{IsTerminal as _, Read as _};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
+use chunkstore::{
+    ChunkId, ChunkStore, ComponentName, EntityPath, LatestAtQuery, QueryCell, RangeQuery,
+    RangeResult, RowId, StoreConfig,
+};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::one_line;
+
+/// How to load.
+pub struct Options {
+    pub config: StoreConfig,
+    pub compact: bool,
+    pub skip_bad: bool,
+}
+
+/// What a source is, by its contents.
+pub enum SourceKind {
+    Rrd,
+    IpcDirectory,
+    IpcFile,
+}
+
+pub fn source_kind(source: &Path) -> Result<SourceKind, String> {
+    let metadata = std::fs::metadata(source).map_err(|e| format!("{}: {e}", source.display()))?;
+    if metadata.is_dir() {
+        return Ok(SourceKind::IpcDirectory);
+    }
+    let mut head = [0u8; 8];
+    let mut file = std::fs::File::open(source).map_err(|e| format!("{}: {e}", source.display()))?;
+    let mut got = 0;
+    while got < head.len() {
+        match file.read(&mut head[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) => return Err(format!("{}: {e}", source.display())),
+        }
+    }
+    let head = &head[..got];
+    if chunkstore::rrd::looks_like_rrd(head) {
+        Ok(SourceKind::Rrd)
+    } else if head.starts_with(b"ARROW1") || head.starts_with(&[0xff, 0xff, 0xff, 0xff]) {
+        Ok(SourceKind::IpcFile)
+    } else {
+        Err(format!(
+            "{}: neither an .rrd file nor Arrow IPC (it starts with {:?})",
+            source.display(),
+            String::from_utf8_lossy(head)
+        ))
+    }
+}
+
+/// A progress bar on stderr if it is a terminal, hidden otherwise.
+pub fn progress(len: u64, what: &str, bytes: bool) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    let template = if bytes {
+        "{msg} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec}, {eta})"
+    } else {
+        "{msg} [{bar:40}] {pos}/{len} ({eta})"
+    };
+    if let Ok(style) = ProgressStyle::with_template(template) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(what.to_owned());
+    bar
+}
+
+/// The store, and the chunk each row was loaded from (compaction may have moved it).
+pub struct Loaded {
+    pub store: ChunkStore,
+    pub source_chunk: ahash::HashMap<RowId, ChunkId>,
+    /// The first store info of an `.rrd` source.
+    pub store_info: Option<StoreInfo>,
+    /// The chunks in source order, when asked for (for `convert`).
+    pub in_order: Vec<Arc<chunkstore::Chunk>>,
+}
+
+impl Loaded {
+    /// The id of the chunk `row_id` was loaded from; `stored` if unknown.
+    pub fn source_chunk(&self, row_id: RowId, stored: ChunkId) -> ChunkId {
+        self.source_chunk.get(&row_id).copied().unwrap_or(stored)
+    }
+
+    fn new(config: StoreConfig) -> Result<Self, String> {
+        Ok(Self {
+            store: ChunkStore::with_config(config).map_err(|e| e.to_string())?,
+            source_chunk: ahash::HashMap::default(),
+            store_info: None,
+            in_order: Vec::new(),
+        })
+    }
+
+    /// Inserts one chunk; `Err` names why the store refused it.
+    fn insert(&mut self, chunk: chunkstore::Chunk, keep_order: bool) -> Result<(), String> {
+        let chunk = Arc::new(chunk);
+        let id = chunk.id();
+        self.store
+            .insert(Arc::clone(&chunk))
+            .map_err(|e| e.to_string())?;
+        for &row_id in chunk.row_ids() {
+            self.source_chunk.entry(row_id).or_insert(id);
+        }
+        if keep_order {
+            self.in_order.push(chunk);
+        }
+        Ok(())
+    }
+}
+
+/// Loads the whole source into a store.
+pub fn load(source: &Path, options: &Options) -> Result<Loaded, String> {
+    load_with(source, options, false)
+}
+
+/// Loads the whole source, also keeping its chunks in source order.
+pub fn load_in_order(source: &Path, options: &Options) -> Result<Loaded, String> {
+    load_with(source, options, true)
+}
+
+fn load_with(source: &Path, options: &Options, keep_order: bool) -> Result<Loaded, String> {
+    let mut loaded = Loaded::new(options.config)?;
+    match source_kind(source)? {
+        SourceKind::Rrd => load_rrd(source, options, keep_order, &mut loaded)?,
+        SourceKind::IpcDirectory => load_directory(source, options, keep_order, &mut loaded)?,
+        SourceKind::IpcFile => {
+            let chunks = chunkstore::io::read_chunks_from_path(source)
+                .map_err(|e| format!("{}: {e}", source.display()))?;
+            for chunk in chunks {
+                let id = chunk.id();
+                if let Err(error) = loaded.insert(chunk, keep_order) {
+                    if !options.skip_bad {
+                        return Err(format!(
+                            "{}: {error} (--skip-bad loads the rest)",
+                            source.display()
+                        ));
+                    }
+                    eprintln!(
+                        "warning: skipped {id} of {}: {}",
+                        source.display(),
+                        one_line(&error)
+                    );
+                }
+            }
+        }
+    }
+    if options.compact {
+        loaded.store.compact();
+    }
+    Ok(loaded)
+}
+
+fn load_rrd(
+    source: &Path,
+    options: &Options,
+    keep_order: bool,
+    loaded: &mut Loaded,
+) -> Result<(), String> {
+    let name = source.display();
+    let file = std::fs::File::open(source).map_err(|e| format!("{name}: {e}"))?;
+    let size = file.metadata().map_or(0, |m| m.len());
+    let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
+        .map_err(|e| format!("{name}: {e}"))?;
+    let bar = progress(size, "loading", true);
+    let mut reader = reader;
+    let mut num_chunks = 0usize;
+    while let Some(item) = reader.next() {
+        bar.set_position(reader.position());
+        match item {
+            Ok(RrdItem::StoreInfo(info)) => {
+                loaded.store_info.get_or_insert(info);
+            }
+            Ok(RrdItem::Chunk { chunk, offset, .. }) => {
+                let id = chunk.id();
+                if let Err(error) = loaded.insert(chunk, keep_order) {
+                    if !options.skip_bad {
+                        bar.finish_and_clear();
+                        return Err(format!(
+                            "{name}: chunk {id} at byte {offset}: {error} (--skip-bad loads the rest)"
+                        ));
+                    }
+                    bar.suspend(|| {
+                        eprintln!(
+                            "warning: skipped chunk {id} of {name} at byte {offset}: {}",
+                            one_line(&error)
+                        );
+                    });
+                }
+                num_chunks += 1;
+            }
+            Ok(_) => {}
+            Err(error) => {
+                if !options.skip_bad {
+                    bar.finish_and_clear();
+                    return Err(format!("{name}: {error} (--skip-bad loads the rest)"));
+                }
+                let what = if error.is_fatal() {
+                    "stopped reading"
+                } else {
+                    "skipped a message of"
+                };
+                bar.suspend(|| {
+                    eprintln!("warning: {what} {name}: {}", one_line(&error.to_string()));
+                });
+            }
+        }
+    }
+    bar.finish_and_clear();
+    if num_chunks == 0 && loaded.store.num_chunks() == 0 && options.skip_bad {
+        eprintln!("warning: {name} holds no chunk that could be loaded");
+    }
+    Ok(())
+}
+
+fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
+    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut files = Vec::new();
+    for entry in entries {
+        let path = entry.map_err(|e| format!("{}: {e}", dir.display()))?.path();
+        let is_ipc = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| ["arrow", "arrows", "ipc", "feather"].contains(&e));
+        if is_ipc && path.is_file() {
+            files.push(path);
+        }
+    }
+    files.sort();
+    if files.is_empty() {
+        return Err(format!(
+            "{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)",
+            dir.display()
+        ));
+    }
+    Ok(files)
+}
+
+fn load_directory(
+    dir: &Path,
+    options: &Options,
+    keep_order: bool,
+    loaded: &mut Loaded,
+) -> Result<(), String> {
+    // With `--skip-bad`, what was skipped: printed once something loaded, else the error
+    // names the first (one line either way).
+    let mut skipped: Vec<String> = Vec::new();
+    let mut num_loaded = 0;
+    let files = chunk_files(dir)?;
+    let bar = progress(files.len() as u64, "loading", false);
+    for file in &files {
+        bar.inc(1);
+        let name = file.display();
+        let chunks = match chunkstore::io::read_chunks_from_path(file) {
+            Ok(chunks) => chunks,
+            Err(error) if options.skip_bad => {
+                skipped.push(format!("{name}: {}", one_line(&error.to_string())));
+                continue;
+            }
+            Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
+        };
+        for chunk in chunks {
+            let id = chunk.id();
+            match loaded.insert(chunk, keep_order) {
+                Ok(()) => {}
+                Err(error) if options.skip_bad => {
+                    skipped.push(format!("{id} of {name}: {}", one_line(&error)));
+                }
+                Err(error) => return Err(format!("{name}: {error} (--skip-bad loads the rest)")),
+            }
+        }
+        num_loaded += 1;
+    }
+    bar.finish_and_clear();
+    if num_loaded == 0 {
+        return Err(format!(
+            "{}: none of its files could be read (the first: {})",
+            dir.display(),
+            skipped.first().map_or("", String::as_str)
+        ));
+    }
+    for what in skipped {
+        eprintln!("warning: skipped {what}");
+    }
+    Ok(())
+}
+
+/// What answers queries: a loaded store, or an `.rrd` opened lazily.
+pub enum Answers {
+    Eager(Box<Loaded>),
+    Lazy(Box<LazyRecording>),
+}
+
+/// Opens the source for latest-at and range queries: lazily where it is an `.rrd` with a
+/// footer (unless `eager` or `--skip-bad`, which needs to see every message), else loaded.
+pub fn open_for_queries(source: &Path, options: &Options, eager: bool) -> Result<Answers, String> {
+    if !eager && !options.skip_bad && matches!(source_kind(source)?, SourceKind::Rrd) {
+        match LazyRecording::open(source) {
+            Ok(Some(lazy)) => return Ok(Answers::Lazy(Box::new(lazy))),
+            Ok(None) => {}
+            Err(error) => {
+                return Err(format!(
+                    "{}: {error} (--eager reads it without the footer)",
+                    source.display()
+                ));
+            }
+        }
+    }
+    load(source, options).map(|loaded| Answers::Eager(Box::new(loaded)))
+}
+
+impl Answers {
+    pub fn entity_paths(&self) -> Vec<EntityPath> {
+        match self {
+            Self::Eager(loaded) => loaded.store.entity_paths(),
+            Self::Lazy(lazy) => lazy.entity_paths(),
+        }
+    }
+
+    pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
+        match self {
+            Self::Eager(loaded) => loaded.store.component_names(entity),
+            Self::Lazy(lazy) => lazy.component_names(entity),
+        }
+    }
+
+    pub fn latest_at(
+        &mut self,
+        query: &LatestAtQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Result<Option<QueryCell>, String> {
+        match self {
+            Self::Eager(loaded) => Ok(loaded.store.latest_at(query, entity, component)),
+            Self::Lazy(lazy) => lazy
+                .latest_at(query, entity, component)
+                .map_err(|e| e.to_string()),
+        }
+    }
+
+    pub fn range(
+        &mut self,
+        query: &RangeQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> Result<RangeResult, String> {
+        match self {
+            Self::Eager(loaded) => Ok(loaded.store.range(query, entity, component)),
+            Self::Lazy(lazy) => lazy
+                .range(query, entity, component)
+                .map_err(|e| e.to_string()),
+        }
+    }
+
+    /// The id of the chunk `row_id` was loaded from (a lazy store keeps the file's chunks).
+    pub fn source_chunk(&self, row_id: RowId, stored: ChunkId) -> ChunkId {
+        match self {
+            Self::Eager(loaded) => loaded.source_chunk(row_id, stored),
+            Self::Lazy(_) => stored,
+        }
+    }
+
+    /// One warning line if no data of the source is on `timeline`: the query still
+    /// answers (with static data only), but a misspelt name should not pass unnoticed.
+    pub fn warn_if_unknown(&self, timeline: &str, source: &Path) {
+        let names: Vec<String> = match self {
+            Self::Eager(loaded) => {
+                if loaded.store.time_type(timeline).is_some() {
+                    return;
+                }
+                loaded
+                    .store
+                    .timelines()
+                    .iter()
+                    .map(|t| t.name().to_owned())
+                    .collect()
+            }
+            Self::Lazy(lazy) => {
+                let names: Vec<String> = lazy
+                    .timelines()
+                    .iter()
+                    .map(|t| t.0.name().to_owned())
+                    .collect();
+                if names.iter().any(|n| n == timeline) {
+                    return;
+                }
+                names
+            }
+        };
+        let known = if names.is_empty() {
+            "none".to_owned()
+        } else {
+            names
+                .iter()
+                .map(|n| format!("{n:?}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        eprintln!(
+            "warning: no data of {} is on timeline {timeline:?} (its timelines: {known}): only \
+             static data answers",
+            source.display()
+        );
+    }
+}

@@ -1,0 +1,154 @@
+//! `chunkstore`: look inside recordings from a terminal: `.rrd` files and directories of
+//! Arrow IPC chunk files.
+//!
+//! ```text
+//! chunkstore [OPTIONS] <SOURCE> latest-at <TIMELINE> <TIME>
+//! chunkstore [OPTIONS] <SOURCE> range <TIMELINE> <MIN> <MAX>
+//! chunkstore [OPTIONS] <SOURCE> stats
+//! chunkstore [OPTIONS] <SOURCE> print [--json]
+//! chunkstore [OPTIONS] <SOURCE> convert <OUT>
+//! ```
+//!
+//! `chunkstore --help` and `chunkstore <SOURCE> <COMMAND> --help` say the rest. Answers
+//! are JSON lines; bad arguments or input print one line on stderr and exit with code 2;
+//! a bug (a panic) prints one line and exits with 101.
+
+mod args;
+mod convert;
+mod load;
+mod output;
+
+use std::cell::RefCell;
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use args::{Cli, Command};
+
+thread_local! {
+    /// The last panic's message and place, for the one line printed if a panic escapes.
+    static LAST_PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+/// Why the tool stopped early.
+enum Failure {
+    /// Bad arguments or input: one line on stderr, exit code 2.
+    Message(String),
+    /// Whoever read stdout stopped reading (`| head`): not an error.
+    BrokenPipe,
+}
+
+impl From<String> for Failure {
+    fn from(message: String) -> Self {
+        Self::Message(message)
+    }
+}
+
+/// `text` on one line: a message quoting a file's bytes or Arrow's multi-line errors must
+/// not spread over several.
+fn one_line(text: &str) -> String {
+    text.trim_end().replace(['\n', '\r'], " ")
+}
+
+fn main() -> ExitCode {
+    // The default panic hook prints every panic, even one the library contains and turns
+    // into an error (arrow-ipc panics on some malformed files; see `chunkstore::io`): the
+    // user would see two messages for one bad file. This hook prints nothing and keeps the
+    // message; a panic that escapes (a bug) is reported below, on one line.
+    std::panic::set_hook(Box::new(|info| {
+        let message = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".to_owned());
+        let place = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        LAST_PANIC.with(|last| *last.borrow_mut() = Some(format!("{message}{place}")));
+    }));
+    let args: Vec<OsString> = std::env::args_os().collect();
+    let cli = match args::parse(&args) {
+        Ok(cli) => cli,
+        Err(error) => return usage_error(&error),
+    };
+    match std::panic::catch_unwind(|| run(&cli)) {
+        Ok(Ok(()) | Err(Failure::BrokenPipe)) => ExitCode::SUCCESS,
+        Ok(Err(Failure::Message(message))) => {
+            eprintln!("error: {}", one_line(&message));
+            ExitCode::from(2)
+        }
+        Err(_) => {
+            let message = LAST_PANIC
+                .with(|last| last.borrow_mut().take())
+                .unwrap_or_default();
+            eprintln!(
+                "error: internal error (a bug in chunkstore): {}",
+                one_line(&message)
+            );
+            ExitCode::from(101)
+        }
+    }
+}
+
+/// `--help` and `--version` print and succeed; any other argument error prints clap's
+/// first line (which names the problem) and exits 2.
+fn usage_error(error: &clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(
+        error.kind(),
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion
+    ) {
+        let _ = error.print();
+        return ExitCode::SUCCESS;
+    }
+    let text = error.render().to_string();
+    let first = text.lines().next().unwrap_or("bad arguments");
+    let first = first.strip_prefix("error: ").unwrap_or(first);
+    eprintln!("error: {} (see --help)", one_line(first));
+    ExitCode::from(2)
+}
+
+fn run(cli: &Cli) -> Result<(), Failure> {
+    let config = cli.load.config()?;
+    let options = load::Options {
+        config,
+        compact: cli.load.compact,
+        skip_bad: cli.load.skip_bad,
+    };
+    let source = &cli.source;
+    match &cli.command {
+        Command::LatestAt { timeline, time } => {
+            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
+            answers.warn_if_unknown(timeline, source);
+            output::latest_at(&mut answers, timeline, *time)
+        }
+        Command::Range { timeline, min, max } => {
+            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
+            answers.warn_if_unknown(timeline, source);
+            if min > max {
+                eprintln!(
+                    "warning: the range [{min}, {max}] is empty (its start is after its end): \
+                     only static data answers"
+                );
+            }
+            output::range(&mut answers, timeline, *min, *max)
+        }
+        Command::Stats => {
+            let loaded = load::load(source, &options)?;
+            output::stats(&loaded.store)
+        }
+        Command::Print { json } => output::print(source, *json, options.skip_bad),
+        Command::Convert {
+            out,
+            application_id,
+            recording_id,
+        } => convert::convert(
+            source,
+            out,
+            &options,
+            application_id,
+            recording_id.as_deref(),
+        ),
+    }
+}
