@@ -367,8 +367,12 @@ impl<R: Read + Seek> LazyRecording<R> {
             let payload_at = at + msg.payload.start as u64;
             let body = Buffer::from_vec(body);
             let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
-            let chunk = payload::decode_chunk(bytes, msg.compression, msg.uncompressed_size)
-                .map_err(|kind| RrdError::new(payload_at, kind))?;
+            let chunk = payload::decode_chunk(
+                payload::PayloadBytes::Shared(bytes),
+                msg.compression,
+                msg.uncompressed_size,
+            )
+            .map_err(|kind| RrdError::new(payload_at, kind))?;
             if chunk.id() != id {
                 return Err(RrdError::new(
                     at,

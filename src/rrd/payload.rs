@@ -13,16 +13,35 @@ use crate::error::IoError;
 /// few bytes of input): a claimed size beyond this is a lie, refused before allocating it.
 const LZ4_MAX_RATIO: u64 = 256;
 
-/// Decompresses (if needed) and decodes a payload into a chunk. An uncompressed payload is
-/// decoded in place: the chunk's buffers are slices of `payload`.
+/// A payload's bytes: part of a buffer the chunk may share, or borrowed (copied if the
+/// chunk must keep them).
+pub(crate) enum PayloadBytes<'a> {
+    Shared(Buffer),
+    Borrowed(&'a [u8]),
+}
+
+impl PayloadBytes<'_> {
+    fn as_slice(&self) -> &[u8] {
+        match self {
+            Self::Shared(buffer) => buffer.as_slice(),
+            Self::Borrowed(bytes) => bytes,
+        }
+    }
+}
+
+/// Decompresses (if needed) and decodes a payload into a chunk. An uncompressed shared
+/// payload is decoded in place: the chunk's buffers are slices of it.
 pub(crate) fn decode_chunk(
-    payload: Buffer,
+    payload: PayloadBytes<'_>,
     compression: Compression,
     uncompressed_size: u64,
 ) -> Result<Chunk, RrdErrorKind> {
-    let ipc = match compression {
-        Compression::None => payload,
-        Compression::Lz4 => Buffer::from_vec(decompress(payload.as_slice(), uncompressed_size)?),
+    let ipc = match (compression, payload) {
+        (Compression::None, PayloadBytes::Shared(buffer)) => buffer,
+        (Compression::None, PayloadBytes::Borrowed(bytes)) => Buffer::from(bytes.to_vec()),
+        (Compression::Lz4, payload) => {
+            Buffer::from_vec(decompress(payload.as_slice(), uncompressed_size)?)
+        }
     };
     let mut batches = crate::io::read_stream_batches_zero_copy(ipc).map_err(RrdErrorKind::Ipc)?;
     if batches.len() != 1 {

@@ -50,6 +50,23 @@ enum Input<R> {
     Buffer(Buffer),
 }
 
+/// A message body: a slice of the input buffer (payloads are then shared, not copied), or
+/// the reader's scratch vector (reused from message to message: a compressed payload is
+/// decompressed straight out of it, so a streamed file allocates once per chunk).
+enum Body {
+    Shared(Buffer),
+    Scratch(Vec<u8>),
+}
+
+impl Body {
+    fn as_slice(&self) -> &[u8] {
+        match self {
+            Self::Shared(buffer) => buffer.as_slice(),
+            Self::Scratch(bytes) => bytes,
+        }
+    }
+}
+
 /// A streaming `.rrd` decoder.
 ///
 /// Iterating yields [`RrdItem`]s in stream order, each or an [`RrdError`] naming the byte
@@ -92,6 +109,8 @@ pub struct RrdReader<R> {
     header: StreamHeader,
     /// Kinds of the stores seen, to tell blueprint chunks from data.
     store_kinds: ahash::HashMap<StoreId, StoreKind>,
+    /// The vector stream bodies are read into, kept between messages.
+    scratch: Vec<u8>,
     /// The last `End` message's body: where it started, and its bytes.
     end_message: Option<(u64, Vec<u8>)>,
     done: bool,
@@ -130,6 +149,7 @@ impl<R: Read> RrdReader<R> {
                 compressed: false,
             },
             store_kinds: ahash::HashMap::default(),
+            scratch: Vec::new(),
             end_message: None,
             done: false,
         };
@@ -215,7 +235,7 @@ impl<R: Read> RrdReader<R> {
 
     /// Exactly `len` bytes (a message body), or a truncation error. Never allocates more
     /// than what the input really holds: a buffer is sliced; a stream is read in steps.
-    fn read_body(&mut self, len: u64, what: &'static str) -> Result<Buffer, RrdError> {
+    fn read_body(&mut self, len: u64, what: &'static str) -> Result<Body, RrdError> {
         if self.pushback.is_empty() {
             return self.read_input(len, what);
         }
@@ -228,10 +248,19 @@ impl<R: Read> RrdReader<R> {
         self.position += from_pushback as u64;
         let rest = self.read_input(len - from_pushback as u64, what)?;
         body.extend_from_slice(rest.as_slice());
-        Ok(Buffer::from_vec(body))
+        self.recycle(rest);
+        Ok(Body::Scratch(body))
     }
 
-    fn read_input(&mut self, len: u64, what: &'static str) -> Result<Buffer, RrdError> {
+    /// Gives a scratch body's vector back for the next message.
+    fn recycle(&mut self, body: Body) {
+        if let Body::Scratch(mut bytes) = body {
+            bytes.clear();
+            self.scratch = bytes;
+        }
+    }
+
+    fn read_input(&mut self, len: u64, what: &'static str) -> Result<Body, RrdError> {
         let at = self.position;
         let truncated = |available: u64| {
             RrdError::new(
@@ -253,10 +282,13 @@ impl<R: Read> RrdReader<R> {
                 let body = buffer.slice_with_length(0, n);
                 *buffer = buffer.slice(n);
                 self.position += len;
-                Ok(body)
+                Ok(Body::Shared(body))
             }
             Input::Stream(reader) => {
-                let mut body = Vec::with_capacity(usize::try_from(len.min(1 << 20)).unwrap_or(0));
+                let mut body = std::mem::take(&mut self.scratch);
+                body.clear();
+                // Grown as bytes arrive (never to a claimed length), then kept.
+                body.reserve(usize::try_from(len.min(1 << 20)).unwrap_or(0));
                 let got = reader
                     .by_ref()
                     .take(len)
@@ -266,7 +298,7 @@ impl<R: Read> RrdReader<R> {
                 if (got as u64) < len {
                     return Err(truncated(got as u64));
                 }
-                Ok(Buffer::from_vec(body))
+                Ok(Body::Scratch(body))
             }
         }
     }
@@ -317,21 +349,34 @@ impl<R: Read> RrdReader<R> {
         let body_at = self.position;
         let Some(kind) = MessageKind::from_u64(kind) else {
             // From a newer format, perhaps: skipped whole (if its length holds), reported.
-            self.read_body(len, "message body")?;
+            let body = self.read_body(len, "message body")?;
+            self.recycle(body);
             return Err(RrdError::new(at, RrdErrorKind::UnknownMessageKind { kind }));
         };
         let body = self.read_body(len, "message body")?;
+        let item = self.decode_message(kind, &body, body_at);
+        self.recycle(body);
+        item
+    }
+
+    fn decode_message(
+        &mut self,
+        kind: MessageKind,
+        body: &Body,
+        body_at: u64,
+    ) -> Result<Option<RrdItem>, RrdError> {
+        let bytes = body.as_slice();
         let within =
             |(offset, kind): (usize, RrdErrorKind)| RrdError::new(body_at + offset as u64, kind);
         match kind {
             MessageKind::SetStoreInfo => {
-                let info = StoreInfo::decode_set_store_info(body.as_slice()).map_err(within)?;
+                let info = StoreInfo::decode_set_store_info(bytes).map_err(within)?;
                 self.store_kinds
                     .insert(info.store_id.clone(), info.store_id.kind);
                 Ok(Some(RrdItem::StoreInfo(info)))
             }
             MessageKind::ArrowMsg => {
-                let msg = ArrowMsg::decode(body.as_slice()).map_err(within)?;
+                let msg = ArrowMsg::decode(bytes).map_err(within)?;
                 let kind = self
                     .store_kinds
                     .get(&msg.store_id)
@@ -341,8 +386,15 @@ impl<R: Read> RrdReader<R> {
                     return Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }));
                 }
                 let payload_at = body_at + msg.payload.start as u64;
-                let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
-                let chunk = payload::decode_chunk(bytes, msg.compression, msg.uncompressed_size)
+                let payload = match body {
+                    Body::Shared(buffer) => payload::PayloadBytes::Shared(
+                        buffer.slice_with_length(msg.payload.start, msg.payload.len()),
+                    ),
+                    Body::Scratch(bytes) => {
+                        payload::PayloadBytes::Borrowed(&bytes[msg.payload.clone()])
+                    }
+                };
+                let chunk = payload::decode_chunk(payload, msg.compression, msg.uncompressed_size)
                     .map_err(|kind| RrdError::new(payload_at, kind))?;
                 if let Some(is_static) = msg.is_static
                     && is_static != chunk.is_static()
@@ -380,11 +432,11 @@ impl<R: Read> RrdReader<R> {
                 Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }))
             }
             MessageKind::End => {
-                self.end_message = Some((body_at, body.as_slice().to_vec()));
-                if body.is_empty() {
+                self.end_message = Some((body_at, bytes.to_vec()));
+                if bytes.is_empty() {
                     return Ok(None);
                 }
-                let manifests = manifest::decode_footer(body.as_slice()).map_err(within)?;
+                let manifests = manifest::decode_footer(bytes).map_err(within)?;
                 Ok(Some(RrdItem::Footer(manifests)))
             }
         }
