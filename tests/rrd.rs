@@ -274,7 +274,7 @@ fn files_are_written_atomically() {
     std::fs::write(&path, b"old contents").unwrap();
     let chunks: Vec<Arc<Chunk>> = chunk_files().into_iter().map(Arc::new).collect();
     let info = rrd::StoreInfo::new(StoreId::recording("app", "rec"));
-    let size = rrd::write_rrd_file(&path, &info, &chunks, |_| {}).unwrap();
+    let size = rrd::write_rrd_file(&path, &info, chunks.iter().cloned(), |_| {}).unwrap();
     assert_eq!(
         std::fs::metadata(&path).unwrap().len(),
         size + 32 + 16 + {
@@ -288,7 +288,7 @@ fn files_are_written_atomically() {
     // A write into a directory that does not exist fails and leaves nothing behind.
     let missing = dir.join("no/such/dir/out.rrd");
     let info = rrd::StoreInfo::new(StoreId::recording("app", "rec"));
-    assert!(rrd::write_rrd_file(&missing, &info, &chunks, |_| {}).is_err());
+    assert!(rrd::write_rrd_file(&missing, &info, chunks.iter().cloned(), |_| {}).is_err());
     let leftovers: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().file_name())

@@ -138,16 +138,16 @@ impl<W: Write> RrdWriter<W> {
 ///
 /// # Errors
 /// [`RrdErrorKind::Io`] if the file cannot be created, written, synced or renamed.
-pub fn write_rrd_file<'a>(
+pub fn write_rrd_file(
     path: &Path,
     info: &StoreInfo,
-    chunks: impl IntoIterator<Item = &'a Arc<Chunk>>,
+    chunks: impl IntoIterator<Item = Arc<Chunk>>,
     mut progress: impl FnMut(u64),
 ) -> Result<u64, RrdError> {
     atomic_write(path, |file| {
         let mut writer = RrdWriter::with_store_info(std::io::BufWriter::new(file), info, true)?;
         for chunk in chunks {
-            writer.write_chunk(chunk)?;
+            writer.write_chunk(&chunk)?;
             progress(writer.position());
         }
         let size = writer.position();

@@ -61,7 +61,7 @@ pub fn convert(
             StoreInfo::new(StoreId::recording(application_id, recording))
         });
         let bar = load::progress(chunks.len() as u64, "writing", false);
-        let result = chunkstore::rrd::write_rrd_file(out, &info, &chunks, |_| bar.inc(1));
+        let result = chunkstore::rrd::write_rrd_file(out, &info, chunks, |_| bar.inc(1));
         bar.finish_and_clear();
         result.map_err(|e| format!("{}: {e}", out.display()))?;
     } else {
