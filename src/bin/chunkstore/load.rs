@@ -172,10 +172,45 @@ fn load_rrd(
     let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
         .map_err(|e| format!("{name}: {e}"))?;
     let bar = progress(size, "loading", true);
-    let mut reader = reader;
+    // Decoding (read, LZ4, IPC, chunk validation) runs on its own thread while this one
+    // inserts: two cores, about twice as fast. A bounded channel keeps a few chunks ahead.
+    let (items, received) = std::sync::mpsc::sync_channel(16);
+    let decoder = std::thread::spawn(move || {
+        let mut reader = reader;
+        while let Some(item) = reader.next() {
+            if items.send((item, reader.position())).is_err() {
+                break; // the loader stopped early
+            }
+        }
+    });
+    let result = insert_items(
+        received,
+        options,
+        keep_order,
+        loaded,
+        &bar,
+        &name.to_string(),
+    );
+    bar.finish_and_clear();
+    if let Err(panic) = decoder.join() {
+        // A bug in the decoder: reported as one, not as a short load.
+        std::panic::resume_unwind(panic);
+    }
+    result
+}
+
+/// Inserts what the decoding thread sends, in stream order.
+fn insert_items(
+    received: std::sync::mpsc::Receiver<(Result<RrdItem, chunkstore::rrd::RrdError>, u64)>,
+    options: &Options,
+    keep_order: bool,
+    loaded: &mut Loaded,
+    bar: &ProgressBar,
+    name: &str,
+) -> Result<(), String> {
     let mut num_chunks = 0usize;
-    while let Some(item) = reader.next() {
-        bar.set_position(reader.position());
+    for (item, position) in received {
+        bar.set_position(position);
         match item {
             Ok(RrdItem::StoreInfo(info)) => {
                 loaded.store_info.get_or_insert(info);
@@ -184,7 +219,6 @@ fn load_rrd(
                 let id = chunk.id();
                 if let Err(error) = loaded.insert(chunk, keep_order) {
                     if !options.skip_bad {
-                        bar.finish_and_clear();
                         return Err(format!(
                             "{name}: chunk {id} at byte {offset}: {error} (--skip-bad loads the rest)"
                         ));
@@ -201,7 +235,6 @@ fn load_rrd(
             Ok(_) => {}
             Err(error) => {
                 if !options.skip_bad {
-                    bar.finish_and_clear();
                     return Err(format!("{name}: {error} (--skip-bad loads the rest)"));
                 }
                 let what = if error.is_fatal() {
@@ -215,7 +248,6 @@ fn load_rrd(
             }
         }
     }
-    bar.finish_and_clear();
     if num_chunks == 0 && loaded.store.num_chunks() == 0 && options.skip_bad {
         eprintln!("warning: {name} holds no chunk that could be loaded");
     }
