@@ -570,6 +570,18 @@ fn a_damaged_rrd_is_one_line_and_skip_bad_keeps_the_rest() {
     std::fs::write(&old_file, &old).unwrap();
     let line = fails(&[old_file.as_os_str(), OsStr::new("stats")]);
     assert!(line.contains("before Rerun 0.23"), "{line}");
+    // A file from a newer Rerun is read, with one warning.
+    let mut newer = bytes.clone();
+    newer[5] = 99;
+    let newer_file = dir.join("newer.rrd");
+    std::fs::write(&newer_file, &newer).unwrap();
+    for command in [&["stats"][..], &["latest-at", "frame_id", "30"], &["print"]] {
+        let mut args = vec![newer_file.as_os_str()];
+        args.extend(command.iter().map(OsStr::new));
+        let (_, warning) = ok(&args);
+        assert_eq!(warning.lines().count(), 1, "{warning}");
+        assert!(warning.contains("Rerun 0.99.0, newer"), "{warning}");
+    }
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -401,3 +401,48 @@ fn lazy_open_needs_a_footer_and_checks_it() {
     assert!(matches!(err.kind, RrdErrorKind::Footer { .. }), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A footer whose manifest says the chunks are elsewhere than they are: named, at the End
+/// message.
+#[test]
+fn a_manifest_that_disagrees_with_the_body_is_an_error() {
+    let chunks: Vec<Arc<Chunk>> = chunk_files().into_iter().take(4).map(Arc::new).collect();
+    let in_order = write(&chunks, true);
+    let swapped: Vec<Arc<Chunk>> = [1, 0, 2, 3]
+        .iter()
+        .map(|&i| Arc::clone(&chunks[i]))
+        .collect();
+    let other = write(&swapped, true);
+    // The same messages in another order: the End message sits at the same offset, so the
+    // body of one and the footer of the other make a well-framed file.
+    let contents = rrd::read_rrd(Buffer::from_vec(other.clone()), false).unwrap();
+    let end = contents.manifests.unwrap()[0]
+        .entries
+        .iter()
+        .map(|e| e.byte_offset + e.byte_size)
+        .max()
+        .unwrap();
+    let end = usize::try_from(end).unwrap();
+    let mut spliced = other[..end].to_vec();
+    spliced.extend_from_slice(&in_order[end..]);
+    let contents = rrd::read_rrd(Buffer::from_vec(spliced), true).unwrap();
+    assert_eq!(contents.chunks.len(), 4);
+    assert_eq!(contents.errors.len(), 1, "{:?}", contents.errors);
+    let error = &contents.errors[0];
+    assert!(matches!(error.kind, RrdErrorKind::Footer { .. }), "{error}");
+    assert!(
+        error.to_string().contains("the manifest puts chunk"),
+        "{error}"
+    );
+}
+
+#[test]
+fn a_newer_framing_is_named() {
+    let mut bytes = rrd_bytes();
+    bytes[3] = b'3';
+    let err = RrdReader::new(bytes.as_slice()).err().unwrap();
+    assert!(
+        matches!(err.kind, RrdErrorKind::NewerFraming { .. }),
+        "{err}"
+    );
+}

@@ -31,6 +31,12 @@ pub enum RrdErrorKind {
         /// The magic found (`RRF0` or `RRF1`).
         found: [u8; 4],
     },
+    /// An `.rrd` with a framing newer than `RRF2` (e.g. `RRF3`): not readable by this
+    /// version of the crate.
+    NewerFraming {
+        /// The magic found.
+        found: [u8; 4],
+    },
     /// The stream was written by a Rerun version whose encoding this crate cannot read
     /// (before 0.23, when the current framing was fixed).
     UnsupportedVersion {
@@ -119,6 +125,12 @@ impl fmt::Display for RrdError {
                 f,
                 "an .rrd from before Rerun 0.23 ({:?} framing), which this crate does not \
                  read; convert it with a newer `rerun rrd migrate`",
+                String::from_utf8_lossy(found)
+            ),
+            RrdErrorKind::NewerFraming { found } => write!(
+                f,
+                "an .rrd with a newer framing ({:?}) than this crate reads (\"RRF2\", Rerun \
+                 0.23 to 0.41)",
                 String::from_utf8_lossy(found)
             ),
             RrdErrorKind::UnsupportedVersion { version: (a, b, c) } => write!(

@@ -74,6 +74,9 @@ impl StreamHeader {
         if OLD_MAGICS.contains(&magic) {
             return Err(RrdErrorKind::OldFraming { found: magic });
         }
+        if magic[..3] == MAGIC[..3] && magic[3] > MAGIC[3] {
+            return Err(RrdErrorKind::NewerFraming { found: magic });
+        }
         if magic != MAGIC {
             return Err(RrdErrorKind::NotAnRrd { found: magic });
         }
@@ -115,6 +118,21 @@ impl StreamHeader {
             version,
             compressed,
         })
+    }
+
+    /// Was the stream written by a Rerun newer than the one whose encoding this crate was
+    /// checked against (0.41)? Such a file is read (unknown fields are skipped), but a tool
+    /// may want to say so.
+    pub fn is_newer_than_known(&self) -> bool {
+        self.version[..3] > WRITTEN_VERSION[..3]
+    }
+
+    /// The version as `major.minor.patch`.
+    pub fn version_text(&self) -> String {
+        format!(
+            "{}.{}.{}",
+            self.version[0], self.version[1], self.version[2]
+        )
     }
 
     pub(crate) fn encode(self) -> [u8; STREAM_HEADER_LEN] {
@@ -217,6 +235,12 @@ mod tests {
         assert!(matches!(
             StreamHeader::parse(&ancient),
             Err(RrdErrorKind::UnsupportedVersion { .. })
+        ));
+        let mut newer = header.encode();
+        newer[3] = b'3';
+        assert!(matches!(
+            StreamHeader::parse(&newer),
+            Err(RrdErrorKind::NewerFraming { .. })
         ));
         let mut msgpack = header.encode();
         msgpack[9] = 1;

@@ -65,6 +65,7 @@ pub struct LazyStats {
 /// ```
 pub struct LazyRecording<R = std::fs::File> {
     input: R,
+    header: StreamHeader,
     store_info: Option<StoreInfo>,
     manifest: Manifest,
     /// Per entity, its entries (indices into the manifest), in file order.
@@ -107,7 +108,7 @@ impl<R: Read + Seek> LazyRecording<R> {
             "stream header",
             &mut stats,
         )?;
-        StreamHeader::parse(&header).map_err(|kind| RrdError::new(0, kind))?;
+        let header = StreamHeader::parse(&header).map_err(|kind| RrdError::new(0, kind))?;
         if file_bytes < (STREAM_HEADER_LEN + STREAM_FOOTER_LEN) as u64 {
             return Ok(None);
         }
@@ -171,6 +172,7 @@ impl<R: Read + Seek> LazyRecording<R> {
             .map_err(|e| footer_bad(e.to_string()))?;
         Ok(Some(Self {
             input,
+            header,
             store_info,
             manifest,
             by_entity,
@@ -178,6 +180,11 @@ impl<R: Read + Seek> LazyRecording<R> {
             store,
             stats,
         }))
+    }
+
+    /// The stream header: which Rerun version wrote the file.
+    pub fn header(&self) -> StreamHeader {
+        self.header
     }
 
     /// The recording's store info (the first `SetStoreInfo` of the file), if it has one.

@@ -13,7 +13,7 @@ use super::frames::{
 use super::manifest::{self, Manifest};
 use super::messages::{ArrowMsg, StoreId, StoreInfo, StoreKind};
 use super::payload;
-use crate::Chunk;
+use crate::{Chunk, ChunkId};
 
 /// What an `.rrd` stream holds, item by item.
 #[derive(Debug)]
@@ -109,6 +109,9 @@ pub struct RrdReader<R> {
     header: StreamHeader,
     /// Kinds of the stores seen, to tell blueprint chunks from data.
     store_kinds: ahash::HashMap<StoreId, StoreKind>,
+    /// The recording chunks of the current stream: id, store, and where the message body
+    /// starts (from the stream's start), to check the footer's manifest against.
+    seen: Vec<(ChunkId, StoreId, u64)>,
     /// The vector stream bodies are read into, kept between messages.
     scratch: Vec<u8>,
     /// The last `End` message's body: where it started, and its bytes.
@@ -149,6 +152,7 @@ impl<R: Read> RrdReader<R> {
                 compressed: false,
             },
             store_kinds: ahash::HashMap::default(),
+            seen: Vec::new(),
             scratch: Vec::new(),
             end_message: None,
             done: false,
@@ -422,6 +426,11 @@ impl<R: Read> RrdReader<R> {
                         },
                     ));
                 }
+                self.seen.push((
+                    chunk.id(),
+                    msg.store_id.clone(),
+                    body_at - self.stream_start,
+                ));
                 Ok(Some(RrdItem::Chunk {
                     store_id: msg.store_id,
                     chunk,
@@ -437,6 +446,9 @@ impl<R: Read> RrdReader<R> {
                     return Ok(None);
                 }
                 let manifests = manifest::decode_footer(bytes).map_err(within)?;
+                let seen = std::mem::take(&mut self.seen);
+                check_manifests(&manifests, &seen)
+                    .map_err(|reason| RrdError::new(body_at, RrdErrorKind::Footer { reason }))?;
                 Ok(Some(RrdItem::Footer(manifests)))
             }
         }
@@ -491,9 +503,44 @@ impl<R: Read> RrdReader<R> {
             self.position -= got as u64;
         }
         self.stream_start = self.position;
+        self.seen.clear();
         self.read_stream_header()?;
         Ok(None)
     }
+}
+
+/// Does each recording's manifest list exactly the chunks the stream held, where it held
+/// them? (A chunk that failed to decode still has its row, so a mismatch after a decoding
+/// error is not reported twice: only ids seen are checked for their offsets.)
+fn check_manifests(manifests: &[Manifest], seen: &[(ChunkId, StoreId, u64)]) -> Result<(), String> {
+    for manifest in manifests {
+        if manifest.store_id.kind != StoreKind::Recording {
+            continue;
+        }
+        let listed: ahash::HashMap<ChunkId, u64> = manifest
+            .entries
+            .iter()
+            .map(|e| (e.chunk_id, e.byte_offset))
+            .collect();
+        for (id, store, offset) in seen.iter().filter(|s| s.1 == manifest.store_id) {
+            match listed.get(id) {
+                Some(at) if at == offset => {}
+                Some(at) => {
+                    return Err(format!(
+                        "the manifest puts chunk {id} at byte {at}, the stream has it at {offset} \
+                         (store {})",
+                        store.recording_id
+                    ));
+                }
+                None => {
+                    return Err(format!(
+                        "the manifest does not list chunk {id} (at byte {offset})"
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 impl<R: Read> Iterator for RrdReader<R> {
@@ -559,4 +606,93 @@ fn collect<R: Read>(reader: RrdReader<R>, keep_going: bool) -> Result<RrdContent
         }
     }
     Ok(contents)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Int64Array, RecordBatch};
+
+    use super::*;
+    use crate::rrd::frames::{WRITTEN_VERSION, encode_message_header};
+    use crate::rrd::messages::Compression;
+
+    /// A stream: header, a store info, then `(kind, body)` messages, no footer.
+    fn stream(messages: &[(MessageKind, Vec<u8>)]) -> Vec<u8> {
+        let store = StoreId::recording("app", "rec");
+        let mut out = StreamHeader {
+            version: WRITTEN_VERSION,
+            compressed: false,
+        }
+        .encode()
+        .to_vec();
+        let info = StoreInfo::new(store).encode_set_store_info(1);
+        let all =
+            std::iter::once((MessageKind::SetStoreInfo, info)).chain(messages.iter().cloned());
+        for (kind, body) in all {
+            out.extend_from_slice(&encode_message_header(kind, body.len() as u64));
+            out.extend_from_slice(&body);
+        }
+        out
+    }
+
+    fn errors(bytes: Vec<u8>) -> Vec<RrdError> {
+        read_rrd(Buffer::from_vec(bytes), true).unwrap().errors
+    }
+
+    #[test]
+    fn a_payload_that_is_not_a_chunk_is_named_and_skipped() {
+        let plain =
+            RecordBatch::try_from_iter([("x", Arc::new(Int64Array::from(vec![1, 2])) as ArrayRef)])
+                .unwrap();
+        let mut ipc = Vec::new();
+        let mut writer =
+            arrow_ipc::writer::StreamWriter::try_new(&mut ipc, &plain.schema()).unwrap();
+        writer.write(&plain).unwrap();
+        writer.finish().unwrap();
+        drop(writer);
+        let store = StoreId::recording("app", "rec");
+        let body = ArrowMsg::encode(
+            &store,
+            ChunkId::new(),
+            false,
+            Compression::None,
+            ipc.len() as u64,
+            &ipc,
+        );
+        let bytes = stream(&[(MessageKind::ArrowMsg, body)]);
+        let errors = errors(bytes);
+        assert_eq!(errors.len(), 1);
+        assert!(
+            matches!(errors[0].kind, RrdErrorKind::Chunk(_)),
+            "{}",
+            errors[0]
+        );
+        assert!(!errors[0].is_fatal());
+    }
+
+    #[test]
+    fn garbage_protobuf_and_unknown_kinds_are_named_and_skipped() {
+        let garbage = vec![0x0f, 0xff, 0xff];
+        let bytes = stream(&[(MessageKind::ArrowMsg, garbage)]);
+        let errors = errors(bytes);
+        assert!(
+            matches!(errors[0].kind, RrdErrorKind::Protobuf { .. }),
+            "{}",
+            errors[0]
+        );
+
+        // An unknown kind with a length that holds: skipped, reported, the rest read.
+        let mut bytes = stream(&[]);
+        bytes.extend_from_slice(&99u64.to_le_bytes());
+        bytes.extend_from_slice(&3u64.to_le_bytes());
+        bytes.extend_from_slice(b"abc");
+        let contents = read_rrd(Buffer::from_vec(bytes), true).unwrap();
+        assert!(matches!(
+            contents.errors[0].kind,
+            RrdErrorKind::UnknownMessageKind { kind: 99 }
+        ));
+        assert_eq!(contents.store_infos.len(), 1);
+    }
 }

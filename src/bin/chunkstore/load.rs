@@ -76,6 +76,19 @@ pub fn progress(len: u64, what: &str, bytes: bool) -> ProgressBar {
     bar
 }
 
+/// One warning line for an `.rrd` written by a Rerun newer than the encoding this tool
+/// knows: it is read (unknown fields are skipped), but data may be missed.
+pub fn warn_if_newer(header: chunkstore::rrd::StreamHeader, source: &Path) {
+    if header.is_newer_than_known() {
+        eprintln!(
+            "warning: {} was written by Rerun {}, newer than the 0.41 encoding this tool \
+             knows: what it does not know is skipped",
+            source.display(),
+            header.version_text()
+        );
+    }
+}
+
 /// The store, and the chunk each row was loaded from (compaction may have moved it).
 pub struct Loaded {
     pub store: ChunkStore,
@@ -171,6 +184,7 @@ fn load_rrd(
     let size = file.metadata().map_or(0, |m| m.len());
     let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
         .map_err(|e| format!("{name}: {e}"))?;
+    warn_if_newer(reader.header(), source);
     let bar = progress(size, "loading", true);
     // Decoding (read, LZ4, IPC, chunk validation) runs on its own thread while this one
     // inserts: two cores, about twice as fast. A bounded channel keeps a few chunks ahead.
@@ -337,7 +351,10 @@ pub enum Answers {
 pub fn open_for_queries(source: &Path, options: &Options, eager: bool) -> Result<Answers, String> {
     if !eager && !options.skip_bad && matches!(source_kind(source)?, SourceKind::Rrd) {
         match LazyRecording::open(source) {
-            Ok(Some(lazy)) => return Ok(Answers::Lazy(Box::new(lazy))),
+            Ok(Some(lazy)) => {
+                warn_if_newer(lazy.header(), source);
+                return Ok(Answers::Lazy(Box::new(lazy)));
+            }
             Ok(None) => {}
             Err(error) => {
                 return Err(format!(

@@ -245,6 +245,7 @@ pub fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
             let file = std::fs::File::open(source).map_err(|e| format!("{name}: {e}"))?;
             let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
                 .map_err(|e| format!("{name}: {e}"))?;
+            load::warn_if_newer(reader.header(), source);
             for item in reader {
                 match item {
                     Ok(RrdItem::Chunk { chunk, .. }) => {
