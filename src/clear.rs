@@ -165,6 +165,35 @@ impl ClearIndex {
         self.prune(parts);
     }
 
+    /// Every static Clear indexed: `(entity, row id, chunk id, recursive)`, in no
+    /// particular order.
+    pub fn static_clears(&self) -> Vec<(EntityPath, RowId, ChunkId, bool)> {
+        let mut out = Vec::new();
+        let mut parts = Vec::new();
+        self.collect_static(&mut parts, &mut out);
+        out
+    }
+
+    fn collect_static(
+        &self,
+        parts: &mut Vec<Arc<str>>,
+        out: &mut Vec<(EntityPath, RowId, ChunkId, bool)>,
+    ) {
+        if let Some(clears) = &self.clears
+            && let Ok(path) = EntityPath::try_from_parts(parts.iter().cloned())
+        {
+            for &(row_id, chunk_id) in clears.static_any.keys() {
+                let recursive = clears.static_recursive.contains_key(&(row_id, chunk_id));
+                out.push((path.clone(), row_id, chunk_id, recursive));
+            }
+        }
+        for (part, child) in &self.children {
+            parts.push(Arc::clone(part));
+            child.collect_static(parts, out);
+            parts.pop();
+        }
+    }
+
     /// Is `id` among the chunks holding the `n` latest Clears (flat or recursive, and
     /// recursive alone) of `entity` on any timeline? Together with the latest data, those
     /// decide every latest-at at `+∞`.

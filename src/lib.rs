@@ -67,6 +67,7 @@ mod component;
 mod drop;
 mod entity_path;
 mod error;
+mod export;
 mod gc;
 mod held;
 mod ids;

@@ -351,6 +351,12 @@ enum Op {
         recursive: bool,
     },
     Compact,
+    /// The store's chunks written as an `.rrd` and read back: into a fresh store, which
+    /// must answer every latest-at as the model does at `at`, and lazily, through the
+    /// footer, which must answer as the store does.
+    RrdRoundTrip {
+        at: i64,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -499,6 +505,7 @@ fn op() -> impl Strategy<Value = Op> {
         1 => drop_range,
         1 => drop_entity,
         1 => Just(Op::Compact),
+        1 => query_time().prop_map(|at| Op::RrdRoundTrip { at }),
     ]
 }
 
@@ -813,6 +820,47 @@ impl Harness {
         }
     }
 
+    /// See [`Op::RrdRoundTrip`].
+    fn check_rrd_round_trip(&self, at: i64) -> Result<(), TestCaseError> {
+        use chunkstore::rrd::{self, LazyRecording, RrdWriter, StoreId};
+        let fail = |e: &dyn std::fmt::Display| TestCaseError::fail(e.to_string());
+        let chunks = self.store.export_chunks();
+        let mut writer =
+            RrdWriter::new(Vec::new(), StoreId::recording("model", "run")).map_err(|e| fail(&e))?;
+        for chunk in &chunks {
+            writer.write_chunk(chunk).map_err(|e| fail(&e))?;
+        }
+        let bytes = writer.finish().map_err(|e| fail(&e))?;
+        let contents = rrd::read_rrd(arrow_buffer::Buffer::from(bytes.clone()), false)
+            .map_err(|e| fail(&e))?;
+        prop_assert_eq!(contents.chunks.len(), chunks.len());
+        let mut fresh = ChunkStore::with_config(*self.store.config()).map_err(|e| fail(&e))?;
+        for (_, chunk) in contents.chunks {
+            fresh.insert(chunk).map_err(|e| fail(&e))?;
+        }
+        fresh.sanity_check().map_err(|e| fail(&e))?;
+        let mut lazy = LazyRecording::from_reader(std::io::Cursor::new(bytes))
+            .map_err(|e| fail(&e))?
+            .ok_or_else(|| fail(&"a footer"))?;
+        for entity in 0..ENTITIES.len() {
+            for component in 0..COMPONENTS.len() {
+                for timeline in 0..TIMELINES.len() {
+                    check_latest_at(&fresh, &self.model, entity, component, timeline, at)?;
+                    let query =
+                        LatestAtQuery::new(TIMELINES[timeline].0, TimeInt::new(at).unwrap());
+                    let lazily = lazy
+                        .latest_at(&query, &path(ENTITIES[entity]), COMPONENTS[component])
+                        .map_err(|e| fail(&e))?
+                        .map(|a| (a.time().map(TimeInt::as_i64), a.row_id().as_u128()));
+                    let stored = latest_at_answer(&self.store, entity, component, timeline, at)
+                        .map(|a| (a.0, a.1));
+                    prop_assert_eq!(lazily, stored, "lazy latest-at {}", at);
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Replays `events` on the set of chunks, which must stay consistent.
     fn replay(&mut self, events: &[StoreEvent]) -> Result<(), TestCaseError> {
         for event in events {
@@ -1101,6 +1149,7 @@ impl Harness {
                 self.model.clears.retain(|(e, ..)| !dropped(*e));
                 self.model.statics.retain(|chunk| !dropped(chunk.entity));
             }
+            Op::RrdRoundTrip { at } => self.check_rrd_round_trip(*at)?,
             Op::Compact => {
                 let events = self.store.compact();
                 self.replay(&events)?;

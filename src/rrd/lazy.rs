@@ -290,16 +290,19 @@ impl<R: Read + Seek> LazyRecording<R> {
         let floor = candidates.iter().map(|c| c.1).max();
         if let Some(floor) = floor {
             needed.extend(candidates.iter().filter(|c| c.2 >= floor).map(|c| c.0));
-            // Clears of the entity and its ancestors between the floor and `t`, and static ones.
-            let clear = ComponentName::CLEAR_IS_RECURSIVE;
-            for path in std::iter::once(entity.clone()).chain(entity.ancestors()) {
-                for &i in self.by_entity.get(&path).into_iter().flatten() {
-                    let entry = &self.manifest.entries[i];
-                    match component_range(entry, clear) {
-                        Some(_) if entry.is_static => needed.push(i),
-                        Some(Some((min, max))) if min <= t && max >= floor => needed.push(i),
-                        _ => {}
+        }
+        // Clears of the entity and its ancestors that may hide the answer: static ones
+        // always (they hide static data too), temporal ones between the floor and `t`.
+        let clear = ComponentName::CLEAR_IS_RECURSIVE;
+        for path in std::iter::once(entity.clone()).chain(entity.ancestors()) {
+            for &i in self.by_entity.get(&path).into_iter().flatten() {
+                let entry = &self.manifest.entries[i];
+                match (component_range(entry, clear), floor) {
+                    (Some(_), _) if entry.is_static => needed.push(i),
+                    (Some(Some((min, max))), Some(floor)) if min <= t && max >= floor => {
+                        needed.push(i);
                     }
+                    _ => {}
                 }
             }
         }
