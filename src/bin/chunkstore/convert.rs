@@ -34,8 +34,9 @@ pub fn convert(
     };
     let loaded = load::load_in_order(source, &load_options)?;
     let chunks: Vec<Arc<Chunk>> = if options.compact {
-        let mut chunks: Vec<Arc<Chunk>> = loaded.store.chunks().cloned().collect();
-        // Entity by entity, each in time order: what a reader scans best.
+        // What the store holds and the Clears it still applies (`export_chunks`), entity
+        // by entity, each in time order: what a reader scans best.
+        let mut chunks = loaded.store.export_chunks();
         chunks.sort_by_cached_key(|c| {
             let start = c.time_columns().first().map(|t| t.time_range().0);
             (c.entity_path().clone(), start, c.id())

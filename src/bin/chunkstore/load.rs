@@ -92,7 +92,9 @@ pub fn warn_if_newer(header: chunkstore::rrd::StreamHeader, source: &Path) {
 /// The store, and the chunk each row was loaded from (compaction may have moved it).
 pub struct Loaded {
     pub store: ChunkStore,
+    /// Kept only for the commands that print chunk ids (a map entry per row).
     pub source_chunk: ahash::HashMap<RowId, ChunkId>,
+    track_sources: bool,
     /// The first store info of an `.rrd` source.
     pub store_info: Option<StoreInfo>,
     /// The chunks in source order, when asked for (for `convert`).
@@ -105,10 +107,11 @@ impl Loaded {
         self.source_chunk.get(&row_id).copied().unwrap_or(stored)
     }
 
-    fn new(config: StoreConfig) -> Result<Self, String> {
+    fn new(config: StoreConfig, track_sources: bool) -> Result<Self, String> {
         Ok(Self {
             store: ChunkStore::with_config(config).map_err(|e| e.to_string())?,
             source_chunk: ahash::HashMap::default(),
+            track_sources,
             store_info: None,
             in_order: Vec::new(),
         })
@@ -121,8 +124,10 @@ impl Loaded {
         self.store
             .insert(Arc::clone(&chunk))
             .map_err(|e| e.to_string())?;
-        for &row_id in chunk.row_ids() {
-            self.source_chunk.entry(row_id).or_insert(id);
+        if self.track_sources {
+            for &row_id in chunk.row_ids() {
+                self.source_chunk.entry(row_id).or_insert(id);
+            }
         }
         if keep_order {
             self.in_order.push(chunk);
@@ -133,16 +138,21 @@ impl Loaded {
 
 /// Loads the whole source into a store.
 pub fn load(source: &Path, options: &Options) -> Result<Loaded, String> {
-    load_with(source, options, false)
+    load_with(source, options, false, false)
 }
 
 /// Loads the whole source, also keeping its chunks in source order.
 pub fn load_in_order(source: &Path, options: &Options) -> Result<Loaded, String> {
-    load_with(source, options, true)
+    load_with(source, options, true, false)
 }
 
-fn load_with(source: &Path, options: &Options, keep_order: bool) -> Result<Loaded, String> {
-    let mut loaded = Loaded::new(options.config)?;
+fn load_with(
+    source: &Path,
+    options: &Options,
+    keep_order: bool,
+    track_sources: bool,
+) -> Result<Loaded, String> {
+    let mut loaded = Loaded::new(options.config, track_sources)?;
     match source_kind(source)? {
         SourceKind::Rrd => load_rrd(source, options, keep_order, &mut loaded)?,
         SourceKind::IpcDirectory => load_directory(source, options, keep_order, &mut loaded)?,
@@ -364,7 +374,7 @@ pub fn open_for_queries(source: &Path, options: &Options, eager: bool) -> Result
             }
         }
     }
-    load(source, options).map(|loaded| Answers::Eager(Box::new(loaded)))
+    load_with(source, options, false, true).map(|loaded| Answers::Eager(Box::new(loaded)))
 }
 
 impl Answers {
