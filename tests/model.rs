@@ -842,14 +842,13 @@ impl Harness {
         let mut lazy = LazyRecording::from_reader(std::io::Cursor::new(bytes))
             .map_err(|e| fail(&e))?
             .ok_or_else(|| fail(&"a footer"))?;
-        for entity in 0..ENTITIES.len() {
-            for component in 0..COMPONENTS.len() {
-                for timeline in 0..TIMELINES.len() {
+        for (entity, entity_name) in ENTITIES.iter().enumerate() {
+            for (component, component_name) in COMPONENTS.iter().enumerate() {
+                for (timeline, (timeline_name, _)) in TIMELINES.iter().enumerate() {
                     check_latest_at(&fresh, &self.model, entity, component, timeline, at)?;
-                    let query =
-                        LatestAtQuery::new(TIMELINES[timeline].0, TimeInt::new(at).unwrap());
+                    let query = LatestAtQuery::new(*timeline_name, TimeInt::new(at).unwrap());
                     let lazily = lazy
-                        .latest_at(&query, &path(ENTITIES[entity]), COMPONENTS[component])
+                        .latest_at(&query, &path(entity_name), component_name)
                         .map_err(|e| fail(&e))?
                         .map(|a| (a.time().map(TimeInt::as_i64), a.row_id().as_u128()));
                     let stored = latest_at_answer(&self.store, entity, component, timeline, at)

@@ -1,0 +1,274 @@
+//! Reading a footer: the `RrdFooter` protobuf, each manifest's `DataframePart`, and the
+//! manifest batch's columns into [`ManifestEntry`]s.
+
+use std::collections::BTreeMap;
+
+use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+use arrow_array::{
+    Array, ArrayRef, ArrowPrimitiveType, BooleanArray, FixedSizeBinaryArray, PrimitiveArray,
+    RecordBatch, StringArray, UInt64Array,
+};
+use arrow_buffer::Buffer;
+use arrow_schema::DataType;
+
+use super::{
+    INDEX_KEY, Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange, STATIC_INDEX,
+};
+use crate::rrd::error::RrdErrorKind;
+use crate::rrd::messages::StoreId;
+use crate::rrd::protobuf::{FieldReader, WireError};
+use crate::{ChunkId, ComponentName, EntityPath, TimeInt, TimeType, Timeline};
+
+/// Decodes an `RrdFooter` message body into its manifests.
+pub(crate) fn decode_footer(bytes: &[u8]) -> Result<Vec<Manifest>, WireError> {
+    let mut manifests = Vec::new();
+    let mut fields = FieldReader::new(bytes);
+    while let Some(field) = fields.next_field()? {
+        if field.number == 1 {
+            let base = field.value_start;
+            let manifest =
+                decode_manifest(field.bytes("RrdFooter")?).map_err(|(at, e)| (at + base, e))?;
+            manifests.push(manifest);
+        }
+    }
+    Ok(manifests)
+}
+
+fn decode_manifest(bytes: &[u8]) -> Result<Manifest, WireError> {
+    let mut store_id = None;
+    let mut batch = None;
+    let mut fields = FieldReader::new(bytes);
+    while let Some(field) = fields.next_field()? {
+        let base = field.value_start;
+        match field.number {
+            1 => {
+                store_id = Some(
+                    StoreId::decode(field.bytes("RrdManifest")?)
+                        .map_err(|(at, e)| (at + base, e))?,
+                );
+            }
+            4 => {
+                batch = Some(
+                    decode_dataframe_part(field.bytes("RrdManifest")?)
+                        .map_err(|(at, e)| (at + base, e))?,
+                );
+            }
+            _ => {}
+        }
+    }
+    let missing = |field| {
+        (
+            0,
+            RrdErrorKind::MissingField {
+                message: "RrdManifest",
+                field,
+            },
+        )
+    };
+    let store_id = store_id.ok_or_else(|| missing("store_id"))?;
+    let batch = batch.ok_or_else(|| missing("data"))?;
+    let entries =
+        entries_from_batch(&batch).map_err(|reason| (0, RrdErrorKind::Footer { reason }))?;
+    Ok(Manifest { store_id, entries })
+}
+
+/// A `DataframePart`: one Arrow IPC stream holding one batch, maybe LZ4-compressed.
+fn decode_dataframe_part(bytes: &[u8]) -> Result<RecordBatch, WireError> {
+    let mut payload = None;
+    let mut compressed = false;
+    let mut uncompressed_size = 0;
+    let mut fields = FieldReader::new(bytes);
+    while let Some(field) = fields.next_field()? {
+        match field.number {
+            2 => payload = Some(field.bytes("DataframePart")?),
+            3 => compressed = field.varint("DataframePart")? == 2,
+            4 => uncompressed_size = field.varint("DataframePart")?,
+            _ => {}
+        }
+    }
+    let payload = payload.ok_or((
+        0,
+        RrdErrorKind::MissingField {
+            message: "DataframePart",
+            field: "payload",
+        },
+    ))?;
+    let ipc = if compressed {
+        crate::rrd::payload::decompress(payload, uncompressed_size).map_err(|e| (0, e))?
+    } else {
+        payload.to_vec()
+    };
+    let mut batches = crate::io::read_stream_batches_zero_copy(Buffer::from_vec(ipc))
+        .map_err(|e| (0, RrdErrorKind::Ipc(e)))?;
+    match (batches.pop(), batches.is_empty()) {
+        (Some(batch), true) => Ok(batch),
+        _ => Err((
+            0,
+            RrdErrorKind::Footer {
+                reason: "the manifest is not exactly one record batch".to_owned(),
+            },
+        )),
+    }
+}
+
+fn column<'a, T: 'static>(batch: &'a RecordBatch, name: &str) -> Result<&'a T, String> {
+    batch
+        .column_by_name(name)
+        .ok_or_else(|| format!("manifest has no column {name:?}"))?
+        .as_any()
+        .downcast_ref::<T>()
+        .ok_or_else(|| format!("manifest column {name:?} has the wrong type"))
+}
+
+/// The values of a time column (`Int64`, `Timestamp(ns)` or `Duration(ns)`), nulls as `None`.
+fn times(array: &ArrayRef) -> Option<Vec<Option<i64>>> {
+    fn values<T: ArrowPrimitiveType<Native = i64>>(array: &ArrayRef) -> Option<Vec<Option<i64>>> {
+        let array = array.as_any().downcast_ref::<PrimitiveArray<T>>()?;
+        Some(array.iter().collect())
+    }
+    match array.data_type() {
+        DataType::Int64 => values::<Int64Type>(array),
+        DataType::Timestamp(arrow_schema::TimeUnit::Nanosecond, _) => {
+            values::<TimestampNanosecondType>(array)
+        }
+        DataType::Duration(arrow_schema::TimeUnit::Nanosecond) => {
+            values::<DurationNanosecondType>(array)
+        }
+        _ => None,
+    }
+}
+
+/// The time columns of a manifest batch, by timeline and (for per-component ones)
+/// component: `(start, end, num_rows)`.
+type RangeColumns =
+    BTreeMap<(String, Option<String>), (Option<usize>, Option<usize>, Option<usize>)>;
+
+/// A decoded family of range columns: the timeline, starts, ends and row counts.
+type DecodedRanges<'a> = (
+    Timeline,
+    Vec<Option<i64>>,
+    Vec<Option<i64>>,
+    Option<&'a UInt64Array>,
+);
+
+#[expect(
+    clippy::too_many_lines,
+    reason = "the manifest's column families, read in one place as they are documented"
+)]
+fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String> {
+    let paths = column::<StringArray>(batch, "chunk_entity_path")?;
+    let ids = column::<FixedSizeBinaryArray>(batch, "chunk_id")?;
+    if ids.value_length() != 16 {
+        return Err("manifest chunk ids are not 16 bytes".to_owned());
+    }
+    let statics = column::<BooleanArray>(batch, "chunk_is_static")?;
+    let num_rows = column::<UInt64Array>(batch, "chunk_num_rows")?;
+    let offsets = column::<UInt64Array>(batch, "chunk_byte_offset")?;
+    let sizes = column::<UInt64Array>(batch, "chunk_byte_size")?;
+    let uncompressed = column::<UInt64Array>(batch, "chunk_byte_size_uncompressed")?;
+
+    let schema = batch.schema();
+    let mut static_columns: Vec<(ComponentName, usize)> = Vec::new();
+    let mut range_columns: RangeColumns = BTreeMap::new();
+    for (i, field) in schema.fields().iter().enumerate() {
+        let Some(index) = field.metadata().get(INDEX_KEY) else {
+            continue;
+        };
+        let component = field.metadata().get("rerun:component").cloned();
+        if index == STATIC_INDEX {
+            if let Some(name) = field.name().strip_suffix(":has_static_data") {
+                let name = component.unwrap_or_else(|| name.to_owned());
+                static_columns.push((ComponentName::new(name.as_str()), i));
+            }
+            continue;
+        }
+        let slot = range_columns.entry((index.clone(), component)).or_default();
+        let name = field.name();
+        if name.ends_with(":start") {
+            slot.0 = Some(i);
+        } else if name.ends_with(":end") {
+            slot.1 = Some(i);
+        } else if name.ends_with(":num_rows") {
+            slot.2 = Some(i);
+        }
+    }
+
+    // Decode every range column once.
+    let mut decoded: BTreeMap<(String, Option<String>), DecodedRanges<'_>> = BTreeMap::new();
+    for (key, (start, end, rows)) in range_columns {
+        let (Some(start), Some(end)) = (start, end) else {
+            continue;
+        };
+        let start_array = batch.column(start);
+        let time_type = TimeType::from_arrow(start_array.data_type()).ok_or_else(|| {
+            format!(
+                "manifest column {:?} is not a time",
+                schema.field(start).name()
+            )
+        })?;
+        let starts = times(start_array).ok_or("manifest start column has a bad type")?;
+        let ends = times(batch.column(end)).ok_or("manifest end column has a bad type")?;
+        let rows = rows.and_then(|i| batch.column(i).as_any().downcast_ref::<UInt64Array>());
+        decoded.insert(
+            key.clone(),
+            (Timeline::new(key.0.as_str(), time_type), starts, ends, rows),
+        );
+    }
+
+    let mut entries = Vec::with_capacity(batch.num_rows());
+    for row in 0..batch.num_rows() {
+        let mut id = [0u8; 16];
+        id.copy_from_slice(ids.value(row));
+        let entity_path =
+            EntityPath::parse(paths.value(row)).map_err(|e| format!("manifest row {row}: {e}"))?;
+        let mut ranges = Vec::new();
+        let mut components: BTreeMap<ComponentName, Vec<ManifestTimeRange>> = BTreeMap::new();
+        for ((_, component), (timeline, starts, ends, rows)) in &decoded {
+            let (Some(Some(min)), Some(Some(max))) = (starts.get(row), ends.get(row)) else {
+                continue;
+            };
+            if rows.is_some_and(|r| r.is_valid(row) && r.value(row) == 0) {
+                continue;
+            }
+            let (Some(min), Some(max)) = (TimeInt::new(*min), TimeInt::new(*max)) else {
+                return Err(format!("manifest row {row}: time i64::MIN is reserved"));
+            };
+            let range = ManifestTimeRange {
+                timeline: timeline.clone(),
+                min,
+                max,
+            };
+            match component {
+                None => ranges.push(range),
+                Some(name) => components
+                    .entry(ComponentName::new(name.as_str()))
+                    .or_default()
+                    .push(range),
+            }
+        }
+        let is_static = statics.value(row);
+        if is_static {
+            for (name, i) in &static_columns {
+                let has = batch.column(*i).as_any().downcast_ref::<BooleanArray>();
+                if has.is_some_and(|has| has.is_valid(row) && has.value(row)) {
+                    components.entry(name.clone()).or_default();
+                }
+            }
+        }
+        entries.push(ManifestEntry {
+            chunk_id: ChunkId::from_be_bytes(id),
+            entity_path,
+            is_static,
+            num_rows: num_rows.value(row),
+            byte_offset: offsets.value(row),
+            byte_size: sizes.value(row),
+            uncompressed_size: uncompressed.value(row),
+            ranges,
+            components: components
+                .into_iter()
+                .map(|(name, ranges)| ManifestComponent { name, ranges })
+                .collect(),
+        });
+    }
+    Ok(entries)
+}
