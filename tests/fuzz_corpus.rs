@@ -55,6 +55,17 @@ fn entity_path_corpus_replays_without_panics() {
     replay_corpus("entity_path", harness::entity_path::entity_path);
 }
 
+#[test]
+fn rrd_decode_corpus_replays_without_panics() {
+    replay_corpus("rrd_decode", harness::rrd_decode::rrd_decode);
+}
+
+#[cfg(feature = "cli")]
+#[test]
+fn cli_args_corpus_replays_without_panics() {
+    replay_corpus("cli_args", harness::cli_args::cli_args);
+}
+
 /// What each crash must give now (the root causes are in `tests/fuzz_crashes/README.md`).
 enum Expected {
     /// Decoding the bytes as Arrow IPC gives an error this accepts.

@@ -5,9 +5,14 @@
 
 #[path = "chunk_build.rs"]
 pub mod chunk_build;
+#[cfg(feature = "cli")]
+#[path = "cli_args.rs"]
+pub mod cli_args;
 #[path = "entity_path.rs"]
 pub mod entity_path;
 #[path = "ipc_insert.rs"]
 pub mod ipc_insert;
 #[path = "lifecycle.rs"]
 pub mod lifecycle;
+#[path = "rrd_decode.rs"]
+pub mod rrd_decode;

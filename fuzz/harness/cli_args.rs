@@ -1,0 +1,31 @@
+//! The body of the `cli_args` fuzz target: arbitrary argument lists through the
+//! `chunkstore` tool's argument parser (its own `args.rs`, compiled in here). Parsing
+//! either fails with clap's error, which must render, or gives arguments whose store
+//! configuration either validates or is refused; nothing may panic.
+
+#[path = "../../src/bin/chunkstore/args.rs"]
+#[allow(
+    dead_code,
+    reason = "the tool's own module: the fuzz target reads what it needs"
+)]
+mod args;
+
+/// Splits the bytes into arguments at NUL bytes (any bytes, not only UTF-8, as a shell
+/// can pass them).
+pub fn cli_args(bytes: &[u8]) {
+    use std::os::unix::ffi::OsStrExt;
+    let mut argv: Vec<std::ffi::OsString> = vec!["chunkstore".into()];
+    argv.extend(
+        bytes
+            .split(|&b| b == 0)
+            .map(|a| std::ffi::OsStr::from_bytes(a).to_owned()),
+    );
+    match args::parse(&argv) {
+        Ok(cli) => {
+            let _ = cli.load.config();
+        }
+        Err(error) => {
+            let _ = error.render().to_string();
+        }
+    }
+}

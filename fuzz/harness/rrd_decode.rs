@@ -1,0 +1,126 @@
+//! The body of the `rrd_decode` fuzz target: arbitrary bytes as an `.rrd` stream, read
+//! three ways (from memory, streamed from a reader, and opened lazily through a footer).
+//! Nothing may panic; the two eager readers must agree item for item (chunk ids and error
+//! offsets); a lazy recording, where the bytes open as one, must answer a latest-at as a
+//! store holding every chunk its manifest lists does; the chunks then go through
+//! everything a store does ([`super::lifecycle::exercise`]).
+
+use arrow_buffer::Buffer;
+use chunkstore::rrd::{self, LazyRecording, Manifest, ManifestTimeRange, RrdContents};
+use chunkstore::{Chunk, ChunkId, ChunkStore, LatestAtQuery, StoreConfig, TimeInt};
+
+/// What the manifest should say of a chunk's component: its cells' range per timeline.
+fn component_ranges(chunk: &Chunk, name: &str) -> Vec<ManifestTimeRange> {
+    let Some(column) = chunk.component(name) else {
+        return Vec::new();
+    };
+    let mut ranges: Vec<ManifestTimeRange> = chunk
+        .time_columns()
+        .iter()
+        .filter_map(|time| {
+            let valid = (0..chunk.num_rows()).filter(|&row| column.is_valid(row));
+            let times: Vec<i64> = valid.map(|row| time.times()[row]).collect();
+            Some(ManifestTimeRange {
+                timeline: time.timeline().clone(),
+                min: TimeInt::new(*times.iter().min()?)?,
+                max: TimeInt::new(*times.iter().max()?)?,
+            })
+        })
+        .collect();
+    ranges.sort_by(|a, b| a.timeline.name().cmp(b.timeline.name()));
+    ranges
+}
+
+/// A store of every chunk, if the stream decoded without an error and its manifest lists
+/// exactly its chunks, each with its true entity, static flag and component ranges.
+fn truthful_store(contents: &RrdContents, manifest: &Manifest) -> Option<ChunkStore> {
+    if !contents.errors.is_empty() || manifest.entries.len() != contents.chunks.len() {
+        return None;
+    }
+    for (entry, (_, chunk)) in manifest.entries.iter().zip(&contents.chunks) {
+        let mut names: Vec<&str> = chunk
+            .components()
+            .iter()
+            .map(|c| c.name().as_str())
+            .collect();
+        names.sort_unstable();
+        let listed: Vec<&str> = entry.components.iter().map(|c| c.name.as_str()).collect();
+        let truthful = entry.chunk_id == chunk.id()
+            && &entry.entity_path == chunk.entity_path()
+            && entry.is_static == chunk.is_static()
+            && listed == names
+            && entry.components.iter().all(|c| {
+                let mut claimed = c.ranges.clone();
+                claimed.sort_by(|a, b| a.timeline.name().cmp(b.timeline.name()));
+                chunk.is_static() || claimed == component_ranges(chunk, c.name.as_str())
+            });
+        if !truthful {
+            return None;
+        }
+    }
+    let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).ok()?;
+    for (_, chunk) in &contents.chunks {
+        // A copy (chunks are not `Clone`); the originals go on to the lifecycle.
+        let copy = Chunk::from_record_batch(&chunk.to_record_batch().ok()?).ok()?;
+        store.insert(copy).ok()?;
+    }
+    Some(store)
+}
+
+fn summary(contents: &RrdContents) -> (Vec<ChunkId>, Vec<u64>, usize, bool) {
+    (
+        contents.chunks.iter().map(|(_, c)| c.id()).collect(),
+        contents.errors.iter().map(|e| e.offset).collect(),
+        contents.store_infos.len(),
+        contents.manifests.is_some(),
+    )
+}
+
+pub fn rrd_decode(bytes: &[u8]) {
+    let from_memory = rrd::read_rrd(Buffer::from(bytes.to_vec()), true);
+    let streamed = rrd::read_rrd_from(bytes, true);
+    let (from_memory, streamed) = match (from_memory, streamed) {
+        (Ok(a), Ok(b)) => (a, b),
+        (Err(a), Err(b)) => {
+            assert_eq!(a.offset, b.offset, "{a} / {b}");
+            return;
+        }
+        (a, b) => panic!("the readers disagree: {:?} / {:?}", a.err(), b.err()),
+    };
+    assert_eq!(summary(&from_memory), summary(&streamed));
+    for error in &from_memory.errors {
+        assert!(error.offset <= bytes.len() as u64, "{error}");
+        let _ = error.to_string();
+    }
+
+    if let Ok(Some(mut lazy)) = LazyRecording::from_reader(std::io::Cursor::new(bytes)) {
+        // Where the whole stream decoded cleanly and its manifest tells the truth about
+        // every chunk, lazy answers must be the eager store's.
+        let eager = truthful_store(&from_memory, lazy.manifest());
+        let entities = lazy.entity_paths();
+        for entity in entities.iter().take(4) {
+            for component in lazy.component_names(entity).iter().take(4) {
+                for timeline in ["frame", "frame_id", "log_time", "sim_time", "t"] {
+                    for t in [i64::MIN + 1, 0, 1, 30, i64::MAX] {
+                        let query = LatestAtQuery::new(timeline, TimeInt::new(t).expect("valid"));
+                        let lazily = lazy.latest_at(&query, entity, component.as_str());
+                        if let (Some(store), Ok(lazily)) = (&eager, lazily) {
+                            let eagerly = store.latest_at(&query, entity, component.as_str());
+                            assert_eq!(
+                                lazily.map(|c| (c.row_id(), c.time())),
+                                eagerly.map(|c| (c.row_id(), c.time())),
+                                "{timeline} {t} {entity} {component}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        let stats = lazy.stats();
+        assert_eq!(stats.file_bytes, bytes.len() as u64);
+        assert!(stats.chunks_decoded <= stats.chunks_in_file);
+    }
+
+    let chunks = from_memory.chunks.into_iter().map(|(_, c)| c).collect();
+    super::lifecycle::exercise(chunks);
+}
