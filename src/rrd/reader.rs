@@ -131,7 +131,8 @@ impl<R: Read> RrdReader<R> {
 
 impl RrdReader<std::io::Empty> {
     /// A reader over bytes in memory (a file read whole, or any `Buffer`): uncompressed
-    /// payloads decode without a copy, their chunks' buffers slices of `bytes`.
+    /// payloads decode without a copy, their chunks' buffers slices of `bytes`, wherever
+    /// the payload's buffers are aligned for their types (arrow-ipc copies the others).
     ///
     /// # Errors
     /// If the input is not an `.rrd` stream this crate reads.
