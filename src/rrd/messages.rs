@@ -69,16 +69,8 @@ impl StoreId {
                 1 => id.kind = StoreKind::from_u64(field.varint("StoreId")?),
                 2 => id.recording_id = field.string("StoreId")?,
                 3 => {
-                    let mut app = FieldReader::new(field.bytes("StoreId")?);
-                    while let Some(f) = app
-                        .next_field()
-                        .map_err(|(at, e)| (at + field.value_start, e))?
-                    {
-                        if f.number == 1 {
-                            id.application_id = f
-                                .string("ApplicationId")
-                                .map_err(|(at, e)| (at + field.value_start, e))?;
-                        }
+                    if let Some(app) = field.nested("StoreId", decode_application_id)? {
+                        id.application_id = app;
                     }
                 }
                 _ => {}
@@ -132,9 +124,7 @@ impl StoreInfo {
         let mut fields = FieldReader::new(bytes);
         while let Some(field) = fields.next_field()? {
             if field.number == 2 {
-                let base = field.value_start;
-                return Self::decode_info(field.bytes("SetStoreInfo")?)
-                    .map_err(|(at, e)| (at + base, e));
+                return field.nested("SetStoreInfo", Self::decode_info);
             }
         }
         Err((
@@ -153,26 +143,10 @@ impl StoreInfo {
         let mut store_version = None;
         let mut fields = FieldReader::new(bytes);
         while let Some(field) = fields.next_field()? {
-            let base = field.value_start;
             match field.number {
-                1 => {
-                    // Deprecated `ApplicationId`, from before it moved into the store id.
-                    let mut app = FieldReader::new(field.bytes("StoreInfo")?);
-                    while let Some(f) = app.next_field().map_err(|(at, e)| (at + base, e))? {
-                        if f.number == 1 {
-                            legacy_application_id = Some(
-                                f.string("ApplicationId")
-                                    .map_err(|(at, e)| (at + base, e))?,
-                            );
-                        }
-                    }
-                }
-                2 => {
-                    store_id = Some(
-                        StoreId::decode(field.bytes("StoreInfo")?)
-                            .map_err(|(at, e)| (at + base, e))?,
-                    );
-                }
+                // Deprecated `ApplicationId`, from before it moved into the store id.
+                1 => legacy_application_id = field.nested("StoreInfo", decode_application_id)?,
+                2 => store_id = Some(field.nested("StoreInfo", StoreId::decode)?),
                 5 => store_source = Some(field.bytes("StoreInfo")?.to_vec()),
                 6 => store_version = Some(field.bytes("StoreInfo")?.to_vec()),
                 _ => {}
@@ -212,6 +186,18 @@ impl StoreInfo {
             });
         out.bytes
     }
+}
+
+/// An `ApplicationId { 1: id }`: its id, if it has one.
+fn decode_application_id(bytes: &[u8]) -> Result<Option<String>, WireError> {
+    let mut id = None;
+    let mut fields = FieldReader::new(bytes);
+    while let Some(field) = fields.next_field()? {
+        if field.number == 1 {
+            id = Some(field.string("ApplicationId")?);
+        }
+    }
+    Ok(id)
 }
 
 /// A Tuid is the id's high half (`time_ns`) and low half (`inc`), as fixed64s.
@@ -277,10 +263,7 @@ impl ArrowMsg {
             let base = field.value_start;
             match field.number {
                 1 => {
-                    store_id = Some(
-                        StoreId::decode(field.bytes("ArrowMsg")?)
-                            .map_err(|(at, e)| (at + base, e))?,
-                    );
+                    store_id = Some(field.nested("ArrowMsg", StoreId::decode)?);
                 }
                 2 => {
                     compression = Some(match field.varint("ArrowMsg")? {
@@ -303,8 +286,7 @@ impl ArrowMsg {
                     payload = Some(base..base + len);
                 }
                 6 => {
-                    let id =
-                        decode_tuid(field.bytes("ArrowMsg")?).map_err(|(at, e)| (at + base, e))?;
+                    let id = field.nested("ArrowMsg", decode_tuid)?;
                     chunk_id = Some(ChunkId::from_u128(id));
                 }
                 7 => is_static = Some(field.varint("ArrowMsg")? != 0),

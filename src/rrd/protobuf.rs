@@ -153,6 +153,17 @@ impl<'a> WireField<'a> {
         }
     }
 
+    /// The value as a nested message, decoded by `decode`; offsets in its errors count from
+    /// the start of the outer message, as every other offset does.
+    pub(crate) fn nested<T>(
+        &self,
+        message: &str,
+        decode: impl FnOnce(&'a [u8]) -> Result<T, WireError>,
+    ) -> Result<T, WireError> {
+        let base = self.value_start;
+        decode(self.bytes(message)?).map_err(|(at, e)| (at + base, e))
+    }
+
     pub(crate) fn string(&self, message: &str) -> Result<String, WireError> {
         let bytes = self.bytes(message)?;
         std::str::from_utf8(bytes).map(str::to_owned).map_err(|_| {

@@ -401,31 +401,22 @@ impl<R: Read> RrdReader<R> {
                 };
                 let chunk = payload::decode_chunk(payload, msg.compression, msg.uncompressed_size)
                     .map_err(|kind| RrdError::new(payload_at, kind))?;
+                let mismatch = |reason| RrdError::new(body_at, RrdErrorKind::Payload { reason });
                 if let Some(is_static) = msg.is_static
                     && is_static != chunk.is_static()
                 {
-                    return Err(RrdError::new(
-                        body_at,
-                        RrdErrorKind::Payload {
-                            reason: format!(
-                                "the message says is_static = {is_static}, its chunk {} is not",
-                                chunk.id()
-                            ),
-                        },
-                    ));
+                    return Err(mismatch(format!(
+                        "the message says is_static = {is_static}, its chunk {} is not",
+                        chunk.id()
+                    )));
                 }
                 if let Some(id) = msg.chunk_id
                     && id != chunk.id()
                 {
-                    return Err(RrdError::new(
-                        body_at,
-                        RrdErrorKind::Payload {
-                            reason: format!(
-                                "the message says chunk {id}, its payload is chunk {}",
-                                chunk.id()
-                            ),
-                        },
-                    ));
+                    return Err(mismatch(format!(
+                        "the message says chunk {id}, its payload is chunk {}",
+                        chunk.id()
+                    )));
                 }
                 self.seen.push((
                     chunk.id(),

@@ -25,10 +25,7 @@ pub(crate) fn decode_footer(bytes: &[u8]) -> Result<Vec<Manifest>, WireError> {
     let mut fields = FieldReader::new(bytes);
     while let Some(field) = fields.next_field()? {
         if field.number == 1 {
-            let base = field.value_start;
-            let manifest =
-                decode_manifest(field.bytes("RrdFooter")?).map_err(|(at, e)| (at + base, e))?;
-            manifests.push(manifest);
+            manifests.push(field.nested("RrdFooter", decode_manifest)?);
         }
     }
     Ok(manifests)
@@ -39,19 +36,12 @@ fn decode_manifest(bytes: &[u8]) -> Result<Manifest, WireError> {
     let mut batch = None;
     let mut fields = FieldReader::new(bytes);
     while let Some(field) = fields.next_field()? {
-        let base = field.value_start;
         match field.number {
             1 => {
-                store_id = Some(
-                    StoreId::decode(field.bytes("RrdManifest")?)
-                        .map_err(|(at, e)| (at + base, e))?,
-                );
+                store_id = Some(field.nested("RrdManifest", StoreId::decode)?);
             }
             4 => {
-                batch = Some(
-                    decode_dataframe_part(field.bytes("RrdManifest")?)
-                        .map_err(|(at, e)| (at + base, e))?,
-                );
+                batch = Some(field.nested("RrdManifest", decode_dataframe_part)?);
             }
             _ => {}
         }
