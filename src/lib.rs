@@ -2,7 +2,7 @@
 //!
 //! A columnar chunk store for spatiotemporal data: immutable Apache Arrow chunks in,
 //! exact latest-at and range answers out, fast. Embedded by viewers, telemetry servers and
-//! analytics tools; it does no I/O of its own (see the `ipc` feature for helpers).
+//! analytics tools; its core does no I/O (the `ipc` and `rrd` features read and write files).
 //!
 //! ## Concepts
 //! - An [`EntityPath`] names a thing in a tree (`world/robot/camera`).
@@ -56,7 +56,7 @@
 //! - `ipc` (default): [`io`], reading chunks from Arrow IPC files and streams and writing
 //!   them. Needs `arrow-ipc`.
 //! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
-//!   `lz4_flex` and `xxhash-rust`.
+//!   `lz4_flex`, `xxhash-rust` and `sha2`.
 //! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`).
 #![forbid(unsafe_code)]
 
