@@ -1,8 +1,8 @@
 //! [`LazyRecording`]: an `.rrd` file opened through its footer's chunk manifest, which
 //! decodes only the chunks a query needs.
 //!
-//! Opening reads the stream header, the store info and the footer (a few KB per thousand
-//! chunks) and nothing else. A query picks candidate chunks from the manifest (entity,
+//! Opening reads the stream header, the store info and the footer (350 KB for a 1 GB file
+//! of 5,200 chunks of two components) and nothing else. A query picks candidate chunks from the manifest (entity,
 //! component, per-timeline time range of the component's cells), reads and decodes just
 //! those, inserts them into a private [`ChunkStore`] (compaction off, so ids stay those of
 //! the file), and answers from it: the answer is the one the whole recording gives,
@@ -12,10 +12,10 @@
 //! component's least time `min ≤ t`, so the answer's time is at least `S`, the greatest
 //! such `min`; only chunks whose component range reaches `S` (`max ≥ S`) can hold it.
 //! Static chunks of the component are loaded too (static data wins), and the chunks of the
-//! entity and its ancestors that log Clears at or before `t` and at or after `S` (they may
-//! hide the answer).
+//! entity and its ancestors that log Clears statically, or at or before `t` and at or
+//! after `S` (they may hide the answer).
 //!
-//! The file is read with positioned reads, not memory-mapped: a memory map needs `unsafe`
+//! The file is read by seeking to each message and reading it, not memory-mapped: a memory map needs `unsafe`
 //! (this crate forbids it) and is undefined behaviour if another process truncates the
 //! file; and since payloads are LZ4-compressed, a decoded chunk is a copy either way.
 
