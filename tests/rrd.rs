@@ -185,6 +185,13 @@ fn bad_headers_are_named() {
     let err = RrdReader::new(bytes.as_slice()).err().unwrap();
     assert!(matches!(err.kind, RrdErrorKind::NotAnRrd { .. }), "{err}");
     assert!(err.to_string().contains("not an .rrd"), "{err}");
+    // Shorter than a header: a wrong magic is named as such, a right one as truncated.
+    let err = RrdReader::new(&b"PK\x03\x04ab"[..]).err().unwrap();
+    assert!(matches!(err.kind, RrdErrorKind::NotAnRrd { .. }), "{err}");
+    for short in [&b"RRF2\x00)"[..], b"RR", b""] {
+        let err = RrdReader::new(short).err().unwrap();
+        assert!(matches!(err.kind, RrdErrorKind::Truncated { .. }), "{err}");
+    }
     bytes[..4].copy_from_slice(b"RRF2");
     bytes[5] = 2; // Rerun 0.2
     let err = RrdReader::new(bytes.as_slice()).err().unwrap();

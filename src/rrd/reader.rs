@@ -176,23 +176,14 @@ impl<R: Read> RrdReader<R> {
         let at = self.position;
         let mut bytes = [0u8; STREAM_HEADER_LEN];
         let got = self.read_up_to(&mut bytes)?;
-        if got < 4 {
-            return Err(RrdError::new(
-                at,
-                RrdErrorKind::Truncated {
-                    what: "stream header",
-                    needed: STREAM_HEADER_LEN as u64,
-                    available: got as u64,
-                },
-            ));
-        }
         if got < STREAM_HEADER_LEN {
             // A wrong magic says more than a short read.
-            let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
-            if magic != frames::MAGIC {
+            if got >= 4 && bytes[..4] != frames::MAGIC {
                 let kind = StreamHeader::parse(&bytes)
                     .err()
-                    .unwrap_or(RrdErrorKind::NotAnRrd { found: magic });
+                    .unwrap_or(RrdErrorKind::NotAnRrd {
+                        found: [bytes[0], bytes[1], bytes[2], bytes[3]],
+                    });
                 return Err(RrdError::new(at, kind));
             }
             return Err(RrdError::new(
