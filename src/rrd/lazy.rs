@@ -374,15 +374,10 @@ impl<R: Read + Seek> LazyRecording<R> {
             let within =
                 |(offset, kind): (usize, RrdErrorKind)| RrdError::new(at + offset as u64, kind);
             let msg = ArrowMsg::decode(&body).map_err(within)?;
-            let payload_at = at + msg.payload.start as u64;
             let body = Buffer::from_vec(body);
             let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
-            let chunk = payload::decode_chunk(
-                payload::PayloadBytes::Shared(bytes),
-                msg.compression,
-                msg.uncompressed_size,
-            )
-            .map_err(|kind| RrdError::new(payload_at, kind))?;
+            let chunk =
+                payload::decode_message_chunk(&msg, payload::PayloadBytes::Shared(bytes), at)?;
             if chunk.id() != id {
                 return Err(RrdError::new(
                     at,

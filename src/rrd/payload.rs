@@ -1,11 +1,13 @@
 //! An `ArrowMsg`'s payload: one chunk as an Arrow IPC stream, LZ4-compressed as one block
 //! (or not compressed), to and from a [`Chunk`].
 
+use arrow_array::RecordBatch;
 use arrow_buffer::Buffer;
 use arrow_ipc::writer::StreamWriter;
+use arrow_schema::{ArrowError, Schema};
 
-use super::error::RrdErrorKind;
-use super::messages::Compression;
+use super::error::{RrdError, RrdErrorKind};
+use super::messages::{ArrowMsg, Compression};
 use crate::Chunk;
 use crate::error::IoError;
 
@@ -83,19 +85,60 @@ pub(crate) fn decompress(block: &[u8], uncompressed_size: u64) -> Result<Vec<u8>
     Ok(out)
 }
 
+/// An Arrow IPC stream: the schema, then `batch` if given, then the end marker.
+pub(crate) fn ipc_stream(
+    schema: &Schema,
+    batch: Option<&RecordBatch>,
+) -> Result<Vec<u8>, ArrowError> {
+    let mut out = Vec::new();
+    let mut writer = StreamWriter::try_new(&mut out, schema)?;
+    if let Some(batch) = batch {
+        writer.write(batch)?;
+    }
+    writer.finish()?;
+    drop(writer);
+    Ok(out)
+}
+
 /// Encodes a chunk as a payload: the IPC stream and, if compressing, its LZ4 block.
 /// Returns the payload and the IPC stream's size.
 pub(crate) fn encode_chunk(chunk: &Chunk, compress: bool) -> Result<(Vec<u8>, u64), IoError> {
     let batch = chunk.to_record_batch().map_err(IoError::Ipc)?;
-    let mut ipc = Vec::new();
-    let mut writer = StreamWriter::try_new(&mut ipc, &batch.schema()).map_err(IoError::Ipc)?;
-    writer.write(&batch).map_err(IoError::Ipc)?;
-    writer.finish().map_err(IoError::Ipc)?;
-    drop(writer);
+    let ipc = ipc_stream(&batch.schema(), Some(&batch)).map_err(IoError::Ipc)?;
     let size = ipc.len() as u64;
     if compress {
         Ok((lz4_flex::block::compress(&ipc), size))
     } else {
         Ok((ipc, size))
     }
+}
+
+/// The chunk an `ArrowMsg` carries, checked against what the message says of it (its id
+/// and static flag). `body_at` is where the message body starts in the input, for errors.
+pub(crate) fn decode_message_chunk(
+    msg: &ArrowMsg,
+    payload: PayloadBytes<'_>,
+    body_at: u64,
+) -> Result<Chunk, RrdError> {
+    let payload_at = body_at + msg.payload.start as u64;
+    let chunk = decode_chunk(payload, msg.compression, msg.uncompressed_size)
+        .map_err(|kind| RrdError::new(payload_at, kind))?;
+    let mismatch = |reason| RrdError::new(body_at, RrdErrorKind::Payload { reason });
+    if let Some(is_static) = msg.is_static
+        && is_static != chunk.is_static()
+    {
+        return Err(mismatch(format!(
+            "the message says is_static = {is_static}, its chunk {} is not",
+            chunk.id()
+        )));
+    }
+    if let Some(id) = msg.chunk_id
+        && id != chunk.id()
+    {
+        return Err(mismatch(format!(
+            "the message says chunk {id}, its payload is chunk {}",
+            chunk.id()
+        )));
+    }
+    Ok(chunk)
 }

@@ -381,7 +381,6 @@ impl<R: Read> RrdReader<R> {
                 if kind != StoreKind::Recording {
                     return Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }));
                 }
-                let payload_at = body_at + msg.payload.start as u64;
                 let payload = match body {
                     Body::Shared(buffer) => payload::PayloadBytes::Shared(
                         buffer.slice_with_length(msg.payload.start, msg.payload.len()),
@@ -390,25 +389,7 @@ impl<R: Read> RrdReader<R> {
                         payload::PayloadBytes::Borrowed(&bytes[msg.payload.clone()])
                     }
                 };
-                let chunk = payload::decode_chunk(payload, msg.compression, msg.uncompressed_size)
-                    .map_err(|kind| RrdError::new(payload_at, kind))?;
-                let mismatch = |reason| RrdError::new(body_at, RrdErrorKind::Payload { reason });
-                if let Some(is_static) = msg.is_static
-                    && is_static != chunk.is_static()
-                {
-                    return Err(mismatch(format!(
-                        "the message says is_static = {is_static}, its chunk {} is not",
-                        chunk.id()
-                    )));
-                }
-                if let Some(id) = msg.chunk_id
-                    && id != chunk.id()
-                {
-                    return Err(mismatch(format!(
-                        "the message says chunk {id}, its payload is chunk {}",
-                        chunk.id()
-                    )));
-                }
+                let chunk = payload::decode_message_chunk(&msg, payload, body_at)?;
                 self.seen.push((
                     chunk.id(),
                     msg.store_id.clone(),

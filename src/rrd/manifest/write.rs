@@ -14,6 +14,7 @@ use arrow_schema::{DataType, Field, Schema};
 
 use super::{INDEX_KEY, STATIC_INDEX};
 use crate::rrd::messages::StoreId;
+use crate::rrd::payload::ipc_stream;
 use crate::rrd::protobuf::FieldWriter;
 use crate::{Chunk, ChunkId, ComponentDescriptor, ComponentName, EntityPath, TimeType, Timeline};
 
@@ -122,20 +123,6 @@ pub(crate) fn encode_footer(
             });
     });
     Ok(footer.bytes)
-}
-
-fn ipc_stream(
-    schema: &Schema,
-    batch: Option<&RecordBatch>,
-) -> Result<Vec<u8>, arrow_schema::ArrowError> {
-    let mut out = Vec::new();
-    let mut writer = arrow_ipc::writer::StreamWriter::try_new(&mut out, schema)?;
-    if let Some(batch) = batch {
-        writer.write(batch)?;
-    }
-    writer.finish()?;
-    drop(writer);
-    Ok(out)
 }
 
 /// The schema's fingerprint as Rerun computes it (and checks it): SHA-256 of the IPC schema
