@@ -10,7 +10,20 @@ use arrow_array::{Array, BooleanArray};
 use arrow_buffer::ArrowNativeType;
 
 use crate::sanity::{SanityError, Structure, ensure};
-use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt};
+use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt, TimeRange};
+
+/// The Clears that apply to one (entity, component) column of a dataframe on one
+/// timeline, from [`ClearIndex::column_clears`]. Indices are `(time, row id)`.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub(crate) struct ColumnClears {
+    /// The greatest row id of a static Clear that applies: it hides every temporal cell,
+    /// and static cells with a row id not above it.
+    pub latest_static: Option<RowId>,
+    /// The greatest temporal Clear before the range's start.
+    pub latest_before: Option<(TimeInt, RowId)>,
+    /// Every temporal Clear inside the range, ascending, without repeats.
+    pub in_range: Vec<(TimeInt, RowId)>,
+}
 
 /// A multiset of indices, each with the chunk holding it (so removing a chunk removes
 /// exactly its Clears): duplicated row ids must neither crash nor miscount.
@@ -240,6 +253,53 @@ impl ClearIndex {
             }
         }
         false
+    }
+
+    /// The Clears that can hide the cells of `entity` (its own, and recursive ones at its
+    /// strict ancestors) as a dataframe column on `timeline` over `range` sees them: the
+    /// greatest static one, the greatest temporal one before the range, and every
+    /// temporal one inside it, ascending.
+    pub fn column_clears(
+        &self,
+        entity: &EntityPath,
+        timeline: &str,
+        range: TimeRange,
+    ) -> ColumnClears {
+        let mut out = ColumnClears::default();
+        let parts = entity.part_arcs();
+        let mut node = self;
+        for depth in 0..=parts.len() {
+            if let Some(clears) = &node.clears {
+                let (statics, per_timeline) = if depth == parts.len() {
+                    (&clears.static_any, &clears.any_per_timeline)
+                } else {
+                    (&clears.static_recursive, &clears.recursive_per_timeline)
+                };
+                if let Some((&(row_id, _), _)) = statics.last_key_value() {
+                    out.latest_static = out.latest_static.max(Some(row_id));
+                }
+                if let Some(set) = per_timeline.get(timeline) {
+                    let start = (range.min(), RowId::ZERO, ChunkId::ZERO);
+                    if let Some((&(time, row_id, _), _)) = set.range(..start).next_back() {
+                        out.latest_before = out.latest_before.max(Some((time, row_id)));
+                    }
+                    if !range.is_empty() {
+                        let end = (range.max(), RowId::MAX, ChunkId::MAX);
+                        out.in_range.extend(
+                            set.range(start..=end)
+                                .map(|(&(time, row_id, _), _)| (time, row_id)),
+                        );
+                    }
+                }
+            }
+            match parts.get(depth).and_then(|part| node.children.get(part)) {
+                Some(child) => node = child,
+                None => break,
+            }
+        }
+        out.in_range.sort_unstable();
+        out.in_range.dedup();
+        out
     }
 
     pub fn sanity_check(&self) -> Result<(), SanityError> {

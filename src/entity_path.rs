@@ -96,7 +96,7 @@ impl EntityPath {
         Ok(Self::from_parts(parts))
     }
 
-    fn from_parts(parts: Vec<Arc<str>>) -> Self {
+    pub(crate) fn from_parts(parts: Vec<Arc<str>>) -> Self {
         let mut hasher = PATH_HASH_STATE.build_hasher();
         parts.len().hash(&mut hasher);
         for part in &parts {

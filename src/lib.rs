@@ -64,6 +64,7 @@ mod chunk;
 mod clear;
 mod compaction;
 mod component;
+mod dataframe;
 mod drop;
 mod entity_path;
 mod error;
@@ -89,6 +90,10 @@ mod time;
 pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
+pub use dataframe::{
+    DEFAULT_BATCH_CELLS, DataframeError, DataframeQuery, DataframeStream, EntityPathFilter,
+    EntityPathFilterError,
+};
 pub use entity_path::EntityPath;
 #[cfg(feature = "ipc")]
 pub use error::IoError;

@@ -82,7 +82,7 @@ impl ChunkStore {
     }
 
     /// Latest-at before Clears are applied.
-    fn latest_at_unfiltered(
+    pub(crate) fn latest_at_unfiltered(
         &self,
         query: &LatestAtQuery,
         entity: &EntityPath,

@@ -11,6 +11,7 @@ use arrow_array::ArrayRef;
 use crate::{Chunk, ChunkId, ComponentColumn, RowId, TimeInt};
 
 pub use latest_at::LatestAtQuery;
+pub(crate) use range::RangeCursor;
 pub use range::{RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 
 /// One cell a query answered with: the chunk and row it lives in, and its index.
@@ -57,6 +58,11 @@ impl QueryCell {
     /// The component column the cell belongs to.
     pub fn component(&self) -> &ComponentColumn {
         &self.chunk.components()[self.component_column as usize]
+    }
+
+    /// The position of the cell's column among its chunk's components.
+    pub(crate) fn component_column_index(&self) -> u32 {
+        self.component_column
     }
 
     /// The cell's instances: a slice of the chunk's array, sharing its buffers.

@@ -421,3 +421,97 @@ fn emit_cluster(cluster: &[PendingRun<'_>], out: &mut Vec<Run>) {
         }
     }
 }
+
+/// One row a [`RangeCursor`] stands on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct CursorRow {
+    pub time: TimeInt,
+    pub row_id: RowId,
+    /// Which of the result's chunks ([`RangeCursor::source`]).
+    pub source: u32,
+    pub row: u32,
+}
+
+/// Walks a temporal [`RangeResult`] row by row without borrowing it, so that a streaming
+/// reader (the dataframe's merge) can keep the result and its position side by side.
+#[derive(Debug)]
+pub(crate) struct RangeCursor {
+    result: RangeResult,
+    run: usize,
+    /// The next position to look at inside run `run`.
+    position: u32,
+    current: Option<CursorRow>,
+}
+
+impl RangeCursor {
+    /// A cursor on the first non-null row of `result` (a temporal result: static answers
+    /// have no time to merge on and are never walked).
+    pub fn new(result: RangeResult) -> Self {
+        let position = result.runs.first().map_or(0, |run| run.start);
+        let mut cursor = Self {
+            result,
+            run: 0,
+            position,
+            current: None,
+        };
+        cursor.seek();
+        cursor
+    }
+
+    /// The row the cursor stands on; `None` once past the last.
+    pub fn peek(&self) -> Option<CursorRow> {
+        self.current
+    }
+
+    /// Moves to the next non-null row.
+    pub fn advance(&mut self) {
+        self.seek();
+    }
+
+    /// How many chunks the result's rows come from.
+    #[expect(clippy::cast_possible_truncation, reason = "one source per chunk")]
+    pub fn num_sources(&self) -> u32 {
+        self.result.sources.len() as u32
+    }
+
+    /// The chunk and component column of source `source`.
+    pub fn source(&self, source: u32) -> (&Arc<Chunk>, u32) {
+        let source = &self.result.sources[source as usize];
+        (&source.chunk, source.component_column)
+    }
+
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "rows < 2^32, checked in Chunk::from_raw"
+    )]
+    fn seek(&mut self) {
+        self.current = None;
+        while let Some(run) = self.result.runs.get(self.run).copied() {
+            if self.position >= run.end {
+                self.run += 1;
+                if let Some(next) = self.result.runs.get(self.run) {
+                    self.position = next.start;
+                }
+                continue;
+            }
+            let pos = self.position;
+            self.position += 1;
+            let source = &self.result.sources[run.source as usize];
+            let column = &source.chunk.components()[source.component_column as usize];
+            let Some(time_column) = source.time_column else {
+                continue; // a static answer has no place in a time merge
+            };
+            let times = &source.chunk.time_columns()[time_column as usize];
+            let row = times.row_at(pos as usize);
+            if column.is_valid_in_bounds(row) {
+                self.current = Some(CursorRow {
+                    time: TimeInt::saturating(times.times()[row]),
+                    row_id: source.chunk.row_ids()[row],
+                    source: run.source,
+                    row: row as u32,
+                });
+                return;
+            }
+        }
+    }
+}

@@ -1,0 +1,219 @@
+//! Dataframe views (SEMANTICS.md section 9): the store as a table on one index timeline,
+//! streamed as Arrow record batches of bounded size.
+//!
+//! A query is planned once ([`schema`]: which columns, in which order, with which types),
+//! then streamed ([`stream`]): each selected temporal column walks its own range result
+//! (a [`RangeCursor`](crate::query::RangeCursor), already merged across its chunks in
+//! `(time, row id)` order) beside the Clears that apply to it, and a heap keyed by each
+//! column's next time merges the columns into rows, one pass, no sort. Cells are not
+//! copied one by one: a batch records, per column, runs of consecutive rows of one chunk
+//! ([`cells`]) and copies each run with one `MutableArrayData::extend`.
+
+mod cells;
+mod filter;
+mod schema;
+mod stream;
+
+use std::fmt;
+use std::sync::Arc;
+
+use crate::{ChunkStore, TimeInt, TimeRange};
+
+pub use filter::{EntityPathFilter, EntityPathFilterError};
+pub use stream::DataframeStream;
+
+/// Cells per batch when [`DataframeQuery::with_batch_rows`] is not given: a batch holds
+/// about this many cells, whatever the number of columns (at least one row, at most 65,536).
+pub const DEFAULT_BATCH_CELLS: usize = 1 << 20;
+
+/// A dataframe view of the store (SEMANTICS.md section 9): rows on one index timeline,
+/// one column per selected (entity, component).
+///
+/// ```
+/// # use std::sync::Arc;
+/// # use arrow_array::{ArrayRef, Float64Array};
+/// use chunkstore::*;
+/// # let frame = Timeline::sequence("frame");
+/// # let v = |x: f64| Arc::new(Float64Array::from(vec![x])) as ArrayRef;
+/// # let mut store = ChunkStore::new();
+/// # for (entity, t, x) in [("/robot/arm", 1, 0.5), ("/robot/leg", 2, 1.5), ("/robot/arm", 3, 2.5)] {
+/// #     store.insert(ChunkBuilder::new(ChunkId::new(), EntityPath::parse(entity)?)
+/// #         .with_row(RowId::new(), [(frame.clone(), t)], [("angle", v(x))]).build()?)?;
+/// # }
+/// // Every value of the robot's parts from frame 1 to 3, gaps filled with the latest value.
+/// let query = DataframeQuery::new("frame")
+///     .with_contents(EntityPathFilter::parse(["/robot/**"])?)
+///     .with_range(TimeRange::new(TimeInt::new(1).unwrap(), TimeInt::new(3).unwrap()))
+///     .with_fill_latest_at(true);
+/// let stream = store.dataframe(&query)?;
+/// let names: Vec<_> = stream.schema().fields().iter().map(|f| f.name().clone()).collect();
+/// assert_eq!(names, ["frame", "/robot/arm:angle", "/robot/leg:angle"]);
+/// let rows: usize = stream.map(|batch| batch.unwrap().num_rows()).sum();
+/// assert_eq!(rows, 3);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct DataframeQuery {
+    index: Arc<str>,
+    contents: EntityPathFilter,
+    range: TimeRange,
+    index_values: Option<Arc<[TimeInt]>>,
+    fill_latest_at: bool,
+    batch_rows: Option<usize>,
+}
+
+impl DataframeQuery {
+    /// Every selected row on the `index` timeline, sparse (cells only where data was
+    /// logged), over all entities but `/__properties`.
+    pub fn new(index: impl Into<Arc<str>>) -> Self {
+        Self {
+            index: index.into(),
+            contents: EntityPathFilter::default(),
+            range: TimeRange::EVERYTHING,
+            index_values: None,
+            fill_latest_at: false,
+            batch_rows: None,
+        }
+    }
+
+    /// Only the entities `contents` selects.
+    #[must_use]
+    pub fn with_contents(mut self, contents: EntityPathFilter) -> Self {
+        self.contents = contents;
+        self
+    }
+
+    /// Only rows whose index lies in `range` (both ends included; an empty range gives no
+    /// rows).
+    #[must_use]
+    pub fn with_range(mut self, range: TimeRange) -> Self {
+        self.range = range;
+        self
+    }
+
+    /// Sampling: exactly one row per value, in the order given (repeats included), each
+    /// cell the latest-at answer at that value. The range and the fill flag then play no
+    /// part.
+    #[must_use]
+    pub fn with_index_values(mut self, values: impl IntoIterator<Item = TimeInt>) -> Self {
+        self.index_values = Some(values.into_iter().collect());
+        self
+    }
+
+    /// Fill each null cell with the latest-at answer at its row's index value.
+    #[must_use]
+    pub fn with_fill_latest_at(mut self, fill: bool) -> Self {
+        self.fill_latest_at = fill;
+        self
+    }
+
+    /// At most `rows` rows per batch (default: about [`DEFAULT_BATCH_CELLS`] cells). Zero
+    /// is refused when the query runs.
+    #[must_use]
+    pub fn with_batch_rows(mut self, rows: usize) -> Self {
+        self.batch_rows = Some(rows);
+        self
+    }
+
+    /// The index timeline's name.
+    pub fn index(&self) -> &str {
+        &self.index
+    }
+
+    /// The entities selected.
+    pub fn contents(&self) -> &EntityPathFilter {
+        &self.contents
+    }
+
+    /// The range of index values kept.
+    pub fn range(&self) -> TimeRange {
+        self.range
+    }
+
+    /// The sampled index values, if sampling.
+    pub fn index_values(&self) -> Option<&[TimeInt]> {
+        self.index_values.as_deref()
+    }
+
+    /// Are null cells filled?
+    pub fn fill_latest_at(&self) -> bool {
+        self.fill_latest_at
+    }
+
+    /// The rows per batch asked for, if any.
+    pub fn batch_rows(&self) -> Option<usize> {
+        self.batch_rows
+    }
+}
+
+/// A dataframe query the store cannot answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DataframeError {
+    /// The index timeline is not one the store has seen.
+    UnknownIndex {
+        /// The name asked for.
+        timeline: String,
+        /// The timelines the store knows, sorted.
+        known: Vec<String>,
+    },
+    /// A batch of zero rows was asked for.
+    ZeroBatchRows,
+    /// A column's chunks could not be read as one list type (an Arrow error).
+    Column {
+        /// Arrow's message.
+        message: String,
+    },
+}
+
+impl fmt::Display for DataframeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::UnknownIndex { timeline, known } => write!(
+                f,
+                "unknown timeline {timeline:?} (the store has: {})",
+                if known.is_empty() {
+                    "none".to_owned()
+                } else {
+                    known.join(", ")
+                }
+            ),
+            Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
+            Self::Column { message } => write!(f, "dataframe column: {message}"),
+        }
+    }
+}
+
+impl std::error::Error for DataframeError {}
+
+impl ChunkStore {
+    /// The dataframe view `query` asks for: its schema at once
+    /// ([`DataframeStream::schema`]), its rows as a stream of record batches.
+    ///
+    /// Cost: planning visits the selected entities' indices once; streaming reads only
+    /// the chunks of the selected columns that overlap the range, merged in one pass, and
+    /// holds one batch at a time.
+    ///
+    /// # Errors
+    /// An index timeline the store has never seen, or a batch size of zero.
+    pub fn dataframe(&self, query: &DataframeQuery) -> Result<DataframeStream<'_>, DataframeError> {
+        if query.batch_rows == Some(0) {
+            return Err(DataframeError::ZeroBatchRows);
+        }
+        let Some(time_type) = self.time_type(&query.index) else {
+            return Err(DataframeError::UnknownIndex {
+                timeline: query.index.to_string(),
+                known: self
+                    .timelines()
+                    .iter()
+                    .map(|t| t.name().to_owned())
+                    .collect(),
+            });
+        };
+        let plan = schema::TablePlan::new(self, query, time_type);
+        DataframeStream::new(self, query, plan).map_err(|e| DataframeError::Column {
+            message: e.to_string(),
+        })
+    }
+}

@@ -1,0 +1,146 @@
+//! Planning a dataframe: which columns, in which order, with which Arrow fields.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::sync::Arc;
+
+use arrow_array::Array;
+use arrow_schema::{DataType, Field, FieldRef, Schema, SchemaRef};
+
+use super::DataframeQuery;
+use crate::{
+    Chunk, ChunkStore, ComponentDescriptor, ComponentName, EntityPath, TimeType, Timeline,
+};
+
+/// One (entity, component) column.
+#[derive(Clone, Debug)]
+pub(crate) struct ColumnPlan {
+    pub entity: EntityPath,
+    pub component: ComponentName,
+    /// The list's item field, as the first chunk found with the column has it.
+    pub item_field: FieldRef,
+    /// Archetype and component type, as the first chunk found with the column has them.
+    pub descriptor: ComponentDescriptor,
+    /// Does the entity hold static data for the component (static then wins)?
+    pub is_static: bool,
+}
+
+/// The whole table: index columns first (the index among them), then data columns.
+#[derive(Clone, Debug)]
+pub(crate) struct TablePlan {
+    pub index: Timeline,
+    /// Every timeline of the selected columns and the index, sorted by name.
+    pub index_columns: Vec<Timeline>,
+    /// Where the index is among `index_columns`.
+    pub index_position: usize,
+    pub columns: Vec<ColumnPlan>,
+    pub schema: SchemaRef,
+}
+
+impl TablePlan {
+    pub fn new(store: &ChunkStore, query: &DataframeQuery, index_type: TimeType) -> Self {
+        let index = Timeline::new(Arc::clone(&query.index), index_type);
+        let mut timelines: BTreeSet<Timeline> = BTreeSet::from([index.clone()]);
+        let mut columns = Vec::new();
+        for entity in store.entity_paths() {
+            if !query.contents.matches(&entity) {
+                continue;
+            }
+            let Some(entity_index) = store.entities.get(&entity) else {
+                continue;
+            };
+            // Components with data: a static winner, or a temporal index on some timeline.
+            let mut with_data: BTreeMap<ComponentName, (Arc<Chunk>, u32, bool)> = BTreeMap::new();
+            for (component, winner) in entity_index.static_winners.iter() {
+                with_data.insert(
+                    component.clone(),
+                    (Arc::clone(&winner.chunk), winner.component_column, true),
+                );
+            }
+            for (timeline, per_component) in entity_index.temporal_per_timeline_per_component.iter()
+            {
+                for (component, component_index) in per_component.iter() {
+                    let Some(entry) = component_index.chunks().next() else {
+                        continue;
+                    };
+                    if let Some(time_type) = store.time_type(timeline) {
+                        timelines.insert(Timeline::new(Arc::clone(timeline), time_type));
+                    }
+                    with_data.entry(component.clone()).or_insert_with(|| {
+                        (Arc::clone(&entry.chunk), entry.component_column, false)
+                    });
+                }
+            }
+            for (component, (chunk, column, is_static)) in with_data {
+                let column = &chunk.components()[column as usize];
+                let DataType::List(item_field) = column.list_array().data_type() else {
+                    continue; // component columns are lists (checked at construction)
+                };
+                columns.push(ColumnPlan {
+                    entity: entity.clone(),
+                    component,
+                    item_field: Arc::clone(item_field),
+                    descriptor: column.descriptor().clone(),
+                    is_static,
+                });
+            }
+        }
+        let index_columns: Vec<Timeline> = timelines.into_iter().collect();
+        let index_position = index_columns
+            .iter()
+            .position(|t| *t == index)
+            .unwrap_or_default();
+        let schema = Arc::new(schema_of(&index_columns, &columns));
+        Self {
+            index,
+            index_columns,
+            index_position,
+            columns,
+            schema,
+        }
+    }
+}
+
+/// Index fields (named by timeline, `rerun:kind=index`), then data fields named
+/// `<entity>:<component>` with the entity, component and, where the source had them,
+/// archetype and component type in their metadata, as Rerun writes them.
+fn schema_of(index_columns: &[Timeline], columns: &[ColumnPlan]) -> Schema {
+    let mut fields: Vec<Field> = index_columns
+        .iter()
+        .map(|timeline| {
+            Field::new(timeline.name(), timeline.time_type().to_arrow(), true).with_metadata(
+                HashMap::from([
+                    ("rerun:kind".to_owned(), "index".to_owned()),
+                    ("rerun:index_name".to_owned(), timeline.name().to_owned()),
+                ]),
+            )
+        })
+        .collect();
+    for column in columns {
+        let mut metadata = HashMap::from([
+            ("rerun:kind".to_owned(), "data".to_owned()),
+            ("rerun:entity_path".to_owned(), column.entity.to_string()),
+            ("rerun:component".to_owned(), column.component.to_string()),
+        ]);
+        if let Some(archetype) = &column.descriptor.archetype {
+            metadata.insert("rerun:archetype".to_owned(), archetype.to_string());
+        }
+        if let Some(component_type) = &column.descriptor.component_type {
+            metadata.insert(
+                "rerun:component_type".to_owned(),
+                component_type.to_string(),
+            );
+        }
+        if column.is_static {
+            metadata.insert("rerun:is_static".to_owned(), "true".to_owned());
+        }
+        fields.push(
+            Field::new(
+                format!("{}:{}", column.entity, column.component),
+                DataType::List(Arc::clone(&column.item_field)),
+                true,
+            )
+            .with_metadata(metadata),
+        );
+    }
+    Schema::new(fields)
+}

@@ -1,0 +1,448 @@
+//! Streaming a planned dataframe: columns merged into rows, rows gathered into batches.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::sync::Arc;
+
+use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+use arrow_array::{ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, SchemaRef};
+
+use super::cells::{Cell, ColumnCells, Sources};
+use super::schema::{ColumnPlan, TablePlan};
+use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
+use crate::query::{RangeCursor, RangeQuery};
+use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange, TimeType};
+
+/// The rows of a dataframe view, as Arrow record batches of at most the query's batch
+/// size, in ascending order of the index (or in the order of the sampled values). The
+/// schema is known before the first batch. Borrows the store: a table is read from one
+/// state of it.
+///
+/// Implements [`RecordBatchReader`], so it can be handed to any Arrow writer as it is.
+pub struct DataframeStream<'a> {
+    store: &'a ChunkStore,
+    plan: TablePlan,
+    columns: Vec<ColumnState>,
+    rows: Rows,
+    batch_rows: usize,
+    /// Per index column, this batch's values.
+    index_values: Vec<Vec<Option<i64>>>,
+    /// Per data column, this batch's cells (padded lazily: see [`ColumnCells`]).
+    cells: Vec<ColumnCells>,
+    /// Scratch: the greatest time on each index column among one row's cells.
+    maxima: Vec<Option<i64>>,
+    /// Set once the stream has ended (its last batch, or an error, was handed out).
+    done: bool,
+}
+
+impl std::fmt::Debug for DataframeStream<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DataframeStream")
+            .field("schema", &self.plan.schema)
+            .field("batch_rows", &self.batch_rows)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Where rows come from.
+enum Rows {
+    /// A row per distinct index value any column has an event at: a heap of each
+    /// temporal column's next event time.
+    Merge {
+        heap: BinaryHeap<Reverse<(TimeInt, u32)>>,
+        fill: bool,
+    },
+    /// A row per sampled value.
+    Sample { values: Arc<[TimeInt]>, next: usize },
+}
+
+struct ColumnState {
+    sources: Sources,
+    kind: Kind,
+}
+
+enum Kind {
+    /// The entity holds static data for the component: every row shows this cell (or an
+    /// empty list, when a static Clear hides it).
+    Static(Cell),
+    Temporal(TemporalColumn),
+}
+
+struct TemporalColumn {
+    /// The column's rows in the range, in `(time, row id)` order (merge mode only).
+    cursor: Option<RangeCursor>,
+    /// The cursor's source chunks as numbered in the column's [`Sources`].
+    cursor_sources: Vec<u32>,
+    /// Temporal Clears that apply, ascending (in the range, or all of them when
+    /// sampling), and the next one to merge.
+    clears: Vec<(TimeInt, RowId)>,
+    next_clear: usize,
+    /// A static Clear applies: every temporal value is hidden, whenever it was logged.
+    hidden_by_static_clear: bool,
+    /// The latest-at answer at the last row merged (fill mode).
+    fill: Option<Cell>,
+}
+
+impl TemporalColumn {
+    /// The time of the column's next event (a row or a Clear) in the merge.
+    fn next_time(&self) -> Option<TimeInt> {
+        let row = self
+            .cursor
+            .as_ref()
+            .and_then(RangeCursor::peek)
+            .map(|r| r.time);
+        let clear = self.clears.get(self.next_clear).map(|&(time, _)| time);
+        match (row, clear) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Consumes every event at `time` and returns the cell the row shows: the row of
+    /// greatest row id, or an empty list where a Clear came later.
+    fn take_events_at(&mut self, time: TimeInt) -> Option<Cell> {
+        let mut row = None;
+        if let Some(cursor) = &mut self.cursor {
+            while let Some(next) = cursor.peek().filter(|r| r.time == time) {
+                row = Some(next);
+                cursor.advance();
+            }
+        }
+        let mut clear = None;
+        while let Some(&(_, row_id)) = self.clears.get(self.next_clear).filter(|c| c.0 == time) {
+            clear = Some(row_id);
+            self.next_clear += 1;
+        }
+        match (row, clear) {
+            (Some(row), Some(clear)) if clear >= row.row_id => Some(Cell::Empty),
+            (Some(row), _) => Some(Cell::Row {
+                source: self.cursor_sources[row.source as usize],
+                row: row.row,
+            }),
+            (None, Some(_)) => Some(Cell::Empty),
+            (None, None) => None,
+        }
+    }
+}
+
+/// The cell of latest-at semantics given the unfiltered answer's index and the latest
+/// Clear that applies (SEMANTICS.md sections 3 and 5): a Clear at or after the answer
+/// hides it, and shows as an empty list.
+fn visible_cell(
+    answer: Option<((TimeInt, RowId), Cell)>,
+    latest_clear: Option<(TimeInt, RowId)>,
+    hidden_by_static_clear: bool,
+) -> Option<Cell> {
+    if hidden_by_static_clear {
+        return Some(Cell::Empty);
+    }
+    match (answer, latest_clear) {
+        (Some((index, _)), Some(clear)) if index <= clear => Some(Cell::Empty),
+        (Some((_, cell)), _) => Some(cell),
+        (None, Some(_)) => Some(Cell::Empty),
+        (None, None) => None,
+    }
+}
+
+impl<'a> DataframeStream<'a> {
+    pub(super) fn new(
+        store: &'a ChunkStore,
+        query: &DataframeQuery,
+        plan: TablePlan,
+    ) -> Result<Self, ArrowError> {
+        let sampling = query.index_values.clone();
+        let range = if sampling.is_some() {
+            TimeRange::EVERYTHING
+        } else {
+            query.range
+        };
+        let mut columns = Vec::with_capacity(plan.columns.len());
+        let mut heap = BinaryHeap::new();
+        for (number, column) in plan.columns.iter().enumerate() {
+            let state = column_state(store, &plan, column, range, query, sampling.is_none())?;
+            if let Kind::Temporal(temporal) = &state.kind
+                && let Some(time) = temporal.next_time()
+            {
+                heap.push(Reverse((time, u32::try_from(number).unwrap_or(u32::MAX))));
+            }
+            columns.push(state);
+        }
+        let rows = match sampling {
+            Some(values) => Rows::Sample { values, next: 0 },
+            None => Rows::Merge {
+                heap,
+                fill: query.fill_latest_at,
+            },
+        };
+        let batch_rows = query
+            .batch_rows
+            .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / plan.columns.len().max(1)).clamp(1, 65_536));
+        Ok(Self {
+            store,
+            index_values: vec![Vec::new(); plan.index_columns.len()],
+            cells: plan
+                .columns
+                .iter()
+                .map(|_| ColumnCells::default())
+                .collect(),
+            maxima: vec![None; plan.index_columns.len()],
+            plan,
+            columns,
+            rows,
+            batch_rows,
+            done: false,
+        })
+    }
+
+    /// The table's schema: index columns (sorted by timeline name), then one list column
+    /// per (entity, component) with data, ordered by entity path, then component.
+    pub fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.plan.schema)
+    }
+
+    /// How many rows a batch holds at most.
+    pub fn batch_rows(&self) -> usize {
+        self.batch_rows
+    }
+
+    /// Appends one merged row at `time`; `false` when there is none left.
+    fn merge_row(&mut self, num_rows: usize) -> bool {
+        let Rows::Merge { heap, fill } = &mut self.rows else {
+            return false;
+        };
+        let Some(&Reverse((time, _))) = heap.peek() else {
+            return false;
+        };
+        self.maxima.fill(None);
+        while let Some(&Reverse((t, number))) = heap.peek()
+            && t == time
+        {
+            heap.pop();
+            let state = &mut self.columns[number as usize];
+            let Kind::Temporal(column) = &mut state.kind else {
+                continue;
+            };
+            let cells = &mut self.cells[number as usize];
+            cells.pad(if *fill { column.fill } else { None }, num_rows);
+            let cell = column.take_events_at(time);
+            if let Some(cell) = cell {
+                state.sources.raise_times(cell, &mut self.maxima);
+            }
+            cells.push(cell);
+            if *fill && !column.hidden_by_static_clear && cell.is_some() {
+                column.fill = cell;
+            }
+            if let Some(next) = column.next_time() {
+                heap.push(Reverse((next, number)));
+            }
+        }
+        self.push_index_values(time);
+        true
+    }
+
+    /// Appends the row sampled at the next value; `false` when there is none left.
+    fn sample_row(&mut self) -> bool {
+        let Rows::Sample { values, next } = &mut self.rows else {
+            return false;
+        };
+        let Some(&at) = values.get(*next) else {
+            return false;
+        };
+        *next += 1;
+        self.maxima.fill(None);
+        let query = LatestAtQuery::new(Arc::clone(self.plan.index.name_arc()), at);
+        for ((state, plan), cells) in self
+            .columns
+            .iter_mut()
+            .zip(&self.plan.columns)
+            .zip(&mut self.cells)
+        {
+            let cell = match &mut state.kind {
+                Kind::Static(cell) => Some(*cell),
+                Kind::Temporal(column) => {
+                    let answer = self
+                        .store
+                        .latest_at_unfiltered(&query, &plan.entity, plan.component.as_str())
+                        .and_then(|answer| {
+                            let source = state
+                                .sources
+                                .find_or_push(
+                                    answer.chunk(),
+                                    answer.component_column_index(),
+                                    &self.plan.index_columns,
+                                )
+                                .ok()?;
+                            let index = (answer.time()?, answer.row_id());
+                            let row = u32::try_from(answer.row()).ok()?;
+                            Some((index, Cell::Row { source, row }))
+                        });
+                    let visible = column.clears.partition_point(|&(t, _)| t <= at);
+                    let latest_clear = visible.checked_sub(1).map(|i| column.clears[i]);
+                    let cell = visible_cell(answer, latest_clear, column.hidden_by_static_clear);
+                    if let Some(cell) = cell {
+                        state.sources.raise_times(cell, &mut self.maxima);
+                    }
+                    cell
+                }
+            };
+            cells.push(cell);
+        }
+        self.push_index_values(at);
+        true
+    }
+
+    fn push_index_values(&mut self, time: TimeInt) {
+        self.maxima[self.plan.index_position] = Some(time.as_i64());
+        for (values, max) in self.index_values.iter_mut().zip(&self.maxima) {
+            values.push(*max);
+        }
+    }
+
+    fn next_batch(&mut self) -> Result<Option<RecordBatch>, ArrowError> {
+        let mut num_rows = 0;
+        while num_rows < self.batch_rows && (self.merge_row(num_rows) || self.sample_row()) {
+            num_rows += 1;
+        }
+        if num_rows == 0 {
+            return Ok(None);
+        }
+        let fill = matches!(self.rows, Rows::Merge { fill: true, .. });
+        let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.plan.schema.fields().len());
+        for (timeline, values) in self.plan.index_columns.iter().zip(&mut self.index_values) {
+            let values = std::mem::take(values);
+            arrays.push(match timeline.time_type() {
+                TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
+                TimeType::DurationNs => {
+                    Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values))
+                }
+                TimeType::TimestampNs => {
+                    Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values))
+                }
+            });
+        }
+        for (state, cells) in self.columns.iter().zip(&mut self.cells) {
+            let pad = match &state.kind {
+                Kind::Static(cell) => Some(*cell),
+                Kind::Temporal(column) if fill => column.fill,
+                Kind::Temporal(_) => None,
+            };
+            cells.pad(pad, num_rows);
+            arrays.push(cells.finish(&state.sources, num_rows));
+        }
+        RecordBatch::try_new(Arc::clone(&self.plan.schema), arrays).map(Some)
+    }
+}
+
+/// The starting state of one column: its sources, its static cell or its cursor and
+/// Clears, and in fill mode its latest-at answer just before the range.
+fn column_state(
+    store: &ChunkStore,
+    plan: &TablePlan,
+    column: &ColumnPlan,
+    range: TimeRange,
+    query: &DataframeQuery,
+    merge: bool,
+) -> Result<ColumnState, ArrowError> {
+    let mut sources = Sources::new(Arc::clone(&column.item_field))?;
+    let timeline = plan.index.name();
+    let clears = store.clears.column_clears(&column.entity, timeline, range);
+    let entity_index = store.entities.get(&column.entity);
+    if let Some(winner) = entity_index.and_then(|e| e.static_winners.get(&column.component)) {
+        let hidden = clears.latest_static.is_some_and(|c| winner.row_id <= c);
+        let cell = if hidden {
+            Cell::Empty
+        } else {
+            Cell::Row {
+                source: sources.push(
+                    &winner.chunk,
+                    winner.component_column,
+                    &plan.index_columns,
+                )?,
+                row: winner.row,
+            }
+        };
+        return Ok(ColumnState {
+            sources,
+            kind: Kind::Static(cell),
+        });
+    }
+    let hidden_by_static_clear = clears.latest_static.is_some();
+    let mut temporal = TemporalColumn {
+        cursor: None,
+        cursor_sources: Vec::new(),
+        clears: clears.in_range,
+        next_clear: 0,
+        hidden_by_static_clear,
+        fill: None,
+    };
+    if merge {
+        let result = store.range(
+            &RangeQuery::new(Arc::clone(plan.index.name_arc()), range),
+            &column.entity,
+            column.component.as_str(),
+        );
+        let cursor = RangeCursor::new(result);
+        for source in 0..cursor.num_sources() {
+            let (chunk, component_column) = cursor.source(source);
+            temporal.cursor_sources.push(sources.push(
+                chunk,
+                component_column,
+                &plan.index_columns,
+            )?);
+        }
+        temporal.cursor = Some(cursor);
+        if query.fill_latest_at {
+            let before = range
+                .min()
+                .as_i64()
+                .checked_sub(1)
+                .and_then(TimeInt::new)
+                .filter(|_| !range.is_empty());
+            let answer = before.and_then(|at| {
+                let query = LatestAtQuery::new(Arc::clone(plan.index.name_arc()), at);
+                store.latest_at_unfiltered(&query, &column.entity, column.component.as_str())
+            });
+            let answer = match answer {
+                Some(answer) => {
+                    let source = sources.find_or_push(
+                        answer.chunk(),
+                        answer.component_column_index(),
+                        &plan.index_columns,
+                    )?;
+                    answer
+                        .time()
+                        .zip(u32::try_from(answer.row()).ok())
+                        .map(|(time, row)| ((time, answer.row_id()), Cell::Row { source, row }))
+                }
+                None => None,
+            };
+            temporal.fill = visible_cell(answer, clears.latest_before, hidden_by_static_clear);
+        }
+    }
+    Ok(ColumnState {
+        sources,
+        kind: Kind::Temporal(temporal),
+    })
+}
+
+impl Iterator for DataframeStream<'_> {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let batch = self.next_batch();
+        if !matches!(batch, Ok(Some(_))) {
+            self.done = true;
+        }
+        batch.transpose()
+    }
+}
+
+impl RecordBatchReader for DataframeStream<'_> {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.plan.schema)
+    }
+}
