@@ -11,6 +11,7 @@ use arrow_schema::{ArrowError, SchemaRef};
 use super::cells::{Cell, ColumnCells, Sources};
 use super::schema::{ColumnPlan, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
+use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
 use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange, TimeType};
 
@@ -346,7 +347,12 @@ fn column_state(
 ) -> Result<ColumnState, ArrowError> {
     let mut sources = Sources::new(Arc::clone(&column.item_field))?;
     let timeline = plan.index.name();
-    let clears = store.clears.column_clears(&column.entity, timeline, range);
+    // A Clear hides every component but the Clear component itself (SEMANTICS.md section 5).
+    let clears = if column.component.is_clear() {
+        ColumnClears::default()
+    } else {
+        store.clears.column_clears(&column.entity, timeline, range)
+    };
     let entity_index = store.entities.get(&column.entity);
     if let Some(winner) = entity_index.and_then(|e| e.static_winners.get(&column.component)) {
         let hidden = clears.latest_static.is_some_and(|c| winner.row_id <= c);
