@@ -1808,6 +1808,9 @@ fn component_name(component: usize) -> &'static str {
         .unwrap_or(ComponentName::CLEAR_IS_RECURSIVE)
 }
 
+/// A table as the model test reads one: data column names, index values, cells per column.
+type Table<C> = (Vec<String>, Vec<i64>, Vec<Vec<C>>);
+
 /// A dataframe cell as the model sees it: every acceptable value (rows that tie on their
 /// whole index may answer either way); `None` for a null cell.
 type DataframeCell = Vec<Cell>;
@@ -1972,7 +1975,7 @@ impl Model {
     }
 
     /// The model's table: column names, index values, and per column its cells.
-    fn dataframe(&self, op: &DataframeOp) -> (Vec<String>, Vec<i64>, Vec<Vec<DataframeCell>>) {
+    fn dataframe(&self, op: &DataframeOp) -> Table<DataframeCell> {
         let selected = |entity: usize| match op.contents {
             None => true,
             Some((root, include)) => {
@@ -1998,26 +2001,25 @@ impl Model {
             .map(|(p, name, ..)| format!("{p}:{name}"))
             .collect();
         let timeline = op.timeline;
-        let times: Vec<i64> = match &op.sample {
-            Some(values) => values.clone(),
-            None => {
-                let mut times = BTreeSet::new();
-                for &(_, _, entity, component) in &columns {
-                    if self.static_winner(entity, component).is_some() {
-                        continue;
-                    }
-                    for (time, ..) in self.column_events(entity, component, timeline) {
-                        times.insert(time);
-                    }
-                    for (time, _) in self.column_clear_events(entity, component, timeline) {
-                        times.insert(time);
-                    }
+        let times: Vec<i64> = if let Some(values) = &op.sample {
+            values.clone()
+        } else {
+            let mut times = BTreeSet::new();
+            for &(_, _, entity, component) in &columns {
+                if self.static_winner(entity, component).is_some() {
+                    continue;
                 }
-                times
-                    .into_iter()
-                    .filter(|t| op.min <= *t && *t <= op.max)
-                    .collect()
+                for (time, ..) in self.column_events(entity, component, timeline) {
+                    times.insert(time);
+                }
+                for (time, _) in self.column_clear_events(entity, component, timeline) {
+                    times.insert(time);
+                }
             }
+            times
+                .into_iter()
+                .filter(|t| op.min <= *t && *t <= op.max)
+                .collect()
         };
         let cells = columns
             .iter()
@@ -2047,10 +2049,7 @@ impl Model {
 }
 
 /// The store's table for `op`, read back as the model writes tables.
-fn dataframe_answer(
-    store: &ChunkStore,
-    op: &DataframeOp,
-) -> Option<(Vec<String>, Vec<i64>, Vec<Vec<Cell>>)> {
+fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<Table<Cell>> {
     let mut query = DataframeQuery::new(TIMELINES[op.timeline].0)
         .with_range(TimeRange::new(t(op.min), t(op.max)))
         .with_fill_latest_at(op.fill)

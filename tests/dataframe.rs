@@ -1,0 +1,550 @@
+//! Dataframe views (SEMANTICS.md section 9), rule by rule, on small stores whose tables
+//! are written out by hand.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss,
+    reason = "tests fail loudly on unexpected values; test values are small non-negative integers"
+)]
+
+mod common;
+
+use std::sync::Arc;
+
+use arrow_array::cast::AsArray;
+use arrow_array::types::Float64Type;
+use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch};
+use chunkstore::{
+    Chunk, ChunkId, ChunkStore, DataframeError, DataframeQuery, EntityPathFilter, StoreConfig,
+    TimeRange, Timeline,
+};
+use common::{clear, f64_list, path, rid, scalar, scalars, static_scalar, t};
+
+/// A table as text: one line per row, `index | cell | cell ...` with cells as `null`,
+/// `[]`, `[1]`, `[1,2]` (floats as integers) or `[true]` for Clears.
+fn render(store: &ChunkStore, query: &DataframeQuery) -> (Vec<String>, Vec<String>) {
+    let stream = store.dataframe(query).unwrap();
+    let schema = stream.schema();
+    let names = schema.fields().iter().map(|f| f.name().clone()).collect();
+    let index = schema.index_of(query.index()).unwrap();
+    let data_start = schema
+        .fields()
+        .iter()
+        .position(|f| f.name().contains(':'))
+        .unwrap_or(schema.fields().len());
+    let mut lines = Vec::new();
+    for batch in stream {
+        let batch = batch.unwrap();
+        if let Some(rows) = query.batch_rows() {
+            assert!(batch.num_rows() <= rows);
+        }
+        let index = batch
+            .column(index)
+            .as_primitive::<arrow_array::types::Int64Type>();
+        for row in 0..batch.num_rows() {
+            let mut line = index.value(row).to_string();
+            for column in &batch.columns()[data_start..] {
+                line.push_str(" | ");
+                line.push_str(&cell_text(column, row));
+            }
+            lines.push(line);
+        }
+    }
+    (names, lines)
+}
+
+fn cell_text(column: &ArrayRef, row: usize) -> String {
+    let list = column.as_list::<i32>();
+    if list.is_null(row) {
+        return "null".to_owned();
+    }
+    let cell = list.value(row);
+    let items: Vec<String> = if let Some(floats) = cell.as_primitive_opt::<Float64Type>() {
+        floats.values().iter().map(|v| format!("{v}")).collect()
+    } else {
+        cell.as_boolean()
+            .iter()
+            .map(|b| b.unwrap().to_string())
+            .collect()
+    };
+    format!("[{}]", items.join(","))
+}
+
+fn store_of(chunks: impl IntoIterator<Item = Chunk>) -> ChunkStore {
+    let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap();
+    for chunk in chunks {
+        store.insert(chunk).unwrap();
+    }
+    store
+}
+
+fn frame() -> DataframeQuery {
+    DataframeQuery::new("frame")
+}
+
+fn lines(rows: &[&str]) -> Vec<String> {
+    rows.iter().map(|r| (*r).to_owned()).collect()
+}
+
+#[test]
+fn columns_are_ordered_by_path_parts_then_component() {
+    let store = store_of([
+        scalar("/tree/a", "y", 1, 1, 1.0),
+        scalar("/tree", "z", 1, 2, 2.0),
+        scalar("/tree", "b", 1, 3, 3.0),
+        scalar("/tree-b", "x", 1, 4, 4.0),
+        scalar("/tree/a/deep", "x", 1, 5, 5.0),
+    ]);
+    let (names, rows) = render(&store, &frame());
+    // `/tree` and its subtree come before `/tree-b`: parts compare one by one.
+    assert_eq!(
+        names,
+        [
+            "frame",
+            "/tree:b",
+            "/tree:z",
+            "/tree/a:y",
+            "/tree/a/deep:x",
+            "/tree-b:x"
+        ]
+    );
+    assert_eq!(rows, lines(&["1 | [3] | [2] | [1] | [5] | [4]"]));
+}
+
+#[test]
+fn sparse_rows_keep_the_greatest_row_id_per_time_whatever_the_order() {
+    // Out of order across and inside chunks, two rows at time 2 (row ids 7 and 9).
+    let store = store_of([
+        scalars(
+            "/a",
+            "x",
+            &[
+                (3, 5, Some(vec![30.0])),
+                (2, 9, Some(vec![29.0])),
+                (1, 4, Some(vec![10.0])),
+            ],
+        ),
+        scalars("/a", "x", &[(2, 7, Some(vec![20.0])), (5, 8, None)]),
+        scalar("/b", "x", 4, 6, 40.0),
+    ]);
+    let (names, rows) = render(&store, &frame());
+    assert_eq!(names, ["frame", "/a:x", "/b:x"]);
+    // Time 5 holds only a null cell: no row.
+    assert_eq!(
+        rows,
+        lines(&[
+            "1 | [10] | null",
+            "2 | [29] | null",
+            "3 | [30] | null",
+            "4 | null | [40]"
+        ])
+    );
+}
+
+#[test]
+fn fill_latest_at_fills_nulls_from_before_the_range_too() {
+    let store = store_of([
+        scalar("/a", "x", 1, 1, 1.0),
+        scalar("/b", "x", 2, 2, 2.0),
+        scalar("/a", "x", 3, 3, 3.0),
+        scalar("/b", "x", 5, 4, 5.0),
+    ]);
+    let query = frame().with_fill_latest_at(true);
+    assert_eq!(
+        render(&store, &query).1,
+        lines(&[
+            "1 | [1] | null",
+            "2 | [1] | [2]",
+            "3 | [3] | [2]",
+            "5 | [3] | [5]"
+        ])
+    );
+    let query = query.with_range(TimeRange::new(t(3), t(10)));
+    assert_eq!(
+        render(&store, &query).1,
+        lines(&["3 | [3] | [2]", "5 | [3] | [5]"])
+    );
+}
+
+#[test]
+fn ranges_are_inclusive_and_an_empty_one_has_no_rows() {
+    let store = store_of([scalars(
+        "/a",
+        "x",
+        &[
+            (1, 1, Some(vec![1.0])),
+            (2, 2, Some(vec![2.0])),
+            (3, 3, Some(vec![3.0])),
+        ],
+    )]);
+    let range = |lo, hi| render(&store, &frame().with_range(TimeRange::new(t(lo), t(hi)))).1;
+    assert_eq!(range(2, 3), lines(&["2 | [2]", "3 | [3]"]));
+    assert_eq!(range(2, 2), lines(&["2 | [2]"]));
+    assert!(range(3, 2).is_empty(), "min > max: an empty range");
+    assert!(range(10, 20).is_empty());
+    // The schema is there even without rows.
+    assert_eq!(
+        render(&store, &frame().with_range(TimeRange::new(t(10), t(20)))).0,
+        ["frame", "/a:x"]
+    );
+}
+
+#[test]
+fn static_data_shows_on_every_row_and_adds_none() {
+    let store = store_of([
+        scalar("/a", "x", 1, 1, 1.0),
+        scalar("/a", "x", 3, 3, 3.0),
+        static_scalar("/s", "x", 2, 7.0),
+        static_scalar("/s", "x", 5, 8.0), // the later static write wins
+        scalar("/s", "x", 2, 9, 99.0),    // shadowed by static data: no row of its own
+    ]);
+    let (names, rows) = render(&store, &frame());
+    assert_eq!(names, ["frame", "/a:x", "/s:x"]);
+    assert_eq!(rows, lines(&["1 | [1] | [8]", "3 | [3] | [8]"]));
+    let stream = store.dataframe(&frame()).unwrap();
+    let schema = stream.schema();
+    let field = schema.field_with_name("/s:x").unwrap();
+    assert_eq!(
+        field.metadata().get("rerun:is_static").map(String::as_str),
+        Some("true")
+    );
+    assert_eq!(
+        field
+            .metadata()
+            .get("rerun:entity_path")
+            .map(String::as_str),
+        Some("/s")
+    );
+    assert_eq!(
+        field.metadata().get("rerun:component").map(String::as_str),
+        Some("x")
+    );
+    assert!(
+        schema
+            .field_with_name("/a:x")
+            .unwrap()
+            .metadata()
+            .get("rerun:is_static")
+            .is_none()
+    );
+}
+
+#[test]
+fn sampling_gives_one_row_per_value_before_between_and_after() {
+    let store = store_of([
+        scalar("/a", "x", 10, 1, 1.0),
+        scalar("/a", "x", 20, 2, 2.0),
+        static_scalar("/s", "y", 3, 5.0),
+    ]);
+    for fill in [false, true] {
+        let query = frame()
+            .with_index_values([t(5), t(10), t(15), t(25), t(15), t(-3)])
+            .with_fill_latest_at(fill)
+            .with_range(TimeRange::new(t(11), t(12))); // sampling ignores the range
+        assert_eq!(
+            render(&store, &query).1,
+            lines(&[
+                "5 | null | [5]",
+                "10 | [1] | [5]",
+                "15 | [1] | [5]",
+                "25 | [2] | [5]",
+                "15 | [1] | [5]",
+                "-3 | null | [5]",
+            ])
+        );
+    }
+    assert!(render(&store, &frame().with_index_values([])).1.is_empty());
+}
+
+#[test]
+fn a_component_on_one_timeline_only_is_null_on_the_other() {
+    let two_timelines = Chunk::try_new(
+        ChunkId::new(),
+        path("/a"),
+        vec![rid(1), rid(2)],
+        vec![
+            (
+                Timeline::sequence("frame"),
+                Arc::new(Int64Array::from(vec![1, 2])) as ArrayRef,
+            ),
+            (
+                Timeline::sequence("other"),
+                Arc::new(Int64Array::from(vec![100, 200])) as ArrayRef,
+            ),
+        ],
+        vec![("x".into(), f64_list(&[Some(vec![1.0]), Some(vec![2.0])]))],
+    )
+    .unwrap();
+    let frame_only = scalar("/b", "y", 2, 3, 9.0);
+    let store = store_of([two_timelines, frame_only]);
+    let (names, rows) = render(&store, &DataframeQuery::new("other"));
+    // `/b:y` has data (on `frame` only): a column, never a row of its own on `other`.
+    assert_eq!(names, ["frame", "other", "/a:x", "/b:y"]);
+    assert_eq!(rows, lines(&["100 | [1] | null", "200 | [2] | null"]));
+    // The other index column shows the rows' own times there.
+    let batch = one_batch(&store, &DataframeQuery::new("other"));
+    let frame_values = batch
+        .column(0)
+        .as_primitive::<arrow_array::types::Int64Type>();
+    assert_eq!(frame_values.values().to_vec(), [1, 2]);
+    // On `frame`, `/b:y` has its row; `other` is null where no cell of the row has it.
+    let batch = one_batch(&store, &frame());
+    let other = batch
+        .column(1)
+        .as_primitive::<arrow_array::types::Int64Type>();
+    assert_eq!(other.iter().collect::<Vec<_>>(), [Some(100), Some(200)]);
+}
+
+fn one_batch(store: &ChunkStore, query: &DataframeQuery) -> RecordBatch {
+    let stream = store.dataframe(query).unwrap();
+    let schema = stream.schema();
+    let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
+    arrow_select::concat::concat_batches(&schema, &batches).unwrap()
+}
+
+#[test]
+fn a_flat_clear_shows_as_an_empty_list_and_is_not_filled_back() {
+    let store = store_of([
+        scalar("/a", "x", 1, 1, 1.0),
+        clear("/a", Some(3), 2, false),
+        scalar("/a", "x", 5, 3, 5.0),
+        scalar("/b", "x", 4, 4, 4.0),
+    ]);
+    let (names, rows) = render(&store, &frame());
+    assert_eq!(names, ["frame", "/a:Clear:is_recursive", "/a:x", "/b:x"]);
+    assert_eq!(
+        rows,
+        lines(&[
+            "1 | null | [1] | null",
+            "3 | [false] | [] | null",
+            "4 | null | null | [4]",
+            "5 | null | [5] | null"
+        ])
+    );
+    let filled = render(&store, &frame().with_fill_latest_at(true)).1;
+    assert_eq!(
+        filled,
+        lines(&[
+            "1 | null | [1] | null",
+            "3 | [false] | [] | null",
+            "4 | [false] | [] | [4]",
+            "5 | [false] | [5] | [4]"
+        ])
+    );
+    // Sampling agrees with latest-at: hidden from the Clear on, visible again after.
+    let sampled = render(&store, &frame().with_index_values([t(2), t(3), t(4), t(5)])).1;
+    assert_eq!(
+        sampled,
+        lines(&[
+            "2 | null | [1] | null",
+            "3 | [false] | [] | null",
+            "4 | [false] | [] | [4]",
+            "5 | [false] | [5] | [4]"
+        ])
+    );
+}
+
+#[test]
+fn a_recursive_clear_empties_descendants_at_its_time_and_a_later_row_id_survives() {
+    let store = store_of([
+        scalar("/r/a", "x", 1, 1, 1.0),
+        scalar("/r/a/b", "x", 1, 2, 2.0),
+        scalar("/other", "x", 1, 3, 3.0),
+        clear("/r", Some(2), 10, true),
+        scalar("/r/a", "x", 2, 11, 22.0), // same time, later row id: shows
+        scalar("/r/a/b", "x", 2, 9, 99.0), // same time, earlier row id: cleared
+    ]);
+    let query = frame().with_contents(EntityPathFilter::parse(["/r/a/**", "/other"]).unwrap());
+    let (names, rows) = render(&store, &query);
+    // `/r` itself is not selected, yet its recursive Clear empties what is.
+    assert_eq!(names, ["frame", "/other:x", "/r/a:x", "/r/a/b:x"]);
+    assert_eq!(
+        rows,
+        lines(&["1 | [3] | [1] | [2]", "2 | null | [22] | []"])
+    );
+    let filled = render(&store, &query.clone().with_fill_latest_at(true)).1;
+    assert_eq!(
+        filled,
+        lines(&["1 | [3] | [1] | [2]", "2 | [3] | [22] | []"])
+    );
+    // A flat Clear at an ancestor hides nothing below it.
+    let flat = store_of([
+        scalar("/r/a", "x", 1, 1, 1.0),
+        clear("/r", Some(2), 10, false),
+    ]);
+    let query = frame().with_contents(EntityPathFilter::parse(["/r/a"]).unwrap());
+    assert_eq!(
+        render(&flat, &query.with_fill_latest_at(true)).1,
+        lines(&["1 | [1]"])
+    );
+}
+
+#[test]
+fn a_static_clear_hides_older_static_data_and_all_temporal_data_when_filling() {
+    let store = store_of([
+        static_scalar("/a", "s", 1, 1.0),
+        scalar("/a", "x", 1, 2, 1.0),
+        scalar("/b", "x", 2, 3, 2.0),
+        clear("/a", None, 5, false),
+        static_scalar("/a", "t", 6, 6.0), // written after the Clear: visible
+    ]);
+    let query = frame().with_contents(EntityPathFilter::parse(["/a", "/b"]).unwrap());
+    let (names, rows) = render(&store, &query);
+    assert_eq!(
+        names,
+        [
+            "frame",
+            "/a:Clear:is_recursive",
+            "/a:s",
+            "/a:t",
+            "/a:x",
+            "/b:x"
+        ]
+    );
+    // Sparse rows are the history: the temporal row at 1 shows; static cells are cleared.
+    assert_eq!(
+        rows,
+        lines(&[
+            "1 | [false] | [] | [6] | [1] | null",
+            "2 | [false] | [] | [6] | null | [2]"
+        ])
+    );
+    let filled = render(&store, &query.clone().with_fill_latest_at(true)).1;
+    assert_eq!(
+        filled,
+        lines(&[
+            "1 | [false] | [] | [6] | [1] | null",
+            "2 | [false] | [] | [6] | [] | [2]"
+        ])
+    );
+    let sampled = render(&store, &query.with_index_values([t(0), t(1)])).1;
+    assert_eq!(
+        sampled,
+        lines(&[
+            "0 | [false] | [] | [6] | [] | null",
+            "1 | [false] | [] | [6] | [] | null"
+        ])
+    );
+}
+
+#[test]
+fn batches_hold_at_most_the_rows_asked_for_and_concatenate_to_the_table() {
+    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..50)
+        .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
+        .collect();
+    let store = store_of([
+        scalars("/a", "x", &rows),
+        static_scalar("/s", "y", 100, 1.0),
+    ]);
+    let whole = render(&store, &frame()).1;
+    assert_eq!(whole.len(), 50);
+    for batch_rows in [1, 3, 7, 49, 50, 51] {
+        let query = frame()
+            .with_batch_rows(batch_rows)
+            .with_fill_latest_at(true);
+        let stream = store.dataframe(&query).unwrap();
+        let sizes: Vec<usize> = stream.map(|b| b.unwrap().num_rows()).collect();
+        assert!(
+            sizes.iter().all(|&n| n >= 1 && n <= batch_rows),
+            "{sizes:?}"
+        );
+        assert_eq!(sizes.iter().sum::<usize>(), 50);
+        assert_eq!(render(&store, &query).1, whole);
+    }
+}
+
+#[test]
+fn compaction_and_chunking_never_change_a_table() {
+    let chunks = || {
+        (0..40).map(|i| {
+            scalar(
+                if i % 3 == 0 { "/a" } else { "/b/c" },
+                "x",
+                (i * 7) % 23,
+                i as u128 + 1,
+                i as f64,
+            )
+        })
+    };
+    let plain = store_of(chunks());
+    let mut compacted = ChunkStore::with_config(StoreConfig::DEFAULT.with_max_rows(4)).unwrap();
+    for chunk in chunks() {
+        compacted.insert(chunk).unwrap();
+    }
+    compacted.compact();
+    for query in [
+        frame(),
+        frame().with_fill_latest_at(true),
+        frame().with_index_values((0..25).map(t)),
+    ] {
+        assert_eq!(render(&plain, &query), render(&compacted, &query));
+    }
+}
+
+#[test]
+fn the_default_contents_leave_out_properties_and_filters_select() {
+    let store = store_of([
+        static_scalar("/__properties", "start", 1, 1.0),
+        scalar("/world/a", "x", 1, 2, 1.0),
+        scalar("/world/roads/main", "x", 1, 3, 1.0),
+        scalar("/world/roads/side", "x", 1, 4, 1.0),
+    ]);
+    assert_eq!(
+        render(&store, &frame()).0,
+        [
+            "frame",
+            "/world/a:x",
+            "/world/roads/main:x",
+            "/world/roads/side:x"
+        ]
+    );
+    let filter =
+        EntityPathFilter::parse(["+ /world/**", "- /world/roads/**", "+ /world/roads/main"])
+            .unwrap();
+    assert_eq!(
+        render(&store, &frame().with_contents(filter)).0,
+        ["frame", "/world/a:x", "/world/roads/main:x"]
+    );
+    let everything = EntityPathFilter::parse(["/**"]).unwrap();
+    assert!(
+        render(&store, &frame().with_contents(everything))
+            .0
+            .contains(&"/__properties:start".to_owned())
+    );
+    let nothing = EntityPathFilter::parse(["/nowhere"]).unwrap();
+    let (names, rows) = render(&store, &frame().with_contents(nothing));
+    assert_eq!((names, rows.len()), (vec!["frame".to_owned()], 0));
+}
+
+#[test]
+fn bad_queries_are_named() {
+    let store = store_of([scalar("/a", "x", 1, 1, 1.0)]);
+    let error = store.dataframe(&DataframeQuery::new("nope")).unwrap_err();
+    assert_eq!(
+        error,
+        DataframeError::UnknownIndex {
+            timeline: "nope".to_owned(),
+            known: vec!["frame".to_owned()]
+        }
+    );
+    assert!(error.to_string().contains("unknown timeline \"nope\""));
+    assert_eq!(
+        store.dataframe(&frame().with_batch_rows(0)).unwrap_err(),
+        DataframeError::ZeroBatchRows
+    );
+}
+
+#[test]
+fn the_stream_is_a_record_batch_reader_and_the_default_batch_is_bounded_by_cells() {
+    use arrow_array::RecordBatchReader;
+    let store = store_of([scalar("/a", "x", 1, 1, 1.0)]);
+    let stream = store.dataframe(&frame()).unwrap();
+    assert_eq!(stream.batch_rows(), 65_536, "one column: the row cap");
+    let reader: Box<dyn RecordBatchReader> = Box::new(stream);
+    assert_eq!(reader.schema().fields().len(), 2);
+    assert_eq!(reader.map(|b| b.unwrap().num_rows()).sum::<usize>(), 1);
+    let wide = store_of((0..2000).map(|i| scalar(&format!("/e{i}"), "x", 1, i + 1, 1.0)));
+    let stream = wide.dataframe(&frame()).unwrap();
+    assert_eq!(stream.batch_rows(), chunkstore::DEFAULT_BATCH_CELLS / 2000);
+}
