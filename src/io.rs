@@ -4,10 +4,10 @@
 use std::io::{Cursor, Write};
 use std::path::Path;
 
-use arrow_array::RecordBatch;
+use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_buffer::Buffer;
 use arrow_ipc::reader::{FileReader, StreamDecoder, StreamReader};
-use arrow_ipc::writer::FileWriter;
+use arrow_ipc::writer::{FileWriter, StreamWriter};
 use arrow_schema::ArrowError;
 
 use crate::Chunk;
@@ -122,6 +122,59 @@ pub fn write_chunk_ipc_file(chunk: &Chunk, writer: impl Write) -> Result<(), IoE
     let mut writer = FileWriter::try_new(writer, &batch.schema()).map_err(IoError::Ipc)?;
     writer.write(&batch).map_err(IoError::Ipc)?;
     writer.finish().map_err(IoError::Ipc)
+}
+
+/// Writes every batch `reader` yields as an Arrow IPC **file** at `path`, atomically: the
+/// file appears whole, or (on any error, the reader's included) not at all. Returns the
+/// number of rows written.
+///
+/// # Errors
+/// [`IoError::Io`] for the file system, [`IoError::Ipc`] for Arrow (or the reader's own
+/// error).
+pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64, IoError> {
+    let io = |source| IoError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    crate::atomic::atomic_write(path, io, |file| {
+        let schema = reader.schema();
+        let mut writer =
+            FileWriter::try_new(std::io::BufWriter::new(file), &schema).map_err(IoError::Ipc)?;
+        let mut rows = 0;
+        for batch in reader {
+            let batch = batch.map_err(IoError::Ipc)?;
+            rows += batch.num_rows() as u64;
+            writer.write(&batch).map_err(IoError::Ipc)?;
+        }
+        writer.finish().map_err(IoError::Ipc)?;
+        let file = writer
+            .into_inner()
+            .map_err(IoError::Ipc)?
+            .into_inner()
+            .map_err(|e| io(e.into_error()))?;
+        Ok((file, rows))
+    })
+}
+
+/// Writes every batch `reader` yields as an Arrow IPC **stream** to `writer` (a pipe, a
+/// socket, stdout), batch by batch. Returns the number of rows written.
+///
+/// # Errors
+/// [`IoError::Ipc`] for Arrow, the writer (its I/O errors come wrapped by Arrow) or the
+/// reader.
+pub fn write_ipc_stream(
+    writer: impl Write,
+    reader: impl RecordBatchReader,
+) -> Result<u64, IoError> {
+    let mut writer = StreamWriter::try_new(writer, &reader.schema()).map_err(IoError::Ipc)?;
+    let mut rows = 0;
+    for batch in reader {
+        let batch = batch.map_err(IoError::Ipc)?;
+        rows += batch.num_rows() as u64;
+        writer.write(&batch).map_err(IoError::Ipc)?;
+    }
+    writer.finish().map_err(IoError::Ipc)?;
+    Ok(rows)
 }
 
 /// Checks that every size the IPC framing claims fits in `bytes`, so that no decoder

@@ -57,9 +57,14 @@
 //!   them. Needs `arrow-ipc`.
 //! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
-//! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`).
+//! - `parquet`: [`parquet_export`], dataframes and the raw chunk table as Parquet files.
+//!   Needs `parquet` (Snappy only).
+//! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`); implies
+//!   `rrd` and `parquet`.
 #![forbid(unsafe_code)]
 
+#[cfg(any(feature = "ipc", feature = "parquet"))]
+mod atomic;
 mod chunk;
 mod clear;
 mod compaction;
@@ -77,6 +82,8 @@ mod insert;
 #[cfg(feature = "ipc")]
 pub mod io;
 mod ordered;
+#[cfg(feature = "parquet")]
+pub mod parquet_export;
 mod query;
 #[cfg(feature = "rrd")]
 pub mod rrd;
@@ -91,8 +98,8 @@ pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
 pub use dataframe::{
-    DEFAULT_BATCH_CELLS, DataframeError, DataframeQuery, DataframeStream, EntityPathFilter,
-    EntityPathFilterError,
+    ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_CELLS, DataframeError, DataframeQuery,
+    DataframeStream, EntityPathFilter, EntityPathFilterError,
 };
 pub use entity_path::EntityPath;
 #[cfg(feature = "ipc")]

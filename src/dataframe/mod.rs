@@ -10,6 +10,7 @@
 //! ([`cells`]) and copies each run with one `MutableArrayData::extend`.
 
 mod cells;
+mod chunk_table;
 mod filter;
 mod schema;
 mod stream;
@@ -19,6 +20,7 @@ use std::sync::Arc;
 
 use crate::{ChunkStore, TimeInt, TimeRange};
 
+pub use chunk_table::{ChunkTableQuery, ChunkTableStream};
 pub use filter::{EntityPathFilter, EntityPathFilterError};
 pub use stream::DataframeStream;
 

@@ -2,7 +2,7 @@
 //! manifest; and [`write_rrd_file`], which writes a file atomically.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use super::error::{RrdError, RrdErrorKind};
@@ -144,58 +144,21 @@ pub fn write_rrd_file(
     chunks: impl IntoIterator<Item = Arc<Chunk>>,
     mut progress: impl FnMut(u64),
 ) -> Result<u64, RrdError> {
-    atomic_write(path, |file| {
-        let mut writer = RrdWriter::with_store_info(std::io::BufWriter::new(file), info, true)?;
-        for chunk in chunks {
-            writer.write_chunk(&chunk)?;
-            progress(writer.position());
-        }
-        let size = writer.position();
-        let out = writer.finish()?;
-        let file = out
-            .into_inner()
-            .map_err(|e| RrdError::new(size, RrdErrorKind::Io(e.into_error())))?;
-        Ok((file, size))
-    })
-}
-
-/// Runs `write` on a temporary file beside `path`, then syncs it and renames it over
-/// `path`; removes it on failure.
-pub(crate) fn atomic_write<T>(
-    path: &Path,
-    write: impl FnOnce(std::fs::File) -> Result<(std::fs::File, T), RrdError>,
-) -> Result<T, RrdError> {
-    let io = |e: std::io::Error| RrdError::new(0, RrdErrorKind::Io(e));
-    let temp = temporary_path(path);
-    let file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&temp)
-        .map_err(io)?;
-    let result = write(file).and_then(|(file, value)| {
-        file.sync_all().map_err(io)?;
-        drop(file);
-        std::fs::rename(&temp, path).map_err(io)?;
-        // The rename itself is durable once the directory is synced (where that is possible).
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty())
-            && let Ok(dir) = std::fs::File::open(dir)
-        {
-            let _ = dir.sync_all();
-        }
-        Ok(value)
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temp);
-    }
-    result
-}
-
-fn temporary_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    // A fresh row id is unique within the process, the pid across processes.
-    let unique = crate::RowId::new().as_u128();
-    path.with_file_name(format!(".{name}.{}-{unique:x}.tmp", std::process::id()))
+    crate::atomic::atomic_write(
+        path,
+        |e| RrdError::new(0, RrdErrorKind::Io(e)),
+        |file| {
+            let mut writer = RrdWriter::with_store_info(std::io::BufWriter::new(file), info, true)?;
+            for chunk in chunks {
+                writer.write_chunk(&chunk)?;
+                progress(writer.position());
+            }
+            let size = writer.position();
+            let out = writer.finish()?;
+            let file = out
+                .into_inner()
+                .map_err(|e| RrdError::new(size, RrdErrorKind::Io(e.into_error())))?;
+            Ok((file, size))
+        },
+    )
 }

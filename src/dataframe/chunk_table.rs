@@ -1,0 +1,400 @@
+//! The raw chunk table: one row per stored chunk row, across entities, streamed as record
+//! batches (what the Parquet export of a store writes, and what SQL over "all chunks"
+//! reads).
+
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap, HashMap};
+use std::sync::Arc;
+
+use arrow_array::builder::{FixedSizeBinaryBuilder, StringBuilder};
+use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+use arrow_array::{Array, ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
+
+use super::cells::{Cell, ColumnCells, Sources};
+use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
+use crate::{Chunk, ChunkStore, RowId, TimeInt, TimeType, Timeline};
+
+/// Which chunk rows a [`ChunkStore::chunk_table`] holds and in which order.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ChunkTableQuery {
+    index: Option<Arc<str>>,
+    contents: Option<EntityPathFilter>,
+    batch_rows: Option<usize>,
+}
+
+impl ChunkTableQuery {
+    /// Every chunk row of every entity (`/__properties` included), chunk by chunk.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Rows ordered by `(time on index, row id)` across all chunks (so that a file's row
+    /// groups are ordered by it); rows without a time there (static data, chunks of other
+    /// timelines) come first, chunk by chunk.
+    #[must_use]
+    pub fn with_index(mut self, index: impl Into<Arc<str>>) -> Self {
+        self.index = Some(index.into());
+        self
+    }
+
+    /// Only the entities `contents` selects.
+    #[must_use]
+    pub fn with_contents(mut self, contents: EntityPathFilter) -> Self {
+        self.contents = Some(contents);
+        self
+    }
+
+    /// At most `rows` rows per batch (default: about [`DEFAULT_BATCH_CELLS`] cells).
+    #[must_use]
+    pub fn with_batch_rows(mut self, rows: usize) -> Self {
+        self.batch_rows = Some(rows);
+        self
+    }
+}
+
+/// One chunk of the table, and where its columns go.
+struct TableChunk {
+    chunk: Arc<Chunk>,
+    /// Per output timeline, the chunk's time column there.
+    time_columns: Vec<Option<usize>>,
+    /// `(output component column, source number there)` per component of the chunk,
+    /// registered the first time a row of the chunk is written.
+    components: Option<Vec<(usize, u32)>>,
+    /// The chunk's time column on the index, when it has one (then it is merged).
+    index_column: Option<usize>,
+    /// The next position to write (in `(time, row id)` order on the index when merged,
+    /// else row order).
+    position: usize,
+}
+
+/// The rows of [`ChunkStore::chunk_table`]: `entity_path` (Utf8), `chunk_id` and
+/// `row_id` (`FixedSizeBinary(16)`, big-endian), one column per timeline (sorted by name,
+/// null where a row has no time there), then one list column per component name (sorted;
+/// null where a row's chunk has no such column). Where entities use one component name
+/// with different types, each further type gets its own column, named `<component>#2`,
+/// `#3`… in the order of entity paths. Holds the chunks it reads (not the store): it may
+/// outlive the borrow it was made from.
+pub struct ChunkTableStream {
+    schema: SchemaRef,
+    chunks: Vec<TableChunk>,
+    /// Chunks written whole in order, before the merge: their numbers, and the next one.
+    unmerged: Vec<usize>,
+    next_unmerged: usize,
+    heap: BinaryHeap<Reverse<((TimeInt, RowId), usize)>>,
+    timelines: Vec<Timeline>,
+    /// `(component name, list type)` of each component column.
+    component_columns: Vec<(Arc<str>, DataType)>,
+    sources: Vec<Sources>,
+    cells: Vec<ColumnCells>,
+    batch_rows: usize,
+    done: bool,
+}
+
+impl std::fmt::Debug for ChunkTableStream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ChunkTableStream")
+            .field("schema", &self.schema)
+            .field("chunks", &self.chunks.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl ChunkStore {
+    /// Every row of every selected chunk as one table (see [`ChunkTableStream`]): the
+    /// store's raw contents, for files and for questions across entities.
+    ///
+    /// # Errors
+    /// An index timeline the store has never seen, or a batch size of zero.
+    pub fn chunk_table(&self, query: &ChunkTableQuery) -> Result<ChunkTableStream, DataframeError> {
+        if query.batch_rows == Some(0) {
+            return Err(DataframeError::ZeroBatchRows);
+        }
+        if let Some(index) = &query.index
+            && self.time_type(index).is_none()
+        {
+            return Err(DataframeError::UnknownIndex {
+                timeline: index.to_string(),
+                known: self
+                    .timelines()
+                    .iter()
+                    .map(|t| t.name().to_owned())
+                    .collect(),
+            });
+        }
+        let mut chunks: Vec<Arc<Chunk>> = self
+            .chunks()
+            .filter(|c| {
+                query
+                    .contents
+                    .as_ref()
+                    .is_none_or(|filter| filter.matches(c.entity_path()))
+            })
+            .cloned()
+            .collect();
+        chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
+        ChunkTableStream::new(chunks, query).map_err(|e| DataframeError::Column {
+            message: e.to_string(),
+        })
+    }
+}
+
+impl ChunkTableStream {
+    fn new(chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Result<Self, ArrowError> {
+        let (timelines, fields, component_columns, sources) = table_columns(&chunks)?;
+        let index = query.index.as_deref();
+        let mut heap = BinaryHeap::new();
+        let mut unmerged = Vec::new();
+        let table_chunks: Vec<TableChunk> = chunks
+            .into_iter()
+            .enumerate()
+            .map(|(number, chunk)| {
+                let index_column = index.and_then(|name| {
+                    chunk
+                        .time_columns()
+                        .iter()
+                        .position(|c| c.timeline().name() == name)
+                });
+                match index_column {
+                    Some(column) => {
+                        let row = chunk.time_columns()[column].row_at(0);
+                        heap.push(Reverse((chunk.index_of_row(column, row), number)));
+                    }
+                    None => unmerged.push(number),
+                }
+                TableChunk {
+                    time_columns: timelines
+                        .iter()
+                        .map(|t| {
+                            chunk
+                                .time_columns()
+                                .iter()
+                                .position(|c| c.timeline().name() == t.name())
+                        })
+                        .collect(),
+                    components: None,
+                    index_column,
+                    position: 0,
+                    chunk,
+                }
+            })
+            .collect();
+        let num_columns = fields.len();
+        let batch_rows = query
+            .batch_rows
+            .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / num_columns).clamp(1, 65_536));
+        Ok(Self {
+            schema: Arc::new(Schema::new(fields)),
+            chunks: table_chunks,
+            unmerged,
+            next_unmerged: 0,
+            heap,
+            timelines,
+            cells: component_columns
+                .iter()
+                .map(|_| ColumnCells::default())
+                .collect(),
+            component_columns,
+            sources,
+            batch_rows,
+            done: false,
+        })
+    }
+
+    /// The table's schema.
+    pub fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+
+    /// The next `(chunk, row)` to write, in table order.
+    fn next_row(&mut self) -> Option<(usize, usize)> {
+        while let Some(&number) = self.unmerged.get(self.next_unmerged) {
+            let chunk = &mut self.chunks[number];
+            if chunk.position < chunk.chunk.num_rows() {
+                chunk.position += 1;
+                return Some((number, chunk.position - 1));
+            }
+            self.next_unmerged += 1;
+        }
+        let Reverse((_, number)) = self.heap.pop()?;
+        let chunk = &mut self.chunks[number];
+        let column = chunk.index_column?;
+        let times = &chunk.chunk.time_columns()[column];
+        let row = times.row_at(chunk.position);
+        chunk.position += 1;
+        if chunk.position < chunk.chunk.num_rows() {
+            let next = times.row_at(chunk.position);
+            self.heap
+                .push(Reverse((chunk.chunk.index_of_row(column, next), number)));
+        }
+        Some((number, row))
+    }
+
+    /// Where each component of chunk `number` goes, registering its columns on first use.
+    fn chunk_columns(&mut self, number: usize) -> Result<&[(usize, u32)], ArrowError> {
+        if self.chunks[number].components.is_none() {
+            let chunk = Arc::clone(&self.chunks[number].chunk);
+            let mut columns = Vec::with_capacity(chunk.components().len());
+            for (position, column) in chunk.components().iter().enumerate() {
+                let data_type = column.list_array().data_type();
+                let Some(output) = self
+                    .component_columns
+                    .iter()
+                    .position(|(name, t)| **name == *column.name().as_str() && t == data_type)
+                else {
+                    continue;
+                };
+                let position = u32::try_from(position).unwrap_or(u32::MAX);
+                let source = self.sources[output].push(&chunk, position, &[])?;
+                columns.push((output, source));
+            }
+            self.chunks[number].components = Some(columns);
+        }
+        Ok(self.chunks[number]
+            .components
+            .as_deref()
+            .unwrap_or_default())
+    }
+
+    fn next_batch(&mut self) -> Result<Option<RecordBatch>, ArrowError> {
+        let mut entity_paths = StringBuilder::new();
+        let mut chunk_ids = FixedSizeBinaryBuilder::new(16);
+        let mut row_ids = FixedSizeBinaryBuilder::new(16);
+        let mut times: Vec<Vec<Option<i64>>> = vec![Vec::new(); self.timelines.len()];
+        let mut num_rows = 0;
+        let mut entity_text: Option<(usize, String)> = None;
+        while num_rows < self.batch_rows {
+            let Some((number, row)) = self.next_row() else {
+                break;
+            };
+            let columns = self.chunk_columns(number)?.to_vec();
+            let chunk = &self.chunks[number];
+            if entity_text.as_ref().is_none_or(|(n, _)| *n != number) {
+                entity_text = Some((number, chunk.chunk.entity_path().to_string()));
+            }
+            entity_paths.append_value(entity_text.as_ref().map_or("", |(_, text)| text));
+            chunk_ids.append_value(chunk.chunk.id().to_be_bytes())?;
+            row_ids.append_value(chunk.chunk.row_ids()[row].to_be_bytes())?;
+            for (values, column) in times.iter_mut().zip(&chunk.time_columns) {
+                values.push(column.map(|c| chunk.chunk.time_columns()[c].times()[row]));
+            }
+            let row = u32::try_from(row).unwrap_or(u32::MAX);
+            for (output, source) in columns {
+                let cells = &mut self.cells[output];
+                cells.pad(None, num_rows);
+                cells.push(Some(Cell::Row { source, row }));
+            }
+            num_rows += 1;
+        }
+        if num_rows == 0 {
+            return Ok(None);
+        }
+        let mut arrays: Vec<ArrayRef> = vec![
+            Arc::new(entity_paths.finish()),
+            Arc::new(chunk_ids.finish()),
+            Arc::new(row_ids.finish()),
+        ];
+        for (timeline, values) in self.timelines.iter().zip(times) {
+            arrays.push(match timeline.time_type() {
+                TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
+                TimeType::DurationNs => {
+                    Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values))
+                }
+                TimeType::TimestampNs => {
+                    Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values))
+                }
+            });
+        }
+        for (cells, sources) in self.cells.iter_mut().zip(&self.sources) {
+            cells.pad(None, num_rows);
+            arrays.push(cells.finish(sources, num_rows));
+        }
+        RecordBatch::try_new(Arc::clone(&self.schema), arrays).map(Some)
+    }
+}
+
+/// The timelines, fields, component columns and their sources of a table of `chunks`.
+type TableColumns = (
+    Vec<Timeline>,
+    Vec<Field>,
+    Vec<(Arc<str>, DataType)>,
+    Vec<Sources>,
+);
+
+fn table_columns(chunks: &[Arc<Chunk>]) -> Result<TableColumns, ArrowError> {
+    let mut timelines: BTreeMap<String, Timeline> = BTreeMap::new();
+    // Component columns by name, then one per distinct list type in entity order.
+    let mut by_name: BTreeMap<Arc<str>, Vec<(DataType, FieldRef)>> = BTreeMap::new();
+    for chunk in chunks {
+        for column in chunk.time_columns() {
+            timelines
+                .entry(column.timeline().name().to_owned())
+                .or_insert_with(|| column.timeline().clone());
+        }
+        for column in chunk.components() {
+            let data_type = column.list_array().data_type().clone();
+            let DataType::List(item) = &data_type else {
+                continue;
+            };
+            let item = Arc::clone(item);
+            let types = by_name.entry(column.name().as_str().into()).or_default();
+            if !types.iter().any(|(t, _)| *t == data_type) {
+                types.push((data_type, item));
+            }
+        }
+    }
+    let timelines: Vec<Timeline> = timelines.into_values().collect();
+    let mut fields = vec![
+        Field::new("entity_path", DataType::Utf8, false),
+        Field::new("chunk_id", DataType::FixedSizeBinary(16), false),
+        Field::new("row_id", DataType::FixedSizeBinary(16), false),
+    ];
+    fields.extend(timelines.iter().map(|t| {
+        Field::new(t.name(), t.time_type().to_arrow(), true).with_metadata(HashMap::from([
+            ("rerun:kind".to_owned(), "index".to_owned()),
+            ("rerun:index_name".to_owned(), t.name().to_owned()),
+        ]))
+    }));
+    let mut component_columns = Vec::new();
+    let mut sources = Vec::new();
+    for (name, types) in by_name {
+        for (n, (data_type, item)) in types.into_iter().enumerate() {
+            let column_name = if n == 0 {
+                name.to_string()
+            } else {
+                format!("{name}#{}", n + 1)
+            };
+            fields.push(
+                Field::new(column_name, data_type.clone(), true).with_metadata(HashMap::from([
+                    ("rerun:kind".to_owned(), "data".to_owned()),
+                    ("rerun:component".to_owned(), name.to_string()),
+                ])),
+            );
+            sources.push(Sources::new(item)?);
+            component_columns.push((Arc::clone(&name), data_type));
+        }
+    }
+    Ok((timelines, fields, component_columns, sources))
+}
+
+impl Iterator for ChunkTableStream {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let batch = self.next_batch();
+        if !matches!(batch, Ok(Some(_))) {
+            self.done = true;
+        }
+        batch.transpose()
+    }
+}
+
+impl RecordBatchReader for ChunkTableStream {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+}

@@ -1,0 +1,204 @@
+//! Parquet files (feature `parquet`) that `pyarrow`, pandas, Polars, `DuckDB` and Spark read
+//! as they are: a dataframe view ([`ChunkStore::dataframe`](crate::ChunkStore::dataframe))
+//! or the raw chunk table ([`ChunkStore::chunk_table`](crate::ChunkStore::chunk_table)),
+//! streamed batch by batch into row groups, with min/max statistics on every column (the
+//! index and the entity path included, so readers prune row groups on time), the sort
+//! order recorded, the Arrow schema embedded (field metadata included), Snappy pages, and
+//! written atomically (a temporary file renamed into place).
+//!
+//! ```no_run
+//! use chunkstore::{ChunkStore, DataframeQuery};
+//! use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+//! # let store = ChunkStore::new();
+//! let query = DataframeQuery::new("frame_id").with_fill_latest_at(true);
+//! let summary = write_parquet_file(
+//!     "robot.parquet".as_ref(),
+//!     store.dataframe(&query)?,
+//!     &ParquetOptions::default().with_sorted_by("frame_id"),
+//! )?;
+//! println!("{} rows in {} row groups", summary.rows, summary.row_groups);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::RecordBatchReader;
+use arrow_schema::ArrowError;
+use parquet::arrow::ArrowWriter;
+use parquet::basic::Compression;
+use parquet::errors::ParquetError;
+use parquet::file::metadata::SortingColumn;
+use parquet::file::properties::{EnabledStatistics, WriterProperties};
+
+/// Cells per row group when [`ParquetOptions::with_row_group_rows`] is not given: the
+/// writer holds one row group's encoded pages in memory, so a wide table gets shorter
+/// row groups (at least 1,024 rows, at most 1,048,576).
+pub const DEFAULT_ROW_GROUP_CELLS: usize = 8 << 20;
+
+/// How to write a Parquet file.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ParquetOptions {
+    row_group_rows: Option<usize>,
+    sorted_by: Option<Arc<str>>,
+}
+
+impl ParquetOptions {
+    /// At most `rows` rows per row group (default: about [`DEFAULT_ROW_GROUP_CELLS`]
+    /// cells).
+    #[must_use]
+    pub fn with_row_group_rows(mut self, rows: usize) -> Self {
+        self.row_group_rows = Some(rows);
+        self
+    }
+
+    /// Records in the file's metadata that rows ascend by this (top-level, primitive)
+    /// column, as a dataframe's rows ascend by its index: engines that read the sort order
+    /// skip sorting. The column must come before any list column.
+    #[must_use]
+    pub fn with_sorted_by(mut self, column: impl Into<Arc<str>>) -> Self {
+        self.sorted_by = Some(column.into());
+        self
+    }
+}
+
+/// What a write produced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ParquetSummary {
+    /// Rows written.
+    pub rows: u64,
+    /// Row groups written.
+    pub row_groups: usize,
+    /// The file's size in bytes.
+    pub bytes: u64,
+}
+
+/// A Parquet file could not be written; nothing was left under its name.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum ParquetExportError {
+    /// The file system refused.
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The batches could not be read (the reader's own error).
+    Arrow(ArrowError),
+    /// The Parquet encoder refused.
+    Parquet(ParquetError),
+    /// The column named in [`ParquetOptions::with_sorted_by`] is not in the schema, or
+    /// comes after a nested column.
+    SortColumn {
+        /// The name.
+        column: String,
+    },
+}
+
+impl fmt::Display for ParquetExportError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Arrow(error) => write!(f, "reading batches: {error}"),
+            Self::Parquet(error) => write!(f, "writing parquet: {error}"),
+            Self::SortColumn { column } => write!(
+                f,
+                "sort column {column:?} is not a top-level column before the nested ones"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ParquetExportError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Io { source, .. } => Some(source),
+            Self::Arrow(error) => Some(error),
+            Self::Parquet(error) => Some(error),
+            Self::SortColumn { .. } => None,
+        }
+    }
+}
+
+/// Writes every batch of `reader` to a Parquet file at `path`, atomically: the file
+/// appears whole or, on any error (the reader's included), not at all. Memory is one
+/// batch plus one row group's encoded pages, however long the table.
+///
+/// # Errors
+/// See [`ParquetExportError`].
+pub fn write_parquet_file(
+    path: &Path,
+    reader: impl RecordBatchReader,
+    options: &ParquetOptions,
+) -> Result<ParquetSummary, ParquetExportError> {
+    let schema = reader.schema();
+    let sorting = match &options.sorted_by {
+        None => None,
+        Some(column) => {
+            let position = schema
+                .fields()
+                .iter()
+                .position(|f| f.name() == &**column)
+                .filter(|&p| {
+                    schema.fields()[..=p]
+                        .iter()
+                        .all(|f| f.data_type().is_primitive())
+                })
+                .ok_or_else(|| ParquetExportError::SortColumn {
+                    column: column.to_string(),
+                })?;
+            Some(vec![SortingColumn {
+                column_idx: i32::try_from(position).unwrap_or(i32::MAX),
+                descending: false,
+                nulls_first: true,
+            }])
+        }
+    };
+    let row_group_rows = options.row_group_rows.unwrap_or_else(|| {
+        (DEFAULT_ROW_GROUP_CELLS / schema.fields().len().max(1)).clamp(1 << 10, 1 << 20)
+    });
+    let properties = WriterProperties::builder()
+        .set_compression(Compression::SNAPPY)
+        .set_statistics_enabled(EnabledStatistics::Page)
+        .set_max_row_group_row_count(Some(row_group_rows.max(1)))
+        .set_sorting_columns(sorting)
+        .set_created_by(format!("chunkstore {}", env!("CARGO_PKG_VERSION")))
+        .build();
+    let io = |source| ParquetExportError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    crate::atomic::atomic_write(path, io, |file| {
+        let mut writer = ArrowWriter::try_new(
+            std::io::BufWriter::new(file),
+            Arc::clone(&schema),
+            Some(properties),
+        )
+        .map_err(ParquetExportError::Parquet)?;
+        let mut rows = 0;
+        for batch in reader {
+            let batch = batch.map_err(ParquetExportError::Arrow)?;
+            rows += batch.num_rows() as u64;
+            writer.write(&batch).map_err(ParquetExportError::Parquet)?;
+        }
+        // `into_inner` writes the footer: `finish` before it would write a second one.
+        writer.flush().map_err(ParquetExportError::Parquet)?;
+        let row_groups = writer.flushed_row_groups().len();
+        let file = writer
+            .into_inner()
+            .map_err(ParquetExportError::Parquet)?
+            .into_inner()
+            .map_err(|e| io(e.into_error()))?;
+        let bytes = file.metadata().map_err(io)?.len();
+        let summary = ParquetSummary {
+            rows,
+            row_groups,
+            bytes,
+        };
+        Ok((file, summary))
+    })
+}

@@ -1,0 +1,258 @@
+//! Parquet files of dataframes and of the raw chunk table: read back with the `parquet`
+//! crate, they equal the in-memory tables; row groups carry min/max statistics on the
+//! index and the entity path, the sort order is recorded, and an interrupted write leaves
+//! nothing behind.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests fail loudly on unexpected values"
+)]
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::{Array, RecordBatch, RecordBatchIterator, RecordBatchReader};
+use arrow_schema::{ArrowError, SchemaRef};
+use arrow_select::concat::concat_batches;
+use chunkstore::parquet_export::{ParquetExportError, ParquetOptions, write_parquet_file};
+use chunkstore::{ChunkStore, ChunkTableQuery, DataframeQuery, TimeInt, TimeRange, io};
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use parquet::file::statistics::Statistics;
+
+fn robot() -> ChunkStore {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/chunks");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
+        .collect();
+    files.sort();
+    let mut store = ChunkStore::new();
+    for file in files {
+        for chunk in io::read_chunks_from_path(&file).unwrap() {
+            store.insert(chunk).unwrap();
+        }
+    }
+    store
+}
+
+fn temp_path(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("chunkstore-parquet-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+fn collect(reader: impl RecordBatchReader) -> RecordBatch {
+    let schema = reader.schema();
+    let batches: Vec<RecordBatch> = reader.map(Result::unwrap).collect();
+    concat_batches(&schema, &batches).unwrap()
+}
+
+fn read_back(path: &Path) -> (RecordBatch, parquet::file::metadata::ParquetMetaData) {
+    let file = std::fs::File::open(path).unwrap();
+    let builder = ParquetRecordBatchReaderBuilder::try_new(file).unwrap();
+    let metadata = builder.metadata().as_ref().clone();
+    (collect(builder.build().unwrap()), metadata)
+}
+
+/// Min and max of an Int64 column chunk's statistics, per row group.
+fn int64_bounds(
+    metadata: &parquet::file::metadata::ParquetMetaData,
+    column: usize,
+) -> Vec<(i64, i64)> {
+    metadata
+        .row_groups()
+        .iter()
+        .map(
+            |group| match group.column(column).statistics().expect("statistics") {
+                Statistics::Int64(s) => (*s.min_opt().unwrap(), *s.max_opt().unwrap()),
+                other => panic!("not int64 statistics: {other:?}"),
+            },
+        )
+        .collect()
+}
+
+#[test]
+fn a_dataframe_reads_back_equal_with_ordered_row_groups_and_statistics() {
+    let store = robot();
+    for fill in [false, true] {
+        let query = DataframeQuery::new("frame_id")
+            .with_fill_latest_at(fill)
+            .with_batch_rows(16);
+        let expected = collect(store.dataframe(&query).unwrap());
+        assert_eq!(expected.num_rows(), 60);
+        let path = temp_path(&format!("robot-{fill}.parquet"));
+        let options = ParquetOptions::default()
+            .with_sorted_by("frame_id")
+            .with_row_group_rows(25);
+        let summary =
+            write_parquet_file(&path, store.dataframe(&query).unwrap(), &options).unwrap();
+        assert_eq!((summary.rows, summary.row_groups), (60, 3));
+        assert_eq!(summary.bytes, std::fs::metadata(&path).unwrap().len());
+        let (back, metadata) = read_back(&path);
+        // The Arrow schema travels in the file: names, types and Rerun's field metadata.
+        assert_eq!(back.schema(), expected.schema());
+        assert_eq!(back, expected);
+        // Row groups ascend on the index and say so.
+        let frame = expected.schema().index_of("frame_id").unwrap();
+        assert_eq!(
+            int64_bounds(&metadata, frame),
+            [(0, 24), (25, 49), (50, 59)]
+        );
+        let sorting = metadata.row_group(0).sorting_columns().unwrap();
+        assert_eq!(usize::try_from(sorting[0].column_idx).unwrap(), frame);
+    }
+}
+
+#[test]
+fn sampled_and_ranged_dataframes_read_back_equal() {
+    let store = robot();
+    let t = |v| TimeInt::new(v).unwrap();
+    for query in [
+        DataframeQuery::new("sim_time").with_range(TimeRange::new(t(0), t(500_000_000))),
+        DataframeQuery::new("log_time").with_fill_latest_at(true),
+        DataframeQuery::new("frame_id").with_index_values([t(-1), t(30), t(99)]),
+        DataframeQuery::new("frame_id").with_range(TimeRange::new(t(1000), t(2000))),
+    ] {
+        let path = temp_path("query.parquet");
+        write_parquet_file(
+            &path,
+            store.dataframe(&query).unwrap(),
+            &ParquetOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            read_back(&path).0,
+            collect(store.dataframe(&query).unwrap()),
+            "{query:?}"
+        );
+    }
+}
+
+#[test]
+fn the_chunk_table_reads_back_equal_and_prunes_on_time_and_entity() {
+    let store = robot();
+    let query = ChunkTableQuery::new()
+        .with_index("frame_id")
+        .with_batch_rows(50);
+    let expected = collect(store.chunk_table(&query).unwrap());
+    assert_eq!(expected.num_rows() as u64, store.stats().num_rows());
+    let path = temp_path("chunks.parquet");
+    let options = ParquetOptions::default().with_row_group_rows(64);
+    let summary = write_parquet_file(&path, store.chunk_table(&query).unwrap(), &options).unwrap();
+    assert_eq!(summary.rows, expected.num_rows() as u64);
+    let (back, metadata) = read_back(&path);
+    assert_eq!(back, expected);
+    // Rows without a frame come first, then frames ascend across row groups.
+    let frame = expected.schema().index_of("frame_id").unwrap();
+    let frames = arrow_array::cast::AsArray::as_primitive::<arrow_array::types::Int64Type>(
+        expected.column(frame),
+    );
+    let with_frame: Vec<i64> = frames.iter().flatten().collect();
+    assert!(with_frame.windows(2).all(|w| w[0] <= w[1]));
+    assert_eq!(
+        frames.iter().take_while(Option::is_none).count(),
+        frames.null_count()
+    );
+    // The entity path has min/max statistics per row group.
+    for group in metadata.row_groups() {
+        let Statistics::ByteArray(s) = group.column(0).statistics().unwrap() else {
+            panic!()
+        };
+        assert!(s.min_opt().unwrap().as_utf8().unwrap().starts_with('/'));
+        assert!(s.max_opt().is_some());
+    }
+}
+
+#[test]
+fn the_chunk_table_holds_every_row_once_with_its_cells() {
+    let store = robot();
+    let table = collect(store.chunk_table(&ChunkTableQuery::new()).unwrap());
+    let row_ids = arrow_array::cast::AsArray::as_fixed_size_binary(table.column(2));
+    let mut seen: Vec<&[u8]> = row_ids.iter().map(Option::unwrap).collect();
+    seen.sort_unstable();
+    seen.dedup();
+    assert_eq!(seen.len() as u64, store.stats().num_rows());
+    // Every cell of every chunk is in the component column of its name.
+    for chunk in store.chunks() {
+        for (row, row_id) in chunk.row_ids().iter().enumerate() {
+            let at = (0..table.num_rows())
+                .find(|&r| row_ids.value(r) == row_id.to_be_bytes())
+                .unwrap();
+            for column in chunk.components() {
+                let ours = table.column_by_name(column.name().as_str()).unwrap();
+                assert_eq!(
+                    ours.slice(at, 1).to_data(),
+                    column.list_array().slice(row, 1).to_data(),
+                    "{} row {row}",
+                    column.name()
+                );
+            }
+        }
+    }
+}
+
+/// Yields one good batch, then an error.
+struct FailingReader {
+    schema: SchemaRef,
+    batch: Option<RecordBatch>,
+}
+
+impl Iterator for FailingReader {
+    type Item = Result<RecordBatch, ArrowError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        Some(
+            self.batch
+                .take()
+                .ok_or_else(|| ArrowError::ComputeError("interrupted".into())),
+        )
+    }
+}
+
+impl RecordBatchReader for FailingReader {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+}
+
+#[test]
+fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
+    let store = robot();
+    let batch = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
+    let path = temp_path("interrupted.parquet");
+    let _ = std::fs::remove_file(&path);
+    let failing = FailingReader {
+        schema: batch.schema(),
+        batch: Some(batch.clone()),
+    };
+    let error = write_parquet_file(&path, failing, &ParquetOptions::default()).unwrap_err();
+    assert!(matches!(error, ParquetExportError::Arrow(_)), "{error}");
+    assert!(!path.exists());
+    // Over an existing file: the old one stays whole.
+    let good = RecordBatchIterator::new([Ok(batch.clone())], batch.schema());
+    write_parquet_file(&path, good, &ParquetOptions::default()).unwrap();
+    let failing = FailingReader {
+        schema: batch.schema(),
+        batch: Some(batch.clone()),
+    };
+    write_parquet_file(&path, failing, &ParquetOptions::default()).unwrap_err();
+    assert_eq!(read_back(&path).0, batch);
+    let leftovers: Vec<_> = std::fs::read_dir(path.parent().unwrap())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .contains("interrupted.parquet.")
+        })
+        .collect();
+    assert!(leftovers.is_empty(), "no temporary file is left");
+    let error = write_parquet_file(
+        &path,
+        RecordBatchIterator::new([Ok(batch.clone())], batch.schema()),
+        &ParquetOptions::default().with_sorted_by("nope"),
+    )
+    .unwrap_err();
+    assert!(error.to_string().contains("\"nope\""));
+}
