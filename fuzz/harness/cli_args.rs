@@ -23,6 +23,12 @@ pub fn cli_args(bytes: &[u8]) {
     match args::parse(&argv) {
         Ok(cli) => {
             let _ = cli.load.config();
+            if let args::Command::Dataframe(dataframe) = &cli.command {
+                // What the tool does with the contents before loading anything.
+                if let Err(error) = chunkstore::EntityPathFilter::parse(&dataframe.contents) {
+                    assert!(!error.to_string().is_empty());
+                }
+            }
         }
         Err(error) => {
             let _ = error.render().to_string();

@@ -1,14 +1,30 @@
 //! The body of the `entity_path` fuzz target: arbitrary text parsed as an entity path.
 //! Parsing either fails with an error that displays, or gives a path whose text form
 //! parses back to the same path, whose parts are all non-empty and rebuild it, and whose
-//! tree relations (parent, ancestors) agree.
+//! tree relations (parent, ancestors) agree. The same text as dataframe contents rules
+//! (one per line): parsed or refused with an error that displays; a parsed filter selects
+//! a path its own rules name exactly when the most specific of them includes it.
 
-use chunkstore::EntityPath;
+use chunkstore::{EntityPath, EntityPathFilter};
 
 pub fn entity_path(bytes: &[u8]) {
     let Ok(text) = std::str::from_utf8(bytes) else {
         return;
     };
+    match EntityPathFilter::parse([text]) {
+        Ok(filter) => {
+            if let Ok(path) = EntityPath::parse(text.trim()) {
+                // A single exact rule selects its own path.
+                if !text.contains('\n')
+                    && !text.trim().starts_with(['+', '-'])
+                    && !text.trim().ends_with("**")
+                {
+                    assert!(filter.matches(&path), "{text:?} selects itself");
+                }
+            }
+        }
+        Err(error) => assert!(!error.to_string().is_empty(), "an error says what is wrong"),
+    }
     let path = match EntityPath::parse(text) {
         Ok(path) => path,
         Err(error) => {

@@ -15,10 +15,12 @@ Examples:
   chunkstore recording.rrd range sim_time 0 1000000000
   chunkstore chunks/ stats
   chunkstore recording.rrd print --json
-  chunkstore --compact recording.rrd convert optimized.rrd";
+  chunkstore --compact recording.rrd convert optimized.rrd
+  chunkstore recording.rrd dataframe frame_id --fill-latest-at --out robot.parquet";
 
-/// Look inside recordings: latest-at and range queries, statistics, a chunk listing, and
-/// conversion between `.rrd` files and directories of Arrow IPC chunk files.
+/// Look inside recordings: latest-at and range queries, statistics, a chunk listing,
+/// conversion between `.rrd` files and directories of Arrow IPC chunk files, and
+/// dataframes as Arrow IPC or Parquet.
 #[derive(Parser, Debug)]
 #[command(name = "chunkstore", version, after_help = EXAMPLES)]
 pub struct Cli {
@@ -137,6 +139,45 @@ pub enum Command {
         #[arg(long)]
         recording_id: Option<String>,
     },
+    /// A table on one timeline: a row per time, a column per entity and component (Rerun's
+    /// dataframe view), as an Arrow IPC stream on stdout, or a file with `--out`.
+    #[command(after_help = DATAFRAME_EXAMPLES, allow_negative_numbers = true)]
+    Dataframe(DataframeArgs),
+}
+
+const DATAFRAME_EXAMPLES: &str = "\
+Examples:
+  chunkstore recording.rrd dataframe frame_id --out table.arrow
+  chunkstore recording.rrd dataframe sim_time --contents '/world/**' --contents '-/world/map/**' \\
+      --range 0 2000000000 --fill-latest-at --out table.parquet
+  chunkstore recording.rrd dataframe frame_id --index-values 0,10,20 | python3 -c \\
+      'import pyarrow.ipc, sys; print(pyarrow.ipc.open_stream(sys.stdin.buffer).read_all())'";
+
+/// The arguments of `dataframe`.
+#[derive(Args, Debug)]
+pub struct DataframeArgs {
+    /// The index timeline: one row per distinct time on it.
+    pub index: String,
+    /// Which entities: `/a/b` (exactly), `/a/**` (and its subtree), `-/a/**` (exclude);
+    /// repeat it for several rules (the most specific one wins). Default: every entity
+    /// but `/__properties`.
+    #[arg(long, value_name = "EXPR", allow_hyphen_values = true)]
+    pub contents: Vec<String>,
+    /// Only rows whose index lies in `[MIN, MAX]` (both included).
+    #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], value_parser = parse_time,
+          allow_hyphen_values = true)]
+    pub range: Option<Vec<TimeInt>>,
+    /// One row per value, in the order given, each cell the latest-at value there.
+    #[arg(long, value_name = "V[,V...]", value_delimiter = ',', value_parser = parse_time,
+          allow_hyphen_values = true)]
+    pub index_values: Option<Vec<TimeInt>>,
+    /// Fill each empty cell with the latest value at or before its row's time.
+    #[arg(long)]
+    pub fill_latest_at: bool,
+    /// Write an Arrow IPC file (or Parquet, for a name ending `.parquet`) instead of an
+    /// IPC stream on stdout.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
 }
 
 fn parse_time(text: &str) -> Result<TimeInt, String> {

@@ -7,6 +7,8 @@
 //! chunkstore [OPTIONS] <SOURCE> stats
 //! chunkstore [OPTIONS] <SOURCE> print [--json]
 //! chunkstore [OPTIONS] <SOURCE> convert <OUT>
+//! chunkstore [OPTIONS] <SOURCE> dataframe <INDEX> [--contents EXPR]... [--range MIN MAX]
+//!            [--index-values V[,V...]] [--fill-latest-at] [--out FILE]
 //! ```
 //!
 //! `chunkstore --help` and `chunkstore <SOURCE> <COMMAND> --help` say the rest. Answers
@@ -15,6 +17,7 @@
 
 mod args;
 mod convert;
+mod dataframe;
 mod load;
 mod output;
 
@@ -150,5 +153,6 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             application_id,
             recording_id.as_deref(),
         ),
+        Command::Dataframe(args) => dataframe::dataframe(source, args, &options),
     }
 }

@@ -1,0 +1,162 @@
+//! `dataframe`: a dataframe view of the source as an Arrow IPC stream on stdout, or as an
+//! Arrow IPC file or a Parquet file (atomically) with `--out`.
+
+use std::path::Path;
+
+use arrow_array::cast::AsArray;
+use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+use arrow_array::{Array, RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, DataType, SchemaRef};
+use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange};
+use indicatif::ProgressBar;
+
+use crate::Failure;
+use crate::args::DataframeArgs;
+use crate::load::{self, Options};
+
+pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
+    // Arguments first: a bad one is named before a long load.
+    let mut query =
+        DataframeQuery::new(args.index.as_str()).with_fill_latest_at(args.fill_latest_at);
+    if let Some(range) = &args.range {
+        let &[min, max] = range.as_slice() else {
+            return Err("--range takes two values, MIN and MAX".to_owned().into());
+        };
+        if min > max {
+            return Err(format!("--range {min} {max}: MIN is greater than MAX").into());
+        }
+        query = query.with_range(TimeRange::new(min, max));
+    }
+    if let Some(values) = &args.index_values {
+        if args.range.is_some() {
+            eprintln!("warning: --range plays no part with --index-values (one row per value)");
+        }
+        query = query.with_index_values(values.iter().copied());
+    }
+    if !args.contents.is_empty() {
+        let filter = EntityPathFilter::parse(&args.contents).map_err(|e| e.to_string())?;
+        query = query.with_contents(filter);
+    }
+    if let Some(out) = &args.out
+        && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
+        && a == b
+    {
+        return Err(format!("{}: the output would overwrite the source", out.display()).into());
+    }
+
+    let loaded = load::load(source, options)?;
+    let store = &loaded.store;
+    let stream = store.dataframe(&query).map_err(|e| e.to_string())?;
+    let index_position = stream.schema().index_of(&args.index).ok();
+    let bar = match (&args.index_values, store.time_range(&args.index)) {
+        (Some(values), _) => Progress::new(values.len() as u64, None),
+        (None, Some((min, max))) => {
+            let (min, max) = (min.max(query.range().min()), max.min(query.range().max()));
+            let span = max.as_i64().abs_diff(min.as_i64()).saturating_add(1);
+            Progress::new(span, Some(min.as_i64()))
+        }
+        (None, None) => Progress::new(0, None),
+    };
+    let reader = WithProgress {
+        inner: stream,
+        bar: &bar,
+        index_position,
+    };
+    let result = match &args.out {
+        Some(out) => {
+            let is_parquet = out
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
+            if is_parquet {
+                let options = if args.index_values.is_some() {
+                    ParquetOptions::default()
+                } else {
+                    ParquetOptions::default().with_sorted_by(args.index.as_str())
+                };
+                write_parquet_file(out, reader, &options)
+                    .map(drop)
+                    .map_err(|e| format!("{}: {e}", out.display()).into())
+            } else {
+                chunkstore::io::write_ipc_file(out, reader)
+                    .map(drop)
+                    .map_err(|e| format!("{}: {e}", out.display()).into())
+            }
+        }
+        None => {
+            let stdout = std::io::BufWriter::new(std::io::stdout().lock());
+            chunkstore::io::write_ipc_stream(stdout, reader)
+                .map(drop)
+                .map_err(|e| stream_failure(&e))
+        }
+    };
+    bar.0.finish_and_clear();
+    result
+}
+
+/// A failed stream to stdout: a reader that went away (`| head -c`) is no error of ours.
+fn stream_failure(error: &chunkstore::IoError) -> Failure {
+    match error {
+        chunkstore::IoError::Ipc(ArrowError::IoError(_, e))
+            if e.kind() == std::io::ErrorKind::BrokenPipe =>
+        {
+            Failure::BrokenPipe
+        }
+        other => Failure::Message(format!("stdout: {other}")),
+    }
+}
+
+/// The last value of an index column (never null: it is the row's index).
+fn last_time(column: &dyn Array) -> Option<i64> {
+    let values: &[i64] = match column.data_type() {
+        DataType::Int64 => column.as_primitive::<Int64Type>().values(),
+        DataType::Duration(_) => column.as_primitive::<DurationNanosecondType>().values(),
+        DataType::Timestamp(..) => column.as_primitive::<TimestampNanosecondType>().values(),
+        _ => &[],
+    };
+    values.last().copied()
+}
+
+/// A progress bar over the index values (or the sampled values), when stderr is a
+/// terminal.
+struct Progress(ProgressBar, Option<i64>);
+
+impl Progress {
+    fn new(len: u64, start: Option<i64>) -> Self {
+        Self(load::progress(len, "writing", false), start)
+    }
+}
+
+/// The dataframe's batches, moving the bar as they pass.
+struct WithProgress<'a, R> {
+    inner: R,
+    bar: &'a Progress,
+    index_position: Option<usize>,
+}
+
+impl<R: RecordBatchReader> Iterator for WithProgress<'_, R> {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let batch = self.inner.next()?;
+        if let Ok(batch) = &batch {
+            match (self.bar.1, self.index_position) {
+                (Some(start), Some(position)) => {
+                    if let Some(last) = last_time(batch.column(position).as_ref()) {
+                        self.bar
+                            .0
+                            .set_position(last.abs_diff(start).saturating_add(1));
+                    }
+                }
+                _ => self.bar.0.inc(batch.num_rows() as u64),
+            }
+        }
+        Some(batch)
+    }
+}
+
+impl<R: RecordBatchReader> RecordBatchReader for WithProgress<'_, R> {
+    fn schema(&self) -> SchemaRef {
+        self.inner.schema()
+    }
+}
