@@ -63,32 +63,30 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
         bar: &bar,
         index_position,
     };
-    let result = match &args.out {
-        Some(out) => {
-            let is_parquet = out
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
-            if is_parquet {
-                let options = if args.index_values.is_some() {
-                    ParquetOptions::default()
-                } else {
-                    ParquetOptions::default().with_sorted_by(args.index.as_str())
-                };
-                write_parquet_file(out, reader, &options)
-                    .map(drop)
-                    .map_err(|e| format!("{}: {e}", out.display()).into())
+    let result = if let Some(out) = &args.out {
+        let is_parquet = out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
+        if is_parquet {
+            // A sampled table's rows follow the values given, not the index.
+            let options = if args.index_values.is_some() {
+                ParquetOptions::default()
             } else {
-                chunkstore::io::write_ipc_file(out, reader)
-                    .map(drop)
-                    .map_err(|e| format!("{}: {e}", out.display()).into())
-            }
-        }
-        None => {
-            let stdout = std::io::BufWriter::new(std::io::stdout().lock());
-            chunkstore::io::write_ipc_stream(stdout, reader)
+                ParquetOptions::default().with_sorted_by(args.index.as_str())
+            };
+            write_parquet_file(out, reader, &options)
                 .map(drop)
-                .map_err(|e| stream_failure(&e))
+                .map_err(|e| format!("{}: {e}", out.display()).into())
+        } else {
+            chunkstore::io::write_ipc_file(out, reader)
+                .map(drop)
+                .map_err(|e| format!("{}: {e}", out.display()).into())
         }
+    } else {
+        let stdout = std::io::BufWriter::new(std::io::stdout().lock());
+        chunkstore::io::write_ipc_stream(stdout, reader)
+            .map(drop)
+            .map_err(|e| stream_failure(&e))
     };
     bar.0.finish_and_clear();
     result
