@@ -62,15 +62,24 @@ const WORKLOADS: [(&str, Workload); 10] = [
     ("clear_recursive", clear_recursive),
 ];
 
+/// Workloads of this crate's own, outside WORKLOADS.md (so outside `all`, which the
+/// comparison with the reference engine runs): named one by one.
+const OWN_WORKLOADS: [(&str, Workload); 1] = [("dataframe", dataframe)];
+
 fn main() {
     let arg = std::env::args().nth(1).unwrap_or_default();
     let selected: Vec<_> = WORKLOADS
         .iter()
         .filter(|(name, _)| arg == "all" || arg == *name)
+        .chain(OWN_WORKLOADS.iter().filter(|(name, _)| arg == *name))
         .collect();
     if selected.is_empty() {
         eprintln!("usage: workloads <WORKLOAD|all>");
-        eprintln!("workloads: {}", WORKLOADS.map(|(n, _)| n).join(" "));
+        eprintln!(
+            "workloads: {} (and, outside all: {})",
+            WORKLOADS.map(|(n, _)| n).join(" "),
+            OWN_WORKLOADS.map(|(n, _)| n).join(" ")
+        );
         std::process::exit(2);
     }
     let mut all_ok = true;
@@ -212,6 +221,138 @@ impl Report {
             _ => true,
         }
     }
+}
+
+// --- dataframe (this crate's own) ---
+
+/// `DATAFRAME_SCALE` (default 1): entities = 1,000 / scale, times = 10,000 / scale.
+fn dataframe_scale() -> usize {
+    std::env::var("DATAFRAME_SCALE")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&s| s >= 1)
+        .unwrap_or(1)
+}
+
+/// A dataframe view of 1,000 entities × 3 components × 10,000 times (sparse and filled,
+/// whole and a 1% range), op = one output row; then the filled table streamed to a
+/// Parquet file, with the peak RSS that adds. The checksum counts non-null cells.
+fn dataframe() -> bool {
+    use chunkstore::DataframeQuery;
+    let scale = dataframe_scale();
+    let (num_entities, times) = (1_000 / scale, 10_000 / scale);
+    let chunks = common::dataframe_chunks(num_entities, times, 1_000);
+    if let Some(path) = std::env::var_os("DATAFRAME_RRD") {
+        // The same data for another engine (Rerun's Python dataframe reader, in
+        // docs/PERFORMANCE.md): written, then the workload runs as usual.
+        let info = chunkstore::rrd::StoreInfo::new(chunkstore::rrd::StoreId::recording(
+            "dataframe_workload",
+            "scale",
+        ));
+        chunkstore::rrd::write_rrd_file(path.as_ref(), &info, chunks.iter().cloned(), |_| {})
+            .expect("a writable path");
+    }
+    let store = store_with(OFF, &chunks);
+    drop(chunks);
+    let frames = 3 * times as i64;
+    let one_percent = TimeRange::new(at(frames / 2), at(frames / 2 + frames / 100 - 1));
+    let mut ok = true;
+    for (phase, fill, range) in [
+        ("sparse_all", false, TimeRange::EVERYTHING),
+        ("filled_all", true, TimeRange::EVERYTHING),
+        ("sparse_1pct", false, one_percent),
+        ("filled_1pct", true, one_percent),
+    ] {
+        let query = DataframeQuery::new(FRAME)
+            .with_fill_latest_at(fill)
+            .with_range(range);
+        let mut cells = 0;
+        let (ops, ns_per_op, checksum) = time_query(|| {
+            let (mut rows, mut non_null) = (0, 0);
+            let stream = store.dataframe(&query).expect("a known index");
+            let columns = stream.schema().fields().len() - 1;
+            for batch in stream {
+                let batch = batch.expect("a batch");
+                rows += batch.num_rows() as u64;
+                non_null += batch.columns()[1..]
+                    .iter()
+                    .map(|c| (c.len() - c.null_count()) as u64)
+                    .sum::<u64>();
+            }
+            cells = rows * columns as u64;
+            (rows, non_null)
+        });
+        eprintln!(
+            "dataframe/{phase}: {ops} rows, {cells} cells, {checksum} non-null: {:.0} rows/s, {:.0} cells/s",
+            1e9 / ns_per_op,
+            1e9 / ns_per_op * (cells as f64 / ops.max(1) as f64)
+        );
+        ok &= Report {
+            workload: "dataframe",
+            phase,
+            ops,
+            ns_per_op,
+            checksum: Some(checksum),
+            expected: None,
+        }
+        .emit(&store);
+    }
+    #[cfg(feature = "parquet")]
+    {
+        ok &= dataframe_to_parquet(&store, times);
+    }
+    #[cfg(not(feature = "parquet"))]
+    eprintln!("dataframe: the Parquet phase needs --features parquet");
+    ok
+}
+
+/// Streams the filled table to a Parquet file: the time, and the peak RSS it adds to
+/// the store's.
+#[cfg(feature = "parquet")]
+fn dataframe_to_parquet(store: &ChunkStore, times: usize) -> bool {
+    use chunkstore::DataframeQuery;
+    use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+    reset_peak_rss();
+    let before = peak_rss_kib();
+    let path = std::env::temp_dir().join(format!(
+        "chunkstore-dataframe-{}.parquet",
+        std::process::id()
+    ));
+    let query = DataframeQuery::new(FRAME).with_fill_latest_at(true);
+    let start = Instant::now();
+    let summary = write_parquet_file(
+        &path,
+        store.dataframe(&query).expect("a known index"),
+        &ParquetOptions::default().with_sorted_by(FRAME),
+    )
+    .expect("a writable temporary directory");
+    let ns = start.elapsed().as_nanos() as f64;
+    let _ = std::fs::remove_file(&path);
+    eprintln!(
+        "dataframe/parquet_filled_all: {} rows, {} row groups, {} bytes in {:.2} s; peak RSS {} -> {} KiB",
+        summary.rows,
+        summary.row_groups,
+        summary.bytes,
+        ns / 1e9,
+        before,
+        peak_rss_kib()
+    );
+    Report {
+        workload: "dataframe",
+        phase: "parquet_filled_all",
+        ops: summary.rows,
+        ns_per_op: ns / summary.rows.max(1) as f64,
+        checksum: Some(summary.rows),
+        expected: Some(3 * times as u64),
+    }
+    .emit(store)
+}
+
+#[cfg(feature = "parquet")]
+/// Resets the kernel's peak RSS figure to the current RSS (Linux 4.0 and later), so
+/// that a phase's own peak can be read.
+fn reset_peak_rss() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
 }
 
 fn peak_rss_kib() -> u64 {

@@ -402,3 +402,30 @@ pub fn latest_scalar(
     let cell = store.latest_at(&query, entity, SCALAR)?;
     first_f64(cell.component(), cell.row())
 }
+
+/// The dataframe workload's data: `entities` entities (`/fleet/g{e / 100}/r{e}`), each
+/// logging `scalar`, `position3d` and `text` at `times` frames `3k + e % 3` (so a third
+/// of the entities has a row at any one frame: sparse rows differ from filled ones), in
+/// chunks of `rows_per_chunk` rows.
+pub fn dataframe_chunks(entities: usize, times: usize, rows_per_chunk: usize) -> Vec<Arc<Chunk>> {
+    let mut ids = RowIds::new();
+    let mut chunks = Vec::new();
+    let words = ["idle", "moving", "charging", "blocked"];
+    for e in 0..entities {
+        let entity = EntityPath::parse(&format!("/fleet/g{}/r{e}", e / 100)).expect("a valid path");
+        for start in (0..times).step_by(rows_per_chunk) {
+            let ks: Vec<usize> = (start..(start + rows_per_chunk).min(times)).collect();
+            let frames = ks.iter().map(|&k| (3 * k + e % 3) as i64).collect();
+            let scalar = scalars(ks.iter().map(|&k| (k + e) as f64).collect());
+            let position = positions(ks.len(), 1, |r, _| [ks[r] as f32, e as f32, 0.0]);
+            let text = texts(ks.iter().map(|&k| words[(k + e) % 4].to_owned()).collect());
+            chunks.push(temporal_chunk(
+                &mut ids,
+                &entity,
+                frames,
+                vec![(SCALAR, scalar), (POSITION3D, position), (TEXT, text)],
+            ));
+        }
+    }
+    chunks
+}

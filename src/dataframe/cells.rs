@@ -28,8 +28,9 @@ struct Source {
     /// The column's list array, retyped to the output's list type where its item field
     /// differed (name, nullability or metadata; the element type is the same).
     data: ArrayData,
-    /// For each index column, the position of its time column in the chunk.
-    time_columns: Box<[Option<u32>]>,
+    /// `(index column, the chunk's time column there)` for each index column but the
+    /// table's own index (whose value a row already has) that the chunk has.
+    time_columns: Box<[(u32, u32)]>,
 }
 
 /// The list arrays one output column copies from. Source 0 is a one-row empty list.
@@ -61,12 +62,14 @@ impl Sources {
     }
 
     /// Registers column `component_column` of `chunk` (again, if it already is) and
-    /// returns its source number.
+    /// returns its source number. `index_columns` are the table's (`skip`: the position of
+    /// its own index among them).
     pub fn push(
         &mut self,
         chunk: &Arc<Chunk>,
         component_column: u32,
         index_columns: &[Timeline],
+        skip: Option<usize>,
     ) -> Result<u32, ArrowError> {
         let list = chunk.components()[component_column as usize].list_array();
         let data = if matches!(list.data_type(), arrow_schema::DataType::List(f) if *f == self.item_field)
@@ -83,12 +86,14 @@ impl Sources {
         };
         let time_columns = index_columns
             .iter()
-            .map(|timeline| {
-                chunk
+            .enumerate()
+            .filter(|&(i, _)| Some(i) != skip)
+            .filter_map(|(i, timeline)| {
+                let position = chunk
                     .time_columns()
                     .iter()
-                    .position(|c| c.timeline().name() == timeline.name())
-                    .and_then(|p| u32::try_from(p).ok())
+                    .position(|c| c.timeline().name() == timeline.name())?;
+                Some((u32::try_from(i).ok()?, u32::try_from(position).ok()?))
             })
             .collect();
         let number = u32::try_from(self.arrays.len())
@@ -107,29 +112,29 @@ impl Sources {
         chunk: &Arc<Chunk>,
         component_column: u32,
         index_columns: &[Timeline],
+        skip: Option<usize>,
     ) -> Result<u32, ArrowError> {
         let key = (chunk.id(), component_column);
         if let Some(&number) = self.by_chunk.get(&key) {
             return Ok(number);
         }
-        let number = self.push(chunk, component_column, index_columns)?;
+        let number = self.push(chunk, component_column, index_columns, skip)?;
         self.by_chunk.insert(key, number);
         Ok(number)
     }
 
     /// Raises `maxima[i]` to the time the cell's row has on index column `i`, where its
-    /// chunk has that timeline.
+    /// chunk has that timeline (the table's own index aside).
     pub fn raise_times(&self, cell: Cell, maxima: &mut [Option<i64>]) {
         let Cell::Row { source, row } = cell else {
             return;
         };
         let source = &self.arrays[source as usize];
         let Some(chunk) = &source.chunk else { return };
-        for (max, position) in maxima.iter_mut().zip(&source.time_columns) {
-            if let Some(position) = position {
-                let time = chunk.time_columns()[*position as usize].times()[row as usize];
-                *max = (*max).max(Some(time));
-            }
+        for &(index_column, time_column) in &source.time_columns {
+            let time = chunk.time_columns()[time_column as usize].times()[row as usize];
+            let max = &mut maxima[index_column as usize];
+            *max = (*max).max(Some(time));
         }
     }
 }

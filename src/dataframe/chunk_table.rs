@@ -246,7 +246,7 @@ impl ChunkTableStream {
                     continue;
                 };
                 let position = u32::try_from(position).unwrap_or(u32::MAX);
-                let source = self.sources[output].push(&chunk, position, &[])?;
+                let source = self.sources[output].push(&chunk, position, &[], None)?;
                 columns.push((output, source));
             }
             self.chunks[number].components = Some(columns);

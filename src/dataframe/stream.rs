@@ -1,7 +1,6 @@
 //! Streaming a planned dataframe: columns merged into rows, rows gathered into batches.
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
@@ -48,14 +47,36 @@ impl std::fmt::Debug for DataframeStream<'_> {
 
 /// Where rows come from.
 enum Rows {
-    /// A row per distinct index value any column has an event at: a heap of each
-    /// temporal column's next event time.
-    Merge {
-        heap: BinaryHeap<Reverse<(TimeInt, u32)>>,
-        fill: bool,
-    },
+    /// A row per distinct index value any column has an event at.
+    Merge { next: NextEvents, fill: bool },
     /// A row per sampled value.
     Sample { values: Arc<[TimeInt]>, next: usize },
+}
+
+/// Each temporal column's next event time, the columns grouped by it: columns logged at
+/// the same times (many entities on one clock) move together, one map operation per
+/// distinct time instead of a heap operation per column. With every time distinct it is
+/// a k-way merge like a heap's.
+#[derive(Default)]
+struct NextEvents {
+    by_time: BTreeMap<TimeInt, Vec<u32>>,
+    /// Emptied groups, reused so that a steady merge allocates nothing.
+    spare: Vec<Vec<u32>>,
+}
+
+impl NextEvents {
+    fn push(&mut self, time: TimeInt, column: u32) {
+        let Self { by_time, spare } = self;
+        by_time
+            .entry(time)
+            .or_insert_with(|| spare.pop().unwrap_or_default())
+            .push(column);
+    }
+
+    fn recycle(&mut self, mut group: Vec<u32>) {
+        group.clear();
+        self.spare.push(group);
+    }
 }
 
 struct ColumnState {
@@ -159,20 +180,20 @@ impl<'a> DataframeStream<'a> {
             query.range
         };
         let mut columns = Vec::with_capacity(plan.columns.len());
-        let mut heap = BinaryHeap::new();
+        let mut next = NextEvents::default();
         for (number, column) in plan.columns.iter().enumerate() {
             let state = column_state(store, &plan, column, range, query, sampling.is_none())?;
             if let Kind::Temporal(temporal) = &state.kind
                 && let Some(time) = temporal.next_time()
             {
-                heap.push(Reverse((time, u32::try_from(number).unwrap_or(u32::MAX))));
+                next.push(time, u32::try_from(number).unwrap_or(u32::MAX));
             }
             columns.push(state);
         }
         let rows = match sampling {
             Some(values) => Rows::Sample { values, next: 0 },
             None => Rows::Merge {
-                heap,
+                next,
                 fill: query.fill_latest_at,
             },
         };
@@ -209,17 +230,14 @@ impl<'a> DataframeStream<'a> {
 
     /// Appends one merged row at `time`; `false` when there is none left.
     fn merge_row(&mut self, num_rows: usize) -> bool {
-        let Rows::Merge { heap, fill } = &mut self.rows else {
+        let Rows::Merge { next, fill } = &mut self.rows else {
             return false;
         };
-        let Some(&Reverse((time, _))) = heap.peek() else {
+        let Some((time, group)) = next.by_time.pop_first() else {
             return false;
         };
         self.maxima.fill(None);
-        while let Some(&Reverse((t, number))) = heap.peek()
-            && t == time
-        {
-            heap.pop();
+        for &number in &group {
             let state = &mut self.columns[number as usize];
             let Kind::Temporal(column) = &mut state.kind else {
                 continue;
@@ -234,10 +252,11 @@ impl<'a> DataframeStream<'a> {
             if *fill && !column.hidden_by_static_clear && cell.is_some() {
                 column.fill = cell;
             }
-            if let Some(next) = column.next_time() {
-                heap.push(Reverse((next, number)));
+            if let Some(time) = column.next_time() {
+                next.push(time, number);
             }
         }
+        next.recycle(group);
         self.push_index_values(time);
         true
     }
@@ -272,6 +291,7 @@ impl<'a> DataframeStream<'a> {
                                     answer.chunk(),
                                     answer.component_column_index(),
                                     &self.plan.index_columns,
+                                    Some(self.plan.index_position),
                                 )
                                 .ok()?;
                             let index = (answer.time()?, answer.row_id());
@@ -364,6 +384,7 @@ fn column_state(
                     &winner.chunk,
                     winner.component_column,
                     &plan.index_columns,
+                    Some(plan.index_position),
                 )?,
                 row: winner.row,
             }
@@ -395,6 +416,7 @@ fn column_state(
                 chunk,
                 component_column,
                 &plan.index_columns,
+                Some(plan.index_position),
             )?);
         }
         temporal.cursor = Some(cursor);
@@ -415,6 +437,7 @@ fn column_state(
                         answer.chunk(),
                         answer.component_column_index(),
                         &plan.index_columns,
+                        Some(plan.index_position),
                     )?;
                     answer
                         .time()
