@@ -101,7 +101,7 @@ pub use dataframe::{
     ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_CELLS, DataframeError, DataframeQuery,
     DataframeStream, EntityPathFilter, EntityPathFilterError,
 };
-pub use entity_path::EntityPath;
+pub use entity_path::{EntityPath, natural_part_order};
 #[cfg(feature = "ipc")]
 pub use error::IoError;
 pub use error::{ChunkError, ConfigError, EntityPathError, GcOptionsError, InsertError};

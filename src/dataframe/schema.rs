@@ -41,7 +41,10 @@ impl TablePlan {
         let index = Timeline::new(Arc::clone(&query.index), index_type);
         let mut timelines: BTreeSet<Timeline> = BTreeSet::from([index.clone()]);
         let mut columns = Vec::new();
-        for entity in store.entity_paths() {
+        let mut entities = store.entity_paths();
+        // Rerun's column order: part by part, each part in natural order.
+        entities.sort_by(EntityPath::cmp_natural);
+        for entity in entities {
             if !query.contents.matches(&entity) {
                 continue;
             }
