@@ -1,12 +1,15 @@
-//! A column's cells for one batch: runs of consecutive rows of one source chunk, copied
-//! with one `MutableArrayData::extend` each.
+//! A column's cells for one batch: runs of consecutive rows of one source chunk. The output
+//! list array is built directly: offsets and validity cell by cell (a few instructions
+//! each), the values with one `MutableArrayData::extend` per stretch of a source's values
+//! that the batch takes whole. Null cells hold no values, so a column logged every third
+//! row still copies its values in one stretch per source chunk.
 
 use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, ListArray, make_array, new_empty_array};
-use arrow_buffer::OffsetBuffer;
+use arrow_buffer::{BooleanBufferBuilder, NullBuffer, OffsetBuffer, ScalarBuffer};
 use arrow_data::ArrayData;
-use arrow_data::transform::{Capacities, MutableArrayData};
+use arrow_data::transform::MutableArrayData;
 use arrow_schema::{ArrowError, FieldRef};
 
 use crate::{Chunk, ChunkId, Timeline};
@@ -27,7 +30,7 @@ struct Source {
     chunk: Option<Arc<Chunk>>,
     /// The column's list array, retyped to the output's list type where its item field
     /// differed (name, nullability or metadata; the element type is the same).
-    data: ArrayData,
+    list: ListArray,
     /// `(index column, the chunk's time column there)` for each index column but the
     /// table's own index (whose value a row already has) that the chunk has.
     time_columns: Box<[(u32, u32)]>,
@@ -54,7 +57,7 @@ impl Sources {
             item_field,
             arrays: vec![Source {
                 chunk: None,
-                data: empty.into_data(),
+                list: empty,
                 time_columns: Box::new([]),
             }],
             by_chunk: ahash::HashMap::default(),
@@ -72,9 +75,9 @@ impl Sources {
         skip: Option<usize>,
     ) -> Result<u32, ArrowError> {
         let list = chunk.components()[component_column as usize].list_array();
-        let data = if matches!(list.data_type(), arrow_schema::DataType::List(f) if *f == self.item_field)
+        let list = if matches!(list.data_type(), arrow_schema::DataType::List(f) if *f == self.item_field)
         {
-            list.to_data()
+            list.clone()
         } else {
             ListArray::try_new(
                 Arc::clone(&self.item_field),
@@ -82,7 +85,6 @@ impl Sources {
                 Arc::clone(list.values()),
                 list.nulls().cloned(),
             )?
-            .into_data()
         };
         let time_columns = index_columns
             .iter()
@@ -100,7 +102,7 @@ impl Sources {
             .map_err(|_| ArrowError::ComputeError("too many source chunks".to_owned()))?;
         self.arrays.push(Source {
             chunk: Some(Arc::clone(chunk)),
-            data,
+            list,
             time_columns,
         });
         Ok(number)
@@ -126,7 +128,9 @@ impl Sources {
     /// Raises `maxima[i]` to the time the cell's row has on index column `i`, where its
     /// chunk has that timeline (the table's own index aside).
     pub fn raise_times(&self, cell: Cell, maxima: &mut [Option<i64>]) {
-        let Cell::Row { source, row } = cell else {
+        // With the index the only index column there is nothing to raise, and the source
+        // need not be read (a cache miss per cell in a wide table).
+        let (true, Cell::Row { source, row }) = (maxima.len() > 1, cell) else {
             return;
         };
         let source = &self.arrays[source as usize];
@@ -144,8 +148,26 @@ impl Sources {
 /// is next touched or the batch ends, so a sparse row costs only the columns it has.
 #[derive(Debug, Default)]
 pub(crate) struct ColumnCells {
+    /// The run cells are being added to, kept beside the column's other fields rather
+    /// than at the end of `runs`: the merge touches every column of a row, and reading a
+    /// run through its vector would be one more cache miss per cell.
+    last: Option<Run>,
+    /// The finished runs before it.
     runs: Vec<Run>,
     len: usize,
+}
+
+/// Scratch space for [`ColumnCells::finish`], one per stream, kept from column to column
+/// and batch to batch.
+#[derive(Debug, Default)]
+pub(crate) struct FinishScratch {
+    /// Source number -> its place among the sources a copy uses (`u32::MAX`: unused).
+    local: Vec<u32>,
+    /// The sources a copy uses, in local order.
+    used: Vec<u32>,
+    /// The stretches of the sources' values the cells take, in order: `(source, start,
+    /// end)`.
+    stretches: Vec<(u32, usize, usize)>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -177,7 +199,7 @@ impl ColumnCells {
                 self.push(cell);
                 let extra = (missing - 1) as u32;
                 if extra > 0 {
-                    self.runs.push(Run::Repeat {
+                    self.open(Run::Repeat {
                         source,
                         row,
                         times: extra,
@@ -186,16 +208,16 @@ impl ColumnCells {
                 }
             }
             None => {
-                match self.runs.last_mut() {
+                match &mut self.last {
                     Some(Run::Nulls(n)) => *n += missing as u32,
-                    _ => self.runs.push(Run::Nulls(missing as u32)),
+                    _ => self.open(Run::Nulls(missing as u32)),
                 }
                 self.len = len;
             }
             Some(Cell::Empty) => {
-                match self.runs.last_mut() {
+                match &mut self.last {
                     Some(Run::Empties(n)) => *n += missing as u32,
-                    _ => self.runs.push(Run::Empties(missing as u32)),
+                    _ => self.open(Run::Empties(missing as u32)),
                 }
                 self.len = len;
             }
@@ -204,16 +226,16 @@ impl ColumnCells {
 
     pub fn push(&mut self, cell: Option<Cell>) {
         self.len += 1;
-        match (self.runs.last_mut(), cell) {
+        match (&mut self.last, cell) {
             (Some(Run::Nulls(n)), None) | (Some(Run::Empties(n)), Some(Cell::Empty)) => *n += 1,
             (Some(Run::Rows { source, start, len }), Some(Cell::Row { source: s, row }))
                 if *source == s && *start + *len == row =>
             {
                 *len += 1;
             }
-            (_, None) => self.runs.push(Run::Nulls(1)),
-            (_, Some(Cell::Empty)) => self.runs.push(Run::Empties(1)),
-            (_, Some(Cell::Row { source, row })) => self.runs.push(Run::Rows {
+            (_, None) => self.open(Run::Nulls(1)),
+            (_, Some(Cell::Empty)) => self.open(Run::Empties(1)),
+            (_, Some(Cell::Row { source, row })) => self.open(Run::Rows {
                 source,
                 start: row,
                 len: 1,
@@ -221,47 +243,149 @@ impl ColumnCells {
         }
     }
 
-    /// The column's array for the batch; the runs are cleared for the next one.
-    pub fn finish(&mut self, sources: &Sources, num_rows: usize) -> ArrayRef {
-        self.len = 0;
-        // Only the sources this batch uses take part (an output array is built from
-        // them), numbered locally; the empty list is always among them, so there is one.
-        let mut local: Vec<u32> = vec![u32::MAX; sources.arrays.len()];
-        let mut used: Vec<&ArrayData> = vec![&sources.arrays[0].data];
-        local[0] = 0;
-        for run in &self.runs {
-            if let Run::Rows { source, .. } | Run::Repeat { source, .. } = *run
-                && local[source as usize] == u32::MAX
-            {
-                local[source as usize] = u32::try_from(used.len()).unwrap_or(u32::MAX);
-                used.push(&sources.arrays[source as usize].data);
-            }
+    /// Starts a new run after the current one.
+    fn open(&mut self, run: Run) {
+        if let Some(previous) = self.last.replace(run) {
+            self.runs.push(previous);
         }
-        let mut out = MutableArrayData::with_capacities(used, true, Capacities::Array(num_rows));
+    }
+
+    /// The column's array for the batch; the runs are cleared for the next one.
+    ///
+    /// # Errors
+    /// The batch's values would overflow the list's 32-bit offsets.
+    pub fn finish(
+        &mut self,
+        sources: &Sources,
+        num_rows: usize,
+        scratch: &mut FinishScratch,
+    ) -> Result<ArrayRef, ArrowError> {
+        self.len = 0;
+        self.runs.extend(self.last.take());
+        scratch.stretches.clear();
+        let mut out = ListBuilder {
+            offsets: Vec::with_capacity(num_rows + 1),
+            validity: BooleanBufferBuilder::new(num_rows),
+            nulls: 0,
+            stretches: &mut scratch.stretches,
+        };
+        out.offsets.push(0);
         for run in self.runs.drain(..) {
             match run {
-                Run::Nulls(n) => out.extend_nulls(n as usize),
-                Run::Empties(n) => {
-                    for _ in 0..n {
-                        out.extend(0, 0, 1);
-                    }
+                Run::Nulls(n) => out.repeat_offset(n as usize, false),
+                Run::Empties(n) => out.repeat_offset(n as usize, true),
+                Run::Rows { source, start, len } => {
+                    out.rows(
+                        source,
+                        &sources.arrays[source as usize].list,
+                        start,
+                        start + len,
+                    )?;
                 }
-                Run::Rows { source, start, len } => out.extend(
-                    local[source as usize] as usize,
-                    start as usize,
-                    (start + len) as usize,
-                ),
                 Run::Repeat { source, row, times } => {
                     for _ in 0..times {
-                        out.extend(
-                            local[source as usize] as usize,
-                            row as usize,
-                            row as usize + 1,
-                        );
+                        out.rows(source, &sources.arrays[source as usize].list, row, row + 1)?;
                     }
                 }
             }
         }
-        make_array(out.freeze())
+        let (offsets, nulls) = out.finish();
+        let values = match scratch.stretches.as_slice() {
+            [] => new_empty_array(sources.item_field.data_type()),
+            &[(source, from, to)] => sources.arrays[source as usize]
+                .list
+                .values()
+                .slice(from, to - from),
+            stretches => {
+                // Several stretches (several chunks, or cells a fill repeats): copied.
+                let FinishScratch { local, used, .. } = scratch;
+                local.clear();
+                local.resize(sources.arrays.len(), u32::MAX);
+                used.clear();
+                for &(source, _, _) in stretches {
+                    if local[source as usize] == u32::MAX {
+                        local[source as usize] = u32::try_from(used.len()).unwrap_or(u32::MAX);
+                        used.push(source);
+                    }
+                }
+                let data: Vec<ArrayData> = used
+                    .iter()
+                    .map(|&s| sources.arrays[s as usize].list.values().to_data())
+                    .collect();
+                let mut values = MutableArrayData::new(data.iter().collect(), false, 0);
+                for &(source, from, to) in stretches {
+                    values.extend(local[source as usize] as usize, from, to);
+                }
+                make_array(values.freeze())
+            }
+        };
+        let list = ListArray::try_new(Arc::clone(&sources.item_field), offsets, values, nulls)?;
+        Ok(Arc::new(list))
+    }
+}
+
+/// A list array's offsets and validity under construction.
+struct ListBuilder<'a> {
+    offsets: Vec<i32>,
+    validity: BooleanBufferBuilder,
+    nulls: usize,
+    /// The stretches of the sources' values the cells take, in order, each as long as
+    /// consecutive cells continue it: `(source, start, end)`.
+    stretches: &'a mut Vec<(u32, usize, usize)>,
+}
+
+impl ListBuilder<'_> {
+    /// `n` cells holding no values: nulls, or empty lists.
+    fn repeat_offset(&mut self, n: usize, valid: bool) {
+        let last = self.offsets.last().copied().unwrap_or(0);
+        self.offsets.extend(std::iter::repeat_n(last, n));
+        self.validity.append_n(n, valid);
+        if !valid {
+            self.nulls += n;
+        }
+    }
+
+    /// Rows `start..end` of `list` (source `source`).
+    fn rows(
+        &mut self,
+        source: u32,
+        list: &ListArray,
+        start: u32,
+        end: u32,
+    ) -> Result<(), ArrowError> {
+        let (start, end) = (start as usize, end as usize);
+        let offsets = list.value_offsets();
+        let mut offset = self.offsets.last().copied().unwrap_or(0);
+        for row in start..end {
+            offset = offset
+                .checked_add(offsets[row + 1] - offsets[row])
+                .ok_or_else(|| ArrowError::OffsetOverflowError(usize::MAX))?;
+            self.offsets.push(offset);
+        }
+        match list.nulls() {
+            Some(nulls) => {
+                for row in start..end {
+                    let valid = nulls.is_valid(row);
+                    self.validity.append(valid);
+                    self.nulls += usize::from(!valid);
+                }
+            }
+            None => self.validity.append_n(end - start, true),
+        }
+        let (from, to) = (
+            offsets[start].unsigned_abs() as usize,
+            offsets[end].unsigned_abs() as usize,
+        );
+        match self.stretches.last_mut() {
+            Some((s, _, stretch_end)) if *s == source && *stretch_end == from => *stretch_end = to,
+            _ if from == to => {}
+            _ => self.stretches.push((source, from, to)),
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> (OffsetBuffer<i32>, Option<NullBuffer>) {
+        let nulls = (self.nulls > 0).then(|| NullBuffer::new(self.validity.finish()));
+        (OffsetBuffer::new(ScalarBuffer::from(self.offsets)), nulls)
     }
 }

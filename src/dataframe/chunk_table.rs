@@ -11,7 +11,7 @@ use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondT
 use arrow_array::{Array, ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
-use super::cells::{Cell, ColumnCells, Sources};
+use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
 use crate::{Chunk, ChunkStore, RowId, TimeInt, TimeType, Timeline};
 
@@ -306,9 +306,10 @@ impl ChunkTableStream {
                 }
             });
         }
+        let mut scratch = FinishScratch::default();
         for (cells, sources) in self.cells.iter_mut().zip(&self.sources) {
             cells.pad(None, num_rows);
-            arrays.push(cells.finish(sources, num_rows));
+            arrays.push(cells.finish(sources, num_rows, &mut scratch)?);
         }
         RecordBatch::try_new(Arc::clone(&self.schema), arrays).map(Some)
     }

@@ -7,7 +7,7 @@ use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondT
 use arrow_array::{ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
-use super::cells::{Cell, ColumnCells, Sources};
+use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::schema::{ColumnPlan, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
@@ -342,6 +342,7 @@ impl<'a> DataframeStream<'a> {
                 }
             });
         }
+        let mut scratch = FinishScratch::default();
         for (state, cells) in self.columns.iter().zip(&mut self.cells) {
             let pad = match &state.kind {
                 Kind::Static(cell) => Some(*cell),
@@ -349,7 +350,7 @@ impl<'a> DataframeStream<'a> {
                 Kind::Temporal(_) => None,
             };
             cells.pad(pad, num_rows);
-            arrays.push(cells.finish(&state.sources, num_rows));
+            arrays.push(cells.finish(&state.sources, num_rows, &mut scratch)?);
         }
         RecordBatch::try_new(Arc::clone(&self.plan.schema), arrays).map(Some)
     }

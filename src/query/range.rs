@@ -432,15 +432,23 @@ pub(crate) struct CursorRow {
     pub row: u32,
 }
 
+/// Rows a [`RangeCursor`] decodes at once. A merge over thousands of columns steps each
+/// cursor once per row it emits; decoding a block at a time walks the chain from result to
+/// chunk to column once per block, and each step then reads the next entry of a small
+/// buffer instead of missing the cache on every link of that chain.
+const CURSOR_BLOCK: usize = 32;
+
 /// Walks a temporal [`RangeResult`] row by row without borrowing it, so that a streaming
 /// reader (the dataframe's merge) can keep the result and its position side by side.
 #[derive(Debug)]
 pub(crate) struct RangeCursor {
     result: RangeResult,
     run: usize,
-    /// The next position to look at inside run `run`.
+    /// The next position to decode inside run `run`.
     position: u32,
-    current: Option<CursorRow>,
+    /// Decoded rows, from `next` on still to come.
+    block: Vec<CursorRow>,
+    next: usize,
 }
 
 impl RangeCursor {
@@ -452,20 +460,24 @@ impl RangeCursor {
             result,
             run: 0,
             position,
-            current: None,
+            block: Vec::new(),
+            next: 0,
         };
-        cursor.seek();
+        cursor.refill();
         cursor
     }
 
     /// The row the cursor stands on; `None` once past the last.
     pub fn peek(&self) -> Option<CursorRow> {
-        self.current
+        self.block.get(self.next).copied()
     }
 
     /// Moves to the next non-null row.
     pub fn advance(&mut self) {
-        self.seek();
+        self.next += 1;
+        if self.next >= self.block.len() {
+            self.refill();
+        }
     }
 
     /// How many chunks the result's rows come from.
@@ -480,13 +492,18 @@ impl RangeCursor {
         (&source.chunk, source.component_column)
     }
 
+    /// Decodes the next non-null rows, up to a block of them (none: the end).
     #[expect(
         clippy::cast_possible_truncation,
         reason = "rows < 2^32, checked in Chunk::from_raw"
     )]
-    fn seek(&mut self) {
-        self.current = None;
-        while let Some(run) = self.result.runs.get(self.run).copied() {
+    fn refill(&mut self) {
+        self.block.clear();
+        self.next = 0;
+        while self.block.len() < CURSOR_BLOCK {
+            let Some(run) = self.result.runs.get(self.run).copied() else {
+                return;
+            };
             if self.position >= run.end {
                 self.run += 1;
                 if let Some(next) = self.result.runs.get(self.run) {
@@ -494,24 +511,29 @@ impl RangeCursor {
                 }
                 continue;
             }
-            let pos = self.position;
-            self.position += 1;
             let source = &self.result.sources[run.source as usize];
-            let column = &source.chunk.components()[source.component_column as usize];
+            let end = run
+                .end
+                .min(self.position + (CURSOR_BLOCK - self.block.len()) as u32);
             let Some(time_column) = source.time_column else {
-                continue; // a static answer has no place in a time merge
+                self.position = run.end; // a static answer has no place in a time merge
+                continue;
             };
+            let column = &source.chunk.components()[source.component_column as usize];
             let times = &source.chunk.time_columns()[time_column as usize];
-            let row = times.row_at(pos as usize);
-            if column.is_valid_in_bounds(row) {
-                self.current = Some(CursorRow {
-                    time: TimeInt::saturating(times.times()[row]),
-                    row_id: source.chunk.row_ids()[row],
-                    source: run.source,
-                    row: row as u32,
-                });
-                return;
+            let (values, row_ids) = (times.times(), source.chunk.row_ids());
+            for pos in self.position..end {
+                let row = times.row_at(pos as usize);
+                if column.is_valid_in_bounds(row) {
+                    self.block.push(CursorRow {
+                        time: TimeInt::saturating(values[row]),
+                        row_id: row_ids[row],
+                        source: run.source,
+                        row: row as u32,
+                    });
+                }
             }
+            self.position = end;
         }
     }
 }
