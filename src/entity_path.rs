@@ -168,13 +168,13 @@ impl EntityPath {
     ///
     /// ```
     /// # use chunkstore::EntityPath;
-    /// let mut paths: Vec<EntityPath> = ["/cam10", "/__props", "/cam2", "/Cam3", "/cam2/a"]
+    /// let mut paths: Vec<EntityPath> = ["/cam10", "/__props", "/cam2", "/Cam20", "/cam2/a"]
     ///     .iter()
     ///     .map(|p| EntityPath::parse(p).unwrap())
     ///     .collect();
     /// paths.sort_by(EntityPath::cmp_natural);
     /// let text: Vec<String> = paths.iter().map(ToString::to_string).collect();
-    /// assert_eq!(text, ["/cam2", "/cam2/a", "/Cam3", "/cam10", "/__props"]);
+    /// assert_eq!(text, ["/Cam20", "/cam2", "/cam2/a", "/cam10", "/__props"]);
     /// ```
     pub fn cmp_natural(&self, other: &Self) -> Ordering {
         self.parts()
@@ -325,7 +325,8 @@ impl Hash for EntityPath {
 /// Parts starting with `__` (Rerun's reserved namespace, e.g. `__properties`) come after
 /// all others; otherwise digit runs compare as numbers (`cam2` < `cam10`), a run starting
 /// with `0` compares digit by digit as a fraction would (`1.010` < `1.02`), and other
-/// characters compare ignoring ASCII case, upper case first on a tie (`a` < `B` < `b`).
+/// characters compare ignoring ASCII case (`a` < `B` < `b`), except that the first pair
+/// differing only in case decides, upper case first (`Cam20` < `cam2`).
 /// Distinct parts never compare equal. This is the order Rerun 0.41 gives its dataframe
 /// columns (checked with its SDK on the parts of `tests` below).
 pub fn natural_part_order(a: &str, b: &str) -> Ordering {
@@ -428,7 +429,16 @@ mod tests {
             "/B", "/b", "/g/q", "/g/r1", "/g/__p", "/r02", "/r2", "/r10", "/tree", "/tree/a",
             "/tree-b", "/x007", "/x2-g8", "/x2-y7", "/x7", "/Z", "/z", "/é", "/__x",
         ];
-        let paths: Vec<EntityPath> = rerun_order
+        check_order(&rerun_order);
+        // A second recording: case decides at the first pair of letters differing in it.
+        check_order(&[
+            "/Cam3", "/Cam20", "/cAm2x", "/cam2", "/cam2/a", "/cam10", "/__props",
+        ]);
+    }
+
+    /// Paths given in ascending order compare as their places do, and sort back into it.
+    fn check_order(ascending: &[&str]) {
+        let paths: Vec<EntityPath> = ascending
             .iter()
             .map(|p| EntityPath::parse(p).unwrap())
             .collect();
