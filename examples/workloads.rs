@@ -225,13 +225,22 @@ impl Report {
 
 // --- dataframe (this crate's own) ---
 
-/// `DATAFRAME_SCALE` (default 1): entities = 1,000 / scale, times = 10,000 / scale.
-fn dataframe_scale() -> usize {
-    std::env::var("DATAFRAME_SCALE")
+/// A positive whole number from the environment.
+fn env_count(name: &str) -> Option<usize> {
+    std::env::var(name)
         .ok()
         .and_then(|s| s.parse().ok())
         .filter(|&s| s >= 1)
-        .unwrap_or(1)
+}
+
+/// `DATAFRAME_SCALE` (default 1): entities = 1,000 / scale, times = 10,000 / scale;
+/// `DATAFRAME_TIMES` sets the times alone (a longer table, as many columns).
+fn dataframe_shape() -> (usize, usize) {
+    let scale = env_count("DATAFRAME_SCALE").unwrap_or(1);
+    (
+        1_000 / scale,
+        env_count("DATAFRAME_TIMES").unwrap_or(10_000 / scale),
+    )
 }
 
 /// A dataframe view of 1,000 entities × 3 components × 10,000 times (sparse and filled,
@@ -239,8 +248,7 @@ fn dataframe_scale() -> usize {
 /// Parquet file, with the peak RSS that adds. The checksum counts non-null cells.
 fn dataframe() -> bool {
     use chunkstore::DataframeQuery;
-    let scale = dataframe_scale();
-    let (num_entities, times) = (1_000 / scale, 10_000 / scale);
+    let (num_entities, times) = dataframe_shape();
     let chunks = common::dataframe_chunks(num_entities, times, 1_000);
     if let Some(path) = std::env::var_os("DATAFRAME_RRD") {
         // The same data for another engine (Rerun's Python dataframe reader, in
@@ -263,6 +271,11 @@ fn dataframe() -> bool {
         ("sparse_1pct", false, one_percent),
         ("filled_1pct", true, one_percent),
     ] {
+        // `DATAFRAME_PHASES=filled_all,...` runs only the phases named (for profiling).
+        if std::env::var("DATAFRAME_PHASES").is_ok_and(|only| !only.split(',').any(|p| p == phase))
+        {
+            continue;
+        }
         let query = DataframeQuery::new(FRAME)
             .with_fill_latest_at(fill)
             .with_range(range);

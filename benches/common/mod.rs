@@ -407,6 +407,11 @@ pub fn latest_scalar(
 /// logging `scalar`, `position3d` and `text` at `times` frames `3k + e % 3` (so a third
 /// of the entities has a row at any one frame: sparse rows differ from filled ones), in
 /// chunks of `rows_per_chunk` rows.
+#[expect(
+    clippy::cast_possible_wrap,
+    clippy::cast_precision_loss,
+    reason = "bench sizes are small integers"
+)]
 pub fn dataframe_chunks(entities: usize, times: usize, rows_per_chunk: usize) -> Vec<Arc<Chunk>> {
     let mut ids = RowIds::new();
     let mut chunks = Vec::new();
