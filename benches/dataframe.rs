@@ -11,24 +11,9 @@
 
 mod common;
 
-use arrow_array::Array;
-use chunkstore::{ChunkStore, DataframeQuery, StoreConfig, TimeInt, TimeRange};
-use common::{FRAME, at, dataframe_chunks, store_with};
+use chunkstore::{DataframeQuery, StoreConfig, TimeInt, TimeRange};
+use common::{FRAME, at, dataframe_chunks, store_with, stream_dataframe};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-
-/// Streams the whole answer; returns (rows, non-null cells) so nothing is optimized away.
-fn stream(store: &ChunkStore, query: &DataframeQuery) -> (u64, u64) {
-    let (mut rows, mut non_null) = (0, 0);
-    for batch in store.dataframe(query).expect("a known index") {
-        let batch = batch.expect("a batch");
-        rows += batch.num_rows() as u64;
-        non_null += batch.columns()[1..]
-            .iter()
-            .map(|c| (c.len() - c.null_count()) as u64)
-            .sum::<u64>();
-    }
-    (rows, non_null)
-}
 
 fn dataframe(c: &mut Criterion) {
     let scale = std::env::var("DATAFRAME_SCALE")
@@ -41,7 +26,6 @@ fn dataframe(c: &mut Criterion) {
         StoreConfig::COMPACTION_OFF,
         &dataframe_chunks(entities, times, 1_000),
     );
-    let columns = 3 * entities as u64;
     #[expect(clippy::cast_possible_wrap, reason = "small bench times")]
     let frames = 3 * times as i64;
     let one_percent = TimeRange::new(at(frames / 2), at(frames / 2 + frames / 100 - 1));
@@ -70,9 +54,9 @@ fn dataframe(c: &mut Criterion) {
             DataframeQuery::new(FRAME).with_index_values(samples.iter().copied()),
         ),
     ] {
-        let (rows, _) = stream(&store, &query);
+        let (rows, columns, _) = stream_dataframe(&store, &query);
         group.throughput(Throughput::Elements(rows * columns));
-        group.bench_function(id, |b| b.iter(|| stream(&store, &query)));
+        group.bench_function(id, |b| b.iter(|| stream_dataframe(&store, &query)));
     }
     group.finish();
 }

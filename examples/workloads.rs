@@ -281,18 +281,8 @@ fn dataframe() -> bool {
             .with_range(range);
         let mut cells = 0;
         let (ops, ns_per_op, checksum) = time_query(|| {
-            let (mut rows, mut non_null) = (0, 0);
-            let stream = store.dataframe(&query).expect("a known index");
-            let columns = stream.schema().fields().len() - 1;
-            for batch in stream {
-                let batch = batch.expect("a batch");
-                rows += batch.num_rows() as u64;
-                non_null += batch.columns()[1..]
-                    .iter()
-                    .map(|c| (c.len() - c.null_count()) as u64)
-                    .sum::<u64>();
-            }
-            cells = rows * columns as u64;
+            let (rows, columns, non_null) = common::stream_dataframe(&store, &query);
+            cells = rows * columns;
             (rows, non_null)
         });
         eprintln!(

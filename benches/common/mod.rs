@@ -24,8 +24,8 @@ use arrow_array::{
 use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
 use chunkstore::{
-    Chunk, ChunkId, ChunkStore, ComponentColumn, ComponentName, EntityPath, LatestAtQuery,
-    RangeResult, RangeRun, RowId, StoreConfig, TimeInt, Timeline,
+    Chunk, ChunkId, ChunkStore, ComponentColumn, ComponentName, DataframeQuery, EntityPath,
+    LatestAtQuery, RangeResult, RangeRun, RowId, StoreConfig, TimeInt, Timeline,
 };
 
 /// The timeline every workload logs on.
@@ -433,4 +433,21 @@ pub fn dataframe_chunks(entities: usize, times: usize, rows_per_chunk: usize) ->
         }
     }
     chunks
+}
+
+/// Streams a dataframe view whole, reading every batch: (rows, data columns, non-null
+/// cells), so that nothing is optimized away.
+pub fn stream_dataframe(store: &ChunkStore, query: &DataframeQuery) -> (u64, u64, u64) {
+    let (mut rows, mut non_null) = (0, 0);
+    let stream = store.dataframe(query).expect("a known index");
+    let columns = stream.schema().fields().len() as u64 - 1;
+    for batch in stream {
+        let batch = batch.expect("a batch");
+        rows += batch.num_rows() as u64;
+        non_null += batch.columns()[1..]
+            .iter()
+            .map(|c| (c.len() - c.null_count()) as u64)
+            .sum::<u64>();
+    }
+    (rows, columns, non_null)
 }
