@@ -36,7 +36,8 @@ struct Source {
     time_columns: Box<[(u32, u32)]>,
 }
 
-/// The list arrays one output column copies from. Source 0 is a one-row empty list.
+/// The list arrays one output column copies from. Source 0 is an empty list that no cell
+/// refers to (a Clear's empty cells are offsets alone): chunks are numbered from 1.
 #[derive(Debug)]
 pub(crate) struct Sources {
     item_field: FieldRef,
