@@ -57,7 +57,7 @@
 //!   them. Needs `arrow-ipc`.
 //! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
-//! - `parquet`: [`parquet_export`], dataframes and the raw chunk table as Parquet files.
+//! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files.
 //!   Needs `parquet` (Snappy only).
 //! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`); implies
 //!   `rrd` and `parquet`.

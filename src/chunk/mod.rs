@@ -27,6 +27,7 @@ use metadata::Metadata;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;
 use time_column::{RawTimeColumn, RawTimes};
+#[cfg(feature = "rrd")]
 pub(crate) use transport::row_id_field;
 
 /// An immutable batch of rows of one entity: a row-id column, zero or more time columns
