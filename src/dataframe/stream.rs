@@ -91,11 +91,15 @@ enum Kind {
     Temporal(TemporalColumn),
 }
 
+/// Where a temporal column's cursor sources start among its [`Sources`]: they are
+/// registered first, right after the empty list.
+const FIRST_CURSOR_SOURCE: u32 = 1;
+
 struct TemporalColumn {
-    /// The column's rows in the range, in `(time, row id)` order (merge mode only).
+    /// The column's rows in the range, in `(time, row id)` order (merge mode only). Its
+    /// source chunks are the column's [`Sources`] from [`FIRST_CURSOR_SOURCE`] on, in the
+    /// same order, so a row's source needs no lookup.
     cursor: Option<RangeCursor>,
-    /// The cursor's source chunks as numbered in the column's [`Sources`].
-    cursor_sources: Vec<u32>,
     /// Temporal Clears that apply, ascending (in the range, or all of them when
     /// sampling), and the next one to merge.
     clears: Vec<(TimeInt, RowId)>,
@@ -125,21 +129,25 @@ impl TemporalColumn {
     /// greatest row id, or an empty list where a Clear came later.
     fn take_events_at(&mut self, time: TimeInt) -> Option<Cell> {
         let mut row = None;
-        if let Some(cursor) = &mut self.cursor {
-            while let Some(next) = cursor.peek().filter(|r| r.time == time) {
-                row = Some(next);
-                cursor.advance();
-            }
-        }
         let mut clear = None;
         while let Some(&(_, row_id)) = self.clears.get(self.next_clear).filter(|c| c.0 == time) {
             clear = Some(row_id);
             self.next_clear += 1;
         }
+        if let Some(cursor) = &mut self.cursor {
+            while let Some(next) = cursor.peek().filter(|r| r.time == time) {
+                row = Some(next);
+                cursor.advance();
+            }
+            if let (Some(found), Some(clear)) = (row, clear)
+                && clear >= cursor.row_id(found)
+            {
+                row = None; // the Clear came later: an empty list below
+            }
+        }
         match (row, clear) {
-            (Some(row), Some(clear)) if clear >= row.row_id => Some(Cell::Empty),
             (Some(row), _) => Some(Cell::Row {
-                source: self.cursor_sources[row.source as usize],
+                source: FIRST_CURSOR_SOURCE + row.source,
                 row: row.row,
             }),
             (None, Some(_)) => Some(Cell::Empty),
@@ -398,7 +406,6 @@ fn column_state(
     let hidden_by_static_clear = clears.latest_static.is_some();
     let mut temporal = TemporalColumn {
         cursor: None,
-        cursor_sources: Vec::new(),
         clears: clears.in_range,
         next_clear: 0,
         hidden_by_static_clear,
@@ -413,12 +420,18 @@ fn column_state(
         let cursor = RangeCursor::new(result);
         for source in 0..cursor.num_sources() {
             let (chunk, component_column) = cursor.source(source);
-            temporal.cursor_sources.push(sources.push(
+            let number = sources.push(
                 chunk,
                 component_column,
                 &plan.index_columns,
                 Some(plan.index_position),
-            )?);
+            )?;
+            if number != FIRST_CURSOR_SOURCE + source {
+                return Err(ArrowError::ComputeError(format!(
+                    "dataframe column {}:{}: cursor source {source} registered as {number}",
+                    column.entity, column.component
+                )));
+            }
         }
         temporal.cursor = Some(cursor);
         if query.fill_latest_at {
