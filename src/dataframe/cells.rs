@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use arrow_array::{Array, ArrayRef, ListArray, make_array, new_empty_array};
+use arrow_array::{Array, ArrayRef, ListArray, UInt64Array, make_array, new_empty_array};
 use arrow_buffer::{BooleanBufferBuilder, NullBuffer, OffsetBuffer, ScalarBuffer};
 use arrow_data::ArrayData;
 use arrow_data::transform::MutableArrayData;
@@ -297,8 +297,17 @@ impl ColumnCells {
                 .list
                 .values()
                 .slice(from, to - from),
+            stretches if stretches.iter().all(|&(s, _, _)| s == stretches[0].0) => {
+                // Several stretches of one chunk (cells a fill repeats): one gather.
+                let indices: UInt64Array = stretches
+                    .iter()
+                    .flat_map(|&(_, from, to)| from as u64..to as u64)
+                    .collect();
+                let values = sources.arrays[stretches[0].0 as usize].list.values();
+                arrow_select::take::take(values, &indices, None)?
+            }
             stretches => {
-                // Several stretches (several chunks, or cells a fill repeats): copied.
+                // Stretches of several chunks: copied stretch by stretch.
                 let FinishScratch { local, used, .. } = scratch;
                 local.clear();
                 local.resize(sources.arrays.len(), u32::MAX);
