@@ -150,6 +150,18 @@ impl TimeType {
             Self::TimestampNs => DataType::Timestamp(TimeUnit::Nanosecond, None),
         }
     }
+
+    /// A time column of this type ([`Self::to_arrow`]) holding `values`, nulls where a row
+    /// has no time.
+    pub(crate) fn array(self, values: Vec<Option<i64>>) -> arrow_array::ArrayRef {
+        use arrow_array::PrimitiveArray;
+        use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+        match self {
+            Self::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
+            Self::DurationNs => Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values)),
+            Self::TimestampNs => Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values)),
+        }
+    }
 }
 
 /// A named timeline, e.g. `frame` (a sequence) or `log_time` (timestamps).

@@ -7,13 +7,12 @@ use std::collections::{BTreeMap, BinaryHeap, HashMap};
 use std::sync::Arc;
 
 use arrow_array::builder::{FixedSizeBinaryBuilder, StringBuilder};
-use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
-use arrow_array::{Array, ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
+use arrow_array::{Array, ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
-use crate::{Chunk, ChunkStore, RowId, TimeInt, TimeType, Timeline};
+use crate::{Chunk, ChunkStore, RowId, TimeInt, Timeline};
 
 /// Which chunk rows a [`ChunkStore::chunk_table`] holds and in which order.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -296,15 +295,7 @@ impl ChunkTableStream {
             Arc::new(row_ids.finish()),
         ];
         for (timeline, values) in self.timelines.iter().zip(times) {
-            arrays.push(match timeline.time_type() {
-                TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
-                TimeType::DurationNs => {
-                    Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values))
-                }
-                TimeType::TimestampNs => {
-                    Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values))
-                }
-            });
+            arrays.push(timeline.time_type().array(values));
         }
         let mut scratch = FinishScratch::default();
         for (cells, sources) in self.cells.iter_mut().zip(&self.sources) {

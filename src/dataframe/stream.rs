@@ -3,8 +3,7 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
-use arrow_array::{ArrayRef, PrimitiveArray, RecordBatch, RecordBatchReader};
+use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
@@ -12,7 +11,7 @@ use super::schema::{ColumnPlan, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
-use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange, TimeType};
+use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange};
 
 /// The rows of a dataframe view, as Arrow record batches of at most the query's batch
 /// size, in ascending order of the index (or in the order of the sampled values). The
@@ -339,16 +338,7 @@ impl<'a> DataframeStream<'a> {
         let fill = matches!(self.rows, Rows::Merge { fill: true, .. });
         let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.plan.schema.fields().len());
         for (timeline, values) in self.plan.index_columns.iter().zip(&mut self.index_values) {
-            let values = std::mem::take(values);
-            arrays.push(match timeline.time_type() {
-                TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
-                TimeType::DurationNs => {
-                    Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values))
-                }
-                TimeType::TimestampNs => {
-                    Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values))
-                }
-            });
+            arrays.push(timeline.time_type().array(std::mem::take(values)));
         }
         let mut scratch = FinishScratch::default();
         for (state, cells) in self.columns.iter().zip(&mut self.cells) {
