@@ -26,8 +26,7 @@ pub(crate) enum Cell {
 /// One stored list array a column's cells come from.
 #[derive(Debug)]
 struct Source {
-    /// `None` for the empty list, which is no chunk's.
-    chunk: Option<Arc<Chunk>>,
+    chunk: Arc<Chunk>,
     /// The column's list array, retyped to the output's list type where its item field
     /// differed (name, nullability or metadata; the element type is the same).
     list: ListArray,
@@ -36,8 +35,8 @@ struct Source {
     time_columns: Box<[(u32, u32)]>,
 }
 
-/// The list arrays one output column copies from. Source 0 is an empty list that no cell
-/// refers to (a Clear's empty cells are offsets alone): chunks are numbered from 1.
+/// The list arrays one output column copies from, numbered from 0 in the order they are
+/// registered. (A Clear's empty cells need none: they are offsets alone.)
 #[derive(Debug)]
 pub(crate) struct Sources {
     item_field: FieldRef,
@@ -47,22 +46,12 @@ pub(crate) struct Sources {
 }
 
 impl Sources {
-    pub fn new(item_field: FieldRef) -> Result<Self, ArrowError> {
-        let empty = ListArray::try_new(
-            Arc::clone(&item_field),
-            OffsetBuffer::new_zeroed(1),
-            new_empty_array(item_field.data_type()),
-            None,
-        )?;
-        Ok(Self {
+    pub fn new(item_field: FieldRef) -> Self {
+        Self {
             item_field,
-            arrays: vec![Source {
-                chunk: None,
-                list: empty,
-                time_columns: Box::new([]),
-            }],
+            arrays: Vec::new(),
             by_chunk: ahash::HashMap::default(),
-        })
+        }
     }
 
     /// Registers column `component_column` of `chunk` (again, if it already is) and
@@ -102,7 +91,7 @@ impl Sources {
         let number = u32::try_from(self.arrays.len())
             .map_err(|_| ArrowError::ComputeError("too many source chunks".to_owned()))?;
         self.arrays.push(Source {
-            chunk: Some(Arc::clone(chunk)),
+            chunk: Arc::clone(chunk),
             list,
             time_columns,
         });
@@ -135,9 +124,8 @@ impl Sources {
             return;
         };
         let source = &self.arrays[source as usize];
-        let Some(chunk) = &source.chunk else { return };
         for &(index_column, time_column) in &source.time_columns {
-            let time = chunk.time_columns()[time_column as usize].times()[row as usize];
+            let time = source.chunk.time_columns()[time_column as usize].times()[row as usize];
             let max = &mut maxima[index_column as usize];
             *max = (*max).max(Some(time));
         }

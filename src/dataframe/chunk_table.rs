@@ -133,15 +133,13 @@ impl ChunkStore {
             .cloned()
             .collect();
         chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
-        ChunkTableStream::new(chunks, query).map_err(|e| DataframeError::Column {
-            message: e.to_string(),
-        })
+        Ok(ChunkTableStream::new(chunks, query))
     }
 }
 
 impl ChunkTableStream {
-    fn new(chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Result<Self, ArrowError> {
-        let (timelines, fields, component_columns, sources) = table_columns(&chunks)?;
+    fn new(chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Self {
+        let (timelines, fields, component_columns, sources) = table_columns(&chunks);
         let index = query.index.as_deref();
         let mut heap = BinaryHeap::new();
         let mut unmerged = Vec::new();
@@ -183,7 +181,7 @@ impl ChunkTableStream {
         let batch_rows = query
             .batch_rows
             .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / num_columns).clamp(1, 65_536));
-        Ok(Self {
+        Self {
             schema: Arc::new(Schema::new(fields)),
             chunks: table_chunks,
             unmerged,
@@ -198,7 +196,7 @@ impl ChunkTableStream {
             sources,
             batch_rows,
             done: false,
-        })
+        }
     }
 
     /// The table's schema.
@@ -314,7 +312,7 @@ type TableColumns = (
     Vec<Sources>,
 );
 
-fn table_columns(chunks: &[Arc<Chunk>]) -> Result<TableColumns, ArrowError> {
+fn table_columns(chunks: &[Arc<Chunk>]) -> TableColumns {
     let mut timelines: BTreeMap<String, Timeline> = BTreeMap::new();
     // Component columns by name, then one per distinct list type in entity order.
     let mut by_name: BTreeMap<Arc<str>, Vec<(DataType, FieldRef)>> = BTreeMap::new();
@@ -363,11 +361,11 @@ fn table_columns(chunks: &[Arc<Chunk>]) -> Result<TableColumns, ArrowError> {
                     ("rerun:component".to_owned(), name.to_string()),
                 ])),
             );
-            sources.push(Sources::new(item)?);
+            sources.push(Sources::new(item));
             component_columns.push((Arc::clone(&name), data_type));
         }
     }
-    Ok((timelines, fields, component_columns, sources))
+    (timelines, fields, component_columns, sources)
 }
 
 impl Iterator for ChunkTableStream {

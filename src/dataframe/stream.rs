@@ -90,14 +90,10 @@ enum Kind {
     Temporal(TemporalColumn),
 }
 
-/// Where a temporal column's cursor sources start among its [`Sources`]: they are
-/// registered first, right after the empty list.
-const FIRST_CURSOR_SOURCE: u32 = 1;
-
 struct TemporalColumn {
     /// The column's rows in the range, in `(time, row id)` order (merge mode only). Its
-    /// source chunks are the column's [`Sources`] from [`FIRST_CURSOR_SOURCE`] on, in the
-    /// same order, so a row's source needs no lookup.
+    /// source chunks are registered first among the column's [`Sources`], in the same
+    /// order, so a row's source number is the column's.
     cursor: Option<RangeCursor>,
     /// Temporal Clears that apply, ascending (in the range, or all of them when
     /// sampling), and the next one to merge.
@@ -146,7 +142,7 @@ impl TemporalColumn {
         }
         match (row, clear) {
             (Some(row), _) => Some(Cell::Row {
-                source: FIRST_CURSOR_SOURCE + row.source,
+                source: row.source,
                 row: row.row,
             }),
             (None, Some(_)) => Some(Cell::Empty),
@@ -364,7 +360,7 @@ fn column_state(
     query: &DataframeQuery,
     merge: bool,
 ) -> Result<ColumnState, ArrowError> {
-    let mut sources = Sources::new(Arc::clone(&column.item_field))?;
+    let mut sources = Sources::new(Arc::clone(&column.item_field));
     let timeline = plan.index.name();
     // A Clear hides every component but the Clear component itself (SEMANTICS.md section 5).
     let clears = if column.component.is_clear() {
@@ -416,7 +412,7 @@ fn column_state(
                 &plan.index_columns,
                 Some(plan.index_position),
             )?;
-            if number != FIRST_CURSOR_SOURCE + source {
+            if number != source {
                 return Err(ArrowError::ComputeError(format!(
                     "dataframe column {}:{}: cursor source {source} registered as {number}",
                     column.entity, column.component
