@@ -41,10 +41,14 @@ struct EntityClears {
 }
 
 /// The Clears of a whole store, as a tree of entity path parts.
+///
+/// Nodes and each entity's Clears sit behind `Arc`s, so that a snapshot of the store
+/// shares the tree and a write copies only the nodes on its entity's path (and that
+/// entity's Clears), and only while a snapshot still holds them.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ClearIndex {
-    clears: Option<Box<EntityClears>>,
-    children: ahash::HashMap<Arc<str>, ClearIndex>,
+    clears: Option<Arc<EntityClears>>,
+    children: ahash::HashMap<Arc<str>, Arc<ClearIndex>>,
 }
 
 /// One Clear row: its row, and whether it is recursive.
@@ -73,25 +77,30 @@ impl ClearIndex {
         self.clears.is_none() && self.children.is_empty()
     }
 
-    /// Indexes every Clear row of `chunk`; a chunk without any is not touched.
-    pub fn insert_chunk(&mut self, chunk: &Chunk) {
-        self.update_chunk(chunk, true);
+    /// Indexes every Clear row of `chunk`; a chunk without any is not touched (nor is
+    /// the tree copied).
+    pub fn insert_chunk(index: &mut Arc<Self>, chunk: &Chunk) {
+        Self::update_chunk(index, chunk, true);
     }
 
     /// Forgets every Clear row of `chunk` (the mirror of [`ClearIndex::insert_chunk`]).
-    pub fn remove_chunk(&mut self, chunk: &Chunk) {
-        self.update_chunk(chunk, false);
+    pub fn remove_chunk(index: &mut Arc<Self>, chunk: &Chunk) {
+        Self::update_chunk(index, chunk, false);
     }
 
-    fn update_chunk(&mut self, chunk: &Chunk, insert: bool) {
+    fn update_chunk(index: &mut Arc<Self>, chunk: &Chunk, insert: bool) {
         let rows = clear_rows(chunk);
         if rows.is_empty() {
             return;
         }
         let parts = chunk.entity_path().part_arcs();
-        let Some(clears) = self
+        if !insert && index.node(parts).is_none_or(|node| node.clears.is_none()) {
+            return;
+        }
+        let this = Arc::make_mut(index);
+        let Some(clears) = this
             .node_mut(parts, insert)
-            .and_then(|n| n.clears.as_deref_mut())
+            .and_then(|n| n.clears.as_mut().map(Arc::make_mut))
         else {
             return;
         };
@@ -129,22 +138,33 @@ impl ClearIndex {
             }
         }
         if !insert {
-            self.prune(parts);
+            this.prune(parts);
         }
     }
 
-    /// The node of `parts`, created (with empty Clears) if `create`.
+    /// The node of `parts`, if there is one.
+    fn node(&self, parts: &[Arc<str>]) -> Option<&Self> {
+        let mut node = self;
+        for part in parts {
+            node = node.children.get(&**part)?;
+        }
+        Some(node)
+    }
+
+    /// The node of `parts`, created (with empty Clears) if `create`; every node on the way
+    /// is made this index's own (copied if a snapshot shares it).
     fn node_mut(&mut self, parts: &[Arc<str>], create: bool) -> Option<&mut Self> {
         let mut node = self;
         for part in parts {
-            node = if create {
+            let child = if create {
                 node.children.entry(Arc::clone(part)).or_default()
             } else {
                 node.children.get_mut(&**part)?
             };
+            node = Arc::make_mut(child);
         }
         if create {
-            node.clears.get_or_insert_with(Box::default);
+            node.clears.get_or_insert_with(Arc::default);
         }
         Some(node)
     }
@@ -155,6 +175,8 @@ impl ClearIndex {
         if let Some((first, rest)) = parts.split_first()
             && let Some(child) = self.children.get_mut(&**first)
         {
+            // Already this index's own: `node_mut` copied the path before the removal.
+            let child = Arc::make_mut(child);
             child.prune(rest);
             if child.is_empty() {
                 self.children.remove(&**first);
@@ -167,15 +189,19 @@ impl ClearIndex {
 
     /// Forgets every Clear logged at `entity` (and at its descendants if `recursive`),
     /// static ones included: what dropping the entity means.
-    pub fn remove_entity(&mut self, entity: &EntityPath, recursive: bool) {
+    pub fn remove_entity(index: &mut Arc<Self>, entity: &EntityPath, recursive: bool) {
         let parts = entity.part_arcs();
-        if let Some(node) = self.node_mut(parts, false) {
+        if index.node(parts).is_none() {
+            return;
+        }
+        let this = Arc::make_mut(index);
+        if let Some(node) = this.node_mut(parts, false) {
             node.clears = None;
             if recursive {
                 node.children.clear();
             }
         }
-        self.prune(parts);
+        this.prune(parts);
     }
 
     /// Every static Clear indexed: `(entity, row id, chunk id, recursive)`, in no

@@ -89,7 +89,7 @@ impl ChunkStore {
         for id in targets {
             self.remove_chunk(id, DeletionReason::Drop, &mut events);
         }
-        self.clears.remove_entity(entity, recursive);
+        crate::clear::ClearIndex::remove_entity(&mut self.view.clears, entity, recursive);
         self.finish_mutation(events)
     }
 }
@@ -120,11 +120,14 @@ mod tests {
             store.insert(builder.build().unwrap()).unwrap();
         }
         let is_sequence = |store: &ChunkStore| {
-            let index = store.entities[&entity]
+            let index = store.view.entities[&entity]
                 .temporal_per_timeline_per_component
                 .get("frame")
                 .and_then(|per_component| per_component.get("x"));
-            matches!(index, Some(TemporalComponentIndex::Sequence(_)))
+            matches!(
+                index.map(|i| &**i),
+                Some(TemporalComponentIndex::Sequence(_))
+            )
         };
         assert!(is_sequence(&store));
         // Inside the last chunk, the first, and one in the middle.

@@ -1,4 +1,4 @@
-//! [`ChunkStore::export_chunks`]: the chunks that rebuild a store answering as this one,
+//! [`StoreView::export_chunks`]: the chunks that rebuild a store answering as this one,
 //! for writing it out (an `.rrd`, a directory of chunk files).
 
 use std::sync::Arc;
@@ -7,9 +7,9 @@ use arrow_array::{ArrayRef, BooleanArray, ListArray};
 use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
 
-use crate::{Chunk, ChunkStore, ComponentDescriptor, ComponentName};
+use crate::{Chunk, ChunkId, ComponentDescriptor, ComponentName, StoreView};
 
-impl ChunkStore {
+impl StoreView {
     /// Every chunk a copy of this store needs to answer every query as this store does:
     /// first one single-row static Clear chunk (under its original chunk id) for each
     /// static Clear the store still applies although newer static data overwrote the
@@ -36,14 +36,16 @@ impl ChunkStore {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn export_chunks(&self) -> Vec<Arc<Chunk>> {
+        let mut held = self.chunks();
+        let held_ids: ahash::HashSet<ChunkId> = held.iter().map(|chunk| chunk.id()).collect();
         let mut retained: Vec<_> = self
             .clears
             .static_clears()
             .into_iter()
-            .filter(|(_, _, chunk_id, _)| self.chunk(*chunk_id).is_none())
+            .filter(|(_, _, chunk_id, _)| !held_ids.contains(chunk_id))
             .collect();
         retained.sort_by_key(|(_, row_id, chunk_id, _)| (*row_id, *chunk_id));
-        let mut out: Vec<Arc<Chunk>> = Vec::with_capacity(retained.len() + self.num_chunks());
+        let mut out: Vec<Arc<Chunk>> = Vec::with_capacity(retained.len() + held.len());
         for (entity, row_id, chunk_id, recursive) in retained {
             let flag = Arc::new(BooleanArray::from(vec![recursive])) as ArrayRef;
             let list = ListArray::new(
@@ -64,7 +66,6 @@ impl ChunkStore {
                 out.push(Arc::new(chunk));
             }
         }
-        let mut held: Vec<Arc<Chunk>> = self.chunks().cloned().collect();
         held.sort_by_key(|chunk| chunk.id());
         out.extend(held);
         out

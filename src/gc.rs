@@ -242,7 +242,7 @@ impl ChunkStore {
                 reason = "a fraction in (0, 1] of a byte count"
             )]
             GcTarget::DropAtLeastFraction(fraction) => {
-                (fraction.get() * self.stats.heap_bytes as f64).ceil() as u64
+                (fraction.get() * self.view.stats.heap_bytes as f64).ceil() as u64
             }
             GcTarget::Everything => u64::MAX,
         };
@@ -404,7 +404,7 @@ impl ChunkStore {
         if n == 0 {
             return false;
         }
-        let Some(entity) = self.entities.get(chunk.entity_path()) else {
+        let Some(entity) = self.view.entities.get(chunk.entity_path()) else {
             return false;
         };
         let id = chunk.id();
@@ -429,7 +429,10 @@ impl ChunkStore {
             + self
                 .entities
                 .get(chunk.entity_path())
-                .map_or(0, |entity| entity.extra_index_heap_bytes_of(chunk));
+                .zip(self.view.entities.get(chunk.entity_path()))
+                .map_or(0, |(entity, view)| {
+                    entity.extra_index_heap_bytes_of(view, chunk)
+                });
         if !stored.ledgered {
             return bytes + chunk.buffer_bytes();
         }

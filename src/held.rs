@@ -17,7 +17,7 @@
 use std::sync::Arc;
 
 use crate::index::IndexedChunk;
-use crate::store::EntityIndex;
+use crate::store::{EntityIndex, EntityView};
 use crate::{Chunk, ChunkId, ChunkStore};
 
 /// What an incoming chunk adds to the store.
@@ -41,7 +41,10 @@ impl ChunkStore {
         let Some(entity) = self.entities.get(chunk.entity_path()) else {
             return NewRows::All;
         };
-        let candidates = self.chunks_that_may_hold_rows_of(entity, chunk);
+        let Some(view) = self.view.entities.get(chunk.entity_path()) else {
+            return NewRows::All;
+        };
+        let candidates = self.chunks_that_may_hold_rows_of(entity, view, chunk);
         if candidates.is_empty() {
             return NewRows::All;
         }
@@ -63,6 +66,7 @@ impl ChunkStore {
     fn chunks_that_may_hold_rows_of<'a>(
         &'a self,
         entity: &'a EntityIndex,
+        view: &'a EntityView,
         chunk: &Chunk,
     ) -> Vec<&'a Arc<Chunk>> {
         let mut candidates: Vec<&'a Arc<Chunk>> = Vec::new();
@@ -96,7 +100,7 @@ impl ChunkStore {
             }
             return candidates;
         }
-        let Some(per_component) = entity
+        let Some(per_component) = view
             .temporal_per_timeline_per_component
             .get(first.timeline().name())
         else {

@@ -93,13 +93,13 @@ impl ChunkStore {
         if !timelines_known {
             for column in chunk.time_columns() {
                 let timeline = column.timeline();
-                self.time_types
+                Arc::make_mut(&mut self.view.time_types)
                     .entry(Arc::clone(timeline.name_arc()))
                     .or_insert(timeline.time_type());
             }
         }
-        self.stats.rows_inserted += chunk.num_rows() as u64;
-        self.stats.payload_bytes_inserted += chunk.payload_bytes();
+        self.view.stats.rows_inserted += chunk.num_rows() as u64;
+        self.view.stats.payload_bytes_inserted += chunk.payload_bytes();
 
         let mut events = Vec::with_capacity(1);
         if chunk.is_static() || !self.config.compact_on_insert {

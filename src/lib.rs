@@ -90,6 +90,7 @@ pub mod rrd;
 mod sanity;
 mod shared;
 mod small_map;
+mod snapshot;
 mod stats;
 mod store;
 mod time;
@@ -109,8 +110,9 @@ pub use gc::{GcFraction, GcOptions, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
 pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 pub use sanity::{SanityError, Structure};
+pub use snapshot::{SharedStore, Snapshot};
 pub use stats::{EntityStats, StoreStats};
-pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent};
+pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent, StoreView};
 pub use time::{TimeInt, TimeRange, TimeType, Timeline};
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.

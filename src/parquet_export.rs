@@ -1,6 +1,6 @@
 //! Parquet files (feature `parquet`) that `pyarrow`, pandas, Polars, `DuckDB` and Spark read
-//! as they are: a dataframe view ([`ChunkStore::dataframe`](crate::ChunkStore::dataframe))
-//! or the raw chunk table ([`ChunkStore::chunk_table`](crate::ChunkStore::chunk_table)),
+//! as they are: a dataframe view ([`StoreView::dataframe`](crate::StoreView::dataframe))
+//! or the raw chunk table ([`StoreView::chunk_table`](crate::StoreView::chunk_table)),
 //! streamed batch by batch into row groups, with min/max statistics on every column (the
 //! index and the entity path included, so readers prune row groups on time), the sort
 //! order recorded, the Arrow schema embedded (field metadata included), Snappy pages, and

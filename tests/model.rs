@@ -47,8 +47,8 @@ use arrow_array::types::{Float64Type, Int32Type};
 use arrow_array::{Array, ArrayRef, BooleanArray, Int64Array, PrimitiveArray};
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, ComponentName, DataframeQuery, DeletionReason, EntityPathFilter,
-    GcOptions, GcOrder, GcTarget, InsertError, LatestAtQuery, RangeQuery, RowId, StoreConfig,
-    StoreEvent, TimeInt, TimeRange, TimeType, Timeline,
+    GcOptions, GcOrder, GcTarget, InsertError, LatestAtQuery, RangeQuery, RowId, Snapshot,
+    StoreConfig, StoreEvent, StoreView, TimeInt, TimeRange, TimeType, Timeline,
 };
 use common::{bool_list, path, t};
 use proptest::prelude::*;
@@ -523,7 +523,7 @@ type ModelClear = (usize, u128, Option<[Option<i64>; 3]>, bool);
 type HeldRow = (usize, u8, ModelRow);
 
 /// The naive model: every row in a list.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct Model {
     rows: Vec<HeldRow>,
     /// Every Clear that hides (an overwritten static Clear keeps hiding, SEMANTICS.md section 5).
@@ -1183,49 +1183,101 @@ impl Harness {
     /// and timeline (chosen by `step`), every entity's latest-at at a probe time and at
     /// `+∞`, and its full range.
     fn light_sweep(&self, step: usize) -> Result<(), TestCaseError> {
-        let (component, timeline) = (step % 3, step / 3 % 3);
-        let at = i64::try_from(step).unwrap() % (MAX_TIME + 2) - 1;
-        for entity in 0..ENTITIES.len() {
-            for at in [at, i64::MAX] {
-                check_latest_at(&self.store, &self.model, entity, component, timeline, at)?;
-            }
-            check_range(
-                &self.store,
-                &self.model,
-                entity,
-                component,
-                timeline,
-                i64::MIN + 1,
-                i64::MAX,
-            )?;
-        }
-        Ok(())
+        light_sweep(&self.store, &self.model, step)
     }
 
     /// Every latest-at time and three ranges, for every (entity, component, timeline).
     fn full_sweep(&self) -> Result<(), TestCaseError> {
-        for entity in 0..ENTITIES.len() {
-            for component in 0..COMPONENTS.len() {
-                for timeline in 0..TIMELINES.len() {
-                    for at in query_times() {
-                        check_latest_at(&self.store, &self.model, entity, component, timeline, at)?;
-                    }
-                    for (min, max) in RANGES {
-                        check_range(
-                            &self.store,
-                            &self.model,
-                            entity,
-                            component,
-                            timeline,
-                            min,
-                            max,
-                        )?;
-                    }
-                }
+        full_sweep(&self.store, &self.model)
+    }
+}
+
+/// Snapshots taken along a sequence, each with a copy of the model as it was then: every
+/// later step checks that each still answers as the store did when it was taken, however
+/// the store has changed since (SEMANTICS.md section 10).
+#[derive(Default)]
+struct HeldSnapshots {
+    held: Vec<(Snapshot, Model, StoreStatsAndChunks)>,
+}
+
+/// What a snapshot's figures and listing were when it was taken.
+type StoreStatsAndChunks = (chunkstore::StoreStats, Vec<ChunkId>);
+
+/// A snapshot is taken every this many steps; at most [`MAX_HELD_SNAPSHOTS`] are held.
+const SNAPSHOT_EVERY: usize = 4;
+const MAX_HELD_SNAPSHOTS: usize = 3;
+
+impl HeldSnapshots {
+    fn after_step(&mut self, harness: &Harness, step: usize) -> Result<(), TestCaseError> {
+        if step.is_multiple_of(SNAPSHOT_EVERY) {
+            if self.held.len() == MAX_HELD_SNAPSHOTS {
+                self.held.remove(step / SNAPSHOT_EVERY % MAX_HELD_SNAPSHOTS);
             }
+            let snapshot = harness.store.snapshot();
+            snapshot
+                .sanity_check()
+                .map_err(|e| TestCaseError::fail(e.to_string()))?;
+            let mut ids: Vec<ChunkId> = harness.store.chunks().map(|c| c.id()).collect();
+            ids.sort_unstable();
+            let figures = (harness.store.stats(), ids);
+            self.held.push((snapshot, harness.model.clone(), figures));
+        }
+        // One held snapshot per step, in turn (each is swept fully at the end).
+        if let Some((snapshot, model, (stats, ids))) = self.held.get(step % self.held.len().max(1))
+        {
+            light_sweep(snapshot, model, step)?;
+            prop_assert_eq!(snapshot.stats(), *stats);
+            let mut listed: Vec<ChunkId> = snapshot.chunks().iter().map(|c| c.id()).collect();
+            listed.sort_unstable();
+            prop_assert_eq!(&listed, ids);
         }
         Ok(())
     }
+
+    fn full_sweep(&self) -> Result<(), TestCaseError> {
+        for (snapshot, model, _) in &self.held {
+            full_sweep(snapshot, model)?;
+        }
+        Ok(())
+    }
+}
+
+/// A few latest-at and range answers of `view` against `model`, varying with `step`.
+fn light_sweep(view: &StoreView, model: &Model, step: usize) -> Result<(), TestCaseError> {
+    let (component, timeline) = (step % 3, step / 3 % 3);
+    let at = i64::try_from(step).unwrap() % (MAX_TIME + 2) - 1;
+    for entity in 0..ENTITIES.len() {
+        for at in [at, i64::MAX] {
+            check_latest_at(view, model, entity, component, timeline, at)?;
+        }
+        check_range(
+            view,
+            model,
+            entity,
+            component,
+            timeline,
+            i64::MIN + 1,
+            i64::MAX,
+        )?;
+    }
+    Ok(())
+}
+
+/// Every latest-at time and three ranges, for every (entity, component, timeline).
+fn full_sweep(view: &StoreView, model: &Model) -> Result<(), TestCaseError> {
+    for entity in 0..ENTITIES.len() {
+        for component in 0..COMPONENTS.len() {
+            for timeline in 0..TIMELINES.len() {
+                for at in query_times() {
+                    check_latest_at(view, model, entity, component, timeline, at)?;
+                }
+                for (min, max) in RANGES {
+                    check_range(view, model, entity, component, timeline, min, max)?;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The latest-at times of a full sweep: every small time and each extreme.
@@ -1239,12 +1291,15 @@ const RANGES: [(i64, i64); 3] = [(i64::MIN + 1, i64::MAX), (0, MAX_TIME), (3, 7)
 /// Runs `ops` on a store with `config`, checking everything after every step.
 fn run_with(config: StoreConfig, ops: &[Op], shuffles: &[u64]) -> Result<Harness, TestCaseError> {
     let mut harness = Harness::new(config);
+    let mut snapshots = HeldSnapshots::default();
     let mut randomness = shuffles.iter().copied().cycle();
     for (step, op) in ops.iter().enumerate() {
         harness.apply(op, &mut randomness)?;
         harness.light_sweep(step)?;
+        snapshots.after_step(&harness, step)?;
     }
     harness.full_sweep()?;
+    snapshots.full_sweep()?;
     Ok(harness)
 }
 
@@ -1342,7 +1397,7 @@ fn protected_chunks(store: &ChunkStore, options: &GcOptions) -> HashSet<ChunkId>
 }
 
 fn latest_at_answer(
-    store: &ChunkStore,
+    store: &StoreView,
     entity: usize,
     component: usize,
     timeline: usize,
@@ -1361,7 +1416,7 @@ fn latest_at_answer(
 }
 
 fn range_answer(
-    store: &ChunkStore,
+    store: &StoreView,
     entity: usize,
     component: usize,
     timeline: usize,
@@ -1389,7 +1444,7 @@ fn range_answer(
 }
 
 fn check_latest_at(
-    store: &ChunkStore,
+    store: &StoreView,
     model: &Model,
     entity: usize,
     component: usize,
@@ -1416,7 +1471,7 @@ fn check_latest_at(
 }
 
 fn check_range(
-    store: &ChunkStore,
+    store: &StoreView,
     model: &Model,
     entity: usize,
     component: usize,

@@ -61,7 +61,7 @@ impl ChunkStore {
     fn rewrite_group(&mut self, chunks: &[Arc<Chunk>], events: &mut Vec<StoreEvent>) {
         let config = self.config;
         let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
-        let pieces = match rewrite(&inputs, &config, &mut self.stats) {
+        let pieces = match rewrite(&inputs, &config, &mut self.view.stats) {
             Ok(pieces) => pieces,
             Err(error) => {
                 // Copying rows of valid chunks of one layout does not fail; if it ever

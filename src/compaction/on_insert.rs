@@ -39,7 +39,7 @@ impl ChunkStore {
         let config = self.config;
         let placement = placement(&config, &chunk);
         if placement == Placement::Split {
-            match rewrite(&[&chunk], &config, &mut self.stats) {
+            match rewrite(&[&chunk], &config, &mut self.view.stats) {
                 Ok(pieces) => {
                     // The chunk itself never enters the store: its parts do.
                     for piece in pieces {
@@ -80,7 +80,7 @@ impl ChunkStore {
             // vector four times per merge.
             events.reserve(fan.len() + 1);
             let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
-            let pieces = match rewrite(&inputs, &config, &mut self.stats) {
+            let pieces = match rewrite(&inputs, &config, &mut self.view.stats) {
                 Ok(pieces) => pieces,
                 Err(error) => {
                     // Merging valid chunks of one layout does not fail; if it ever did,

@@ -12,9 +12,9 @@ use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
-use crate::{Chunk, ChunkStore, RowId, TimeInt, Timeline};
+use crate::{Chunk, RowId, StoreView, TimeInt, Timeline};
 
-/// Which chunk rows a [`ChunkStore::chunk_table`] holds and in which order.
+/// Which chunk rows a [`StoreView::chunk_table`] holds and in which order.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct ChunkTableQuery {
@@ -68,7 +68,7 @@ struct TableChunk {
     position: usize,
 }
 
-/// The rows of [`ChunkStore::chunk_table`]: `entity_path` (Utf8), `chunk_id` and
+/// The rows of [`StoreView::chunk_table`]: `entity_path` (Utf8), `chunk_id` and
 /// `row_id` (`FixedSizeBinary(16)`, big-endian), one column per timeline (sorted by name,
 /// null where a row has no time there), then one list column per component name (sorted;
 /// null where a row's chunk has no such column). Where entities use one component name
@@ -100,7 +100,7 @@ impl std::fmt::Debug for ChunkTableStream {
     }
 }
 
-impl ChunkStore {
+impl StoreView {
     /// Every row of every selected chunk as one table (see [`ChunkTableStream`]): the
     /// store's raw contents, for files and for questions across entities.
     ///
@@ -122,17 +122,11 @@ impl ChunkStore {
                     .collect(),
             });
         }
-        let mut chunks: Vec<Arc<Chunk>> = self
-            .chunks()
-            .filter(|c| {
-                query
-                    .contents
-                    .as_ref()
-                    .is_none_or(|filter| filter.matches(c.entity_path()))
-            })
-            .cloned()
-            .collect();
-        chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
+        // Sorted by entity then chunk id.
+        let mut chunks: Vec<Arc<Chunk>> = self.chunks();
+        if let Some(filter) = &query.contents {
+            chunks.retain(|c| filter.matches(c.entity_path()));
+        }
         Ok(ChunkTableStream::new(chunks, query))
     }
 }

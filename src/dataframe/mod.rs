@@ -18,7 +18,7 @@ mod stream;
 use std::fmt;
 use std::sync::Arc;
 
-use crate::{ChunkStore, TimeInt, TimeRange};
+use crate::{StoreView, TimeInt, TimeRange};
 
 pub use chunk_table::{ChunkTableQuery, ChunkTableStream};
 pub use filter::{EntityPathFilter, EntityPathFilterError};
@@ -189,7 +189,7 @@ impl fmt::Display for DataframeError {
 
 impl std::error::Error for DataframeError {}
 
-impl ChunkStore {
+impl StoreView {
     /// The dataframe view `query` asks for: its schema at once
     /// ([`DataframeStream::schema`]), its rows as a stream of record batches.
     ///

@@ -7,9 +7,7 @@ use arrow_array::Array;
 use arrow_schema::{DataType, Field, FieldRef, Schema, SchemaRef};
 
 use super::DataframeQuery;
-use crate::{
-    Chunk, ChunkStore, ComponentDescriptor, ComponentName, EntityPath, TimeType, Timeline,
-};
+use crate::{Chunk, ComponentDescriptor, ComponentName, EntityPath, StoreView, TimeType, Timeline};
 
 /// One (entity, component) column.
 #[derive(Clone, Debug)]
@@ -37,7 +35,7 @@ pub(crate) struct TablePlan {
 }
 
 impl TablePlan {
-    pub fn new(store: &ChunkStore, query: &DataframeQuery, index_type: TimeType) -> Self {
+    pub fn new(store: &StoreView, query: &DataframeQuery, index_type: TimeType) -> Self {
         let index = Timeline::new(Arc::clone(&query.index), index_type);
         let mut timelines: BTreeSet<Timeline> = BTreeSet::from([index.clone()]);
         let mut columns = Vec::new();

@@ -11,7 +11,7 @@ use super::schema::{ColumnPlan, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
-use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange};
+use crate::{LatestAtQuery, RowId, StoreView, TimeInt, TimeRange};
 
 /// The rows of a dataframe view, as Arrow record batches of at most the query's batch
 /// size, in ascending order of the index (or in the order of the sampled values). The
@@ -20,7 +20,7 @@ use crate::{ChunkStore, LatestAtQuery, RowId, TimeInt, TimeRange};
 ///
 /// Implements [`RecordBatchReader`], so it can be handed to any Arrow writer as it is.
 pub struct DataframeStream<'a> {
-    store: &'a ChunkStore,
+    store: &'a StoreView,
     plan: TablePlan,
     columns: Vec<ColumnState>,
     rows: Rows,
@@ -172,7 +172,7 @@ fn visible_cell(
 
 impl<'a> DataframeStream<'a> {
     pub(super) fn new(
-        store: &'a ChunkStore,
+        store: &'a StoreView,
         query: &DataframeQuery,
         plan: TablePlan,
     ) -> Result<Self, ArrowError> {
@@ -353,7 +353,7 @@ impl<'a> DataframeStream<'a> {
 /// The starting state of one column: its sources, its static cell or its cursor and
 /// Clears, and in fill mode its latest-at answer just before the range.
 fn column_state(
-    store: &ChunkStore,
+    store: &StoreView,
     plan: &TablePlan,
     column: &ColumnPlan,
     range: TimeRange,

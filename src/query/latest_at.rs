@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use super::QueryCell;
 use crate::index::{IndexedChunk, TemporalComponentIndex};
-use crate::{ChunkStore, EntityPath, RowId, TimeInt};
+use crate::{EntityPath, RowId, StoreView, TimeInt};
 
 /// "As of time `at` on `timeline`".
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -54,7 +54,7 @@ impl Candidate<'_> {
     }
 }
 
-impl ChunkStore {
+impl StoreView {
     /// The cell of `component` at `entity` as of the query's time, per SEMANTICS.md section 3:
     /// static data wins outright; otherwise the non-null cell with the greatest
     /// `(time, row id)` at or before the time; then a Clear may hide it (`None`).

@@ -12,9 +12,7 @@ use std::sync::Arc;
 use arrow_array::ArrayRef;
 
 use crate::index::IndexedChunk;
-use crate::{
-    Chunk, ChunkStore, ComponentColumn, EntityPath, RowId, TimeColumn, TimeInt, TimeRange,
-};
+use crate::{Chunk, ComponentColumn, EntityPath, RowId, StoreView, TimeColumn, TimeInt, TimeRange};
 
 /// "Everything in `range` (inclusive) on `timeline`".
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -282,7 +280,7 @@ fn index_at_position(entry: &IndexedChunk, pos: usize) -> (TimeInt, RowId) {
     entry.chunk.index_of_row(time_column, row)
 }
 
-impl ChunkStore {
+impl StoreView {
     /// Every non-null cell of `component` at `entity` with a time in the query's range, in
     /// ascending `(time, row id)` order across all chunks; or, if the entity has static
     /// data for the component, exactly the static winner. Clears do not filter ranges.

@@ -1,7 +1,8 @@
-//! [`EntityIndex`]: everything the store knows about one entity (its static winners, its
-//! per-timeline, per-component temporal indices, its component types, the chunks
-//! compaction keeps waiting, and its figures). It owns the invariant that each of its
-//! indices holds exactly the entity's chunks with cells there.
+//! [`EntityIndex`]: what the store's writer knows about one entity (its component types
+//! and counts, its static chunks, its chunk ids, the chunks compaction keeps waiting, its
+//! buffer ledger), and [`EntityMut`], which changes it together with the entity's
+//! [`EntityView`] (its static winners and temporal indices). Together they own the
+//! invariant that each index holds exactly the entity's chunks with cells there.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -9,23 +10,16 @@ use std::sync::Arc;
 use arrow_schema::DataType;
 
 use super::pending::PendingGroups;
+use super::view::{EntityView, StaticWinner};
 use crate::index::{
     IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
 };
 use crate::small_map::SmallMap;
-use crate::stats::{BufferLedger, EntityStats};
+use crate::stats::BufferLedger;
 use crate::{Chunk, ChunkId, ComponentName, RowId};
 
-/// The static cell that currently answers for one (entity, component).
-#[derive(Clone, Debug)]
-pub(crate) struct StaticWinner {
-    pub row_id: RowId,
-    pub chunk: Arc<Chunk>,
-    pub component_column: u32,
-    pub row: u32,
-}
-
-/// Everything the store knows about one entity.
+/// What only the store's writer knows of one entity; what queries read is its
+/// [`EntityView`], in the store's view.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct EntityIndex {
     /// Each component the entity holds chunks of (static or temporal), with its element
@@ -34,12 +28,9 @@ pub(crate) struct EntityIndex {
     /// depends only on what it holds (not on whether compaction rewrote the chunks that
     /// held a component's first data).
     pub element_types: BTreeMap<ComponentName, ComponentType>,
-    pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// How many components each static chunk of this entity answers for; a chunk that
     /// answers for none is invisible and leaves the store.
     pub static_chunks: ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
-    pub temporal_per_timeline_per_component:
-        SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Every chunk of the entity the store holds (unordered: `drop_entity` sorts them).
     pub chunk_ids: ahash::HashSet<ChunkId>,
     /// At least the greatest row id of any chunk the entity holds (it never decreases while
@@ -49,9 +40,8 @@ pub(crate) struct EntityIndex {
     /// Temporal chunks still small enough for compaction on insert to grow.
     pub pending: PendingGroups,
     /// What the large indices add to the heap, kept as they change
-    /// ([`EntityIndex::extra_index_heap_bytes`] recounts it).
+    /// ([`EntityView::extra_index_heap_bytes`] recounts it).
     pub large_index_bytes: u64,
-    pub stats: EntityStats,
     pub ledger: BufferLedger,
 }
 
@@ -62,7 +52,48 @@ pub(crate) struct ComponentType {
     pub num_chunks: usize,
 }
 
-impl EntityIndex {
+/// An entity's writer part and its view, changed together: what every membership change
+/// of one entity goes through. The view is the store's own here (`Arc::make_mut` copied it
+/// if a snapshot shared it), and so is each index it changes.
+pub(crate) struct EntityMut<'a> {
+    pub index: &'a mut EntityIndex,
+    pub view: &'a mut EntityView,
+}
+
+impl EntityMut<'_> {
+    /// Counts `chunk`'s columns among the entity's components; a component's first column
+    /// gives its type.
+    pub(super) fn add_components(&mut self, chunk: &Chunk) {
+        for column in chunk.components() {
+            if let Some(known) = self.index.element_types.get_mut(column.name()) {
+                known.num_chunks += 1;
+            } else {
+                let known = ComponentType {
+                    element_type: column.element_type().clone(),
+                    num_chunks: 1,
+                };
+                self.index
+                    .element_types
+                    .insert(column.name().clone(), known);
+                Arc::make_mut(&mut self.view.component_types)
+                    .insert(column.name().clone(), column.element_type().clone());
+            }
+        }
+    }
+
+    /// The mirror of [`EntityMut::add_components`]: a component goes with its last column.
+    pub(super) fn remove_components(&mut self, chunk: &Chunk) {
+        for column in chunk.components() {
+            if let Some(known) = self.index.element_types.get_mut(column.name()) {
+                known.num_chunks -= 1;
+                if known.num_chunks == 0 {
+                    self.index.element_types.remove(column.name());
+                    Arc::make_mut(&mut self.view.component_types).remove(column.name());
+                }
+            }
+        }
+    }
+
     /// Makes `chunk`'s cells the static winners where their row ids are the greatest, and
     /// returns the static chunks left answering for nothing (possibly `chunk` itself).
     #[expect(
@@ -82,28 +113,30 @@ impl EntityIndex {
                 component_column: position as u32,
                 row,
             };
-            match self.static_winners.get_mut(column.name()) {
+            match self.view.static_winners.get_mut(column.name()) {
                 // Equal row ids: the later insert wins, as it would in a later chunk.
                 Some(current) if current.row_id > row_id => continue,
                 Some(current) => losers.push(std::mem::replace(current, winner).chunk.id()),
                 None => {
-                    self.static_winners.insert(column.name().clone(), winner);
+                    self.view
+                        .static_winners
+                        .insert(column.name().clone(), winner);
                 }
             }
             num_won += 1;
         }
-        self.static_chunks
-            .insert(chunk.id(), (Arc::clone(chunk), num_won));
+        let static_chunks = &mut self.index.static_chunks;
+        static_chunks.insert(chunk.id(), (Arc::clone(chunk), num_won));
         let mut removed = Vec::new();
         for id in losers.into_iter().chain(std::iter::once(chunk.id())) {
-            let Some((_, num_won)) = self.static_chunks.get_mut(&id) else {
+            let Some((_, num_won)) = static_chunks.get_mut(&id) else {
                 continue;
             };
             if id != chunk.id() {
                 *num_won -= 1;
             }
             if *num_won == 0
-                && let Some((loser, _)) = self.static_chunks.remove(&id)
+                && let Some((loser, _)) = static_chunks.remove(&id)
             {
                 removed.push(loser);
             }
@@ -120,15 +153,17 @@ impl EntityIndex {
     /// [`TemporalComponentIndex::extra_heap_bytes`]).
     pub(super) fn insert_temporal(&mut self, chunk: &Arc<Chunk>) -> i64 {
         let mut extra = 0;
+        let mut indexed = false;
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let per_component = self
+                .view
                 .temporal_per_timeline_per_component
                 .get_or_default(Arc::clone(time_column.timeline().name_arc()));
             for (component_position, column) in chunk.components().iter().enumerate() {
                 let Some(bounds) = column.bounds(time_position) else {
                     continue;
                 };
-                let index = per_component.get_or_default(column.name().clone());
+                let index = Arc::make_mut(per_component.get_or_default(column.name().clone()));
                 let before = index.extra_heap_bytes();
                 index.insert(IndexedChunk {
                     chunk: Arc::clone(chunk),
@@ -137,18 +172,27 @@ impl EntityIndex {
                     component_column: component_position as u32,
                     bounds,
                 });
+                indexed = true;
                 extra += signed_difference(index.extra_heap_bytes(), before);
             }
+            if per_component.is_empty() {
+                let name = time_column.timeline().name();
+                self.view.temporal_per_timeline_per_component.remove(name);
+            }
         }
-        self.large_index_bytes = self.large_index_bytes.saturating_add_signed(extra);
+        if !indexed {
+            self.view.unindexed.push(Arc::clone(chunk));
+        }
+        self.index.large_index_bytes = self.index.large_index_bytes.saturating_add_signed(extra);
         extra
     }
 
     /// Forgets a static chunk: its winners go with it (only dropping the entity removes
     /// static data, so no other chunk needs to take over).
     pub(super) fn remove_static(&mut self, id: ChunkId) {
-        self.static_chunks.remove(&id);
-        self.static_winners
+        self.index.static_chunks.remove(&id);
+        self.view
+            .static_winners
             .retain(|_, winner| winner.chunk.id() != id);
     }
 
@@ -158,16 +202,20 @@ impl EntityIndex {
     pub(super) fn remove_temporal(&mut self, chunk: &Chunk, config: &crate::StoreConfig) -> i64 {
         let id = chunk.id();
         let mut extra = 0;
+        let mut indexed = false;
+        let per_timeline = &mut self.view.temporal_per_timeline_per_component;
         for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
             let name = time_column.timeline().name();
-            let Some(per_component) = self.temporal_per_timeline_per_component.get_mut(name) else {
+            let Some(per_component) = per_timeline.get_mut(name) else {
                 continue;
             };
             for column in chunk.components() {
                 let Some(bounds) = column.bounds(time_position) else {
                     continue;
                 };
-                if let Some(index) = per_component.get_mut(column.name()) {
+                indexed = true;
+                if let Some(shared) = per_component.get_mut(column.name()) {
+                    let index = Arc::make_mut(shared);
                     let before = index.extra_heap_bytes();
                     index.remove(id, &bounds);
                     extra += signed_difference(index.extra_heap_bytes(), before);
@@ -177,21 +225,26 @@ impl EntityIndex {
                 }
             }
             if per_component.is_empty() {
-                self.temporal_per_timeline_per_component.remove(name);
+                per_timeline.remove(name);
             }
         }
-        self.pending.remove(chunk, config);
-        self.large_index_bytes = self.large_index_bytes.saturating_add_signed(extra);
+        if !indexed {
+            self.view.unindexed.retain(|c| c.id() != id);
+        }
+        self.index.pending.remove(chunk, config);
+        self.index.large_index_bytes = self.index.large_index_bytes.saturating_add_signed(extra);
         extra
     }
+}
 
+impl EntityView {
     /// What the entity's large indices add to the heap (see
     /// [`TemporalComponentIndex::extra_heap_bytes`]).
     pub(crate) fn extra_index_heap_bytes(&self) -> u64 {
         self.temporal_per_timeline_per_component
             .values()
             .flat_map(SmallMap::values)
-            .map(TemporalComponentIndex::extra_heap_bytes)
+            .map(|index| index.extra_heap_bytes())
             .sum()
     }
 
@@ -215,19 +268,21 @@ impl EntityIndex {
                     .components()
                     .iter()
                     .filter(move |column| column.bounds(position).is_some())
-                    .filter_map(move |column| per_component.get(column.name()))
+                    .filter_map(move |column| per_component.get(column.name()).map(|i| &**i))
             })
     }
+}
 
+impl EntityIndex {
     /// What removing `chunk` would take off the large indices' extra heap, at most.
-    pub(crate) fn extra_index_heap_bytes_of(&self, chunk: &Chunk) -> u64 {
+    pub(crate) fn extra_index_heap_bytes_of(&self, view: &EntityView, chunk: &Chunk) -> u64 {
         // Most entities have no large index: then no lookup by the chunk's names (whose
         // strings are cold, a cache miss each when planning a GC over many chunks).
         if self.large_index_bytes == 0 {
             return 0;
         }
         let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;
-        let large = self
+        let large = view
             .indices_of(chunk)
             .filter(|index| index.extra_heap_bytes() > 0)
             .count();

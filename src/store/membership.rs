@@ -5,8 +5,8 @@
 
 use std::sync::Arc;
 
-use super::entity::ComponentType;
 use super::{ChunkStore, DeletionReason, StoreEvent, StoredChunk};
+use crate::clear::ClearIndex;
 use crate::{Chunk, ChunkId};
 
 impl ChunkStore {
@@ -26,41 +26,40 @@ impl ChunkStore {
         events: &mut Vec<StoreEvent>,
     ) {
         let ledgered = !chunk.owns_all_buffers();
-        let entity = self
-            .entities
-            .entry(chunk.entity_path().clone())
-            .or_default();
+        let Some(mut entity) = super::entity_mut(
+            &mut self.entities,
+            &mut self.view.entities,
+            chunk.entity_path(),
+            true,
+        ) else {
+            return;
+        };
         // An entity leaves the map with its last chunk, so one without chunks is new.
-        if entity.chunk_ids.is_empty() {
-            self.stats.heap_bytes += crate::stats::ENTITY_BYTES;
-            entity.stats.heap_bytes += crate::stats::ENTITY_BYTES;
+        let new_entity = entity.index.chunk_ids.is_empty();
+        if new_entity {
+            entity.view.stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
-        for column in chunk.components() {
-            if let Some(known) = entity.element_types.get_mut(column.name()) {
-                known.num_chunks += 1;
-            } else {
-                let known = ComponentType {
-                    element_type: column.element_type().clone(),
-                    num_chunks: 1,
-                };
-                entity.element_types.insert(column.name().clone(), known);
-            }
+        entity.add_components(&chunk);
+        entity.index.chunk_ids.insert(chunk.id());
+        entity.index.max_row_id = entity.index.max_row_id.max(chunk.row_id_range().1);
+        let mut store_stats = self.view.stats;
+        if new_entity {
+            store_stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
-        entity.chunk_ids.insert(chunk.id());
-        entity.max_row_id = entity.max_row_id.max(chunk.row_id_range().1);
         crate::stats::account(
             &chunk,
             ledgered,
             true,
-            &mut self.stats,
+            &mut store_stats,
             &mut self.ledgers,
-            &mut entity.stats,
-            &mut entity.ledger,
+            &mut entity.view.stats,
+            &mut entity.index.ledger,
         );
-        self.clears.insert_chunk(&chunk);
         events.push(StoreEvent::Addition(Arc::clone(&chunk)));
         if chunk.is_static() {
             let overwritten = entity.insert_static(&chunk);
+            self.view.stats = store_stats;
+            ClearIndex::insert_chunk(&mut self.view.clears, &chunk);
             let stored = StoredChunk {
                 chunk,
                 ledgered,
@@ -77,7 +76,9 @@ impl ChunkStore {
             }
         } else {
             let extra = entity.insert_temporal(&chunk);
-            crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
+            crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
+            self.view.stats = store_stats;
+            ClearIndex::insert_chunk(&mut self.view.clears, &chunk);
             if in_global_orders {
                 self.insert_in_global_orders(&chunk);
             } else {
@@ -170,50 +171,50 @@ impl ChunkStore {
         } = stored;
         let id = chunk.id();
         if unindex && !chunk.is_static() {
-            self.clears.remove_chunk(&chunk);
+            ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
             if in_global_orders {
                 self.remove_from_global_orders(&chunk);
             } else {
                 self.num_outside_global_orders -= 1;
             }
         }
-        if let Some(entity) = self.entities.get_mut(chunk.entity_path()) {
+        let config = self.config;
+        let mut store_stats = self.view.stats;
+        if let Some(mut entity) = super::entity_mut(
+            &mut self.entities,
+            &mut self.view.entities,
+            chunk.entity_path(),
+            false,
+        ) {
             if unindex {
                 if chunk.is_static() {
                     entity.remove_static(id);
                 } else {
-                    let extra = entity.remove_temporal(&chunk, &self.config);
-                    crate::stats::add_index_bytes(&mut self.stats, &mut entity.stats, extra);
+                    let extra = entity.remove_temporal(&chunk, &config);
+                    crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
                 }
             }
-            entity.chunk_ids.remove(&id);
-            for column in chunk.components() {
-                if let Some(known) = entity.element_types.get_mut(column.name()) {
-                    known.num_chunks -= 1;
-                    if known.num_chunks == 0 {
-                        entity.element_types.remove(column.name());
-                    }
-                }
-            }
+            entity.index.chunk_ids.remove(&id);
+            entity.remove_components(&chunk);
             crate::stats::account(
                 &chunk,
                 ledgered,
                 false,
-                &mut self.stats,
+                &mut store_stats,
                 &mut self.ledgers,
-                &mut entity.stats,
-                &mut entity.ledger,
+                &mut entity.view.stats,
+                &mut entity.index.ledger,
             );
-            if entity.chunk_ids.is_empty() {
+            if entity.index.chunk_ids.is_empty() {
                 // Nothing left: the entity is forgotten, as if never inserted (its
                 // component types included).
-                self.entities.remove(chunk.entity_path());
-                self.stats.heap_bytes = self
-                    .stats
+                self.forget_entity(chunk.entity_path());
+                store_stats.heap_bytes = store_stats
                     .heap_bytes
                     .saturating_sub(crate::stats::ENTITY_BYTES);
             }
         }
+        self.view.stats = store_stats;
         events.push(StoreEvent::Deletion {
             chunk: Arc::clone(&chunk),
             reason,

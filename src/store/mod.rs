@@ -12,23 +12,23 @@ mod events;
 mod membership;
 mod pending;
 mod sanity;
+mod view;
 
 use std::fmt;
 use std::sync::Arc;
 
-use arrow_schema::DataType;
-
-use crate::clear::ClearIndex;
 use crate::error::ConfigError;
 use crate::ordered::OrderedSet;
-use crate::stats::{EntityStats, StoreLedgers, StoreStats};
-use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType, Timeline};
+use crate::stats::StoreLedgers;
+use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt};
 
 pub use config::StoreConfig;
-pub(crate) use entity::EntityIndex;
+pub(crate) use entity::{EntityIndex, EntityMut};
 use events::Subscribers;
 pub use events::{DeletionReason, EventSubscriber, StoreEvent};
 pub(crate) use pending::RewriteMark;
+pub(crate) use view::EntityView;
+pub use view::StoreView;
 
 /// A chunk as the store holds it.
 #[derive(Clone, Debug)]
@@ -59,14 +59,18 @@ pub(crate) struct TimelineChunks {
 
 /// An in-memory store of chunks, answering latest-at and range queries.
 ///
-/// See the crate documentation for an example.
+/// Every query is a method of [`StoreView`], which the store dereferences to (as `String`
+/// does to `str`); [`ChunkStore::snapshot`] freezes that view in O(1), and
+/// [`SharedStore`](crate::SharedStore) publishes one after every write for readers on
+/// other threads. See the crate documentation for examples.
 #[derive(Clone, Debug, Default)]
 pub struct ChunkStore {
     pub(crate) config: StoreConfig,
+    /// What queries read: shared with snapshots, copied on write where they still hold it.
+    pub(crate) view: StoreView,
     pub(crate) chunks: ahash::HashMap<ChunkId, StoredChunk>,
-    pub(crate) time_types: ahash::HashMap<Arc<str>, TimeType>,
+    /// The writer's part of each entity (its view is in `view.entities`).
     pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
-    pub(crate) clears: ClearIndex,
     /// Temporal chunks by least row id: the garbage collector's default order.
     pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
     pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
@@ -74,7 +78,6 @@ pub struct ChunkStore {
     pub(crate) num_outside_global_orders: usize,
     /// How many rewrites `compact()` has made (it numbers them; see [`RewriteMark`]).
     pub(crate) num_rewrites: u64,
-    pub(crate) stats: StoreStats,
     pub(crate) ledgers: StoreLedgers,
     /// Public mutations made so far: the debug sanity check's schedule.
     pub(crate) num_mutations: u64,
@@ -140,39 +143,12 @@ impl ChunkStore {
         self.chunks.len()
     }
 
-    /// Totals of chunks, rows and heap bytes, and what compaction copied. O(1).
-    pub fn stats(&self) -> StoreStats {
-        self.stats
-    }
-
-    /// The figures of one entity (its own data, not its descendants'). O(1).
-    pub fn entity_stats(&self, entity: &EntityPath) -> Option<EntityStats> {
-        self.entities.get(entity).map(|e| e.stats)
-    }
-
-    /// The type a timeline has in this store, if any chunk used it.
-    pub fn time_type(&self, timeline: &str) -> Option<TimeType> {
-        self.time_types.get(timeline).copied()
-    }
-
-    /// Every timeline any inserted chunk used, sorted by name. (A timeline keeps its type
-    /// once seen, even after all its data is gone; [`ChunkStore::time_range`] tells whether
-    /// any is left.)
-    pub fn timelines(&self) -> Vec<Timeline> {
-        let mut timelines: Vec<Timeline> = self
-            .time_types
-            .iter()
-            .map(|(name, &time_type)| Timeline::new(Arc::clone(name), time_type))
-            .collect();
-        timelines.sort();
-        timelines
-    }
-
     /// The least and greatest time the store holds data at on `timeline`, or `None` if it
     /// holds none there.
     ///
     /// Cost: O(1) from the store-wide time orders, plus a look at the small chunks
-    /// compaction keeps waiting (O(entities) when there are any).
+    /// compaction keeps waiting (O(entities) when there are any). (A snapshot's
+    /// [`StoreView::time_range`] has no such orders and walks its indices.)
     pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
         let ordered = self.temporal_per_timeline.get(timeline).and_then(|chunks| {
             let (min, _) = chunks.by_min_time.iter().next()?;
@@ -187,27 +163,42 @@ impl ChunkStore {
             .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
     }
 
-    /// Every entity that holds data, sorted.
-    pub fn entity_paths(&self) -> Vec<EntityPath> {
-        let mut paths: Vec<EntityPath> = self.entities.keys().cloned().collect();
-        paths.sort();
-        paths
+    /// Forgets an entity, writer part and view.
+    pub(crate) fn forget_entity(&mut self, path: &EntityPath) {
+        self.entities.remove(path);
+        self.view.entities.remove(path);
     }
+}
 
-    /// The components an entity holds chunks of (static or temporal), sorted by name.
-    pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
-        self.entities
-            .get(entity)
-            .map(|e| e.element_types.keys().cloned().collect())
-            .unwrap_or_default()
-    }
+/// An entity's writer part and its own view (copied first if a snapshot shares it), created
+/// if `create` and missing. A function of the two maps rather than a method, so that the
+/// caller keeps the rest of the store to borrow.
+pub(crate) fn entity_mut<'a>(
+    entities: &'a mut ahash::HashMap<EntityPath, EntityIndex>,
+    views: &'a mut view::EntityViews,
+    path: &EntityPath,
+    create: bool,
+) -> Option<EntityMut<'a>> {
+    let (index, view) = if create {
+        (
+            entities.entry(path.clone()).or_default(),
+            views.entry(path.clone()).or_default(),
+        )
+    } else {
+        (entities.get_mut(path)?, views.get_mut(path)?)
+    };
+    Some(EntityMut {
+        index,
+        view: Arc::make_mut(view),
+    })
+}
 
-    /// The Arrow type of one element of a component's cells at an entity.
-    pub fn element_type(&self, entity: &EntityPath, component: &str) -> Option<&DataType> {
-        self.entities
-            .get(entity)
-            .and_then(|e| e.element_types.get(component))
-            .map(|known| &known.element_type)
+/// Every query of the store is a method of its current view.
+impl std::ops::Deref for ChunkStore {
+    type Target = StoreView;
+
+    fn deref(&self) -> &StoreView {
+        &self.view
     }
 }
 

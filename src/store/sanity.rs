@@ -5,7 +5,8 @@ use std::sync::Arc;
 
 use arrow_schema::DataType;
 
-use super::entity::{ComponentType, EntityIndex, StaticWinner};
+use super::entity::{ComponentType, EntityIndex};
+use super::view::{EntityView, StaticWinner};
 use super::{ChunkStore, RewriteMark, StoreConfig, StoredChunk, TimelineChunks};
 use crate::ordered::OrderedSet;
 use crate::sanity::{SanityError, Structure, ensure};
@@ -123,19 +124,21 @@ impl ChunkStore {
     pub fn sanity_check(&self) -> Result<(), SanityError> {
         let Self {
             config,
-            chunks: _,     // recounted by `recount`
-            time_types: _, // checked against every chunk's timelines by `recount`
-            entities: _,   // checked by `check_entities`
-            clears,
+            view,
+            chunks: _,                    // recounted by `recount`
+            entities: _,                  // checked by `check_entities`
             temporal_by_row_id: _,        // checked by `check_global_orders`
             temporal_per_timeline: _,     // checked by `check_global_orders`
             num_outside_global_orders: _, // checked by `check_global_orders`
             num_rewrites: _,              // bounds the marks, checked by `recount`
-            stats,
             ledgers: kept_ledgers,
             num_mutations: _, // a count of calls: nothing to check it against
             subscribers: _,   // callbacks: nothing to check
         } = self;
+        // Its own pieces (each entity's indices, the Clear index); its figures and
+        // timeline types against the chunks below.
+        view.sanity_check()?;
+        let stats = &view.stats;
         config.validate().map_err(|error| {
             SanityError::new(Structure::Config, "thresholds are valid").at(error)
         })?;
@@ -163,8 +166,7 @@ impl ChunkStore {
             &expected_by_row_id,
             &expected_per_timeline,
         )?;
-        self.check_entities(&expected_entities)?;
-        clears.sanity_check()
+        self.check_entities(&expected_entities)
     }
 
     /// Every figure and order recounted from the chunks through fresh ledgers, checking
@@ -172,11 +174,12 @@ impl ChunkStore {
     fn recount(&self) -> Result<Recount<'_>, SanityError> {
         let Self {
             chunks,
-            time_types,
+            view,
             entities,
             num_rewrites,
             ..
         } = self;
+        let time_types = &view.time_types;
         let mut expected = StoreStats::default();
         let mut ledgers = StoreLedgers::default();
         let mut expected_entities: ahash::HashMap<&EntityPath, (EntityStats, BufferLedger)> =
@@ -245,7 +248,7 @@ impl ChunkStore {
         }
         // Each entity's own bookkeeping, and large indices' extra heap, which the store
         // adds as indices grow and shrink.
-        for (path, entity) in entities {
+        for (path, entity) in &view.entities {
             let extra = entity.extra_index_heap_bytes();
             expected.heap_bytes += extra + crate::stats::ENTITY_BYTES;
             expected.temporal_heap_bytes += extra;
@@ -269,7 +272,19 @@ impl ChunkStore {
         &self,
         expected: &ahash::HashMap<&EntityPath, (EntityStats, BufferLedger)>,
     ) -> Result<(), SanityError> {
+        ensure(
+            self.entities.len() == self.view.entities.len(),
+            Structure::Entity,
+            "the writer's entities are the view's",
+        )?;
         for (path, entity) in &self.entities {
+            let Some(view) = self.view.entities.get(path) else {
+                return Err(SanityError::new(
+                    Structure::Entity,
+                    "the writer's entities are the view's",
+                )
+                .at(path));
+            };
             let counted = expected.get(path).map(|e| &e.0);
             let num_chunks = counted.map_or(0, |c| c.num_static_chunks + c.num_temporal_chunks);
             if num_chunks != entity.chunk_ids.len() as u64 {
@@ -279,14 +294,14 @@ impl ChunkStore {
                 )
                 .at(path));
             }
-            if counted != Some(&entity.stats) {
+            if counted != Some(&view.stats) {
                 return Err(SanityError::new(
                     Structure::Stats,
                     "an entity's figures match its chunks",
                 )
                 .at(format_args!(
                     "{path}: kept {:?}, counted {counted:?}",
-                    entity.stats
+                    view.stats
                 )));
             }
             if expected.get(path).map(|e| &e.1) != Some(&entity.ledger) {
@@ -296,7 +311,7 @@ impl ChunkStore {
                 )
                 .at(path));
             }
-            entity.sanity_check(path, &self.chunks, &self.config)?;
+            entity.sanity_check(path, view, &self.chunks, &self.config)?;
         }
         Ok(())
     }
@@ -306,28 +321,44 @@ impl EntityIndex {
     fn sanity_check(
         &self,
         path: &EntityPath,
+        view: &EntityView,
         chunks: &ahash::HashMap<ChunkId, StoredChunk>,
         config: &StoreConfig,
     ) -> Result<(), SanityError> {
         let fail = |invariant| SanityError::new(Structure::Entity, invariant).at(path);
         let Self {
             element_types,
-            static_winners,
             static_chunks,
-            temporal_per_timeline_per_component,
             chunk_ids,
             max_row_id,
             pending,
             large_index_bytes,
-            stats: _,  // recounted by the store (`check_entities`)
             ledger: _, // recounted by the store (`check_entities`)
         } = self;
-        static_winners.sanity_check()?;
-        temporal_per_timeline_per_component.sanity_check()?;
-        for per_component in temporal_per_timeline_per_component.values() {
-            per_component.sanity_check()?;
+        // The view's own invariants were checked with the view; here, what it must agree
+        // with: the writer's part and the chunks.
+        let EntityView {
+            component_types,
+            static_winners,
+            temporal_per_timeline_per_component,
+            unindexed,
+            stats: _, // recounted by the store (`check_entities`)
+        } = view;
+        let types_agree = component_types.len() == element_types.len()
+            && element_types.iter().all(|(name, known)| {
+                component_types
+                    .get(name)
+                    .is_some_and(|t| t.equals_datatype(&known.element_type))
+            });
+        ensure(
+            types_agree,
+            Structure::Entity,
+            "the view's component types are the writer's",
+        )?;
+        if unindexed.iter().any(|c| !chunk_ids.contains(&c.id())) {
+            return Err(fail("an unindexed chunk is the store's"));
         }
-        let counted = self.extra_index_heap_bytes();
+        let counted = view.extra_index_heap_bytes();
         if *large_index_bytes != counted {
             return Err(
                 fail("the large indices' bytes are kept up to date").at(format_args!(
@@ -351,53 +382,9 @@ impl EntityIndex {
         }
         check_component_types(path, element_types, chunk_ids, chunks)?;
         pending.sanity_check(path, chunks, config)?;
-        let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
-        for (component, winner) in static_winners.iter() {
-            let StaticWinner {
-                row_id,
-                chunk,
-                component_column,
-                row,
-            } = winner;
-            *wins.entry(chunk.id()).or_default() += 1;
-            let column = chunk.components().get(*component_column as usize);
-            if column.map(crate::ComponentColumn::name) != Some(component)
-                || column.and_then(|c| c.max_row_id_cell(chunk.row_ids())) != Some((*row_id, *row))
-            {
-                return Err(fail("a static winner is its chunk's best cell")
-                    .at(format_args!("{path}: {component}")));
-            }
-        }
-        // No static chunk holds a better cell than the winner (a later row id wins).
-        for (chunk, _) in static_chunks.values() {
-            for column in chunk.components() {
-                let best = column.max_row_id_cell(chunk.row_ids()).map(|(id, _)| id);
-                let winner = static_winners.get(column.name()).map(|w| w.row_id);
-                if best.is_some_and(|best| winner.is_none_or(|winner| best > winner)) {
-                    return Err(fail("a static winner has the greatest row id of its cells")
-                        .at(format_args!("{path}: {}", column.name())));
-                }
-            }
-        }
-        for (id, (chunk, num_won)) in static_chunks {
-            if wins.get(id).copied().unwrap_or(0) != *num_won || *num_won == 0 {
-                return Err(
-                    fail("a static chunk answers for the components it is counted for")
-                        .at(format_args!("{path}: {id}")),
-                );
-            }
-            if !chunks.contains_key(id) || !chunk.is_static() || chunk.entity_path() != path {
-                return Err(fail("a static chunk is a static chunk of the store")
-                    .at(format_args!("{path}: {id}")));
-            }
-        }
-        for (timeline, per_component) in temporal_per_timeline_per_component.iter() {
-            for (component, index) in per_component.iter() {
-                index.sanity_check()?;
-                if !element_types.contains_key(component) || index.is_empty() {
-                    return Err(fail("a temporal index is typed and non-empty")
-                        .at(format_args!("{path}: {component} on {timeline}")));
-                }
+        check_static_winners(path, static_winners, static_chunks, chunks)?;
+        for per_component in temporal_per_timeline_per_component.values() {
+            for index in per_component.values() {
                 for entry in index.chunks() {
                     if !chunks.contains_key(&entry.chunk.id()) || entry.chunk.entity_path() != path
                     {
@@ -409,6 +396,59 @@ impl EntityIndex {
         }
         Ok(())
     }
+}
+
+/// Each static winner is its chunk's best cell, no static chunk holds a better one, and
+/// each static chunk is the store's and answers for as many components as counted (part
+/// of the entity's sanity check).
+fn check_static_winners(
+    path: &EntityPath,
+    static_winners: &crate::small_map::SmallMap<ComponentName, StaticWinner>,
+    static_chunks: &ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
+    chunks: &ahash::HashMap<ChunkId, StoredChunk>,
+) -> Result<(), SanityError> {
+    let fail = |invariant| SanityError::new(Structure::Entity, invariant).at(path);
+    let mut wins: ahash::HashMap<ChunkId, usize> = ahash::HashMap::default();
+    for (component, winner) in static_winners.iter() {
+        let StaticWinner {
+            row_id,
+            chunk,
+            component_column,
+            row,
+        } = winner;
+        *wins.entry(chunk.id()).or_default() += 1;
+        let column = chunk.components().get(*component_column as usize);
+        if column.map(crate::ComponentColumn::name) != Some(component)
+            || column.and_then(|c| c.max_row_id_cell(chunk.row_ids())) != Some((*row_id, *row))
+        {
+            return Err(fail("a static winner is its chunk's best cell")
+                .at(format_args!("{path}: {component}")));
+        }
+    }
+    // No static chunk holds a better cell than the winner (a later row id wins).
+    for (chunk, _) in static_chunks.values() {
+        for column in chunk.components() {
+            let best = column.max_row_id_cell(chunk.row_ids()).map(|(id, _)| id);
+            let winner = static_winners.get(column.name()).map(|w| w.row_id);
+            if best.is_some_and(|best| winner.is_none_or(|winner| best > winner)) {
+                return Err(fail("a static winner has the greatest row id of its cells")
+                    .at(format_args!("{path}: {}", column.name())));
+            }
+        }
+    }
+    for (id, (chunk, num_won)) in static_chunks {
+        if wins.get(id).copied().unwrap_or(0) != *num_won || *num_won == 0 {
+            return Err(
+                fail("a static chunk answers for the components it is counted for")
+                    .at(format_args!("{path}: {id}")),
+            );
+        }
+        if !chunks.contains_key(id) || !chunk.is_static() || chunk.entity_path() != path {
+            return Err(fail("a static chunk is a static chunk of the store")
+                .at(format_args!("{path}: {id}")));
+        }
+    }
+    Ok(())
 }
 
 /// A chunk marked by a rewrite of `compact()` is temporal and one of at most as many as

@@ -1,0 +1,297 @@
+//! Readers that never wait: [`Snapshot`], a store's view frozen at one moment, and
+//! [`SharedStore`], a handle that one writer at a time mutates and that publishes a new
+//! snapshot after every write.
+//!
+//! A snapshot is the store's [`StoreView`] cloned, which is O(1): the view is made of
+//! persistent pieces (see `store/view.rs`) that the writer copies only where it changes
+//! them while a snapshot still holds them. Publication is one pointer swap: the shared
+//! store keeps its latest snapshot in an [`ArcSwap`] (the `arc-swap` crate), which readers
+//! load without a lock and without waiting for a writer, whatever it is doing. Writers
+//! take a mutex among themselves only. There is no other synchronization here: everything
+//! else is `Arc` reference counting, so no model checker is needed for this protocol (see
+//! `tests/snapshot.rs` for the stress test of what it promises).
+
+use std::sync::Arc;
+
+use arc_swap::ArcSwap;
+use parking_lot::Mutex;
+
+use crate::compaction::CompactionPlan;
+use crate::gc::{GcOptions, GcPlan};
+use crate::store::StoreView;
+use crate::{Chunk, ChunkStore, EntityPath, InsertError, StoreEvent, TimeRange};
+
+/// What a snapshot holds: the view, and the version it was taken at.
+#[derive(Debug)]
+struct Frozen {
+    view: StoreView,
+    version: u64,
+}
+
+/// A read-only view of a store as of one moment: it answers every query (latest-at,
+/// range, dataframes, figures, listings; every method of [`StoreView`], which it
+/// dereferences to) exactly as the store did when it was taken, for as long as it is held,
+/// whatever the store does meanwhile — inserts, compaction, garbage collection, drops.
+///
+/// Taking one is O(1) ([`ChunkStore::snapshot`], [`SharedStore::snapshot`]); cloning one
+/// is one reference count. A snapshot keeps alive only what it can still answer from: the
+/// chunks and index pieces the store has since dropped or replaced, and nothing else. It
+/// is `Send + Sync + 'static`, so it can move to another thread or live in a cache.
+///
+/// ```
+/// use chunkstore::{ChunkStore, LatestAtQuery, TimeInt};
+/// # use chunkstore::{ChunkBuilder, ChunkId, EntityPath, RowId, Timeline};
+/// # use arrow_array::{ArrayRef, Float64Array};
+/// # use std::sync::Arc;
+/// # let chunk = |frame: i64, value: f64| {
+/// #     ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/robot").unwrap())
+/// #         .with_row(RowId::new(), [(Timeline::sequence("frame"), frame)],
+/// #             [("scalar", Arc::new(Float64Array::from(vec![value])) as ArrayRef)])
+/// #         .build().unwrap()
+/// # };
+/// let mut store = ChunkStore::new();
+/// store.insert(chunk(1, 1.0))?;
+/// let before = store.snapshot();
+/// store.insert(chunk(2, 2.0))?;
+///
+/// let query = LatestAtQuery::new("frame", TimeInt::new(10).unwrap());
+/// let entity = EntityPath::parse("/robot")?;
+/// assert_eq!(before.latest_at(&query, &entity, "scalar").unwrap().time(), TimeInt::new(1));
+/// assert_eq!(store.latest_at(&query, &entity, "scalar").unwrap().time(), TimeInt::new(2));
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct Snapshot(Arc<Frozen>);
+
+impl Snapshot {
+    pub(crate) fn new(view: StoreView, version: u64) -> Self {
+        Self(Arc::new(Frozen { view, version }))
+    }
+
+    /// The number of public mutations (inserts, garbage collections, compactions, drops,
+    /// each counted once however much it changed) the store had made when the snapshot
+    /// was taken. Two snapshots of one store with the same version see the same data.
+    pub fn version(&self) -> u64 {
+        self.0.version
+    }
+
+    /// The frozen view (also reachable by dereferencing the snapshot).
+    pub fn view(&self) -> &StoreView {
+        &self.0.view
+    }
+}
+
+impl ChunkStore {
+    /// Freezes the store's current view: a read-only [`Snapshot`] that
+    /// answers every query as the store does now, whatever the store does later. O(1):
+    /// it shares every index with the store, which copies what it changes while the
+    /// snapshot holds it.
+    ///
+    /// ```
+    /// use chunkstore::ChunkStore;
+    ///
+    /// let store = ChunkStore::new();
+    /// let snapshot = store.snapshot();
+    /// assert_eq!(snapshot.stats(), store.stats());
+    /// ```
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot::new(self.view.clone(), self.num_mutations)
+    }
+}
+
+impl std::ops::Deref for Snapshot {
+    type Target = StoreView;
+
+    fn deref(&self) -> &StoreView {
+        &self.0.view
+    }
+}
+
+/// A store shared between threads: one writer at a time mutates it, and every reader takes
+/// [snapshots](SharedStore::snapshot) that never wait for the writer.
+///
+/// Every write (one call of [`SharedStore::write`] or of the methods built on it, however
+/// many mutations it makes) ends by publishing a new snapshot, atomically: a reader sees
+/// all of a write or none of it. Writers are serialized by a mutex among themselves;
+/// readers take no lock at all. The store's [subscribers](ChunkStore::subscribe) receive
+/// the events of each mutation in order, on the writer's thread, before the write
+/// publishes its snapshot.
+///
+/// Cloning the handle is cheap; every clone refers to the same store.
+///
+/// ```
+/// use chunkstore::{ChunkStore, LatestAtQuery, SharedStore, TimeInt};
+/// # use chunkstore::{ChunkBuilder, ChunkId, EntityPath, RowId, Timeline};
+/// # use arrow_array::{ArrayRef, Float64Array};
+/// # use std::sync::Arc;
+/// # let chunk = |frame: i64| {
+/// #     ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/robot").unwrap())
+/// #         .with_row(RowId::new(), [(Timeline::sequence("frame"), frame)],
+/// #             [("scalar", Arc::new(Float64Array::from(vec![frame as f64])) as ArrayRef)])
+/// #         .build().unwrap()
+/// # };
+/// let shared = SharedStore::new(ChunkStore::new());
+///
+/// // A writer thread streams rows in...
+/// let writer = {
+///     let shared = shared.clone();
+///     std::thread::spawn(move || {
+///         for frame in 0..100 {
+///             shared.insert(chunk(frame)).unwrap();
+///         }
+///     })
+/// };
+/// // ...while a reader queries whatever was published last, never waiting.
+/// let entity = EntityPath::parse("/robot")?;
+/// let query = LatestAtQuery::new("frame", TimeInt::MAX);
+/// loop {
+///     let snapshot = shared.snapshot();
+///     if let Some(cell) = snapshot.latest_at(&query, &entity, "scalar") {
+///         assert!(cell.time() <= TimeInt::new(99));
+///     }
+///     if snapshot.stats().num_rows() == 100 {
+///         break;
+///     }
+///     std::thread::yield_now();
+/// }
+/// writer.join().unwrap();
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct SharedStore {
+    inner: Arc<Inner>,
+}
+
+#[derive(Debug)]
+struct Inner {
+    writer: Mutex<ChunkStore>,
+    published: ArcSwap<Frozen>,
+}
+
+impl SharedStore {
+    /// Shares `store`, publishing its current view as the first snapshot.
+    pub fn new(store: ChunkStore) -> Self {
+        let published = ArcSwap::new(store.snapshot().0);
+        Self {
+            inner: Arc::new(Inner {
+                writer: Mutex::new(store),
+                published,
+            }),
+        }
+    }
+
+    /// The latest published snapshot. Never blocks and never waits for a writer: one
+    /// atomic load and one reference count.
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot(self.inner.published.load_full())
+    }
+
+    /// Runs `write` on the store, alone among writers, then publishes the store's new view
+    /// (whatever `write` did, even nothing). Readers see either none of what `write` did or
+    /// all of it. If `write` panics, nothing is published; the store keeps whatever the
+    /// panic left, which the next write publishes.
+    ///
+    /// Batching many mutations in one `write` publishes once for all of them, which is
+    /// cheaper (each publication makes the next write copy what it touches).
+    pub fn write<R>(&self, write: impl FnOnce(&mut ChunkStore) -> R) -> R {
+        let mut store = self.inner.writer.lock();
+        let result = write(&mut store);
+        self.inner.published.store(store.snapshot().0);
+        result
+    }
+
+    /// [`ChunkStore::insert`], then publishes.
+    ///
+    /// # Errors
+    /// As [`ChunkStore::insert`]; the store is then unchanged (and a snapshot is published
+    /// all the same, equal to the last).
+    pub fn insert(&self, chunk: impl Into<Arc<Chunk>>) -> Result<Vec<StoreEvent>, InsertError> {
+        let chunk = chunk.into();
+        self.write(|store| store.insert(chunk))
+    }
+
+    /// Inserts every chunk in order and publishes once, after the last: readers see the
+    /// whole batch at once. Returns every insert's events.
+    ///
+    /// # Errors
+    /// The first chunk [`ChunkStore::insert`] refuses (the error names it); the chunks
+    /// before it stay in and are published, the ones after it are not inserted.
+    pub fn insert_batch<I>(&self, chunks: I) -> Result<Vec<StoreEvent>, InsertError>
+    where
+        I: IntoIterator,
+        I::Item: Into<Arc<Chunk>>,
+    {
+        self.write(|store| {
+            let mut events = Vec::new();
+            for chunk in chunks {
+                events.extend(store.insert(chunk)?);
+            }
+            Ok(events)
+        })
+    }
+
+    /// [`ChunkStore::gc`], then publishes. Snapshots taken before keep answering from the
+    /// chunks it drops, which are freed with the last of them.
+    pub fn gc(&self, options: &GcOptions) -> Vec<StoreEvent> {
+        self.write(|store| store.gc(options))
+    }
+
+    /// [`ChunkStore::plan_gc`] then [`ChunkStore::apply_gc`] in one write.
+    pub fn plan_and_apply_gc(&self, options: &GcOptions) -> (GcPlan, Vec<StoreEvent>) {
+        self.write(|store| {
+            let plan = store.plan_gc(options);
+            let events = store.apply_gc(&plan);
+            (plan, events)
+        })
+    }
+
+    /// [`ChunkStore::compact`], then publishes.
+    pub fn compact(&self) -> Vec<StoreEvent> {
+        self.write(ChunkStore::compact)
+    }
+
+    /// [`ChunkStore::plan_compaction`] then [`ChunkStore::apply_compaction`] in one write.
+    pub fn plan_and_apply_compaction(&self) -> (CompactionPlan, Vec<StoreEvent>) {
+        self.write(|store| {
+            let plan = store.plan_compaction();
+            let events = store.apply_compaction(&plan);
+            (plan, events)
+        })
+    }
+
+    /// [`ChunkStore::drop_time_range`], then publishes.
+    pub fn drop_time_range(&self, timeline: &str, range: TimeRange) -> Vec<StoreEvent> {
+        self.write(|store| store.drop_time_range(timeline, range))
+    }
+
+    /// [`ChunkStore::drop_entity`], then publishes.
+    pub fn drop_entity(&self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {
+        self.write(|store| store.drop_entity(entity, recursive))
+    }
+
+    /// A copy of the store as it is now (O(store): its writer's structures are copied;
+    /// the chunks are shared), taken between writes.
+    pub fn to_store(&self) -> ChunkStore {
+        self.inner.writer.lock().clone()
+    }
+
+    /// The store, if this is the last handle to it; the handle back otherwise.
+    ///
+    /// # Errors
+    /// Another clone of the handle still refers to the store.
+    pub fn try_into_store(self) -> Result<ChunkStore, Self> {
+        Arc::try_unwrap(self.inner)
+            .map(|inner| inner.writer.into_inner())
+            .map_err(|inner| Self { inner })
+    }
+}
+
+/// Checked at compile time: the store, its view, snapshots and the shared handle can all
+/// move to and be shared between threads.
+const _: () = {
+    const fn send_sync<T: Send + Sync + 'static>() {}
+    send_sync::<ChunkStore>();
+    send_sync::<StoreView>();
+    send_sync::<Snapshot>();
+    send_sync::<SharedStore>();
+};

@@ -1,0 +1,265 @@
+//! [`StoreView`]: everything a query reads, in a form a snapshot shares.
+//!
+//! The store keeps what readers need (per-entity indices and static winners, the Clear
+//! index, the timeline types, the figures) apart from what only its writer needs (the
+//! chunk map's bookkeeping, the garbage collector's orders, buffer ledgers, compaction's
+//! waiting groups). The readers' part is made of persistent pieces: the entity map is a
+//! hash trie (`imbl`), each entity's view and each of its temporal indices sit behind an
+//! `Arc`, and so do the Clear tree's nodes. Cloning a `StoreView` is therefore O(1) (a few
+//! reference counts), and a mutation copies only what it touches, and only while a
+//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, the indices of the
+//! (timeline, component) pairs its chunk has cells for, the hash trie's path to the entity.
+//! A store nobody snapshots owns every piece, so its writes copy nothing.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use arrow_schema::DataType;
+
+use crate::clear::ClearIndex;
+use crate::index::TemporalComponentIndex;
+use crate::sanity::{SanityError, Structure};
+use crate::small_map::SmallMap;
+use crate::stats::{EntityStats, StoreStats};
+use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType, Timeline};
+
+/// The entity map: a persistent hash trie, so that a snapshot shares it and a write
+/// copies only the path to the entity it changes.
+pub(crate) type EntityViews = imbl::GenericHashMap<
+    EntityPath,
+    Arc<EntityView>,
+    ahash::RandomState,
+    imbl::shared_ptr::DefaultSharedPtr,
+>;
+
+/// The static cell that currently answers for one (entity, component).
+#[derive(Clone, Debug)]
+pub(crate) struct StaticWinner {
+    pub row_id: RowId,
+    pub chunk: Arc<Chunk>,
+    pub component_column: u32,
+    pub row: u32,
+}
+
+/// One (timeline, component) index of an entity, shared with snapshots until a write
+/// changes it.
+pub(crate) type SharedIndex = Arc<TemporalComponentIndex>;
+
+/// What queries read of one entity.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct EntityView {
+    /// The element type of each component the entity holds chunks of (static or
+    /// temporal). Behind an `Arc`: it changes only when a component appears or goes.
+    pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
+    pub static_winners: SmallMap<ComponentName, StaticWinner>,
+    pub temporal_per_timeline_per_component:
+        SmallMap<Arc<str>, SmallMap<ComponentName, SharedIndex>>,
+    /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
+    /// they are the entity's rows all the same (the chunk table lists them).
+    pub unindexed: Vec<Arc<Chunk>>,
+    pub stats: EntityStats,
+}
+
+/// A read-only view of a store: every query, figure and listing that does not change it.
+///
+/// [`ChunkStore`](crate::ChunkStore) dereferences to its current view, the way a `String`
+/// dereferences to a `str`, and a [`Snapshot`](crate::Snapshot) holds a view frozen at the
+/// moment it was taken; a function that only reads can take `&StoreView` and serve both.
+/// Nothing in a `StoreView` can be changed: its only methods take `&self`.
+///
+/// Cloning a view is O(1): it shares every index with the store it came from (see the
+/// module docs of `store/view.rs` for what a later write copies).
+///
+/// ```
+/// use chunkstore::{ChunkStore, StoreView};
+///
+/// fn count_entities(view: &StoreView) -> usize {
+///     view.entity_paths().len()
+/// }
+/// let store = ChunkStore::new();
+/// assert_eq!(count_entities(&store), 0);
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct StoreView {
+    pub(crate) entities: EntityViews,
+    pub(crate) clears: Arc<ClearIndex>,
+    pub(crate) time_types: Arc<ahash::HashMap<Arc<str>, TimeType>>,
+    pub(crate) stats: StoreStats,
+}
+
+impl StoreView {
+    /// Totals of chunks, rows and heap bytes, and what compaction copied. O(1).
+    pub fn stats(&self) -> StoreStats {
+        self.stats
+    }
+
+    /// The figures of one entity (its own data, not its descendants'). O(1).
+    pub fn entity_stats(&self, entity: &EntityPath) -> Option<EntityStats> {
+        self.entities.get(entity).map(|e| e.stats)
+    }
+
+    /// The type a timeline has in this store, if any chunk used it.
+    pub fn time_type(&self, timeline: &str) -> Option<TimeType> {
+        self.time_types.get(timeline).copied()
+    }
+
+    /// Every timeline any inserted chunk used, sorted by name. (A timeline keeps its type
+    /// once seen, even after all its data is gone; [`StoreView::time_range`] tells whether
+    /// any is left.)
+    pub fn timelines(&self) -> Vec<Timeline> {
+        let mut timelines: Vec<Timeline> = self
+            .time_types
+            .iter()
+            .map(|(name, &time_type)| Timeline::new(Arc::clone(name), time_type))
+            .collect();
+        timelines.sort();
+        timelines
+    }
+
+    /// The least and greatest time the view holds data at on `timeline`, or `None` if it
+    /// holds none there.
+    ///
+    /// Cost: O(n) over the indices' entries. A [`ChunkStore`](crate::ChunkStore) answers
+    /// in O(1) from its writer's time orders.
+    pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
+        self.entities
+            .values()
+            .filter_map(|entity| entity.temporal_per_timeline_per_component.get(timeline))
+            .flat_map(SmallMap::values)
+            .flat_map(|index| index.chunks())
+            .filter_map(|entry| entry.chunk.time_columns().get(entry.time_column as usize))
+            .map(crate::TimeColumn::time_range)
+            .chain(self.entities.values().flat_map(|entity| {
+                entity
+                    .unindexed
+                    .iter()
+                    .filter_map(|chunk| chunk.time_column(timeline))
+                    .map(crate::TimeColumn::time_range)
+            }))
+            .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
+    }
+
+    /// Every entity that holds data, sorted.
+    pub fn entity_paths(&self) -> Vec<EntityPath> {
+        let mut paths: Vec<EntityPath> = self.entities.keys().cloned().collect();
+        paths.sort();
+        paths
+    }
+
+    /// The components an entity holds chunks of (static or temporal), sorted by name.
+    pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
+        self.entities
+            .get(entity)
+            .map(|e| e.component_types.keys().cloned().collect())
+            .unwrap_or_default()
+    }
+
+    /// The Arrow type of one element of a component's cells at an entity.
+    pub fn element_type(&self, entity: &EntityPath, component: &str) -> Option<&DataType> {
+        self.entities
+            .get(entity)
+            .and_then(|e| e.component_types.get(component))
+    }
+
+    /// Every chunk the view holds, sorted by entity then chunk id.
+    ///
+    /// Cost: O(n log n), gathered from the indices (a chunk indexed under several
+    /// timelines and components is listed once). A [`ChunkStore`](crate::ChunkStore)'s
+    /// own `chunks()` walks its chunk map instead, in no particular order.
+    pub fn chunks(&self) -> Vec<Arc<Chunk>> {
+        let mut out = Vec::with_capacity(usize::try_from(self.stats.num_chunks()).unwrap_or(0));
+        for entity in self.entities.values() {
+            let first = out.len();
+            out.extend(
+                entity
+                    .static_winners
+                    .values()
+                    .map(|winner| Arc::clone(&winner.chunk)),
+            );
+            for per_component in entity.temporal_per_timeline_per_component.values() {
+                for index in per_component.values() {
+                    out.extend(index.chunks().map(|entry| Arc::clone(&entry.chunk)));
+                }
+            }
+            out.extend(entity.unindexed.iter().cloned());
+            let mine = &mut out[first..];
+            mine.sort_unstable_by_key(|chunk| chunk.id());
+            let mut seen: Option<ChunkId> = None;
+            let mut kept = first;
+            for position in first..out.len() {
+                let id = out[position].id();
+                if seen != Some(id) {
+                    out.swap(kept, position);
+                    kept += 1;
+                    seen = Some(id);
+                }
+            }
+            out.truncate(kept);
+        }
+        out.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
+        out
+    }
+
+    /// Checks what the view owns on its own: each entity's indices and small maps, and the
+    /// Clear index. (What the view must agree with, the chunks, the store checks in
+    /// [`ChunkStore::sanity_check`](crate::ChunkStore::sanity_check).)
+    ///
+    /// # Errors
+    /// The first broken invariant: a bug in this crate.
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
+        let Self {
+            entities,
+            clears,
+            time_types: _, // checked against the chunks by the store
+            stats: _,      // recounted by the store
+        } = self;
+        for (path, entity) in entities {
+            entity.sanity_check(path)?;
+        }
+        clears.sanity_check()
+    }
+}
+
+impl EntityView {
+    /// The view's own invariants: its small maps hold, each index holds, is non-empty and
+    /// typed, and holds only the entity's chunks.
+    pub(crate) fn sanity_check(&self, path: &EntityPath) -> Result<(), SanityError> {
+        let fail = |invariant| SanityError::new(Structure::Entity, invariant).at(path);
+        let Self {
+            component_types,
+            static_winners,
+            temporal_per_timeline_per_component,
+            unindexed,
+            stats: _, // recounted by the store
+        } = self;
+        static_winners.sanity_check()?;
+        temporal_per_timeline_per_component.sanity_check()?;
+        for (timeline, per_component) in temporal_per_timeline_per_component.iter() {
+            per_component.sanity_check()?;
+            for (component, index) in per_component.iter() {
+                index.sanity_check()?;
+                if !component_types.contains_key(component) || index.is_empty() {
+                    return Err(fail("a temporal index is typed and non-empty")
+                        .at(format_args!("{path}: {component} on {timeline}")));
+                }
+                if index
+                    .chunks()
+                    .any(|entry| entry.chunk.entity_path() != path)
+                {
+                    return Err(fail("an indexed chunk is the entity's own"));
+                }
+            }
+        }
+        for chunk in unindexed {
+            let has_bounds = (0..chunk.time_columns().len())
+                .any(|t| chunk.components().iter().any(|c| c.bounds(t).is_some()));
+            if chunk.is_static() || has_bounds || chunk.entity_path() != path {
+                return Err(fail(
+                    "an unindexed chunk is a temporal chunk of the entity without cells",
+                )
+                .at(chunk.id()));
+            }
+        }
+        Ok(())
+    }
+}
