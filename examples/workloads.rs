@@ -23,6 +23,8 @@
 
 #[path = "../benches/common/mod.rs"]
 mod common;
+#[path = "workloads/concurrent.rs"]
+mod concurrent;
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -64,7 +66,10 @@ const WORKLOADS: [(&str, Workload); 10] = [
 
 /// Workloads of this crate's own, outside WORKLOADS.md (so outside `all`, which the
 /// comparison with the reference engine runs): named one by one.
-const OWN_WORKLOADS: [(&str, Workload); 1] = [("dataframe", dataframe)];
+const OWN_WORKLOADS: [(&str, Workload); 2] = [
+    ("dataframe", dataframe),
+    ("concurrent", concurrent::concurrent),
+];
 
 fn main() {
     let arg = std::env::args().nth(1).unwrap_or_default();

@@ -15,6 +15,11 @@
 //!   Clears (component [`ComponentName::CLEAR_IS_RECURSIVE`]) hide older data at query
 //!   time. Inserting rows the store already holds changes nothing. The exact rules are
 //!   in `docs/SEMANTICS.md`; `docs/ARCHITECTURE.md` maps the modules.
+//! - Every query is a method of [`StoreView`], which the store dereferences to. A
+//!   [`Snapshot`] freezes it in O(1) and answers as the store did then, for as long as it is
+//!   held; a [`SharedStore`] lets one writer thread mutate the store while readers on other
+//!   threads take snapshots without ever waiting (see [Readers that never
+//!   wait](#readers-that-never-wait)).
 //!
 //! ## Example
 //! ```
@@ -50,6 +55,52 @@
 //! assert!(store.latest_at(&LatestAtQuery::new("frame", TimeInt::new(30).unwrap()), &robot, "speed").is_none());
 //! assert!(store.latest_at(&LatestAtQuery::new("frame", TimeInt::new(29).unwrap()), &robot, "speed").is_some());
 //! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! ## Readers that never wait
+//! A viewer renders while data streams in; a server answers clients while a robot logs. A
+//! [`SharedStore`] is a handle that one writer at a time mutates (insert, batches, GC,
+//! compaction, drops); each write publishes a new [`Snapshot`], and readers take the latest
+//! one with an atomic load: no lock, no waiting for the writer, whatever it is doing.
+//!
+//! ```
+//! use std::sync::Arc;
+//! use arrow_array::{ArrayRef, Float64Array};
+//! use chunkstore::*;
+//!
+//! let robot = EntityPath::parse("/robot").unwrap();
+//! let row = |frame: i64| {
+//!     let value = Arc::new(Float64Array::from(vec![frame as f64])) as ArrayRef;
+//!     ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/robot").unwrap())
+//!         .with_row(RowId::new(), [(Timeline::sequence("frame"), frame)], [("speed", value)])
+//!         .build()
+//!         .unwrap()
+//! };
+//! let shared = SharedStore::new(ChunkStore::new());
+//!
+//! let writer = {
+//!     let shared = shared.clone();
+//!     std::thread::spawn(move || {
+//!         for frame in 0..1_000 {
+//!             shared.insert(row(frame)).unwrap();
+//!         }
+//!         shared.gc(&GcOptions::drop_at_least_fraction(0.5).unwrap());
+//!     })
+//! };
+//! let reader = std::thread::spawn(move || {
+//!     let latest = LatestAtQuery::new("frame", TimeInt::MAX);
+//!     let mut seen = 0;
+//!     while seen < 999 {
+//!         let snapshot = shared.snapshot(); // never blocks
+//!         if let Some(cell) = snapshot.latest_at(&latest, &robot, "speed") {
+//!             let time = cell.time().unwrap().as_i64();
+//!             assert!(time >= seen, "a later snapshot never goes back");
+//!             seen = time;
+//!         }
+//!     }
+//! });
+//! writer.join().unwrap();
+//! reader.join().unwrap();
 //! ```
 //!
 //! ## Crate features

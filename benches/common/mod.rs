@@ -25,7 +25,7 @@ use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, ComponentColumn, ComponentName, DataframeQuery, EntityPath,
-    LatestAtQuery, RangeResult, RangeRun, RowId, StoreConfig, TimeInt, Timeline,
+    LatestAtQuery, RangeResult, RangeRun, RowId, StoreConfig, StoreView, TimeInt, Timeline,
 };
 
 /// The timeline every workload logs on.
@@ -393,7 +393,7 @@ pub fn interleaved_streams(ids: &mut RowIds, entities: &[EntityPath], n: usize) 
 /// Latest-at `scalar` at `entity` as of `t` on `timeline`, read back as a number. The
 /// caller makes the timeline's name once, so a timed loop allocates nothing per query.
 pub fn latest_scalar(
-    store: &ChunkStore,
+    store: &StoreView,
     timeline: &Arc<str>,
     t: i64,
     entity: &EntityPath,

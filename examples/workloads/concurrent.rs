@@ -1,0 +1,216 @@
+//! The `concurrent` workload (this crate's own; `docs/PERFORMANCE.md` describes it): a
+//! writer thread streams the `insert_streaming` data into a [`SharedStore`] while a reader
+//! thread answers `latest_at_mono`-style queries, each on a fresh snapshot.
+//!
+//! Phases, in one process: the first half of the rows goes in (untimed); the reader runs
+//! alone (idle latencies); the writer inserts the second half, publishing after every
+//! insert, while the reader runs (latencies under ingest, and the writer's ns/row); the
+//! same with one publication per frame (a batch of the 100 entities' rows); then garbage
+//! collection and on-demand compaction while the reader runs (their pauses). The plain
+//! store's ns/row is the same second half inserted into a plain `ChunkStore` holding the
+//! first half, with no reader. Reader latency is one fresh snapshot, one latest-at and
+//! dropping the snapshot.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use chunkstore::{Chunk, ChunkStore, EntityPath, GcOptions, SharedStore, StoreView};
+
+use super::common::{
+    FRAME, RowIds, SCALAR, SplitMix64, entities, latest_scalar, scalars, temporal_chunk,
+};
+use super::{DEFAULT, IMPL, peak_rss_kib};
+
+const ENTITIES: usize = 100;
+const ROWS: usize = 1_000_000;
+/// Idle reader queries, and at least this many reader queries per ingest phase.
+const IDLE_QUERIES: usize = 300_000;
+
+/// Reader latencies of one phase, in nanoseconds.
+struct Latencies(Vec<u64>);
+
+impl Latencies {
+    fn percentile(&mut self, p: f64) -> u64 {
+        self.0.sort_unstable();
+        let last = self.0.len().saturating_sub(1);
+        self.0
+            .get(((last as f64) * p).round() as usize)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    fn max(&self) -> u64 {
+        self.0.iter().copied().max().unwrap_or(0)
+    }
+}
+
+/// Runs reader queries on fresh snapshots of `shared` until `stop` is set and at least
+/// `min_queries` ran; returns every query's latency.
+fn read_until(
+    shared: &SharedStore,
+    entities: &[EntityPath],
+    stop: &AtomicBool,
+    min_queries: usize,
+) -> Latencies {
+    let frame: Arc<str> = FRAME.into();
+    let mut rng = SplitMix64::new();
+    let mut latencies = Vec::with_capacity(min_queries * 2);
+    let mut sum = 0.0;
+    while latencies.len() < min_queries || !stop.load(Ordering::Acquire) {
+        let entity = &entities[rng.uniform_usize(ENTITIES)];
+        let t = rng.uniform(11_000) as i64;
+        let start = Instant::now();
+        let snapshot = shared.snapshot();
+        sum += latest_scalar(&snapshot, &frame, t, entity).unwrap_or(0.0);
+        drop(snapshot);
+        latencies.push(start.elapsed().as_nanos() as u64);
+    }
+    std::hint::black_box(sum);
+    Latencies(latencies)
+}
+
+/// Runs `write` on this thread while a reader thread queries `shared`; returns the
+/// write's wall time in ns and the reader's latencies.
+fn with_reader(
+    shared: &SharedStore,
+    entities: &[EntityPath],
+    write: impl FnOnce(),
+) -> (f64, Latencies) {
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let reader = scope.spawn(|| read_until(shared, entities, &stop, 1));
+        let start = Instant::now();
+        write();
+        let ns = start.elapsed().as_nanos() as f64;
+        stop.store(true, Ordering::Release);
+        (ns, reader.join().expect("the reader finishes"))
+    })
+}
+
+/// The `insert_streaming` checksum: latest-at `scalar` at frame 5,000 of every entity.
+fn checksum(view: &StoreView, entities: &[EntityPath]) -> u64 {
+    let frame: Arc<str> = FRAME.into();
+    entities
+        .iter()
+        .filter_map(|e| latest_scalar(view, &frame, 5_000, e))
+        .map(|v| v as u64)
+        .sum()
+}
+
+/// Median ns per `snapshot()` over many calls (a store of `shared`'s size; no writer).
+fn snapshot_ns(shared: &SharedStore) -> f64 {
+    let rounds: Vec<f64> = (0..9)
+        .map(|_| {
+            let start = Instant::now();
+            for _ in 0..100_000 {
+                std::hint::black_box(shared.snapshot());
+            }
+            start.elapsed().as_nanos() as f64 / 100_000.0
+        })
+        .collect();
+    super::median(rounds)
+}
+
+pub fn concurrent() -> bool {
+    let entities = entities(ENTITIES, |e| format!("stream/{e:03}"));
+    let mut ids = RowIds::new();
+    let chunks: Vec<Arc<Chunk>> = (0..ROWS)
+        .map(|k| {
+            let values = scalars(vec![(k % 1000) as f64]);
+            temporal_chunk(
+                &mut ids,
+                &entities[k % ENTITIES],
+                vec![(k / ENTITIES) as i64],
+                vec![(SCALAR, values)],
+            )
+        })
+        .collect();
+    let (first_half, second_half) = chunks.split_at(ROWS / 2);
+    let (quarter_a, quarter_b) = second_half.split_at(second_half.len() / 2);
+
+    // The plain store: the second half into a store holding the first, no reader.
+    let mut plain = ChunkStore::with_config(DEFAULT).expect("a valid config");
+    for chunk in first_half {
+        drop(plain.insert(Arc::clone(chunk)).expect("consistent chunks"));
+    }
+    let start = Instant::now();
+    for chunk in second_half {
+        drop(plain.insert(Arc::clone(chunk)).expect("consistent chunks"));
+    }
+    let plain_ns_per_row = start.elapsed().as_nanos() as f64 / second_half.len() as f64;
+    let plain_checksum = checksum(&plain, &entities);
+    drop(plain);
+
+    let shared = SharedStore::new(ChunkStore::with_config(DEFAULT).expect("a valid config"));
+    shared
+        .insert_batch(first_half.iter().cloned())
+        .expect("consistent chunks");
+    let snapshot_ns = snapshot_ns(&shared);
+
+    let never = AtomicBool::new(true);
+    let mut idle = read_until(&shared, &entities, &never, IDLE_QUERIES);
+
+    // One publication per insert (the first quarter of the rows left)...
+    let (ingest_ns, mut ingest) = with_reader(&shared, &entities, || {
+        for chunk in quarter_a {
+            drop(shared.insert(Arc::clone(chunk)).expect("consistent chunks"));
+        }
+    });
+    let shared_ns_per_row = ingest_ns / quarter_a.len() as f64;
+    // ...and one per frame: a batch of the 100 entities' rows.
+    let (batched_ns, mut batched) = with_reader(&shared, &entities, || {
+        for frame in quarter_b.chunks(ENTITIES) {
+            drop(
+                shared
+                    .insert_batch(frame.iter().cloned())
+                    .expect("consistent chunks"),
+            );
+        }
+    });
+    let batched_ns_per_row = batched_ns / quarter_b.len() as f64;
+    let last = shared.snapshot();
+    let checksum = checksum(&last, &entities);
+
+    // Garbage collection and compaction while the reader runs; `last` stays held.
+    let (_, mut maintenance) = with_reader(&shared, &entities, || {
+        drop(shared.gc(&GcOptions::drop_at_least_fraction(0.5).expect("a valid fraction")));
+        drop(shared.compact());
+    });
+    let kept_by_snapshot = last.stats().heap_bytes - shared.snapshot().stats().heap_bytes;
+    drop(last);
+
+    println!(
+        "{{\"workload\":\"concurrent\",\"impl\":\"{IMPL}\",\"rows\":{ROWS},\
+\"snapshot_ns\":{snapshot_ns:.1},\
+\"reader_p50_idle_ns\":{},\"reader_p99_idle_ns\":{},\"reader_max_idle_ns\":{},\
+\"reader_p50_ingest_ns\":{},\"reader_p99_ingest_ns\":{},\"reader_max_ingest_ns\":{},\
+\"reader_p99_batched_ns\":{},\"reader_max_batched_ns\":{},\
+\"reader_p99_gc_compact_ns\":{},\"reader_max_gc_compact_ns\":{},\
+\"writer_ns_per_row_shared\":{shared_ns_per_row:.1},\
+\"writer_ns_per_row_shared_batched\":{batched_ns_per_row:.1},\
+\"writer_ns_per_row_plain\":{plain_ns_per_row:.1},\
+\"reader_queries\":{},\"snapshot_kept_bytes\":{kept_by_snapshot},\
+\"checksum\":{checksum},\"peak_rss_kib\":{}}}",
+        idle.percentile(0.5),
+        idle.percentile(0.99),
+        idle.max(),
+        ingest.percentile(0.5),
+        ingest.percentile(0.99),
+        ingest.max(),
+        batched.percentile(0.99),
+        batched.max(),
+        maintenance.percentile(0.99),
+        maintenance.max(),
+        idle.0.len() + ingest.0.len() + batched.0.len() + maintenance.0.len(),
+        peak_rss_kib(),
+    );
+    // The insert_streaming checksum (WORKLOADS.md): 0 + 1 + ... + 99.
+    let ok = checksum == 4_950 && plain_checksum == 4_950;
+    if !ok {
+        eprintln!(
+            "CHECKSUM MISMATCH concurrent: got {checksum} (plain {plain_checksum}), expected 4950"
+        );
+    }
+    ok
+}
