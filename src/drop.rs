@@ -124,10 +124,7 @@ mod tests {
                 .temporal_per_timeline_per_component
                 .get("frame")
                 .and_then(|per_component| per_component.get("x"));
-            matches!(
-                index.map(|i| &**i),
-                Some(TemporalComponentIndex::Sequence(_))
-            )
+            matches!(index, Some(TemporalComponentIndex::Sequence(_)))
         };
         assert!(is_sequence(&store));
         // Inside the last chunk, the first, and one in the middle.

@@ -11,7 +11,8 @@
 //! else is `Arc` reference counting, so no model checker is needed for this protocol (see
 //! `tests/snapshot.rs` for the stress test of what it promises).
 
-use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender};
+use std::sync::{Arc, LazyLock};
 
 use arc_swap::ArcSwap;
 use parking_lot::Mutex;
@@ -21,12 +22,28 @@ use crate::gc::{GcOptions, GcPlan};
 use crate::store::StoreView;
 use crate::{Chunk, ChunkStore, EntityPath, InsertError, StoreEvent, TimeRange};
 
-/// What a snapshot holds: the view, and the version it was taken at.
+/// What a snapshot holds: the view, the version it was taken at, and, for a shared
+/// store's snapshot, where its last holder hands it back to the writer.
 #[derive(Debug)]
 struct Frozen {
     view: StoreView,
     version: u64,
+    graveyard: Option<Sender<Arc<Frozen>>>,
 }
+
+impl Frozen {
+    fn new(view: StoreView, version: u64, graveyard: Option<Sender<Arc<Frozen>>>) -> Arc<Self> {
+        Arc::new(Self {
+            view,
+            version,
+            graveyard,
+        })
+    }
+}
+
+/// What a snapshot handed back to the writer is replaced with while it leaves.
+static RETIRED: LazyLock<Arc<Frozen>> =
+    LazyLock::new(|| Frozen::new(StoreView::default(), 0, None));
 
 /// A read-only view of a store as of one moment: it answers every query (latest-at,
 /// range, dataframes, figures, listings; every method of [`StoreView`], which it
@@ -65,7 +82,7 @@ pub struct Snapshot(Arc<Frozen>);
 
 impl Snapshot {
     pub(crate) fn new(view: StoreView, version: u64) -> Self {
-        Self(Arc::new(Frozen { view, version }))
+        Self(Frozen::new(view, version, None))
     }
 
     /// The number of public mutations (inserts, garbage collections, compactions, drops,
@@ -96,6 +113,24 @@ impl ChunkStore {
     /// ```
     pub fn snapshot(&self) -> Snapshot {
         Snapshot::new(self.view.clone(), self.num_mutations)
+    }
+}
+
+/// The last holder of a version the shared store has moved past hands it back to the
+/// writer, which frees it at its next write: freeing is the writer's work (the copies its
+/// writes made, the chunks a collection dropped), and a reader's thread freeing memory the
+/// writer's thread allocated would also contend with the writer inside the allocator. (Two
+/// holders dropping at once may both see another holder; then the last frees it where it
+/// is, as any `Arc` would.)
+impl Drop for Snapshot {
+    fn drop(&mut self) {
+        if Arc::strong_count(&self.0) == 1
+            && let Some(graveyard) = self.0.graveyard.clone()
+        {
+            let frozen = std::mem::replace(&mut self.0, Arc::clone(&RETIRED));
+            // A store already gone has no writer to hand it to: it is freed here.
+            drop(graveyard.send(frozen));
+        }
     }
 }
 
@@ -164,17 +199,45 @@ pub struct SharedStore {
 
 #[derive(Debug)]
 struct Inner {
-    writer: Mutex<ChunkStore>,
+    writer: Mutex<Writer>,
     published: ArcSwap<Frozen>,
+}
+
+/// The writer's side: the store, and the versions its readers handed back to be freed.
+#[derive(Debug)]
+struct Writer {
+    store: ChunkStore,
+    retired: Receiver<Arc<Frozen>>,
+    graveyard: Sender<Arc<Frozen>>,
+}
+
+impl Writer {
+    /// Frees what readers handed back, then freezes the store's view as it is now.
+    fn publish(&mut self) -> Arc<Frozen> {
+        while let Ok(retired) = self.retired.try_recv() {
+            drop(retired);
+        }
+        Frozen::new(
+            self.store.view.clone(),
+            self.store.num_mutations,
+            Some(self.graveyard.clone()),
+        )
+    }
 }
 
 impl SharedStore {
     /// Shares `store`, publishing its current view as the first snapshot.
     pub fn new(store: ChunkStore) -> Self {
-        let published = ArcSwap::new(store.snapshot().0);
+        let (graveyard, retired) = std::sync::mpsc::channel();
+        let mut writer = Writer {
+            store,
+            retired,
+            graveyard,
+        };
+        let published = ArcSwap::new(writer.publish());
         Self {
             inner: Arc::new(Inner {
-                writer: Mutex::new(store),
+                writer: Mutex::new(writer),
                 published,
             }),
         }
@@ -194,9 +257,10 @@ impl SharedStore {
     /// Batching many mutations in one `write` publishes once for all of them, which is
     /// cheaper (each publication makes the next write copy what it touches).
     pub fn write<R>(&self, write: impl FnOnce(&mut ChunkStore) -> R) -> R {
-        let mut store = self.inner.writer.lock();
-        let result = write(&mut store);
-        self.inner.published.store(store.snapshot().0);
+        let mut writer = self.inner.writer.lock();
+        let result = write(&mut writer.store);
+        let published = writer.publish();
+        self.inner.published.store(published);
         result
     }
 
@@ -272,7 +336,7 @@ impl SharedStore {
     /// A copy of the store as it is now (O(store): its writer's structures are copied;
     /// the chunks are shared), taken between writes.
     pub fn to_store(&self) -> ChunkStore {
-        self.inner.writer.lock().clone()
+        self.inner.writer.lock().store.clone()
     }
 
     /// The store, if this is the last handle to it; the handle back otherwise.
@@ -281,7 +345,7 @@ impl SharedStore {
     /// Another clone of the handle still refers to the store.
     pub fn try_into_store(self) -> Result<ChunkStore, Self> {
         Arc::try_unwrap(self.inner)
-            .map(|inner| inner.writer.into_inner())
+            .map(|inner| inner.writer.into_inner().store)
             .map_err(|inner| Self { inner })
     }
 }

@@ -3,10 +3,11 @@
 //! thread answers `latest_at_mono`-style queries, each on a fresh snapshot.
 //!
 //! Phases, in one process: the first half of the rows goes in (untimed); the reader runs
-//! alone (idle latencies); the writer inserts the second half, publishing after every
-//! insert, while the reader runs (latencies under ingest, and the writer's ns/row); the
-//! same with one publication per frame (a batch of the 100 entities' rows); then garbage
-//! collection and on-demand compaction while the reader runs (their pauses). The plain
+//! alone (idle latencies); the writer inserts the second half in three thirds while the
+//! reader runs (latencies under ingest, and the writer's ns/row): publishing after every
+//! insert (`shared.insert`), once per frame (a batch of the 100 entities' rows), and once
+//! per ten frames (1,000 rows); then garbage collection and on-demand compaction while the
+//! reader runs (their pauses). The plain
 //! store's ns/row is the same second half inserted into a plain `ChunkStore` holding the
 //! first half, with no reader. Reader latency is one fresh snapshot, one latest-at and
 //! dropping the snapshot.
@@ -112,6 +113,10 @@ fn snapshot_ns(shared: &SharedStore) -> f64 {
     super::median(rounds)
 }
 
+#[allow(
+    clippy::too_many_lines,
+    reason = "the phases read best in order, in one place"
+)]
 pub fn concurrent() -> bool {
     let entities = entities(ENTITIES, |e| format!("stream/{e:03}"));
     let mut ids = RowIds::new();
@@ -127,7 +132,10 @@ pub fn concurrent() -> bool {
         })
         .collect();
     let (first_half, second_half) = chunks.split_at(ROWS / 2);
-    let (quarter_a, quarter_b) = second_half.split_at(second_half.len() / 2);
+    // Thirds of whole ten-frame batches.
+    let third = second_half.len() / 3 / (10 * ENTITIES) * (10 * ENTITIES);
+    let (each_insert, rest) = second_half.split_at(third);
+    let (each_frame, each_ten_frames) = rest.split_at(third);
 
     // The plain store: the second half into a store holding the first, no reader.
     let mut plain = ChunkStore::with_config(DEFAULT).expect("a valid config");
@@ -151,16 +159,15 @@ pub fn concurrent() -> bool {
     let never = AtomicBool::new(true);
     let mut idle = read_until(&shared, &entities, &never, IDLE_QUERIES);
 
-    // One publication per insert (the first quarter of the rows left)...
+    // One publication per insert, per frame (the 100 entities' rows), per ten frames.
     let (ingest_ns, mut ingest) = with_reader(&shared, &entities, || {
-        for chunk in quarter_a {
+        for chunk in each_insert {
             drop(shared.insert(Arc::clone(chunk)).expect("consistent chunks"));
         }
     });
-    let shared_ns_per_row = ingest_ns / quarter_a.len() as f64;
-    // ...and one per frame: a batch of the 100 entities' rows.
-    let (batched_ns, mut batched) = with_reader(&shared, &entities, || {
-        for frame in quarter_b.chunks(ENTITIES) {
+    let shared_ns_per_row = ingest_ns / each_insert.len() as f64;
+    let (frame_ns, mut per_frame) = with_reader(&shared, &entities, || {
+        for frame in each_frame.chunks(ENTITIES) {
             drop(
                 shared
                     .insert_batch(frame.iter().cloned())
@@ -168,7 +175,17 @@ pub fn concurrent() -> bool {
             );
         }
     });
-    let batched_ns_per_row = batched_ns / quarter_b.len() as f64;
+    let frame_ns_per_row = frame_ns / each_frame.len() as f64;
+    let (ten_frames_ns, mut per_ten_frames) = with_reader(&shared, &entities, || {
+        for frames in each_ten_frames.chunks(10 * ENTITIES) {
+            drop(
+                shared
+                    .insert_batch(frames.iter().cloned())
+                    .expect("consistent chunks"),
+            );
+        }
+    });
+    let ten_frames_ns_per_row = ten_frames_ns / each_ten_frames.len() as f64;
     let last = shared.snapshot();
     let checksum = checksum(&last, &entities);
 
@@ -185,10 +202,12 @@ pub fn concurrent() -> bool {
 \"snapshot_ns\":{snapshot_ns:.1},\
 \"reader_p50_idle_ns\":{},\"reader_p99_idle_ns\":{},\"reader_max_idle_ns\":{},\
 \"reader_p50_ingest_ns\":{},\"reader_p99_ingest_ns\":{},\"reader_max_ingest_ns\":{},\
-\"reader_p99_batched_ns\":{},\"reader_max_batched_ns\":{},\
+\"reader_p99_per_frame_ns\":{},\"reader_max_per_frame_ns\":{},\
+\"reader_p99_per_ten_frames_ns\":{},\"reader_max_per_ten_frames_ns\":{},\
 \"reader_p99_gc_compact_ns\":{},\"reader_max_gc_compact_ns\":{},\
 \"writer_ns_per_row_shared\":{shared_ns_per_row:.1},\
-\"writer_ns_per_row_shared_batched\":{batched_ns_per_row:.1},\
+\"writer_ns_per_row_shared_per_frame\":{frame_ns_per_row:.1},\
+\"writer_ns_per_row_shared_per_ten_frames\":{ten_frames_ns_per_row:.1},\
 \"writer_ns_per_row_plain\":{plain_ns_per_row:.1},\
 \"reader_queries\":{},\"snapshot_kept_bytes\":{kept_by_snapshot},\
 \"checksum\":{checksum},\"peak_rss_kib\":{}}}",
@@ -198,11 +217,17 @@ pub fn concurrent() -> bool {
         ingest.percentile(0.5),
         ingest.percentile(0.99),
         ingest.max(),
-        batched.percentile(0.99),
-        batched.max(),
+        per_frame.percentile(0.99),
+        per_frame.max(),
+        per_ten_frames.percentile(0.99),
+        per_ten_frames.max(),
         maintenance.percentile(0.99),
         maintenance.max(),
-        idle.0.len() + ingest.0.len() + batched.0.len() + maintenance.0.len(),
+        idle.0.len()
+            + ingest.0.len()
+            + per_frame.0.len()
+            + per_ten_frames.0.len()
+            + maintenance.0.len(),
         peak_rss_kib(),
     );
     // The insert_streaming checksum (WORKLOADS.md): 0 + 1 + ... + 99.

@@ -70,9 +70,9 @@ pub(crate) enum TemporalComponentIndex {
     Small(Vec<IndexedChunk>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries that do not overlap in time,
     /// in time order: each ends strictly before the next starts.
-    Sequence(VecDeque<IndexedChunk>),
+    Sequence(Arc<VecDeque<IndexedChunk>>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries.
-    Large(Box<LargeIndex>),
+    Large(Arc<LargeIndex>),
 }
 
 /// A middle removal from a sequence shifts at most this many entries; past that the
@@ -94,7 +94,7 @@ fn large_from(entries: impl IntoIterator<Item = IndexedChunk>) -> TemporalCompon
     for entry in entries {
         large.insert(entry);
     }
-    TemporalComponentIndex::Large(Box::new(large))
+    TemporalComponentIndex::Large(Arc::new(large))
 }
 
 impl Default for TemporalComponentIndex {
@@ -120,13 +120,14 @@ impl TemporalComponentIndex {
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
                     let entries = std::mem::take(entries);
                     *self = if in_sequence(&entries) {
-                        Self::Sequence(entries.into())
+                        Self::Sequence(Arc::new(entries.into()))
                     } else {
                         large_from(entries)
                     };
                 }
             }
-            Self::Sequence(entries) => {
+            Self::Sequence(shared) => {
+                let entries = Arc::make_mut(shared);
                 let (Some(first), Some(last)) = (entries.front(), entries.back()) else {
                     entries.push_back(entry);
                     return;
@@ -154,7 +155,7 @@ impl TemporalComponentIndex {
                     }
                 }
             }
-            Self::Large(large) => large.insert(entry),
+            Self::Large(large) => Arc::make_mut(large).insert(entry),
         }
     }
 
@@ -172,7 +173,8 @@ impl TemporalComponentIndex {
                 }
                 true
             }
-            Self::Sequence(entries) => {
+            Self::Sequence(shared) => {
+                let entries = Arc::make_mut(shared);
                 let key = (bounds.min_time, id);
                 let position = if entries.front().is_some_and(|e| min_time_key(e) == key) {
                     0
@@ -198,7 +200,8 @@ impl TemporalComponentIndex {
                 }
                 true
             }
-            Self::Large(large) => {
+            Self::Large(shared) => {
+                let large = Arc::make_mut(shared);
                 let removed = large.remove(id, bounds);
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
                     *self = Self::Small(large.entries_by_min_time());

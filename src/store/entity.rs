@@ -163,7 +163,7 @@ impl EntityMut<'_> {
                 let Some(bounds) = column.bounds(time_position) else {
                     continue;
                 };
-                let index = Arc::make_mut(per_component.get_or_default(column.name().clone()));
+                let index = per_component.get_or_default(column.name().clone());
                 let before = index.extra_heap_bytes();
                 index.insert(IndexedChunk {
                     chunk: Arc::clone(chunk),
@@ -214,8 +214,7 @@ impl EntityMut<'_> {
                     continue;
                 };
                 indexed = true;
-                if let Some(shared) = per_component.get_mut(column.name()) {
-                    let index = Arc::make_mut(shared);
+                if let Some(index) = per_component.get_mut(column.name()) {
                     let before = index.extra_heap_bytes();
                     index.remove(id, &bounds);
                     extra += signed_difference(index.extra_heap_bytes(), before);
@@ -244,7 +243,7 @@ impl EntityView {
         self.temporal_per_timeline_per_component
             .values()
             .flat_map(SmallMap::values)
-            .map(|index| index.extra_heap_bytes())
+            .map(TemporalComponentIndex::extra_heap_bytes)
             .sum()
     }
 
@@ -268,7 +267,7 @@ impl EntityView {
                     .components()
                     .iter()
                     .filter(move |column| column.bounds(position).is_some())
-                    .filter_map(move |column| per_component.get(column.name()).map(|i| &**i))
+                    .filter_map(move |column| per_component.get(column.name()))
             })
     }
 }

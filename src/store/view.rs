@@ -41,10 +41,6 @@ pub(crate) struct StaticWinner {
     pub row: u32,
 }
 
-/// One (timeline, component) index of an entity, shared with snapshots until a write
-/// changes it.
-pub(crate) type SharedIndex = Arc<TemporalComponentIndex>;
-
 /// What queries read of one entity.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct EntityView {
@@ -52,8 +48,11 @@ pub(crate) struct EntityView {
     /// temporal). Behind an `Arc`: it changes only when a component appears or goes.
     pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
+    /// Each index inline (a query reaches its entries in as many steps as in a store
+    /// without snapshots); a small index is one vector, copied with the view, and a
+    /// sequence or large one keeps its entries behind an `Arc` of its own.
     pub temporal_per_timeline_per_component:
-        SmallMap<Arc<str>, SmallMap<ComponentName, SharedIndex>>,
+        SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
     /// they are the entity's rows all the same (the chunk table lists them).
     pub unindexed: Vec<Arc<Chunk>>,

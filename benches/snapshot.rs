@@ -1,0 +1,124 @@
+//! Snapshots: taking one (the same cost whatever the store holds), and what publishing
+//! costs a streaming writer: the `insert_streaming` shape (single-row chunks over 100
+//! entities, default configuration) inserted into a plain store, and into a `SharedStore`
+//! publishing after every insert, once per frame of the 100 entities, and once per ten
+//! frames.
+
+#![allow(
+    clippy::expect_used,
+    clippy::cast_precision_loss,
+    clippy::cast_possible_wrap,
+    reason = "generated data is valid; a failure should stop the bench loudly"
+)]
+
+mod common;
+
+use std::sync::Arc;
+
+use chunkstore::{Chunk, SharedStore, StoreConfig};
+use common::{RowIds, SCALAR, entities, scalars, store_with, temporal_chunk};
+use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
+
+const ENTITIES: usize = 100;
+
+/// `rows` single-row chunks, chunk `k` at entity `k % 100` and frame `k / 100`.
+fn streaming_chunks(rows: usize) -> Vec<Arc<Chunk>> {
+    let entities = entities(ENTITIES, |e| format!("stream/{e:03}"));
+    let mut ids = RowIds::new();
+    (0..rows)
+        .map(|k| {
+            temporal_chunk(
+                &mut ids,
+                &entities[k % ENTITIES],
+                vec![(k / ENTITIES) as i64],
+                vec![(SCALAR, scalars(vec![(k % 1000) as f64]))],
+            )
+        })
+        .collect()
+}
+
+fn take(c: &mut Criterion) {
+    let mut group = c.benchmark_group("snapshot/take");
+    for rows in [1_000, 100_000] {
+        let chunks = streaming_chunks(rows);
+        let store = store_with(StoreConfig::COMPACTION_OFF, &chunks);
+        group.bench_function(format!("store_of_{rows}_chunks"), |b| {
+            b.iter(|| store.snapshot());
+        });
+        let shared = SharedStore::new(store);
+        group.bench_function(format!("shared_store_of_{rows}_chunks"), |b| {
+            b.iter(|| shared.snapshot());
+        });
+    }
+    group.finish();
+}
+
+fn streaming_writer(c: &mut Criterion) {
+    // Half the rows fill the store untimed; the timed writer inserts the other half.
+    let chunks = streaming_chunks(40_000);
+    let (first, second) = chunks.split_at(chunks.len() / 2);
+    let filled = || store_with(StoreConfig::DEFAULT, first);
+    let mut group = c.benchmark_group("snapshot/streaming_writer");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(second.len() as u64));
+    group.bench_function("plain", |b| {
+        b.iter_batched(
+            filled,
+            |mut store| {
+                for chunk in second {
+                    drop(store.insert(Arc::clone(chunk)).expect("consistent chunks"));
+                }
+                store
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.bench_function("shared_publish_each_insert", |b| {
+        b.iter_batched(
+            || SharedStore::new(filled()),
+            |shared| {
+                for chunk in second {
+                    drop(shared.insert(Arc::clone(chunk)).expect("consistent chunks"));
+                }
+                shared
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.bench_function("shared_publish_each_frame", |b| {
+        b.iter_batched(
+            || SharedStore::new(filled()),
+            |shared| {
+                for frame in second.chunks(ENTITIES) {
+                    drop(
+                        shared
+                            .insert_batch(frame.iter().cloned())
+                            .expect("consistent chunks"),
+                    );
+                }
+                shared
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.bench_function("shared_publish_each_10_frames", |b| {
+        b.iter_batched(
+            || SharedStore::new(filled()),
+            |shared| {
+                for frames in second.chunks(10 * ENTITIES) {
+                    drop(
+                        shared
+                            .insert_batch(frames.iter().cloned())
+                            .expect("consistent chunks"),
+                    );
+                }
+                shared
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.finish();
+}
+
+criterion_group!(benches, take, streaming_writer);
+criterion_main!(benches);
