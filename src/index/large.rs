@@ -1,8 +1,13 @@
 //! The large form of a [`TemporalComponentIndex`](super::TemporalComponentIndex): three
 //! ordered views (by greatest index, by least time, and spanning chunks by span class) and
 //! a short queue of the newest chunks kept outside them.
+//!
+//! The views are persistent B-trees (`imbl::OrdMap`, nodes of 16 entries): cloning one is
+//! a reference count, and a write to an index a snapshot shares copies only the nodes on
+//! the path to what it changes, O(log n), never the whole index. A store nobody snapshots
+//! owns every node, so its writes copy nothing.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::VecDeque;
 use std::ops::Bound;
 use std::sync::Arc;
 
@@ -23,13 +28,15 @@ pub(crate) struct LargeIndex {
     /// they arrive, so most of them come and go here without touching a B-tree (three
     /// inserts and three removals each); every question scans these few as well.
     pub(super) recent: VecDeque<IndexedChunk>,
-    pub(super) chunks_by_max_index: BTreeMap<MaxIndexKey, IndexedChunk>,
-    pub(super) chunks_by_min_time: BTreeMap<MinTimeKey, IndexedChunk>,
+    pub(super) chunks_by_max_index: OrdMap<MaxIndexKey, IndexedChunk>,
+    pub(super) chunks_by_min_time: OrdMap<MinTimeKey, IndexedChunk>,
     /// `spanning_chunk_ids_by_min_time_per_span_class[L]`: chunks with `2^L ≤ max − min <
     /// 2^(L+1)`, mapped to their `max`; their key is also their key in `chunks_by_min_time`,
     /// which resolves them. Empty classes cost nothing but an empty map.
-    pub(super) spanning_chunk_ids_by_min_time_per_span_class: Vec<BTreeMap<MinTimeKey, TimeInt>>,
+    pub(super) spanning_chunk_ids_by_min_time_per_span_class: Vec<OrdMap<MinTimeKey, TimeInt>>,
 }
+
+type OrdMap<K, V> = imbl::OrdMap<K, V>;
 
 fn span_class(min: TimeInt, max: TimeInt) -> Option<usize> {
     let span = max.as_i64().abs_diff(min.as_i64());
@@ -81,7 +88,7 @@ impl LargeIndex {
         if let Some(class) = span_class(min, max) {
             let classes = &mut self.spanning_chunk_ids_by_min_time_per_span_class;
             if classes.len() <= class {
-                classes.resize_with(class + 1, BTreeMap::new);
+                classes.resize_with(class + 1, OrdMap::new);
             }
             classes[class].insert((min, id), max);
         }
@@ -103,7 +110,7 @@ impl LargeIndex {
             if let Some(chunks) = classes.get_mut(class) {
                 chunks.remove(&(min, id));
             }
-            while classes.last().is_some_and(BTreeMap::is_empty) {
+            while classes.last().is_some_and(OrdMap::is_empty) {
                 classes.pop();
             }
         }
@@ -128,8 +135,7 @@ impl LargeIndex {
     pub(super) fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
         let in_views = self
             .chunks_by_max_index
-            .range(..=(t, RowId::MAX, ChunkId::MAX))
-            .next_back()
+            .get_prev(&(t, RowId::MAX, ChunkId::MAX))
             .map(|(_, entry)| entry);
         self.recent
             .iter()

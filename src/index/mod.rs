@@ -24,10 +24,15 @@
 //! above, which keep their newest few chunks in arrival order outside the B-trees
 //! (compaction merges most small chunks away before they would reach them). Either turns
 //! back into a vector once it holds half of the small limit.
+//!
+//! Snapshots share indices with the store (SEMANTICS.md section 10), so a write to an index
+//! a snapshot holds must copy what it changes. A small index is one short vector, copied
+//! whole. The sequence and the large form are persistent trees (`imbl::Vector`, an RRB
+//! tree of 64-entry leaves, and `imbl::OrdMap`, B-trees of 16-entry nodes): a write copies
+//! the leaves and nodes on its path, O(log n), however many chunks the index holds.
 
 mod large;
 
-use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::chunk::ComponentTimeBounds;
@@ -70,10 +75,15 @@ pub(crate) enum TemporalComponentIndex {
     Small(Vec<IndexedChunk>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries that do not overlap in time,
     /// in time order: each ends strictly before the next starts.
-    Sequence(Arc<VecDeque<IndexedChunk>>),
-    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries.
+    Sequence(Sequence),
+    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries. Behind an `Arc` so that
+    /// copying an entity's view counts one reference here; a write then copies the index's
+    /// few roots and its recent queue, and the B-tree nodes on its path.
     Large(Arc<LargeIndex>),
 }
+
+/// The entries of a sequence: a persistent deque (see the module docs).
+type Sequence = imbl::Vector<IndexedChunk>;
 
 /// A middle removal from a sequence shifts at most this many entries; past that the
 /// sequence turns into the three views, where removal is logarithmic.
@@ -120,14 +130,13 @@ impl TemporalComponentIndex {
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
                     let entries = std::mem::take(entries);
                     *self = if in_sequence(&entries) {
-                        Self::Sequence(Arc::new(entries.into()))
+                        Self::Sequence(entries.into_iter().collect())
                     } else {
                         large_from(entries)
                     };
                 }
             }
-            Self::Sequence(shared) => {
-                let entries = Arc::make_mut(shared);
+            Self::Sequence(entries) => {
                 let (Some(first), Some(last)) = (entries.front(), entries.back()) else {
                     entries.push_back(entry);
                     return;
@@ -136,7 +145,8 @@ impl TemporalComponentIndex {
                     entries.push_back(entry);
                 } else if entry.bounds.max_time < first.bounds.min_time {
                     entries.push_front(entry);
-                } else if let Err(position) = binary_search_deque(entries, &min_time_key(&entry)) {
+                } else if let Err(position) = binary_search_sequence(entries, &min_time_key(&entry))
+                {
                     // A chunk filling a gap (the rest of a chunk a range drop cut) keeps
                     // the sequence, if it overlaps neither neighbour and few entries move.
                     let fits = position
@@ -173,15 +183,14 @@ impl TemporalComponentIndex {
                 }
                 true
             }
-            Self::Sequence(shared) => {
-                let entries = Arc::make_mut(shared);
+            Self::Sequence(entries) => {
                 let key = (bounds.min_time, id);
                 let position = if entries.front().is_some_and(|e| min_time_key(e) == key) {
                     0
                 } else if entries.back().is_some_and(|e| min_time_key(e) == key) {
                     entries.len() - 1
                 } else {
-                    let Ok(position) = binary_search_deque(entries, &key) else {
+                    let Ok(position) = binary_search_sequence(entries, &key) else {
                         return false;
                     };
                     position
@@ -194,9 +203,7 @@ impl TemporalComponentIndex {
                 }
                 entries.remove(position);
                 if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(std::mem::take(entries).into());
-                } else if entries.len() * 4 <= entries.capacity() {
-                    entries.shrink_to(entries.len() * 2);
+                    *self = Self::Small(std::mem::take(entries).into_iter().collect());
                 }
                 true
             }
@@ -254,7 +261,7 @@ impl TemporalComponentIndex {
                 .filter(|e| e.bounds.max_time <= t)
                 .max_by_key(|e| max_index_key(e)),
             Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.max_time <= t);
+                let end = partition_point(entries, |e| e.bounds.max_time <= t);
                 end.checked_sub(1).and_then(|last| entries.get(last))
             }
             Self::Large(large) => large.latest_ending_at_or_before(t),
@@ -272,7 +279,7 @@ impl TemporalComponentIndex {
                 .for_each(f),
             // Only the last chunk starting at or before `t` can reach past it.
             Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.min_time <= t);
+                let end = partition_point(entries, |e| e.bounds.min_time <= t);
                 if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
                     && e.bounds.max_time > t
                 {
@@ -293,7 +300,7 @@ impl TemporalComponentIndex {
                 .filter(|e| e.bounds.max_time >= t)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.min_time < t);
+                let end = partition_point(entries, |e| e.bounds.min_time < t);
                 if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
                     && e.bounds.max_time >= t
                 {
@@ -318,9 +325,13 @@ impl TemporalComponentIndex {
                 .take_while(|e| e.bounds.min_time <= max)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let start = entries.partition_point(|e| e.bounds.min_time < min);
-                let end = entries.partition_point(|e| e.bounds.min_time <= max);
-                entries.range(start..end.max(start)).for_each(f);
+                let start = partition_point(entries, |e| e.bounds.min_time < min);
+                let end = partition_point(entries, |e| e.bounds.min_time <= max);
+                entries
+                    .focus()
+                    .narrow(start..end.max(start))
+                    .into_iter()
+                    .for_each(f);
             }
             Self::Large(large) => large.for_each_starting_in(min, max, &mut f),
         }
@@ -380,8 +391,25 @@ impl TemporalComponentIndex {
 
 /// The position of the entry keyed `key` in a sequence (sorted by that key), or where it
 /// would go.
-fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Result<usize, usize> {
+fn binary_search_sequence(entries: &Sequence, key: &MinTimeKey) -> Result<usize, usize> {
     entries.binary_search_by(|e| min_time_key(e).cmp(key))
+}
+
+/// The number of leading entries of a sequence for which `pred` holds (it holds for a
+/// prefix), found by binary search through one focus: probes that land in the leaf the
+/// last one read cost no walk from the root.
+fn partition_point(entries: &Sequence, pred: impl Fn(&IndexedChunk) -> bool) -> usize {
+    let mut focus = entries.focus();
+    let (mut low, mut high) = (0, entries.len());
+    while low < high {
+        let middle = low + (high - low) / 2;
+        if focus.get(middle).is_some_and(&pred) {
+            low = middle + 1;
+        } else {
+            high = middle;
+        }
+    }
+    low
 }
 
 /// Do the entry's bounds equal what its chunk computed?
