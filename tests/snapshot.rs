@@ -431,3 +431,66 @@ fn the_shared_store_publishes_every_write_and_batches_at_once() {
     let store = shared.try_into_store().unwrap();
     store.sanity_check().unwrap();
 }
+
+#[test]
+fn a_version_a_reader_drops_last_is_freed_by_the_writer() {
+    let shared = SharedStore::new(ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap());
+    for frame in 0..10 {
+        let rows = [(frame, frame as u128 + 1, Some(vec![1.0]))];
+        shared.insert(scalars("a", "x", &rows)).unwrap();
+    }
+    let collected = |shared: &SharedStore| {
+        let snapshot = shared.snapshot();
+        let weak: Vec<_> = snapshot.chunks().iter().map(Arc::downgrade).collect();
+        shared.gc(&GcOptions::everything());
+        assert_eq!(shared.snapshot().stats().num_chunks(), 0);
+        assert_eq!(
+            snapshot.stats().num_chunks(),
+            weak.len() as u64,
+            "the snapshot still answers"
+        );
+        (snapshot, weak)
+    };
+    let alive = |weak: &[std::sync::Weak<chunkstore::Chunk>]| {
+        weak.iter().filter(|w| w.upgrade().is_some()).count()
+    };
+
+    // The reader drops the last snapshot of the collected version: the writer frees it,
+    // not the reader, at its next write...
+    let (snapshot, weak) = collected(&shared);
+    drop(snapshot);
+    assert_eq!(
+        alive(&weak),
+        10,
+        "handed back to the writer, not freed by the reader"
+    );
+    shared
+        .insert(scalars("b", "x", &[(1, 100, Some(vec![1.0]))]))
+        .unwrap();
+    assert_eq!(alive(&weak), 0, "freed by the next write");
+
+    // ...or when asked to.
+    shared
+        .insert(scalars("a", "x", &[(1, 200, Some(vec![1.0]))]))
+        .unwrap();
+    let (snapshot, weak) = collected(&shared);
+    drop(snapshot);
+    assert_eq!(alive(&weak), 2);
+    shared.reclaim();
+    assert_eq!(alive(&weak), 0, "freed by reclaim");
+
+    // A snapshot that outlives its store frees what it holds where it is dropped.
+    shared
+        .insert(scalars("a", "x", &[(2, 300, Some(vec![1.0]))]))
+        .unwrap();
+    let snapshot = shared.snapshot();
+    let weak: Vec<_> = snapshot.chunks().iter().map(Arc::downgrade).collect();
+    drop(shared);
+    assert_eq!(alive(&weak), 1);
+    drop(snapshot);
+    assert_eq!(
+        alive(&weak),
+        0,
+        "freed with the last holder once the store is gone"
+    );
+}

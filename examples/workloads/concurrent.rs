@@ -3,7 +3,8 @@
 //! thread answers `latest_at_mono`-style queries, each on a fresh snapshot.
 //!
 //! Phases, in one process: the first half of the rows goes in (untimed); the reader runs
-//! alone (idle latencies); the writer inserts the second half in three thirds while the
+//! alone for as long as the first ingest phase will take (idle latencies; as long, so that
+//! the machine's own rare pauses weigh alike in both); the writer inserts the second half in three thirds while the
 //! reader runs (latencies under ingest, and the writer's ns/row): publishing after every
 //! insert (`shared.insert`), once per frame (a batch of the 100 entities' rows), and once
 //! per ten frames (1,000 rows); then garbage collection and on-demand compaction while the
@@ -14,7 +15,7 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use chunkstore::{Chunk, ChunkStore, EntityPath, GcOptions, SharedStore, StoreView};
 
@@ -44,14 +45,20 @@ impl Latencies {
     fn max(&self) -> u64 {
         self.0.iter().copied().max().unwrap_or(0)
     }
+
+    /// How many queries took longer than `ns`.
+    fn over(&self, ns: u64) -> usize {
+        self.0.iter().filter(|&&latency| latency > ns).count()
+    }
 }
 
-/// Runs reader queries on fresh snapshots of `shared` until `stop` is set and at least
-/// `min_queries` ran; returns every query's latency.
+/// Runs reader queries on fresh snapshots of `shared` until `stop` is set (or `deadline`
+/// passes) and at least `min_queries` ran; returns every query's latency.
 fn read_until(
     shared: &SharedStore,
     entities: &[EntityPath],
     stop: &AtomicBool,
+    deadline: Option<Instant>,
     min_queries: usize,
 ) -> Latencies {
     let frame: Arc<str> = FRAME.into();
@@ -65,7 +72,11 @@ fn read_until(
         let snapshot = shared.snapshot();
         sum += latest_scalar(&snapshot, &frame, t, entity).unwrap_or(0.0);
         drop(snapshot);
-        latencies.push(start.elapsed().as_nanos() as u64);
+        let end = Instant::now();
+        latencies.push((end - start).as_nanos() as u64);
+        if deadline.is_some_and(|deadline| end >= deadline) && latencies.len() >= min_queries {
+            break;
+        }
     }
     std::hint::black_box(sum);
     Latencies(latencies)
@@ -80,7 +91,7 @@ fn with_reader(
 ) -> (f64, Latencies) {
     let stop = AtomicBool::new(false);
     std::thread::scope(|scope| {
-        let reader = scope.spawn(|| read_until(shared, entities, &stop, 1));
+        let reader = scope.spawn(|| read_until(shared, entities, &stop, None, 1));
         let start = Instant::now();
         write();
         let ns = start.elapsed().as_nanos() as f64;
@@ -156,8 +167,40 @@ pub fn concurrent() -> bool {
         .expect("consistent chunks");
     let snapshot_ns = snapshot_ns(&shared);
 
-    let never = AtomicBool::new(true);
-    let mut idle = read_until(&shared, &entities, &never, IDLE_QUERIES);
+    // As long as the per-insert phase: the plain store's time for its rows, twice over.
+    let idle_for = Duration::from_nanos((plain_ns_per_row * each_insert.len() as f64 * 2.0) as u64);
+    let never = AtomicBool::new(false);
+    let idle_start = Instant::now();
+    let mut idle = read_until(
+        &shared,
+        &entities,
+        &never,
+        Some(idle_start + idle_for),
+        IDLE_QUERIES,
+    );
+    let idle_ms = idle_start.elapsed().as_millis();
+
+    // Controls, each about as long: the other thread spins (no memory), or inserts the
+    // same rows into a store of its own that the reader never sees. Pauses the reader has
+    // here too come from the machine, the allocator or the kernel, not from sharing.
+    let (_, spinning) = with_reader(&shared, &entities, || {
+        let until = Instant::now() + idle_for / 2;
+        let mut spins = 0u64;
+        while Instant::now() < until {
+            spins = std::hint::black_box(spins + 1);
+        }
+    });
+    let mut elsewhere_store = ChunkStore::with_config(DEFAULT).expect("a valid config");
+    let (_, elsewhere) = with_reader(&shared, &entities, || {
+        for chunk in each_insert {
+            drop(
+                elsewhere_store
+                    .insert(Arc::clone(chunk))
+                    .expect("consistent chunks"),
+            );
+        }
+    });
+    drop(elsewhere_store);
 
     // One publication per insert, per frame (the 100 entities' rows), per ten frames.
     let (ingest_ns, mut ingest) = with_reader(&shared, &entities, || {
@@ -205,6 +248,12 @@ pub fn concurrent() -> bool {
 \"reader_p99_per_frame_ns\":{},\"reader_max_per_frame_ns\":{},\
 \"reader_p99_per_ten_frames_ns\":{},\"reader_max_per_ten_frames_ns\":{},\
 \"reader_p99_gc_compact_ns\":{},\"reader_max_gc_compact_ns\":{},\
+\"idle_ms\":{idle_ms},\"ingest_ms\":{},\
+\"reader_over_100us_idle\":{},\"reader_over_1ms_idle\":{},\
+\"reader_over_100us_ingest\":{},\"reader_over_1ms_ingest\":{},\
+\"reader_over_100us_gc_compact\":{},\"reader_over_1ms_gc_compact\":{},\
+\"reader_max_control_spin_ns\":{},\"reader_over_1ms_control_spin\":{},\
+\"reader_max_control_plain_ns\":{},\"reader_over_1ms_control_plain\":{},\
 \"writer_ns_per_row_shared\":{shared_ns_per_row:.1},\
 \"writer_ns_per_row_shared_per_frame\":{frame_ns_per_row:.1},\
 \"writer_ns_per_row_shared_per_ten_frames\":{ten_frames_ns_per_row:.1},\
@@ -223,11 +272,24 @@ pub fn concurrent() -> bool {
         per_ten_frames.max(),
         maintenance.percentile(0.99),
         maintenance.max(),
+        (ingest_ns / 1e6) as u64,
+        idle.over(100_000),
+        idle.over(1_000_000),
+        ingest.over(100_000),
+        ingest.over(1_000_000),
+        maintenance.over(100_000),
+        maintenance.over(1_000_000),
+        spinning.max(),
+        spinning.over(1_000_000),
+        elsewhere.max(),
+        elsewhere.over(1_000_000),
         idle.0.len()
             + ingest.0.len()
             + per_frame.0.len()
             + per_ten_frames.0.len()
-            + maintenance.0.len(),
+            + maintenance.0.len()
+            + spinning.0.len()
+            + elsewhere.0.len(),
         peak_rss_kib(),
     );
     // The insert_streaming checksum (WORKLOADS.md): 0 + 1 + ... + 99.
