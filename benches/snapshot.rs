@@ -2,7 +2,8 @@
 //! costs a streaming writer: the `insert_streaming` shape (single-row chunks over 100
 //! entities, default configuration) inserted into a plain store, and into a `SharedStore`
 //! publishing after every insert, once per frame of the 100 entities, and once per ten
-//! frames.
+//! frames; and the same per-insert publication into one entity of 20,000 chunks
+//! (compaction off), whose index a write under a snapshot must not copy whole.
 
 #![allow(
     clippy::expect_used,
@@ -120,5 +121,52 @@ fn streaming_writer(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, take, streaming_writer);
+fn big_entity(c: &mut Criterion) {
+    // One entity, frames 0.. in order: its index is a sequence of 20,000 chunks, then
+    // 22,000.
+    let entity = entities(1, |_| "big".to_owned());
+    let mut ids = RowIds::new();
+    let chunks: Vec<Arc<Chunk>> = (0..22_000)
+        .map(|k| {
+            temporal_chunk(
+                &mut ids,
+                &entity[0],
+                vec![k as i64],
+                vec![(SCALAR, scalars(vec![(k % 1000) as f64]))],
+            )
+        })
+        .collect();
+    let (first, second) = chunks.split_at(20_000);
+    let filled = || store_with(StoreConfig::COMPACTION_OFF, first);
+    let mut group = c.benchmark_group("snapshot/big_entity");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(second.len() as u64));
+    group.bench_function("plain", |b| {
+        b.iter_batched(
+            filled,
+            |mut store| {
+                for chunk in second {
+                    drop(store.insert(Arc::clone(chunk)).expect("consistent chunks"));
+                }
+                store
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.bench_function("shared_publish_each_insert", |b| {
+        b.iter_batched(
+            || SharedStore::new(filled()),
+            |shared| {
+                for chunk in second {
+                    drop(shared.insert(Arc::clone(chunk)).expect("consistent chunks"));
+                }
+                shared
+            },
+            BatchSize::LargeInput,
+        );
+    });
+    group.finish();
+}
+
+criterion_group!(benches, take, streaming_writer, big_entity);
 criterion_main!(benches);

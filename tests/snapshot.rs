@@ -11,8 +11,13 @@
 //! versions never going backwards for a reader, old snapshots still answering as they did
 //! long after the writer moved on, and every thread finishing (no deadlock).
 //!
+//! It runs twice: with tiny compaction thresholds (compaction constantly, small indices)
+//! and with compaction off, where the indices grow past the small form into persistent
+//! sequences and large indices (the copy-on-write paths of `index/`).
+//!
 //! Size: a few seconds by default; `CHUNKSTORE_STRESS_SECS=600 cargo test --release --test
-//! snapshot -- --nocapture` runs it for ten minutes and prints what it checked.
+//! snapshot -- --nocapture` runs each configuration for that long (so twenty minutes in
+//! all) and prints what it checked.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -110,13 +115,19 @@ impl HashSlow for arrow_data::ArrayData {
     }
 }
 
-/// One random write (or a batch of them) made by the writer.
-fn random_write(rng: &mut Rng, store: &mut ChunkStore, next_row_id: &mut u128) {
+/// One random write (or a batch of them) made by the writer. Collections and drops happen
+/// in one of `shrink_one_in` of the writes that would otherwise make them (a larger value
+/// lets the indices grow).
+fn random_write(rng: &mut Rng, store: &mut ChunkStore, next_row_id: &mut u128, shrink_one_in: u64) {
     let mut row_id = || {
         *next_row_id += 1;
         *next_row_id
     };
-    match rng.below(100) {
+    let mut roll = rng.below(100);
+    if ((71..78).contains(&roll) || (83..88).contains(&roll)) && rng.below(shrink_one_in) != 0 {
+        roll = 0; // an insert instead
+    }
+    match roll {
         0..55 => {
             let rows: Vec<_> = (0..=rng.below(5))
                 .map(|_| {
@@ -176,11 +187,21 @@ struct Checked {
     clippy::too_many_lines,
     reason = "one writer, the readers and the watchdog read best together"
 )]
-fn stress(duration: Duration, num_readers: usize) -> (u64, u64, u64) {
-    let config = StoreConfig::DEFAULT
-        .with_max_rows(8)
-        .with_max_rows_unsorted(4)
-        .with_max_bytes(4096);
+/// What a stress run did: writes published, snapshots checked, re-checks of held
+/// snapshots, and the most temporal chunks one entity held at once.
+struct Stressed {
+    writes: u64,
+    snapshots: u64,
+    rechecks: u64,
+    max_entity_chunks: u64,
+}
+
+fn stress(
+    config: StoreConfig,
+    shrink_one_in: u64,
+    duration: Duration,
+    num_readers: usize,
+) -> Stressed {
     let shared = SharedStore::new(ChunkStore::with_config(config).unwrap());
     let history: Arc<Mutex<HashMap<u64, u64>>> = Arc::default();
     history
@@ -202,12 +223,19 @@ fn stress(duration: Duration, num_readers: usize) -> (u64, u64, u64) {
             let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
             let mut next_row_id = 0;
             let mut writes = 0u64;
+            let mut max_entity_chunks = 0;
             let deadline = Instant::now() + duration;
             let result = (|| {
                 while Instant::now() < deadline {
                     shared.write(|store| {
-                        random_write(&mut rng, store, &mut next_row_id);
+                        random_write(&mut rng, store, &mut next_row_id, shrink_one_in);
                         store.sanity_check().map_err(|e| e.to_string())?;
+                        for entity in ENTITIES {
+                            if let Some(stats) = store.entity_stats(&path(entity)) {
+                                max_entity_chunks =
+                                    max_entity_chunks.max(stats.num_temporal_chunks);
+                            }
+                        }
                         let version = store.snapshot().version();
                         let answers = digest(store);
                         let mut history = history.lock().unwrap();
@@ -224,7 +252,7 @@ fn stress(duration: Duration, num_readers: usize) -> (u64, u64, u64) {
             })();
             stop.store(true, Ordering::Release);
             done.send(result).unwrap();
-            writes
+            (writes, max_entity_chunks)
         })
     };
 
@@ -302,15 +330,16 @@ fn stress(duration: Duration, num_readers: usize) -> (u64, u64, u64) {
             }
         }
     }
-    let num_writes = writer.join().unwrap();
+    let (writes, max_entity_chunks) = writer.join().unwrap();
     for reader in readers {
         reader.join().unwrap();
     }
-    (
-        num_writes,
-        checked.snapshots.load(Ordering::Relaxed),
-        checked.held_rechecks.load(Ordering::Relaxed),
-    )
+    Stressed {
+        writes,
+        snapshots: checked.snapshots.load(Ordering::Relaxed),
+        rechecks: checked.held_rechecks.load(Ordering::Relaxed),
+        max_entity_chunks,
+    }
 }
 
 #[test]
@@ -319,12 +348,27 @@ fn readers_see_exactly_one_version_while_the_writer_runs() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(3);
-    let (writes, snapshots, rechecks) = stress(Duration::from_secs(seconds), 3);
-    println!(
-        "stress: {seconds} s, {writes} writes published, {snapshots} snapshots checked, \
-         {rechecks} re-checks of held snapshots, zero divergences"
-    );
-    assert!(writes > 0 && snapshots > 0, "the test exercised nothing");
+    let tiny = StoreConfig::DEFAULT
+        .with_max_rows(8)
+        .with_max_rows_unsorted(4)
+        .with_max_bytes(4096);
+    let configs = [
+        ("tiny thresholds", tiny, 1),
+        ("compaction off", StoreConfig::COMPACTION_OFF, 12),
+    ];
+    for (name, config, shrink_one_in) in configs {
+        let run = stress(config, shrink_one_in, Duration::from_secs(seconds), 3);
+        println!(
+            "stress, {name}: {seconds} s, {} writes published, {} snapshots checked, {} \
+             re-checks of held snapshots, up to {} temporal chunks at one entity, zero \
+             divergences",
+            run.writes, run.snapshots, run.rechecks, run.max_entity_chunks
+        );
+        assert!(
+            run.writes > 0 && run.snapshots > 0,
+            "the test exercised nothing"
+        );
+    }
 }
 
 #[test]

@@ -85,8 +85,10 @@ pub(crate) enum TemporalComponentIndex {
 /// The entries of a sequence: a persistent deque (see the module docs).
 type Sequence = imbl::Vector<IndexedChunk>;
 
-/// A middle removal from a sequence shifts at most this many entries; past that the
-/// sequence turns into the three views, where removal is logarithmic.
+/// A sequence takes insertions and removals this close to one of its ends (a chunk
+/// filling the gap a range drop left, garbage collection around a cursor); farther in, the
+/// data is not arriving in order, and the index turns into the three views made for that.
+/// (Both would be logarithmic in the persistent deque; this chooses the shape.)
 const SEQUENCE_MAX_SHIFT: usize = 64;
 
 /// Do `entries` (sorted by least time) each end strictly before the next starts?
@@ -148,7 +150,7 @@ impl TemporalComponentIndex {
                 } else if let Err(position) = binary_search_sequence(entries, &min_time_key(&entry))
                 {
                     // A chunk filling a gap (the rest of a chunk a range drop cut) keeps
-                    // the sequence, if it overlaps neither neighbour and few entries move.
+                    // the sequence, if it overlaps neither neighbour and lands near an end.
                     let fits = position
                         .checked_sub(1)
                         .and_then(|before| entries.get(before))

@@ -7,8 +7,9 @@
 //! hash trie (`imbl`), each entity's view and each of its temporal indices sit behind an
 //! `Arc`, and so do the Clear tree's nodes. Cloning a `StoreView` is therefore O(1) (a few
 //! reference counts), and a mutation copies only what it touches, and only while a
-//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, the indices of the
-//! (timeline, component) pairs its chunk has cells for, the hash trie's path to the entity.
+//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, the path through each
+//! index of the (timeline, component) pairs its chunk has cells for (see `index/mod.rs`),
+//! the hash trie's path to the entity.
 //! A store nobody snapshots owns every piece, so its writes copy nothing.
 
 use std::collections::BTreeMap;
@@ -49,8 +50,9 @@ pub(crate) struct EntityView {
     pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// Each index inline (a query reaches its entries in as many steps as in a store
-    /// without snapshots); a small index is one vector, copied with the view, and a
-    /// sequence or large one keeps its entries behind an `Arc` of its own.
+    /// without snapshots): a small index is one vector, copied with the view; a sequence
+    /// is a persistent deque and a large index's B-trees are persistent, so copying the
+    /// view counts references there and a write copies only its path through them.
     pub temporal_per_timeline_per_component:
         SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
