@@ -127,12 +127,12 @@ fn big_entity(c: &mut Criterion) {
     let entity = entities(1, |_| "big".to_owned());
     let mut ids = RowIds::new();
     let chunks: Vec<Arc<Chunk>> = (0..22_000)
-        .map(|k| {
+        .map(|k: i32| {
             temporal_chunk(
                 &mut ids,
                 &entity[0],
-                vec![k as i64],
-                vec![(SCALAR, scalars(vec![(k % 1000) as f64]))],
+                vec![i64::from(k)],
+                vec![(SCALAR, scalars(vec![f64::from(k % 1000)]))],
             )
         })
         .collect();

@@ -143,4 +143,45 @@ mod tests {
         }
         assert_eq!(store.stats().num_temporal_rows, 400 - 9);
     }
+
+    /// An in-order entity's index is a sequence up to `SEQUENCE_MAX_CHUNKS` chunks and the
+    /// three views past it (which a write under a snapshot copies a path of, not whole);
+    /// answers do not change with the form.
+    #[test]
+    fn a_sequence_past_its_bound_takes_the_views() {
+        use crate::LatestAtQuery;
+        use crate::index::SEQUENCE_MAX_CHUNKS;
+
+        let bound = i64::try_from(SEQUENCE_MAX_CHUNKS).unwrap();
+        let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap();
+        let (frame, entity) = (Timeline::sequence("frame"), EntityPath::parse("e").unwrap());
+        let form = |store: &ChunkStore| match store.view.entities[&entity]
+            .temporal_per_timeline_per_component
+            .get("frame")
+            .and_then(|per_component| per_component.get("x"))
+        {
+            Some(TemporalComponentIndex::Sequence(_)) => "sequence",
+            Some(TemporalComponentIndex::Large(_)) => "large",
+            _ => "small",
+        };
+        for c in 0..=bound {
+            if c == bound {
+                assert_eq!(form(&store), "sequence");
+            }
+            let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+            let chunk = ChunkBuilder::new(ChunkId::new(), entity.clone())
+                .with_row(RowId::new(), [(frame.clone(), 2 * c)], [("x", value)])
+                .build()
+                .unwrap();
+            store.insert(chunk).unwrap();
+        }
+        assert_eq!(form(&store), "large");
+        store.sanity_check().unwrap();
+        for t in [0, 1, 999, 2 * bound, i64::MAX] {
+            let query = LatestAtQuery::new("frame", TimeInt::new(t).unwrap());
+            let cell = store.latest_at(&query, &entity, "x").unwrap();
+            let expected = (t / 2).min(bound);
+            assert_eq!(cell.time(), TimeInt::new(2 * expected), "latest-at {t}");
+        }
+    }
 }

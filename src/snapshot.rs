@@ -7,9 +7,11 @@
 //! them while a snapshot still holds them. Publication is one pointer swap: the shared
 //! store keeps its latest snapshot in an [`ArcSwap`] (the `arc-swap` crate), which readers
 //! load without a lock and without waiting for a writer, whatever it is doing. Writers
-//! take a mutex among themselves only. There is no other synchronization here: everything
-//! else is `Arc` reference counting, so no model checker is needed for this protocol (see
-//! `tests/snapshot.rs` for the stress test of what it promises).
+//! take a mutex among themselves only. A version whose last snapshot a reader drops goes
+//! back to the writer through a `std::sync::mpsc` channel, to be freed there (see
+//! [`Snapshot`]'s `Drop`). There is no other synchronization: `Arc` reference counts,
+//! `arc-swap` and the standard channel, each a well-kept primitive, so no model checker
+//! (loom) is run on this protocol; `tests/snapshot.rs` stress-tests what it promises.
 
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::{Arc, LazyLock};

@@ -183,10 +183,6 @@ struct Checked {
     held_rechecks: AtomicU64,
 }
 
-#[allow(
-    clippy::too_many_lines,
-    reason = "one writer, the readers and the watchdog read best together"
-)]
 /// What a stress run did: writes published, snapshots checked, re-checks of held
 /// snapshots, and the most temporal chunks one entity held at once.
 struct Stressed {
@@ -196,6 +192,10 @@ struct Stressed {
     max_entity_chunks: u64,
 }
 
+#[allow(
+    clippy::too_many_lines,
+    reason = "one writer, the readers and the watchdog read best together"
+)]
 fn stress(
     config: StoreConfig,
     shrink_one_in: u64,
@@ -330,12 +330,12 @@ fn stress(
             }
         }
     }
-    let (writes, max_entity_chunks) = writer.join().unwrap();
+    let (num_writes, max_entity_chunks) = writer.join().unwrap();
     for reader in readers {
         reader.join().unwrap();
     }
     Stressed {
-        writes,
+        writes: num_writes,
         snapshots: checked.snapshots.load(Ordering::Relaxed),
         rechecks: checked.held_rechecks.load(Ordering::Relaxed),
         max_entity_chunks,

@@ -26,13 +26,17 @@
 //! back into a vector once it holds half of the small limit.
 //!
 //! Snapshots share indices with the store (SEMANTICS.md section 10), so a write to an index
-//! a snapshot holds must copy what it changes. A small index is one short vector, copied
-//! whole. The sequence and the large form are persistent trees (`imbl::Vector`, an RRB
-//! tree of 64-entry leaves, and `imbl::OrdMap`, B-trees of 16-entry nodes): a write copies
-//! the leaves and nodes on its path, O(log n), however many chunks the index holds.
+//! a snapshot holds must copy what it changes, and each form bounds that copy. A small
+//! index is one vector of at most [`SMALL_INDEX_MAX_CHUNKS`] entries, copied whole. A
+//! sequence is one contiguous deque behind an `Arc` (a query's binary search touches a
+//! few cache lines, and a store nobody snapshots changes it in place), copied whole too,
+//! so it holds at most [`SEQUENCE_MAX_CHUNKS`]: past that, even in order, an index takes
+//! the three views, persistent B-trees (`imbl::OrdMap`, 16-entry nodes) of which a write
+//! copies only the nodes on its path, O(log n) however many chunks the index holds.
 
 mod large;
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::chunk::ComponentTimeBounds;
@@ -73,23 +77,27 @@ pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
 pub(crate) enum TemporalComponentIndex {
     /// At most [`SMALL_INDEX_MAX_CHUNKS`] entries, sorted by `(least time, chunk id)`.
     Small(Vec<IndexedChunk>),
-    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries that do not overlap in time,
-    /// in time order: each ends strictly before the next starts.
-    Sequence(Sequence),
+    /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] and at most [`SEQUENCE_MAX_CHUNKS`]
+    /// entries that do not overlap in time, in time order: each ends strictly before the
+    /// next starts.
+    Sequence(Arc<VecDeque<IndexedChunk>>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries. Behind an `Arc` so that
-    /// copying an entity's view counts one reference here; a write then copies the index's
-    /// few roots and its recent queue, and the B-tree nodes on its path.
+    /// copying an entity's view counts one reference here; a write under a snapshot then
+    /// copies the index's roots and recent queue, and the B-tree nodes on its path.
     Large(Arc<LargeIndex>),
 }
 
-/// The entries of a sequence: a persistent deque (see the module docs).
-type Sequence = imbl::Vector<IndexedChunk>;
-
-/// A sequence takes insertions and removals this close to one of its ends (a chunk
-/// filling the gap a range drop left, garbage collection around a cursor); farther in, the
-/// data is not arriving in order, and the index turns into the three views made for that.
-/// (Both would be logarithmic in the persistent deque; this chooses the shape.)
+/// A middle removal from a sequence shifts at most this many entries; past that the
+/// sequence turns into the three views, where removal is logarithmic.
 const SEQUENCE_MAX_SHIFT: usize = 64;
+
+/// A sequence holds at most this many chunks; one more turns it into the three views. A
+/// write to a sequence a snapshot shares copies it whole (up to 64 KiB of entries and as
+/// many reference counts, a few microseconds), where the views copy a path: without this
+/// bound, a `SharedStore` publishing after every insert into one entity of 40,000 chunks
+/// spent 5 ms per row (see `docs/PERFORMANCE.md`, "Snapshots"). Sequences beyond it are
+/// rare (an entity with over a thousand chunks, logged in order, never compacted).
+pub(crate) const SEQUENCE_MAX_CHUNKS: usize = 1024;
 
 /// Do `entries` (sorted by least time) each end strictly before the next starts?
 fn in_sequence<'a>(entries: impl IntoIterator<Item = &'a IndexedChunk>) -> bool {
@@ -132,25 +140,29 @@ impl TemporalComponentIndex {
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
                     let entries = std::mem::take(entries);
                     *self = if in_sequence(&entries) {
-                        Self::Sequence(entries.into_iter().collect())
+                        Self::Sequence(Arc::new(entries.into()))
                     } else {
                         large_from(entries)
                     };
                 }
             }
-            Self::Sequence(entries) => {
+            Self::Sequence(shared) => {
+                let entries = Arc::make_mut(shared);
                 let (Some(first), Some(last)) = (entries.front(), entries.back()) else {
                     entries.push_back(entry);
                     return;
                 };
-                if last.bounds.max_time < entry.bounds.min_time {
+                if entries.len() >= SEQUENCE_MAX_CHUNKS {
+                    let mut index = large_from(std::mem::take(entries));
+                    index.insert(entry);
+                    *self = index;
+                } else if last.bounds.max_time < entry.bounds.min_time {
                     entries.push_back(entry);
                 } else if entry.bounds.max_time < first.bounds.min_time {
                     entries.push_front(entry);
-                } else if let Err(position) = binary_search_sequence(entries, &min_time_key(&entry))
-                {
+                } else if let Err(position) = binary_search_deque(entries, &min_time_key(&entry)) {
                     // A chunk filling a gap (the rest of a chunk a range drop cut) keeps
-                    // the sequence, if it overlaps neither neighbour and lands near an end.
+                    // the sequence, if it overlaps neither neighbour and few entries move.
                     let fits = position
                         .checked_sub(1)
                         .and_then(|before| entries.get(before))
@@ -185,14 +197,15 @@ impl TemporalComponentIndex {
                 }
                 true
             }
-            Self::Sequence(entries) => {
+            Self::Sequence(shared) => {
+                let entries = Arc::make_mut(shared);
                 let key = (bounds.min_time, id);
                 let position = if entries.front().is_some_and(|e| min_time_key(e) == key) {
                     0
                 } else if entries.back().is_some_and(|e| min_time_key(e) == key) {
                     entries.len() - 1
                 } else {
-                    let Ok(position) = binary_search_sequence(entries, &key) else {
+                    let Ok(position) = binary_search_deque(entries, &key) else {
                         return false;
                     };
                     position
@@ -205,7 +218,9 @@ impl TemporalComponentIndex {
                 }
                 entries.remove(position);
                 if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(std::mem::take(entries).into_iter().collect());
+                    *self = Self::Small(std::mem::take(entries).into());
+                } else if entries.len() * 4 <= entries.capacity() {
+                    entries.shrink_to(entries.len() * 2);
                 }
                 true
             }
@@ -263,7 +278,7 @@ impl TemporalComponentIndex {
                 .filter(|e| e.bounds.max_time <= t)
                 .max_by_key(|e| max_index_key(e)),
             Self::Sequence(entries) => {
-                let end = partition_point(entries, |e| e.bounds.max_time <= t);
+                let end = entries.partition_point(|e| e.bounds.max_time <= t);
                 end.checked_sub(1).and_then(|last| entries.get(last))
             }
             Self::Large(large) => large.latest_ending_at_or_before(t),
@@ -281,7 +296,7 @@ impl TemporalComponentIndex {
                 .for_each(f),
             // Only the last chunk starting at or before `t` can reach past it.
             Self::Sequence(entries) => {
-                let end = partition_point(entries, |e| e.bounds.min_time <= t);
+                let end = entries.partition_point(|e| e.bounds.min_time <= t);
                 if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
                     && e.bounds.max_time > t
                 {
@@ -302,7 +317,7 @@ impl TemporalComponentIndex {
                 .filter(|e| e.bounds.max_time >= t)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let end = partition_point(entries, |e| e.bounds.min_time < t);
+                let end = entries.partition_point(|e| e.bounds.min_time < t);
                 if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
                     && e.bounds.max_time >= t
                 {
@@ -327,13 +342,9 @@ impl TemporalComponentIndex {
                 .take_while(|e| e.bounds.min_time <= max)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let start = partition_point(entries, |e| e.bounds.min_time < min);
-                let end = partition_point(entries, |e| e.bounds.min_time <= max);
-                entries
-                    .focus()
-                    .narrow(start..end.max(start))
-                    .into_iter()
-                    .for_each(f);
+                let start = entries.partition_point(|e| e.bounds.min_time < min);
+                let end = entries.partition_point(|e| e.bounds.min_time <= max);
+                entries.range(start..end.max(start)).for_each(f);
             }
             Self::Large(large) => large.for_each_starting_in(min, max, &mut f),
         }
@@ -367,9 +378,12 @@ impl TemporalComponentIndex {
                 entries.iter().try_for_each(check_bounds)
             }
             Self::Sequence(entries) => {
-                if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
+                if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2
+                    || entries.len() > SEQUENCE_MAX_CHUNKS
+                {
                     return Err(fail(
-                        "a sequence holds more than SMALL_INDEX_MAX_CHUNKS / 2 chunks",
+                        "a sequence holds more than SMALL_INDEX_MAX_CHUNKS / 2 chunks and at \
+                         most SEQUENCE_MAX_CHUNKS",
                     )
                     .at(format_args!("{} chunks", entries.len())));
                 }
@@ -393,25 +407,8 @@ impl TemporalComponentIndex {
 
 /// The position of the entry keyed `key` in a sequence (sorted by that key), or where it
 /// would go.
-fn binary_search_sequence(entries: &Sequence, key: &MinTimeKey) -> Result<usize, usize> {
+fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Result<usize, usize> {
     entries.binary_search_by(|e| min_time_key(e).cmp(key))
-}
-
-/// The number of leading entries of a sequence for which `pred` holds (it holds for a
-/// prefix), found by binary search through one focus: probes that land in the leaf the
-/// last one read cost no walk from the root.
-fn partition_point(entries: &Sequence, pred: impl Fn(&IndexedChunk) -> bool) -> usize {
-    let mut focus = entries.focus();
-    let (mut low, mut high) = (0, entries.len());
-    while low < high {
-        let middle = low + (high - low) / 2;
-        if focus.get(middle).is_some_and(&pred) {
-            low = middle + 1;
-        } else {
-            high = middle;
-        }
-    }
-    low
 }
 
 /// Do the entry's bounds equal what its chunk computed?
