@@ -7,7 +7,7 @@
 //! hash trie (`imbl`), each entity's view and each of its temporal indices sit behind an
 //! `Arc`, and so do the Clear tree's nodes. Cloning a `StoreView` is therefore O(1) (a few
 //! reference counts), and a mutation copies only what it touches, and only while a
-//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, the path through each
+//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, a bounded part of each
 //! index of the (timeline, component) pairs its chunk has cells for (see `index/mod.rs`),
 //! the hash trie's path to the entity.
 //! A store nobody snapshots owns every piece, so its writes copy nothing.
@@ -51,8 +51,9 @@ pub(crate) struct EntityView {
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// Each index inline (a query reaches its entries in as many steps as in a store
     /// without snapshots): a small index is one vector, copied with the view; a sequence
-    /// is a persistent deque and a large index's B-trees are persistent, so copying the
-    /// view counts references there and a write copies only its path through them.
+    /// (at most 1,024 entries) and a large index sit behind `Arc`s, so copying the view
+    /// counts references there, and a write copies the sequence or a path through the
+    /// large index's persistent B-trees (see `index/mod.rs`).
     pub temporal_per_timeline_per_component:
         SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
