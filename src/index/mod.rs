@@ -92,12 +92,16 @@ pub(crate) enum TemporalComponentIndex {
 const SEQUENCE_MAX_SHIFT: usize = 64;
 
 /// A sequence holds at most this many chunks; one more turns it into the three views. A
-/// write to a sequence a snapshot shares copies it whole (up to 64 KiB of entries and as
-/// many reference counts, a few microseconds), where the views copy a path: without this
-/// bound, a `SharedStore` publishing after every insert into one entity of 40,000 chunks
-/// spent 5 ms per row (see `docs/PERFORMANCE.md`, "Snapshots"). Sequences beyond it are
-/// rare (an entity with over a thousand chunks, logged in order, never compacted).
-pub(crate) const SEQUENCE_MAX_CHUNKS: usize = 1024;
+/// write to a sequence a snapshot shares copies it whole, where the views copy a path:
+/// without a bound, a `SharedStore` publishing after every insert into one entity of
+/// 40,000 chunks spent 5 ms per row (see `docs/PERFORMANCE.md`, "Snapshots"). The bound
+/// trades that copy (at most 1 MiB of entries and as many reference counts, about a
+/// millisecond when the chunks are cold) against the plain store's inserts, which cost a
+/// sequence a `push_back` and the views two or three B-tree insertions (`insert_batched`'s
+/// 10,000 chunks took 2.4× the instructions as views). A segmented sequence would bound
+/// the copy without that trade; until then, this keeps sequences for entities of up to
+/// 16,384 chunks (at the default compaction, tens of millions of rows).
+pub(crate) const SEQUENCE_MAX_CHUNKS: usize = 16_384;
 
 /// Do `entries` (sorted by least time) each end strictly before the next starts?
 fn in_sequence<'a>(entries: impl IntoIterator<Item = &'a IndexedChunk>) -> bool {

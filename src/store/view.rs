@@ -51,7 +51,7 @@ pub(crate) struct EntityView {
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// Each index inline (a query reaches its entries in as many steps as in a store
     /// without snapshots): a small index is one vector, copied with the view; a sequence
-    /// (at most 1,024 entries) and a large index sit behind `Arc`s, so copying the view
+    /// (at most 16,384 entries) and a large index sit behind `Arc`s, so copying the view
     /// counts references there, and a write copies the sequence or a path through the
     /// large index's persistent B-trees (see `index/mod.rs`).
     pub temporal_per_timeline_per_component:
