@@ -16,9 +16,12 @@ mod common;
 
 use std::sync::Arc;
 
-use chunkstore::{Chunk, SharedStore, StoreConfig};
+use chunkstore::{Chunk, ChunkStore, SharedStore, StoreConfig};
 use common::{RowIds, SCALAR, entities, scalars, store_with, temporal_chunk};
-use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
+use criterion::measurement::WallTime;
+use criterion::{
+    BatchSize, BenchmarkGroup, Criterion, Throughput, criterion_group, criterion_main,
+};
 
 const ENTITIES: usize = 100;
 
@@ -54,14 +57,13 @@ fn take(c: &mut Criterion) {
     group.finish();
 }
 
-fn streaming_writer(c: &mut Criterion) {
-    // Half the rows fill the store untimed; the timed writer inserts the other half.
-    let chunks = streaming_chunks(40_000);
-    let (first, second) = chunks.split_at(chunks.len() / 2);
-    let filled = || store_with(StoreConfig::DEFAULT, first);
-    let mut group = c.benchmark_group("snapshot/streaming_writer");
-    group.sample_size(10);
-    group.throughput(Throughput::Elements(second.len() as u64));
+/// `second` inserted into a store made by `filled`, plain and through a `SharedStore`
+/// publishing after every insert: the pair both groups compare.
+fn plain_and_publishing_each_insert(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    filled: &dyn Fn() -> ChunkStore,
+    second: &[Arc<Chunk>],
+) {
     group.bench_function("plain", |b| {
         b.iter_batched(
             filled,
@@ -86,6 +88,17 @@ fn streaming_writer(c: &mut Criterion) {
             BatchSize::LargeInput,
         );
     });
+}
+
+fn streaming_writer(c: &mut Criterion) {
+    // Half the rows fill the store untimed; the timed writer inserts the other half.
+    let chunks = streaming_chunks(40_000);
+    let (first, second) = chunks.split_at(chunks.len() / 2);
+    let filled = || store_with(StoreConfig::DEFAULT, first);
+    let mut group = c.benchmark_group("snapshot/streaming_writer");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(second.len() as u64));
+    plain_and_publishing_each_insert(&mut group, &filled, second);
     group.bench_function("shared_publish_each_frame", |b| {
         b.iter_batched(
             || SharedStore::new(filled()),
@@ -141,30 +154,7 @@ fn big_entity(c: &mut Criterion) {
     let mut group = c.benchmark_group("snapshot/big_entity");
     group.sample_size(10);
     group.throughput(Throughput::Elements(second.len() as u64));
-    group.bench_function("plain", |b| {
-        b.iter_batched(
-            filled,
-            |mut store| {
-                for chunk in second {
-                    drop(store.insert(Arc::clone(chunk)).expect("consistent chunks"));
-                }
-                store
-            },
-            BatchSize::LargeInput,
-        );
-    });
-    group.bench_function("shared_publish_each_insert", |b| {
-        b.iter_batched(
-            || SharedStore::new(filled()),
-            |shared| {
-                for chunk in second {
-                    drop(shared.insert(Arc::clone(chunk)).expect("consistent chunks"));
-                }
-                shared
-            },
-            BatchSize::LargeInput,
-        );
-    });
+    plain_and_publishing_each_insert(&mut group, &filled, second);
     group.finish();
 }
 
