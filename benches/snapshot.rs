@@ -99,38 +99,27 @@ fn streaming_writer(c: &mut Criterion) {
     group.sample_size(10);
     group.throughput(Throughput::Elements(second.len() as u64));
     plain_and_publishing_each_insert(&mut group, &filled, second);
-    group.bench_function("shared_publish_each_frame", |b| {
-        b.iter_batched(
-            || SharedStore::new(filled()),
-            |shared| {
-                for frame in second.chunks(ENTITIES) {
-                    drop(
-                        shared
-                            .insert_batch(frame.iter().cloned())
-                            .expect("consistent chunks"),
-                    );
-                }
-                shared
-            },
-            BatchSize::LargeInput,
-        );
-    });
-    group.bench_function("shared_publish_each_10_frames", |b| {
-        b.iter_batched(
-            || SharedStore::new(filled()),
-            |shared| {
-                for frames in second.chunks(10 * ENTITIES) {
-                    drop(
-                        shared
-                            .insert_batch(frames.iter().cloned())
-                            .expect("consistent chunks"),
-                    );
-                }
-                shared
-            },
-            BatchSize::LargeInput,
-        );
-    });
+    for (name, rows_per_publication) in [
+        ("shared_publish_each_frame", ENTITIES),
+        ("shared_publish_each_10_frames", 10 * ENTITIES),
+    ] {
+        group.bench_function(name, |b| {
+            b.iter_batched(
+                || SharedStore::new(filled()),
+                |shared| {
+                    for batch in second.chunks(rows_per_publication) {
+                        drop(
+                            shared
+                                .insert_batch(batch.iter().cloned())
+                                .expect("consistent chunks"),
+                        );
+                    }
+                    shared
+                },
+                BatchSize::LargeInput,
+            );
+        });
+    }
     group.finish();
 }
 

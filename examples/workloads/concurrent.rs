@@ -100,6 +100,18 @@ fn with_reader(
     })
 }
 
+/// Inserts `chunks` through `shared`, `rows_per_publication` at a time, each batch one
+/// publication.
+fn insert_in_batches(shared: &SharedStore, chunks: &[Arc<Chunk>], rows_per_publication: usize) {
+    for batch in chunks.chunks(rows_per_publication) {
+        drop(
+            shared
+                .insert_batch(batch.iter().cloned())
+                .expect("consistent chunks"),
+        );
+    }
+}
+
 /// The `insert_streaming` checksum: latest-at `scalar` at frame 5,000 of every entity.
 fn checksum(view: &StoreView, entities: &[EntityPath]) -> u64 {
     let frame: Arc<str> = FRAME.into();
@@ -210,23 +222,11 @@ pub fn concurrent() -> bool {
     });
     let shared_ns_per_row = ingest_ns / each_insert.len() as f64;
     let (frame_ns, mut per_frame) = with_reader(&shared, &entities, || {
-        for frame in each_frame.chunks(ENTITIES) {
-            drop(
-                shared
-                    .insert_batch(frame.iter().cloned())
-                    .expect("consistent chunks"),
-            );
-        }
+        insert_in_batches(&shared, each_frame, ENTITIES);
     });
     let frame_ns_per_row = frame_ns / each_frame.len() as f64;
     let (ten_frames_ns, mut per_ten_frames) = with_reader(&shared, &entities, || {
-        for frames in each_ten_frames.chunks(10 * ENTITIES) {
-            drop(
-                shared
-                    .insert_batch(frames.iter().cloned())
-                    .expect("consistent chunks"),
-            );
-        }
+        insert_in_batches(&shared, each_ten_frames, 10 * ENTITIES);
     });
     let ten_frames_ns_per_row = ten_frames_ns / each_ten_frames.len() as f64;
     let last = shared.snapshot();
