@@ -1,5 +1,6 @@
 //! Compaction on demand: a store filled with compaction off (single rows, in and out of
-//! order) rewritten by `compact()`, and the split of one oversized chunk on insert.
+//! order) rewritten by `compact()`, the same with tiny thresholds at three sizes (the cost
+//! per chunk must stay flat), and the split of one oversized chunk on insert.
 
 #![allow(
     clippy::expect_used,
@@ -47,6 +48,23 @@ fn compaction(c: &mut Criterion) {
         &scalar_series(&mut ids, &one[0], &shuffled, 1),
     );
     bench_compact(c, "compact/out_of_order/10k_single_rows", &store, 10_000);
+
+    // Tiny thresholds, where little can merge: compact() must stay O(chunks log chunks)
+    // (a piece's copy once read every input chunk, 100 us a chunk at 20,000 chunks).
+    let tiny = StoreConfig::COMPACTION_OFF
+        .with_max_rows(3)
+        .with_max_rows_unsorted(2)
+        .with_max_bytes(4096);
+    for n in [1_000, 10_000, 100_000] {
+        let shuffled = SplitMix64::new().permutation(n);
+        let store = store_with(tiny, &scalar_series(&mut ids, &one[0], &shuffled, 1));
+        bench_compact(
+            c,
+            &format!("compact/tiny_thresholds/{n}_single_row_chunks"),
+            &store,
+            n as u64,
+        );
+    }
 
     // A sorted chunk 25 times the row threshold: split into slices, nothing copied.
     let frames: Vec<i64> = (0..100_000).collect();

@@ -23,6 +23,10 @@ impl Chunk {
         let Some(first) = chunks.first() else {
             return Err(ChunkError::NoRows);
         };
+        // Only the chunks the rows come from go to Arrow's interleave, which looks at every
+        // array it is given: one piece of a rewrite of thousands of chunks reads a few, and
+        // handing it all of them made a rewrite quadratic in its inputs.
+        let (used, local_rows) = used_chunks(chunks.len(), rows);
         let row_ids: Vec<RowId> = rows.iter().map(|&(c, r)| chunks[c].row_ids[r]).collect();
         let times = (0..first.time_columns.len())
             .map(|t| {
@@ -35,11 +39,11 @@ impl Chunk {
             .collect();
         let components = (0..first.components.len())
             .map(|position| {
-                let lists: Vec<&dyn Array> = chunks
+                let lists: Vec<&dyn Array> = used
                     .iter()
-                    .map(|chunk| &chunk.components[position].list as &dyn Array)
+                    .map(|&c| &chunks[c].components[position].list as &dyn Array)
                     .collect();
-                let array = arrow_select::interleave::interleave(&lists, rows)?;
+                let array = arrow_select::interleave::interleave(&lists, &local_rows)?;
                 Ok(first.components[position].rebuilt(array))
             })
             .collect::<Result<Vec<_>, ChunkError>>()?;
@@ -113,5 +117,39 @@ impl super::ComponentColumn {
             array,
             field: self.field.clone(),
         }
+    }
+}
+
+/// The chunk positions `rows` refer to, in order of first use, and `rows` renumbered into
+/// that list; O(rows), whatever the number of chunks.
+fn used_chunks(num_chunks: usize, rows: &[RowSource]) -> (Vec<usize>, Vec<RowSource>) {
+    if num_chunks <= 1 {
+        return (vec![0; num_chunks], rows.to_vec());
+    }
+    let mut used: Vec<usize> = Vec::new();
+    let mut local: ahash::HashMap<usize, usize> = ahash::HashMap::default();
+    let renumbered = rows
+        .iter()
+        .map(|&(c, r)| {
+            let position = *local.entry(c).or_insert_with(|| {
+                used.push(c);
+                used.len() - 1
+            });
+            (position, r)
+        })
+        .collect();
+    (used, renumbered)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::used_chunks;
+
+    #[test]
+    fn rows_are_renumbered_into_the_chunks_they_use() {
+        let (used, rows) = used_chunks(1000, &[(7, 0), (3, 2), (7, 1), (999, 0)]);
+        assert_eq!(used, vec![7, 3, 999]);
+        assert_eq!(rows, vec![(0, 0), (1, 2), (0, 1), (2, 0)]);
+        assert_eq!(used_chunks(1, &[(0, 4)]), (vec![0], vec![(0, 4)]));
     }
 }
