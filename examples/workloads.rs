@@ -25,6 +25,8 @@
 mod common;
 #[path = "workloads/concurrent.rs"]
 mod concurrent;
+#[path = "workloads/scaling.rs"]
+mod scaling;
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -66,9 +68,10 @@ const WORKLOADS: [(&str, Workload); 10] = [
 
 /// Workloads of this crate's own, outside WORKLOADS.md (so outside `all`, which the
 /// comparison with the reference engine runs): named one by one.
-const OWN_WORKLOADS: [(&str, Workload); 2] = [
+const OWN_WORKLOADS: [(&str, Workload); 3] = [
     ("dataframe", dataframe),
     ("concurrent", concurrent::concurrent),
+    ("scaling", scaling::scaling),
 ];
 
 fn main() {
