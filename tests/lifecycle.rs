@@ -131,6 +131,82 @@ fn out_of_order_rows_merge_into_time_sorted_chunks() {
     }
 }
 
+/// The most chunks of `entity` whose span on `frame` strictly contains one time: how many
+/// a latest-at there must search.
+fn most_straddling(store: &ChunkStore, entity: &str, times: impl Iterator<Item = i64>) -> usize {
+    let spans: Vec<(i64, i64)> = store
+        .chunks()
+        .filter(|c| c.entity_path() == &path(entity))
+        .map(|c| {
+            let (least, greatest) = c.time_column("frame").unwrap().time_range();
+            (least.as_i64(), greatest.as_i64())
+        })
+        .collect();
+    times
+        .map(|at| {
+            spans
+                .iter()
+                .filter(|&&(lo, hi)| lo <= at && at < hi)
+                .count()
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+#[test]
+fn an_out_of_order_stream_keeps_few_chunks_over_any_time() {
+    // Small thresholds, so that many chunks settle: 4,000 rows in chunks of at most 8.
+    let config = StoreConfig::DEFAULT
+        .with_max_rows(8)
+        .with_max_rows_unsorted(4)
+        .with_merge_fanout(4);
+    let mut store = ChunkStore::with_config(config).unwrap();
+    let n = 4_000i64;
+    for k in 0..n {
+        let frame = (k * 1_337) % n; // a permutation: 1,337 is a unit mod 4,000
+        store
+            .insert(scalar("o", "x", frame, k as u128 + 1, frame as f64))
+            .unwrap();
+    }
+    store.sanity_check().unwrap();
+    // Settled chunks of an out-of-order stream each span nearly all of time; without runs
+    // every one of the ~500 would straddle a time in the middle. With them, at most
+    // fanout - 1 runs per tier (and waiting chunks per level) do.
+    let most = most_straddling(&store, "o", (0..n).step_by(7));
+    assert!(most <= 3 * 8, "{most} chunks straddle one time");
+    assert!(store.num_chunks() >= 500, "{} chunks", store.num_chunks());
+    for at in (0..n).step_by(97) {
+        assert_eq!(latest(&store, "o", at), Some(at as f64));
+    }
+    assert_eq!(range_values(&store, "o").len(), n as usize);
+}
+
+#[test]
+fn an_in_order_stream_forms_runs_without_copying_again() {
+    let config = StoreConfig::DEFAULT
+        .with_max_rows(8)
+        .with_max_rows_unsorted(4)
+        .with_merge_fanout(4);
+    let mut store = ChunkStore::with_config(config).unwrap();
+    let n = 4_000i64;
+    for frame in 0..n {
+        store
+            .insert(scalar("i", "x", frame, frame as u128 + 1, frame as f64))
+            .unwrap();
+    }
+    store.sanity_check().unwrap();
+    // Each row is copied by the waiting levels alone (log_4(8) rounded up: 2 merges), never
+    // by a merge of runs, whose chunks do not overlap.
+    let stats = store.stats();
+    assert!(
+        stats.rows_copied_by_compaction <= 2 * stats.rows_inserted,
+        "{} rows copied",
+        stats.rows_copied_by_compaction
+    );
+    assert!(most_straddling(&store, "i", 0..n) <= 1);
+    assert_eq!(latest(&store, "i", 1_234), Some(1_234.0));
+}
+
 #[test]
 fn merged_rows_of_one_time_are_ordered_by_row_id() {
     let mut store = ChunkStore::new();

@@ -10,6 +10,16 @@
 //! A chunk stops growing once it holds half of a threshold: merging it again could not
 //! double it.
 //!
+//! A chunk that no longer grows *settles*, and settled chunks join their entity's *runs*
+//! (per layout, by *tier*, the level of a run's rows): sets of chunks that overlap none of
+//! each other on the first timeline. A full fan of `K` runs in one tier merges into one run:
+//! chunks that overlap none of the others are kept as they are (an in-order stream's runs
+//! merge without a copy), and each cluster of overlapping ones is rewritten into sorted
+//! pieces. Without runs, an out-of-order stream's settled chunks each spanned nearly all of
+//! time and a latest-at searched every one of them, a cost linear in the stream's length;
+//! with them, at most `K - 1` runs per tier and `K - 1` waiting chunks per level straddle
+//! any time, and a row is copied once more per tier it climbs.
+//!
 //! Every rewrite orders its rows by `(time on the first timeline, row id)`, so merged
 //! chunks are time-sorted whenever their rows allow it, then cuts them into equal pieces
 //! that respect the thresholds ([`StoreConfig`]).
@@ -21,7 +31,8 @@
 //! collection does.
 //!
 //! The modules: [`plan`] decides, [`apply`] carries a plan out, [`on_insert`] is the
-//! cascade of compaction on insert, and [`rewrite`] is the row rewrite all of them share.
+//! cascade of compaction on insert (waiting chunks, then runs), and [`rewrite`] is the row
+//! rewrite all of them share.
 
 mod apply;
 mod on_insert;
