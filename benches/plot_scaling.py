@@ -104,7 +104,7 @@ def main():
     body = []
     for i, (phase, title) in enumerate(PANELS):
         body += panel(series, phase, title, i * WIDTH)
-    svg = (f'<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH * len(PANELS)}" '
+    svg = (f'<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH * len(PANELS) + 20}" '
            f'height="{total_h}" font-family="sans-serif" font-size="11">'
            f'<rect width="100%" height="100%" fill="white"/>' + "".join(body) + "</svg>\n")
     with open(sys.argv[2], "w") as f:
