@@ -153,14 +153,19 @@ fn most_straddling(store: &ChunkStore, entity: &str, times: impl Iterator<Item =
         .unwrap_or(0)
 }
 
-#[test]
-fn an_out_of_order_stream_keeps_few_chunks_over_any_time() {
-    // Small thresholds, so that many chunks settle: 4,000 rows in chunks of at most 8.
+/// A store with small thresholds, so that many chunks settle: at most 8 rows a chunk, fans
+/// of 4.
+fn small_chunks() -> ChunkStore {
     let config = StoreConfig::DEFAULT
         .with_max_rows(8)
         .with_max_rows_unsorted(4)
         .with_merge_fanout(4);
-    let mut store = ChunkStore::with_config(config).unwrap();
+    ChunkStore::with_config(config).unwrap()
+}
+
+#[test]
+fn an_out_of_order_stream_keeps_few_chunks_over_any_time() {
+    let mut store = small_chunks();
     let n = 4_000i64;
     for k in 0..n {
         let frame = (k * 1_337) % n; // a permutation: 1,337 is a unit mod 4,000
@@ -183,11 +188,7 @@ fn an_out_of_order_stream_keeps_few_chunks_over_any_time() {
 
 #[test]
 fn an_in_order_stream_forms_runs_without_copying_again() {
-    let config = StoreConfig::DEFAULT
-        .with_max_rows(8)
-        .with_max_rows_unsorted(4)
-        .with_merge_fanout(4);
-    let mut store = ChunkStore::with_config(config).unwrap();
+    let mut store = small_chunks();
     let n = 4_000i64;
     for frame in 0..n {
         store

@@ -9,9 +9,10 @@
 //!   not fit beside the store).
 //!
 //! Each in two arrival orders: `in_order` (frame order) and `out_of_order` (the chunks in a
-//! random permutation; row ids increase in arrival order either way, as in WORKLOADS.md). Per size, one JSON line per phase: `insert` (ns per row),
-//! `latest_at` (100,000 queries at random frames, ns per query) and `range` (1,000 ranges
-//! of 1,000 frames, every row visited, ns per row), with the store's chunks and bytes.
+//! random permutation; row ids increase in arrival order either way, as in WORKLOADS.md).
+//! Per size, one JSON line per phase: `insert` (ns per row), `latest_at` (100,000 queries
+//! at random frames, ns per query) and `range` (1,000 ranges of 1,000 frames, every row
+//! visited, ns per row), with the store's chunks and bytes.
 //! `SCALING_MAX_ROWS` caps the sizes (default 10^7); `benches/plot_scaling.py` turns the
 //! lines into the SVG plot.
 

@@ -1,9 +1,10 @@
 //! Compaction on insert: a temporal chunk is split if oversized, else added; a small one
 //! waits among its entity's waiting chunks (`store/pending.rs`) and full fans of them are
 //! merged, level after level; what settles joins its entity's runs, and full tiers of runs
-//! are merged, tier after tier, rewriting only chunks that overlap. What happens to a chunk is decided by [`placement`] (a
-//! pure function of the configuration and the chunk) and by the waiting groups' own
-//! `take_full_fan`; the cascade here carries it out.
+//! are merged, tier after tier, rewriting only chunks that overlap. What happens to a
+//! chunk is decided by [`placement`] (a pure function of the configuration and the chunk)
+//! and by the waiting groups' own `take_full_fan` and `take_full_tier`; the cascade here
+//! carries it out.
 
 use std::sync::Arc;
 

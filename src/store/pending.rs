@@ -127,16 +127,9 @@ impl PendingGroups {
     /// level, which [`PendingGroups::take_full_fan`] takes back (so a chunk's layout is
     /// compared once per push, not again per level).
     pub(crate) fn push(&mut self, chunk: Arc<Chunk>, config: &StoreConfig) -> (usize, usize) {
-        let position = self.group_position(&chunk).unwrap_or_else(|| {
-            self.groups.push(PendingGroup::default());
-            self.groups.len() - 1
-        });
+        let position = self.group_of(&chunk);
         let level = config.level(chunk.num_rows());
-        let levels = &mut self.groups[position].levels;
-        if levels.len() <= level {
-            levels.resize_with(level + 1, Vec::new);
-        }
-        levels[level].push(chunk);
+        push_at(&mut self.groups[position].levels, level, chunk);
         (position, level)
     }
 
@@ -148,31 +141,15 @@ impl PendingGroups {
         level: usize,
         config: &StoreConfig,
     ) -> Option<Vec<Arc<Chunk>>> {
-        let chunks = self.groups.get_mut(position)?.levels.get_mut(level)?;
-        if chunks.len() < config.merge_fanout {
-            return None;
-        }
-        let fan = chunks.drain(..config.merge_fanout).collect();
-        if self.groups[position].is_empty() {
-            self.groups.swap_remove(position);
-        }
-        Some(fan)
+        self.take_full(position, level, config, |group| &mut group.levels)
     }
 
     /// Adds a run to its layout's group at the tier of its rows; returns the group's
     /// position and the tier, which [`PendingGroups::take_full_tier`] takes back.
     pub(crate) fn push_run(&mut self, run: Run, config: &StoreConfig) -> Option<(usize, usize)> {
-        let first = run.chunks.first()?;
-        let position = self.group_position(first).unwrap_or_else(|| {
-            self.groups.push(PendingGroup::default());
-            self.groups.len() - 1
-        });
+        let position = self.group_of(run.chunks.first()?);
         let tier = config.level(run.num_rows());
-        let tiers = &mut self.groups[position].tiers;
-        if tiers.len() <= tier {
-            tiers.resize_with(tier + 1, Vec::new);
-        }
-        tiers[tier].push(run);
+        push_at(&mut self.groups[position].tiers, tier, run);
         Some((position, tier))
     }
 
@@ -183,11 +160,31 @@ impl PendingGroups {
         tier: usize,
         config: &StoreConfig,
     ) -> Option<Vec<Run>> {
-        let runs = self.groups.get_mut(position)?.tiers.get_mut(tier)?;
-        if runs.len() < config.merge_fanout {
+        self.take_full(position, tier, config, |group| &mut group.tiers)
+    }
+
+    /// The position of `chunk`'s layout's group, made if there is none.
+    fn group_of(&mut self, chunk: &Chunk) -> usize {
+        self.group_position(chunk).unwrap_or_else(|| {
+            self.groups.push(PendingGroup::default());
+            self.groups.len() - 1
+        })
+    }
+
+    /// Takes a full fan out of bucket `at` of the group at `position` (its levels or its
+    /// tiers, as `buckets` picks), if the bucket holds one; drops the group left empty.
+    fn take_full<T>(
+        &mut self,
+        position: usize,
+        at: usize,
+        config: &StoreConfig,
+        buckets: impl FnOnce(&mut PendingGroup) -> &mut Vec<Vec<T>>,
+    ) -> Option<Vec<T>> {
+        let bucket = buckets(self.groups.get_mut(position)?).get_mut(at)?;
+        if bucket.len() < config.merge_fanout {
             return None;
         }
-        let fan = runs.drain(..config.merge_fanout).collect();
+        let fan = bucket.drain(..config.merge_fanout).collect();
         if self.groups[position].is_empty() {
             self.groups.swap_remove(position);
         }
@@ -291,6 +288,14 @@ impl PendingGroups {
         }
         Ok(())
     }
+}
+
+/// Puts `item` in bucket `at`, making the buckets up to it.
+fn push_at<T>(buckets: &mut Vec<Vec<T>>, at: usize, item: T) {
+    if buckets.len() <= at {
+        buckets.resize_with(at + 1, Vec::new);
+    }
+    buckets[at].push(item);
 }
 
 /// A run is not empty, no larger than its tier, and holds settled temporal chunks of the
