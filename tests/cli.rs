@@ -533,6 +533,33 @@ fn convert_round_trips_and_is_careful_with_files() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// A source holding one chunk twice (a chunk file copied under another name) converts to
+/// an `.rrd` holding it once, which reads back: a recording lists each chunk id once.
+#[test]
+fn convert_writes_a_chunk_the_source_holds_twice_once() {
+    let dir = scratch_dir("convert-twice");
+    let source = dir.join("chunks");
+    std::fs::create_dir_all(&source).unwrap();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(recording_chunks())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    for file in &files {
+        std::fs::copy(file, source.join(file.file_name().unwrap())).unwrap();
+    }
+    std::fs::copy(&files[0], source.join("zz_again.arrow")).unwrap();
+    let out = dir.join("out.rrd");
+    ok(&[source.as_os_str(), OsStr::new("convert"), out.as_os_str()]);
+    let listing = cli_on(&out, &[], &["print", "--json"]);
+    assert_eq!(
+        listing,
+        cli(&[], &["print", "--json"]),
+        "each chunk once, in order"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// Issue 14: a damaged `.rrd` is one line naming the byte offset; `--skip-bad` loads what
 /// comes before the damage and says what it skipped.
 #[test]

@@ -8,7 +8,8 @@
 //! duration and a timestamp timeline), with out-of-order, overlapping and duplicate times,
 //! times at both extremes of `i64`, null cells, empty cells, and three component types
 //! (floats, strings, fixed-size lists of integers); static inserts; flat and recursive
-//! Clears, temporal and static, at any depth of a tree of entities up to five levels deep;
+//! Clears, temporal and static, one to three in a chunk, at any depth of a tree of
+//! entities up to five levels deep;
 //! chunks inserted again (the same chunk, or its rows under a new id, after compaction has
 //! had every chance to absorb them), rows reusing row ids with other contents, and chunks
 //! reusing another chunk's id; garbage collections with random targets, orders and
@@ -310,11 +311,12 @@ enum Op {
         entity: usize,
         rows: Vec<[Cell; 3]>,
     },
+    /// A chunk of one to three Clear rows at one time, each recursive or not.
     Clear {
         entity: usize,
         /// `None`: static; else the timelines and times.
         time: Option<(u8, [i64; 3])>,
-        recursive: bool,
+        recursive: Vec<bool>,
     },
     /// An earlier chunk again: as the very same chunk, or as its rows under a new id.
     Again {
@@ -443,7 +445,7 @@ fn op() -> impl Strategy<Value = Op> {
     let clear = (
         entity.clone(),
         prop::option::weighted(0.85, (1u8..=7, [time(), time(), time()])),
-        any::<bool>(),
+        prop::collection::vec(any::<bool>(), 1..4),
     )
         .prop_map(|(entity, time, recursive)| Op::Clear {
             entity,
@@ -1042,11 +1044,14 @@ impl Harness {
                     entity: *entity,
                     timelines,
                     is_clear: true,
-                    rows: vec![ModelRow {
-                        row_id: self.row_ids.next(randomness.next().unwrap_or(0)),
-                        times,
-                        content: Content::Clear(*recursive),
-                    }],
+                    rows: recursive
+                        .iter()
+                        .map(|&recursive| ModelRow {
+                            row_id: self.row_ids.next(randomness.next().unwrap_or(0)),
+                            times,
+                            content: Content::Clear(recursive),
+                        })
+                        .collect(),
                 };
                 let chunk = Arc::new(model.build());
                 self.insert(model, chunk)?;
@@ -2246,7 +2251,7 @@ fn an_overwritten_static_clear_whose_chunk_id_is_reused_survives_export() {
         Clear {
             entity: 0,
             time: None,
-            recursive: true,
+            recursive: vec![true],
         },
         Temporal {
             entity: 0,
@@ -2393,7 +2398,7 @@ fn an_overwritten_static_clear_whose_chunk_id_is_reused_survives_export() {
         Clear {
             entity: 0,
             time: None,
-            recursive: false,
+            recursive: vec![false],
         },
         Temporal {
             entity: 0,

@@ -113,6 +113,30 @@ fn write(chunks: &[Arc<Chunk>], compress: bool) -> Vec<u8> {
 }
 
 #[test]
+fn a_second_chunk_under_one_id_is_refused_and_the_stream_stays_readable() {
+    let original: Vec<Arc<Chunk>> = chunk_files().into_iter().map(Arc::new).collect();
+    let info = rrd::StoreInfo::new(StoreId::recording("app", "rec"));
+    let mut writer = RrdWriter::with_store_info(Vec::new(), &info, true).unwrap();
+    writer.write_chunk(&original[0]).unwrap();
+    let before = writer.position();
+    let error = writer.write_chunk(&original[0]).unwrap_err();
+    assert!(
+        matches!(error.kind, RrdErrorKind::DuplicateChunkId { chunk_id } if chunk_id == original[0].id()),
+        "{error}"
+    );
+    assert!(
+        error.to_string().contains(&original[0].id().to_string()),
+        "{error}"
+    );
+    assert_eq!(writer.position(), before, "nothing written");
+    writer.write_chunk(&original[1]).unwrap();
+    let bytes = writer.finish().unwrap();
+    let back = rrd::read_rrd(Buffer::from_vec(bytes), false).unwrap();
+    let ids: Vec<_> = back.chunks.iter().map(|(_, c)| c.id()).collect();
+    assert_eq!(ids, vec![original[0].id(), original[1].id()]);
+}
+
+#[test]
 fn read_write_read_is_lossless_compressed_or_not() {
     let original: Vec<Arc<Chunk>> = chunk_files().into_iter().map(Arc::new).collect();
     for compress in [true, false] {

@@ -89,6 +89,13 @@ pub enum RrdErrorKind {
         /// What is wrong.
         reason: String,
     },
+    /// Writing: a chunk under an id the writer has written already. The footer's manifest
+    /// finds chunks by id, so a recording holds each id once (a reader would find the
+    /// footer disagreeing with the body).
+    DuplicateChunkId {
+        /// The id.
+        chunk_id: crate::ChunkId,
+    },
 }
 
 impl RrdError {
@@ -158,6 +165,10 @@ impl fmt::Display for RrdError {
             RrdErrorKind::Ipc(e) => write!(f, "payload: {e}"),
             RrdErrorKind::Chunk(e) => write!(f, "payload is not a valid chunk: {e}"),
             RrdErrorKind::Footer { reason } => write!(f, "bad footer: {reason}"),
+            RrdErrorKind::DuplicateChunkId { chunk_id } => write!(
+                f,
+                "{chunk_id} was written already: a recording holds each chunk id once"
+            ),
         }
     }
 }

@@ -21,6 +21,8 @@ pub struct RrdWriter<W: Write> {
     store_id: StoreId,
     compress: bool,
     written: Vec<WrittenChunk>,
+    /// The ids of `written`, to refuse a second chunk under one.
+    written_ids: ahash::HashSet<crate::ChunkId>,
 }
 
 impl<W: Write> RrdWriter<W> {
@@ -44,6 +46,7 @@ impl<W: Write> RrdWriter<W> {
             store_id: info.store_id.clone(),
             compress,
             written: Vec::new(),
+            written_ids: ahash::HashSet::default(),
         };
         let header = StreamHeader {
             version: frames::WRITTEN_VERSION,
@@ -77,8 +80,18 @@ impl<W: Write> RrdWriter<W> {
     /// Writes one chunk.
     ///
     /// # Errors
-    /// If encoding or writing fails.
+    /// If encoding or writing fails, or ([`RrdErrorKind::DuplicateChunkId`]) if a chunk
+    /// under the same id was written already; nothing is written then, and the stream
+    /// stays valid.
     pub fn write_chunk(&mut self, chunk: &Arc<Chunk>) -> Result<(), RrdError> {
+        if self.written_ids.contains(&chunk.id()) {
+            return Err(RrdError::new(
+                self.position,
+                RrdErrorKind::DuplicateChunkId {
+                    chunk_id: chunk.id(),
+                },
+            ));
+        }
         let (payload, uncompressed_size) = payload::encode_chunk(chunk, self.compress)
             .map_err(|e| RrdError::new(self.position, RrdErrorKind::Ipc(e)))?;
         let compression = if self.compress {
@@ -101,6 +114,7 @@ impl<W: Write> RrdWriter<W> {
             body.len() as u64,
             uncompressed_size,
         ));
+        self.written_ids.insert(chunk.id());
         Ok(())
     }
 

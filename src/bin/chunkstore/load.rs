@@ -97,8 +97,10 @@ pub struct Loaded {
     track_sources: bool,
     /// The first store info of an `.rrd` source.
     pub store_info: Option<StoreInfo>,
-    /// The chunks in source order, when asked for (for `convert`).
+    /// The chunks in source order, when asked for (for `convert`), each id once: a chunk
+    /// the source holds twice (which the store takes once) is written once.
     pub in_order: Vec<Arc<chunkstore::Chunk>>,
+    in_order_ids: ahash::HashSet<ChunkId>,
 }
 
 impl Loaded {
@@ -114,6 +116,7 @@ impl Loaded {
             track_sources,
             store_info: None,
             in_order: Vec::new(),
+            in_order_ids: ahash::HashSet::default(),
         })
     }
 
@@ -129,7 +132,7 @@ impl Loaded {
                 self.source_chunk.entry(row_id).or_insert(id);
             }
         }
-        if keep_order {
+        if keep_order && self.in_order_ids.insert(id) {
             self.in_order.push(chunk);
         }
         Ok(())
