@@ -2214,211 +2214,60 @@ fn check_dataframe(
 }
 
 /// A sequence the long run (`PROPTEST_CASES=600 CHUNKSTORE_MODEL_OPS=120`) found failing
-/// `inserting_everything_again_changes_nothing`, as proptest shrank it. A static recursive
-/// Clear at `/` is overwritten by a flat one, and a temporal chunk at `/a` then takes the
-/// overwritten chunk's id: the export took the Clear for held (a chunk held its id) and
-/// left it out, so the `.rrd` read back answered `/a` where the Clear hides it.
+/// `inserting_everything_again_changes_nothing`, as proptest shrank it (its many rows,
+/// all alike, written through the helpers below, the counts in its order). A static
+/// recursive Clear at `/` is overwritten by a flat one, and a temporal chunk at `/a` then
+/// takes the overwritten chunk's id: the export took the Clear for held (a chunk held its
+/// id) and left it out, so the `.rrd` read back answered `/a` where the Clear hides it.
 #[test]
 #[allow(
     clippy::unreadable_literal,
-    clippy::too_many_lines,
-    reason = "the sequence as proptest printed it"
+    reason = "the picks as proptest printed them"
 )]
 fn an_overwritten_static_clear_whose_chunk_id_is_reused_survives_export() {
-    use Op::{Again, Clear, ReuseId, RrdRoundTrip, Static, Temporal};
-    let ops: Vec<Op> = vec![
-        Static {
-            entity: 0,
-            rows: vec![[None, None, None]],
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
+    use Op::{Again, Clear, ReuseId, RrdRoundTrip, Static};
+    // Every temporal row is at time 0 on `t1`, with null cells.
+    let empty_rows = |n: usize| vec![([0, 0, 0], [None, None, None]); n];
+    let temporal = |n: usize| Op::Temporal {
+        entity: 0,
+        timelines: 1,
+        rows: empty_rows(n),
+        reuse_row_ids: None,
+    };
+    let empty_static = || Static {
+        entity: 0,
+        rows: vec![[None, None, None]],
+    };
+    let static_clear = |recursive: bool| Clear {
+        entity: 0,
+        time: None,
+        recursive: vec![recursive],
+    };
+    let mut ops: Vec<Op> = vec![
+        empty_static(),
+        temporal(2),
         ReuseId {
             pick: 0,
             entity: 0,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
+            rows: empty_rows(2),
         },
-        Clear {
-            entity: 0,
-            time: None,
-            recursive: vec![true],
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Static {
-            entity: 0,
-            rows: vec![[None, None, None]],
-        },
-        Again {
-            pick: 2746927093305330480,
-            new_id: false,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-                ([0, 0, 0], [None, None, None]),
-            ],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Clear {
-            entity: 0,
-            time: None,
-            recursive: vec![false],
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        Temporal {
-            entity: 0,
-            timelines: 1,
-            rows: vec![([0, 0, 0], [None, None, None])],
-            reuse_row_ids: None,
-        },
-        ReuseId {
-            pick: 15307115233365890451,
-            entity: 1,
-            rows: vec![([0, 0, 0], [None, None, Some(vec![])])],
-        },
-        RrdRoundTrip { at: 0 },
+        static_clear(true),
     ];
+    ops.extend([1, 1, 4, 6].map(temporal));
+    ops.push(empty_static());
+    ops.push(Again {
+        pick: 2746927093305330480,
+        new_id: false,
+    });
+    ops.extend([3, 1, 1, 5, 2, 6, 1, 4, 2, 3, 1].map(temporal));
+    ops.push(static_clear(false));
+    ops.extend([1, 1].map(temporal));
+    ops.push(ReuseId {
+        pick: 15307115233365890451,
+        entity: 1,
+        rows: vec![([0, 0, 0], [None, None, Some(vec![])])],
+    });
+    ops.push(RrdRoundTrip { at: 0 });
     let shuffles: Vec<u64> = vec![920045262147u64, 6485629690759153000u64, 0u64, 0u64];
     for config in CONFIGS {
         let mut harness = run_with(config, &ops, &shuffles).unwrap();

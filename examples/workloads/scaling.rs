@@ -18,10 +18,11 @@
 
 use std::sync::Arc;
 
-use chunkstore::{Chunk, ChunkStore, RangeQuery, StoreConfig, TimeRange};
+use chunkstore::{ChunkStore, RangeQuery, StoreConfig, TimeRange};
 
 use super::common::{
-    FRAME, RowIds, SplitMix64, at, entities, latest_scalar, scalar_series, visit_range_scalars,
+    FRAME, RowIds, SCALAR, SplitMix64, at, entities, latest_scalar, scalar_series,
+    visit_range_scalars,
 };
 use super::{DEFAULT, IMPL, OFF, peak_rss_kib, time_inserts, time_query};
 
@@ -83,15 +84,12 @@ fn measure(shape: &Shape, out_of_order: bool, rows: usize) -> bool {
     } else {
         (0..num_chunks as i64).collect()
     };
-    let mut ids = RowIds::new();
     let chunk_rows = shape.chunk_rows as i64;
-    let chunks: Vec<Arc<Chunk>> = order
+    let frames: Vec<i64> = order
         .iter()
-        .flat_map(|&c| {
-            let frames: Vec<i64> = (c * chunk_rows..(c + 1) * chunk_rows).collect();
-            scalar_series(&mut ids, entity, &frames, shape.chunk_rows)
-        })
+        .flat_map(|&c| c * chunk_rows..(c + 1) * chunk_rows)
         .collect();
+    let chunks = scalar_series(&mut RowIds::new(), entity, &frames, shape.chunk_rows);
     let latest_times: Vec<i64> = (0..LATEST_AT_QUERIES)
         .map(|_| rng.uniform(rows as u64) as i64)
         .collect();
@@ -142,11 +140,7 @@ fn measure(shape: &Shape, out_of_order: bool, rows: usize) -> bool {
                 Arc::clone(&frame),
                 TimeRange::new(at(start), at(start + RANGE_FRAMES - 1)),
             );
-            visit_range_scalars(
-                &store.range(&query, entity, "scalar"),
-                &mut visited,
-                &mut sum,
-            );
+            visit_range_scalars(&store.range(&query, entity, SCALAR), &mut visited, &mut sum);
         }
         (visited, sum)
     });
