@@ -4,7 +4,6 @@
 use std::sync::Arc;
 
 use super::plan::{CompactionGroup, CompactionPlan};
-use super::rewrite::rewrite;
 use crate::store::{DeletionReason, RewriteMark};
 use crate::{Chunk, ChunkStore, StoreEvent};
 
@@ -60,15 +59,8 @@ impl ChunkStore {
     /// Rewrites one group (chunks of one entity and layout held by the store).
     fn rewrite_group(&mut self, chunks: &[Arc<Chunk>], events: &mut Vec<StoreEvent>) {
         let config = self.config;
-        let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
-        let pieces = match rewrite(&inputs, &config, &mut self.view.stats) {
-            Ok(pieces) => pieces,
-            Err(error) => {
-                // Copying rows of valid chunks of one layout does not fail; if it ever
-                // did, the group stays as it is.
-                debug_assert!(false, "rewriting a compaction group: {error}");
-                return;
-            }
+        let Some(pieces) = self.rewrite_held(chunks, "rewriting a compaction group") else {
+            return; // the group stays as it is
         };
         // Removed first, as in `merge_cascade`: the pieces cover the same times.
         for chunk in chunks {

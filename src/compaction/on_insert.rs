@@ -8,7 +8,6 @@
 
 use std::sync::Arc;
 
-use super::rewrite::rewrite;
 use crate::store::{DeletionReason, Run, StoreConfig};
 use crate::{Chunk, ChunkStore, StoreEvent};
 
@@ -41,18 +40,15 @@ impl ChunkStore {
         let config = self.config;
         let placement = placement(&config, &chunk);
         if placement == Placement::Split {
-            match rewrite(&[&chunk], &config, &mut self.view.stats) {
-                Ok(pieces) => {
-                    // The chunk itself never enters the store: its parts do.
-                    let pieces: Vec<Arc<Chunk>> = pieces.into_iter().map(Arc::new).collect();
-                    for piece in &pieces {
-                        self.add_chunk(Arc::clone(piece), events);
-                    }
-                    self.settle_run(Run::new(pieces), events);
-                    return;
+            // Should the cut fail, the chunk goes in whole.
+            if let Some(pieces) = self.rewrite_held(std::slice::from_ref(&chunk), "splitting") {
+                // The chunk itself never enters the store: its parts do.
+                let pieces: Vec<Arc<Chunk>> = pieces.into_iter().map(Arc::new).collect();
+                for piece in &pieces {
+                    self.add_chunk(Arc::clone(piece), events);
                 }
-                // Cutting a valid chunk does not fail; if it ever did, it goes in whole.
-                Err(error) => debug_assert!(false, "splitting {}: {error}", chunk.id()),
+                self.settle_run(Run::new(pieces), events);
+                return;
             }
         }
         // A chunk that will wait to be merged stays out of the store-wide orders.
@@ -85,18 +81,12 @@ impl ChunkStore {
             // The merge's events at once: growing one push at a time reallocated the
             // vector four times per merge.
             events.reserve(fan.len() + 1);
-            let inputs: Vec<&Chunk> = fan.iter().map(AsRef::as_ref).collect();
-            let pieces = match rewrite(&inputs, &config, &mut self.view.stats) {
-                Ok(pieces) => pieces,
-                Err(error) => {
-                    // Merging valid chunks of one layout does not fail; if it ever did,
-                    // the fan would stay in the store as it is, no longer waiting.
-                    debug_assert!(false, "merging a fan of waiting chunks: {error}");
-                    for chunk in &fan {
-                        self.settle_in_global_orders(chunk.id());
-                    }
-                    return;
+            let Some(pieces) = self.rewrite_held(&fan, "merging a fan of waiting chunks") else {
+                // The fan stays in the store as it is, no longer waiting.
+                for chunk in &fan {
+                    self.settle_in_global_orders(chunk.id());
                 }
+                return;
             };
             // Remove before adding: the result covers the fan's times, so adding it first
             // would overlap them and turn an in-order entity's sequence index into the
@@ -192,16 +182,8 @@ impl ChunkStore {
             merged.extend(cluster);
             return;
         }
-        let config = self.config;
-        let inputs: Vec<&Chunk> = cluster.iter().map(AsRef::as_ref).collect();
-        let pieces = match rewrite(&inputs, &config, &mut self.view.stats) {
-            Ok(pieces) => pieces,
-            Err(error) => {
-                // Merging valid chunks of one layout does not fail; if it ever did, the
-                // cluster would stay in the store as it is, in no run.
-                debug_assert!(false, "merging overlapping settled chunks: {error}");
-                return;
-            }
+        let Some(pieces) = self.rewrite_held(&cluster, "merging overlapping settled chunks") else {
+            return; // the cluster stays in the store as it is, in no run
         };
         events.reserve(cluster.len() + pieces.len());
         for chunk in &cluster {

@@ -2,10 +2,29 @@
 //! `(time on the first timeline, row id)` and cut into balanced pieces within the
 //! thresholds.
 
+use std::sync::Arc;
+
 use crate::chunk::RowSource;
 use crate::error::ChunkError;
 use crate::store::StoreConfig;
-use crate::{Chunk, StoreStats};
+use crate::{Chunk, ChunkStore, StoreStats};
+
+impl ChunkStore {
+    /// [`rewrite`] of chunks the store holds (one layout), counted in its figures. Copying
+    /// rows of valid chunks of one layout does not fail; if it ever did, a debug build
+    /// says so (naming `what` was rewritten) and the caller, given `None`, leaves the
+    /// chunks as they are, so no answer changes.
+    pub(super) fn rewrite_held(&mut self, chunks: &[Arc<Chunk>], what: &str) -> Option<Vec<Chunk>> {
+        let inputs: Vec<&Chunk> = chunks.iter().map(AsRef::as_ref).collect();
+        match rewrite(&inputs, &self.config, &mut self.view.stats) {
+            Ok(pieces) => Some(pieces),
+            Err(error) => {
+                debug_assert!(false, "{what}: {error}");
+                None
+            }
+        }
+    }
+}
 
 /// A chunk position or row of a rewrite's input, as a sort key's half.
 #[expect(
