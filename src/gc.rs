@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::error::GcOptionsError;
-use crate::store::{DeletionReason, StoredChunk};
+use crate::store::{DeletionReason, Holding, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
 
 /// How much garbage collection should free.
@@ -286,7 +286,7 @@ impl ChunkStore {
                 self.chunks.insert(id, stored);
                 continue;
             }
-            self.take_out(stored, true, DeletionReason::Gc, &mut events);
+            self.take_out(stored, Holding::Everywhere, DeletionReason::Gc, &mut events);
         }
         self.finish_mutation(events)
     }
@@ -407,14 +407,13 @@ impl ChunkStore {
         let Some(entity) = self.view.entities.get(chunk.entity_path()) else {
             return false;
         };
-        let id = chunk.id();
-        if entity
-            .indices_of(chunk)
-            .any(|index| index.is_among_latest(id, n))
-        {
+        if entity.is_among_latest(chunk, n) {
             return true;
         }
-        chunk.clear_column().is_some() && self.clears.is_among_latest(chunk.entity_path(), id, n)
+        chunk.clear_column().is_some()
+            && self
+                .clears
+                .is_among_latest(chunk.entity_path(), chunk.id(), n)
     }
 
     /// Heap bytes dropping `stored` frees, given the shared references the plan already

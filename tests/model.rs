@@ -784,15 +784,19 @@ impl RowIds {
     }
 }
 
-/// The two stores every sequence runs against: compaction off, and compaction with
-/// thresholds so small that nearly every insert merges or splits.
-const CONFIGS: [StoreConfig; 2] = [
+/// The stores every sequence runs against: compaction off; compaction with thresholds so
+/// small that nearly every insert merges or splits (and the write buffer seals at every
+/// second chunk); and compaction whose write buffer never seals on insert (a fanout no
+/// sequence reaches: every temporal chunk of fewer rows waits there, in no index, until
+/// `compact()`).
+const CONFIGS: [StoreConfig; 3] = [
     StoreConfig::COMPACTION_OFF,
     StoreConfig::DEFAULT
         .with_max_rows(4)
         .with_max_rows_unsorted(3)
         .with_max_bytes(256)
         .with_merge_fanout(2),
+    StoreConfig::DEFAULT.with_merge_fanout(1 << 20),
 ];
 
 /// A chunk the test built and inserted (`chunk` is `model` built, or a copy of it).

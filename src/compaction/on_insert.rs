@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use crate::store::{DeletionReason, Run, StoreConfig};
+use crate::store::{Joining, Run, StoreConfig};
 use crate::{Chunk, ChunkStore, StoreEvent};
 
 /// Where compaction on insert puts a temporal chunk.
@@ -51,9 +51,17 @@ impl ChunkStore {
                 return;
             }
         }
-        // A chunk that will wait to be merged stays out of the store-wide orders.
+        // A chunk that will wait to be merged stays out of the store-wide orders, and one
+        // of the first level (a few rows) out of the indices too: the write buffer.
         let waits = placement == Placement::Wait;
-        self.add_chunk_to_orders(Arc::clone(&chunk), !waits, events);
+        let joining = if !waits {
+            Joining::Settled
+        } else if config.level(chunk.num_rows()) == 0 {
+            Joining::Buffered
+        } else {
+            Joining::Waiting
+        };
+        self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
         if waits {
             self.merge_cascade(chunk, events);
         } else {
@@ -92,9 +100,7 @@ impl ChunkStore {
             // would overlap them and turn an in-order entity's sequence index into the
             // general one. (If the fan was all the entity held, the entity goes and comes
             // back with the result; it had nothing else waiting.)
-            for merged in &fan {
-                self.remove_chunk(merged.id(), DeletionReason::Compaction, events);
-            }
+            self.remove_merged(&fan, events);
             let mut grown = None;
             let num_pieces = pieces.len();
             let mut settled = Vec::with_capacity(num_pieces);
@@ -106,7 +112,12 @@ impl ChunkStore {
                 } else {
                     settled.push(Arc::clone(&piece));
                 }
-                self.add_chunk_to_orders(piece, !waits, events);
+                let joining = if waits {
+                    Joining::Waiting
+                } else {
+                    Joining::Settled
+                };
+                self.add_chunk_to_orders(piece, joining, events);
             }
             let Some(next) = grown else {
                 self.settle_run(Run::new(settled), events);
@@ -186,13 +197,156 @@ impl ChunkStore {
             return; // the cluster stays in the store as it is, in no run
         };
         events.reserve(cluster.len() + pieces.len());
-        for chunk in &cluster {
-            self.remove_chunk(chunk.id(), DeletionReason::Compaction, events);
-        }
+        self.remove_merged(&cluster, events);
         for piece in pieces {
             let piece = Arc::new(piece);
             merged.push(Arc::clone(&piece));
             self.add_chunk(piece, events);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{Array, ArrayRef, Float64Array};
+
+    use crate::dataframe::DataframeQuery;
+    use crate::query::{LatestAtQuery, RangeQuery};
+    use crate::{
+        ChunkBuilder, ChunkId, ChunkStore, DeletionReason, EntityPath, GcOptions, RowId,
+        StoreEvent, StoreView, TimeInt, TimeRange, Timeline,
+    };
+
+    fn t(time: i64) -> TimeInt {
+        TimeInt::new(time).unwrap()
+    }
+
+    fn one_row(entity: &EntityPath, frame: i64) -> Arc<crate::Chunk> {
+        let value = Arc::new(Float64Array::from(vec![f64::from(
+            i32::try_from(frame).unwrap(),
+        )])) as ArrayRef;
+        Arc::new(
+            ChunkBuilder::new(ChunkId::new(), entity.clone())
+                .with_row(
+                    RowId::new(),
+                    [(Timeline::sequence("frame"), frame)],
+                    [("x", value)],
+                )
+                .build()
+                .unwrap(),
+        )
+    }
+
+    fn value_at(view: &StoreView, entity: &EntityPath, at: i64) -> Option<f64> {
+        let cell = view.latest_at(&LatestAtQuery::new("frame", t(at)), entity, "x")?;
+        let values = cell.cell();
+        let list = values.as_any().downcast_ref::<Float64Array>()?;
+        Some(list.value(0))
+    }
+
+    fn range_times(view: &StoreView, entity: &EntityPath, min: i64, max: i64) -> Vec<i64> {
+        let query = RangeQuery::new("frame", TimeRange::new(t(min), t(max)));
+        view.range(&query, entity, "x")
+            .iter()
+            .filter_map(|row| row.time().map(TimeInt::as_i64))
+            .collect()
+    }
+
+    /// Rows arriving one per chunk wait in the write buffer, in no index, and every
+    /// question sees them: latest-at, range, dataframes, idempotent ingest, garbage
+    /// collection's protection of the latest, snapshots. The fan's last chunk seals them
+    /// into one sorted chunk, with the events of any merge.
+    #[test]
+    fn small_chunks_wait_in_the_write_buffer_and_every_question_sees_them() {
+        let entity = EntityPath::parse("e").unwrap();
+        let mut store = ChunkStore::new();
+        let fanout = store.config().merge_fanout;
+        let frames = [5, 2, 8, 0, 9, 1, 7, 3, 6, 4];
+        let chunks: Vec<_> = frames.iter().map(|&f| one_row(&entity, f)).collect();
+        for chunk in &chunks {
+            assert_eq!(store.insert(Arc::clone(chunk)).unwrap().len(), 1);
+        }
+        let view = &store.view.entities[&entity];
+        assert_eq!(view.buffered.len(), frames.len());
+        assert!(
+            view.temporal_per_timeline_per_component.is_empty(),
+            "in no index"
+        );
+        store.sanity_check().unwrap();
+
+        assert_eq!(value_at(&store, &entity, 4), Some(4.0));
+        assert_eq!(value_at(&store, &entity, 100), Some(9.0));
+        assert_eq!(value_at(&store, &entity, -1), None);
+        assert_eq!(range_times(&store, &entity, 2, 6), vec![2, 3, 4, 5, 6]);
+        let rows: usize = store
+            .dataframe(&DataframeQuery::new("frame"))
+            .unwrap()
+            .map(|batch| batch.unwrap().num_rows())
+            .sum();
+        assert_eq!(rows, frames.len());
+        assert_eq!(store.chunks().count(), frames.len());
+        assert_eq!(store.time_range("frame"), Some((t(0), t(9))));
+
+        // Idempotent ingest: a buffered chunk again, or its row under another id.
+        assert!(store.insert(Arc::clone(&chunks[0])).unwrap().is_empty());
+        let copy = ChunkBuilder::new(ChunkId::new(), entity.clone())
+            .with_row(
+                chunks[0].row_ids()[0],
+                [(Timeline::sequence("frame"), 5)],
+                [("x", Arc::new(Float64Array::from(vec![5.0])) as ArrayRef)],
+            )
+            .build()
+            .unwrap();
+        assert!(store.insert(copy).unwrap().is_empty());
+
+        // Garbage collection keeps the latest buffered row when asked to.
+        let plan = store.plan_gc(&GcOptions::everything().with_protect_latest(1));
+        let latest = chunks[4].id(); // frame 9
+        assert!(!plan.chunk_ids.contains(&latest));
+        assert_eq!(plan.chunk_ids.len(), frames.len() - 1);
+
+        // A snapshot keeps seeing the buffer as it was when taken.
+        let snapshot = store.snapshot();
+        let mut last_events = Vec::new();
+        let last = 10 + i64::try_from(fanout - frames.len()).unwrap() - 1;
+        for frame in 10..=last {
+            last_events = store.insert(one_row(&entity, frame)).unwrap();
+        }
+        let view = &store.view.entities[&entity];
+        assert!(view.buffered.is_empty(), "a full fan seals the buffer");
+        let deletions = last_events
+            .iter()
+            .filter(|e| {
+                matches!(
+                    e,
+                    StoreEvent::Deletion {
+                        reason: DeletionReason::Compaction,
+                        ..
+                    }
+                )
+            })
+            .count();
+        assert_eq!(deletions, fanout);
+        assert!(matches!(last_events.first(), Some(StoreEvent::Addition(_))));
+        assert!(
+            matches!(last_events.last(), Some(StoreEvent::Addition(c)) if c.num_rows() == fanout)
+        );
+        assert_eq!(store.num_chunks(), 1);
+        store.sanity_check().unwrap();
+        assert_eq!(
+            value_at(&store, &entity, 100),
+            Some(f64::from(i32::try_from(last).unwrap()))
+        );
+        assert_eq!(
+            range_times(&store, &entity, 0, 100),
+            (0..=last).collect::<Vec<_>>()
+        );
+        assert_eq!(value_at(&snapshot, &entity, 100), Some(9.0));
+        assert_eq!(
+            range_times(&snapshot, &entity, 0, 100),
+            (0..10).collect::<Vec<_>>()
+        );
     }
 }

@@ -71,6 +71,24 @@ impl TablePlan {
                     });
                 }
             }
+            // The write buffer's chunks are in no index, with data all the same.
+            for chunk in &entity_index.buffered {
+                for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
+                    let timeline = time_column.timeline();
+                    for (position, column) in chunk.components().iter().enumerate() {
+                        let Ok(position) = u32::try_from(position) else {
+                            continue; // (columns < 2^32, checked in Chunk::from_raw)
+                        };
+                        if column.bounds(time_position).is_none() {
+                            continue;
+                        }
+                        timelines.insert(timeline.clone());
+                        with_data
+                            .entry(column.name().clone())
+                            .or_insert_with(|| (Arc::clone(chunk), position, false));
+                    }
+                }
+            }
             for (component, (chunk, column, is_static)) in with_data {
                 let column = &chunk.components()[column as usize];
                 let DataType::List(item_field) = column.list_array().data_type() else {

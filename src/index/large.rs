@@ -119,17 +119,20 @@ impl LargeIndex {
         true
     }
 
-    pub(super) fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
-        let mut latest: Vec<MaxIndexKey> = self
+    /// How many entries have a greatest index above `key`, counting at most `cap` of
+    /// those in the views.
+    pub(super) fn count_after(&self, key: MaxIndexKey, cap: usize) -> usize {
+        let in_views = self
             .chunks_by_max_index
-            .keys()
-            .rev()
-            .take(n)
-            .copied()
-            .chain(self.recent.iter().map(max_index_key))
-            .collect();
-        latest.sort_unstable_by(|a, b| b.cmp(a));
-        latest.iter().take(n).any(|&(_, _, latest)| latest == id)
+            .range((Bound::Excluded(key), Bound::Unbounded))
+            .take(cap)
+            .count();
+        in_views
+            + self
+                .recent
+                .iter()
+                .filter(|e| max_index_key(e) > key)
+                .count()
     }
 
     pub(super) fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {

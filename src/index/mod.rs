@@ -57,7 +57,7 @@ pub(crate) struct IndexedChunk {
     pub bounds: ComponentTimeBounds,
 }
 
-type MaxIndexKey = (TimeInt, RowId, ChunkId);
+pub(crate) type MaxIndexKey = (TimeInt, RowId, ChunkId);
 type MinTimeKey = (TimeInt, ChunkId);
 
 /// Up to this many chunks, an index is one sorted vector; see the module docs.
@@ -258,19 +258,16 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// Is `id` among the `n` chunks with the greatest indices?
-    pub fn is_among_latest(&self, id: ChunkId, n: usize) -> bool {
+    /// How many chunks have a greatest index `(max time, max row id, chunk id)` above
+    /// `key`; past `cap`, the count may stop at `cap`.
+    pub fn count_after(&self, key: MaxIndexKey, cap: usize) -> usize {
         match self {
-            Self::Small(entries) => entries
-                .iter()
-                .find(|e| e.chunk_id == id)
-                .is_some_and(|own| {
-                    let key = max_index_key(own);
-                    entries.iter().filter(|e| max_index_key(e) > key).count() < n
-                }),
+            Self::Small(entries) => entries.iter().filter(|e| max_index_key(e) > key).count(),
             // Greatest indices ascend with the position.
-            Self::Sequence(entries) => entries.iter().rev().take(n).any(|e| e.chunk_id == id),
-            Self::Large(large) => large.is_among_latest(id, n),
+            Self::Sequence(entries) => {
+                entries.len() - entries.partition_point(|e| max_index_key(e) <= key)
+            }
+            Self::Large(large) => large.count_after(key, cap),
         }
     }
 

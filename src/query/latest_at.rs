@@ -3,8 +3,8 @@
 use std::sync::Arc;
 
 use super::QueryCell;
-use crate::index::{IndexedChunk, TemporalComponentIndex};
-use crate::{EntityPath, RowId, StoreView, TimeInt};
+use crate::index::TemporalComponentIndex;
+use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt};
 
 /// "As of time `at` on `timeline`".
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -37,7 +37,8 @@ impl LatestAtQuery {
 /// entry keeps its chunk's greatest; inside a chunk it is read only to break a tie).
 struct Candidate<'a> {
     time: TimeInt,
-    entry: &'a IndexedChunk,
+    chunk: &'a Arc<Chunk>,
+    component_column: u32,
     row: u32,
     row_id: Option<RowId>,
 }
@@ -45,12 +46,21 @@ struct Candidate<'a> {
 impl Candidate<'_> {
     fn row_id(&self) -> RowId {
         self.row_id
-            .unwrap_or_else(|| self.entry.chunk.row_ids()[self.row as usize])
+            .unwrap_or_else(|| self.chunk.row_ids()[self.row as usize])
     }
 
     /// Does this candidate have a greater index `(time, row id)` than `other`?
     fn is_after(&self, other: &Self) -> bool {
         self.time > other.time || (self.time == other.time && self.row_id() > other.row_id())
+    }
+}
+
+/// Keeps the later of `best` and `candidate`.
+fn keep_latest<'a>(best: &mut Option<Candidate<'a>>, candidate: Option<Candidate<'a>>) {
+    if let Some(candidate) = candidate
+        && best.as_ref().is_none_or(|best| candidate.is_after(best))
+    {
+        *best = Some(candidate);
     }
 }
 
@@ -97,14 +107,28 @@ impl StoreView {
                 time: None,
             });
         }
-        let index = entity_index
+        let mut best = entity_index
             .temporal_per_timeline_per_component
-            .get(query.timeline())?
-            .get(component)?;
-        let best = latest_in_index(index, query.at)?;
+            .get(query.timeline())
+            .and_then(|per_component| per_component.get(component))
+            .and_then(|index| latest_in_index(index, query.at));
+        if !entity_index.buffered.is_empty() {
+            entity_index.for_each_buffered(
+                query.timeline(),
+                component,
+                |chunk, time_column, component_column, bounds| {
+                    if bounds.min_time <= query.at {
+                        let candidate =
+                            latest_in_chunk(chunk, time_column, component_column, query.at);
+                        keep_latest(&mut best, candidate);
+                    }
+                },
+            );
+        }
+        let best = best?;
         Some(QueryCell {
-            chunk: Arc::clone(&best.entry.chunk),
-            component_column: best.entry.component_column,
+            chunk: Arc::clone(best.chunk),
+            component_column: best.component_column,
             row: best.row,
             time: Some(best.time),
         })
@@ -115,16 +139,15 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
     let mut best: Option<Candidate<'_>> =
         index.latest_ending_at_or_before(at).map(|entry| Candidate {
             time: entry.bounds.max_time,
-            entry,
+            chunk: &entry.chunk,
+            component_column: entry.component_column,
             row: entry.bounds.max_row,
             row_id: Some(entry.bounds.max_row_id),
         });
     index.for_each_straddling(at, |entry| {
-        if let Some(candidate) = latest_in_chunk(entry, at)
-            && best.as_ref().is_none_or(|best| candidate.is_after(best))
-        {
-            best = Some(candidate);
-        }
+        let candidate =
+            latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at);
+        keep_latest(&mut best, candidate);
     });
     best
 }
@@ -134,10 +157,14 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
     clippy::cast_possible_truncation,
     reason = "rows < 2^32, checked in Chunk::from_raw"
 )]
-fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
-    let chunk = &entry.chunk;
-    let times = &chunk.time_columns()[entry.time_column as usize];
-    let column = &chunk.components()[entry.component_column as usize];
+fn latest_in_chunk(
+    chunk: &Arc<Chunk>,
+    time_column: u32,
+    component_column: u32,
+    at: TimeInt,
+) -> Option<Candidate<'_>> {
+    let times = &chunk.time_columns()[time_column as usize];
+    let column = &chunk.components()[component_column as usize];
     let end = times.num_positions_at_or_before(at.as_i64());
     (0..end)
         .rev()
@@ -145,7 +172,8 @@ fn latest_in_chunk(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
         .find(|&row| column.is_valid_in_bounds(row))
         .map(|row| Candidate {
             time: TimeInt::saturating(times.times()[row]),
-            entry,
+            chunk,
+            component_column,
             row: row as u32,
             row_id: None,
         })

@@ -310,13 +310,20 @@ impl StoreView {
         if min > max {
             return result;
         }
-        let Some(index) = entity_index
+        let index = entity_index
             .temporal_per_timeline_per_component
             .get(query.timeline())
-            .and_then(|per_component| per_component.get(component))
-        else {
-            return result;
+            .and_then(|per_component| per_component.get(component));
+        // The write buffer's chunks, as the index entries they would have (the runs
+        // borrow their entries while the result is built).
+        let buffered = if entity_index.buffered.is_empty() {
+            Vec::new()
+        } else {
+            entity_index.buffered_entries(query.timeline(), component)
         };
+        if index.is_none() && buffered.is_empty() {
+            return result;
+        }
 
         let mut pending = Vec::new();
         let mut add = |entry| {
@@ -330,8 +337,11 @@ impl StoreView {
                 pending.push(run);
             }
         };
-        index.for_each_reaching_into(min, &mut add);
-        index.for_each_starting_in(min, max, &mut add);
+        if let Some(index) = index {
+            index.for_each_reaching_into(min, &mut add);
+            index.for_each_starting_in(min, max, &mut add);
+        }
+        buffered.iter().for_each(&mut add);
 
         pending.sort_by_key(|p| p.first);
         let mut cluster_start = 0;

@@ -151,7 +151,7 @@ fn is_time_sorted(chunk: &Chunk) -> bool {
 }
 
 impl StoreConfig {
-    pub(super) fn level(&self, num_rows: usize) -> usize {
+    pub(crate) fn level(&self, num_rows: usize) -> usize {
         num_rows.max(1).ilog(self.merge_fanout.max(2)) as usize
     }
 }

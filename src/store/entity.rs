@@ -196,11 +196,25 @@ impl EntityMut<'_> {
             .retain(|_, winner| winner.chunk.id() != id);
     }
 
-    /// Forgets a temporal chunk from every (timeline, component) index and from the
-    /// compaction candidates.
-    /// Returns how much the indices' extra heap grew (negative: shrank).
-    pub(super) fn remove_temporal(&mut self, chunk: &Chunk, config: &crate::StoreConfig) -> i64 {
+    /// Forgets a temporal chunk from every (timeline, component) index and, if
+    /// `still_grouped` (compaction has not taken it out already), from the entity's
+    /// compaction groups. Returns how much the indices' extra heap grew (negative: shrank).
+    pub(super) fn remove_temporal(
+        &mut self,
+        chunk: &Chunk,
+        config: &crate::StoreConfig,
+        still_grouped: bool,
+    ) -> i64 {
         let id = chunk.id();
+        if still_grouped {
+            self.index.pending.remove(chunk, config);
+        }
+        if let Some(position) = self.view.buffered.iter().position(|c| c.id() == id) {
+            // A buffered chunk is in no index. (Arrival order is kept: queries do not
+            // depend on it, but `compaction/mod.rs` describes the buffer so.)
+            self.view.buffered.remove(position);
+            return 0;
+        }
         let mut extra = 0;
         let mut indexed = false;
         let per_timeline = &mut self.view.temporal_per_timeline_per_component;
@@ -230,7 +244,6 @@ impl EntityMut<'_> {
         if !indexed {
             self.view.unindexed.retain(|c| c.id() != id);
         }
-        self.index.pending.remove(chunk, config);
         self.index.large_index_bytes = self.index.large_index_bytes.saturating_add_signed(extra);
         extra
     }
@@ -277,8 +290,8 @@ impl EntityIndex {
     pub(crate) fn extra_index_heap_bytes_of(&self, view: &EntityView, chunk: &Chunk) -> u64 {
         // Most entities have no large index: then no lookup by the chunk's names (whose
         // strings are cold, a cache miss each when planning a GC over many chunks).
-        if self.large_index_bytes == 0 {
-            return 0;
+        if self.large_index_bytes == 0 || view.buffered.iter().any(|c| c.id() == chunk.id()) {
+            return 0; // (a buffered chunk is in no index)
         }
         let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;
         let large = view

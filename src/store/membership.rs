@@ -7,24 +7,27 @@ use std::sync::Arc;
 
 use super::{ChunkStore, DeletionReason, StoreEvent, StoredChunk};
 use crate::clear::ClearIndex;
-use crate::{Chunk, ChunkId};
+use crate::{Chunk, ChunkId, EntityPath};
 
 impl ChunkStore {
     /// Adds a validated chunk to every index and figure, and records its addition (and
     /// any static chunk it overwrites).
     pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
-        self.add_chunk_to_orders(chunk, true, events);
+        self.add_chunk_to_orders(chunk, Joining::Settled, events);
     }
 
-    /// [`ChunkStore::add_chunk`], leaving a temporal chunk out of the store-wide orders
-    /// unless `in_global_orders`: for a chunk compaction keeps waiting, which must then
-    /// either leave the store or be [settled](ChunkStore::settle_in_global_orders).
+    /// [`ChunkStore::add_chunk`], where `joining` says which of the store-wide orders and
+    /// indices a temporal chunk joins: a chunk compaction keeps waiting stays out of the
+    /// orders (it must then either leave the store or be
+    /// [settled](ChunkStore::settle_in_global_orders)), and a buffered one out of the
+    /// indices too.
     pub(crate) fn add_chunk_to_orders(
         &mut self,
         chunk: Arc<Chunk>,
-        in_global_orders: bool,
+        joining: Joining,
         events: &mut Vec<StoreEvent>,
     ) {
+        let in_global_orders = joining == Joining::Settled;
         let ledgered = !chunk.owns_all_buffers();
         let Some(mut entity) = super::entity_mut(
             &mut self.entities,
@@ -71,11 +74,21 @@ impl ChunkStore {
                 // An overwritten static Clear keeps hiding what it hid: its index entry
                 // stays, as SEMANTICS.md section 5 asks.
                 if let Some(stored) = self.chunks.remove(&overwritten.id()) {
-                    self.take_out(stored, false, DeletionReason::Overwrite, events);
+                    self.take_out(
+                        stored,
+                        Holding::FiguresOnly,
+                        DeletionReason::Overwrite,
+                        events,
+                    );
                 }
             }
         } else {
-            let extra = entity.insert_temporal(&chunk);
+            let extra = if joining == Joining::Buffered {
+                entity.view.buffered.push(Arc::clone(&chunk));
+                0
+            } else {
+                entity.insert_temporal(&chunk)
+            };
             crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
             self.view.stats = store_stats;
             ClearIndex::insert_chunk(&mut self.view.clears, &chunk);
@@ -149,92 +162,165 @@ impl ChunkStore {
         events: &mut Vec<StoreEvent>,
     ) -> Option<Arc<Chunk>> {
         let stored = self.chunks.remove(&id)?;
-        Some(self.take_out(stored, true, reason, events))
+        Some(self.take_out(stored, Holding::Everywhere, reason, events))
     }
 
-    /// Takes a chunk already out of the chunk map out of everything else: with `unindex`,
-    /// its indices and orders; always its entity's chunk set, the figures (and the entity
-    /// itself if it is left empty), and records the deletion event. One lookup of the
-    /// entity serves all of it.
+    /// Removes the chunks compaction on insert just merged (a fan of waiting chunks or a
+    /// cluster of a tier's runs, all of one entity, already out of its compaction
+    /// groups): [`ChunkStore::remove_chunk`] for each, with one lookup of the entity for
+    /// all of them and no search of the groups that no longer hold them.
+    pub(crate) fn remove_merged(&mut self, merged: &[Arc<Chunk>], events: &mut Vec<StoreEvent>) {
+        let Some(path) = merged.first().map(|chunk| chunk.entity_path().clone()) else {
+            return;
+        };
+        debug_assert!(merged.iter().all(|chunk| *chunk.entity_path() == path));
+        let stored: Vec<StoredChunk> = merged
+            .iter()
+            .filter_map(|chunk| self.chunks.remove(&chunk.id()))
+            .collect();
+        self.take_out_of_entity(
+            &path,
+            stored,
+            Holding::TakenByCompaction,
+            DeletionReason::Compaction,
+            events,
+        );
+    }
+
+    /// Takes a chunk already out of the chunk map out of everything else `holding` says
+    /// holds it: see [`ChunkStore::take_out_of_entity`].
     pub(crate) fn take_out(
         &mut self,
         stored: StoredChunk,
-        unindex: bool,
+        holding: Holding,
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
     ) -> Arc<Chunk> {
-        let StoredChunk {
+        let chunk = Arc::clone(&stored.chunk);
+        let path = chunk.entity_path().clone();
+        self.take_out_of_entity(&path, std::iter::once(stored), holding, reason, events);
+        chunk
+    }
+
+    /// Takes chunks of the entity at `path`, already out of the chunk map, out of what
+    /// `holding` says still holds them (indices, orders, compaction groups); always out of
+    /// the entity's chunk set and the figures (the entity itself goes if left empty), and
+    /// records each deletion. One lookup of the entity serves them all.
+    fn take_out_of_entity(
+        &mut self,
+        path: &EntityPath,
+        stored: impl IntoIterator<Item = StoredChunk>,
+        holding: Holding,
+        reason: DeletionReason,
+        events: &mut Vec<StoreEvent>,
+    ) {
+        let config = self.config;
+        let mut store_stats = self.view.stats;
+        let mut entity =
+            super::entity_mut(&mut self.entities, &mut self.view.entities, path, false);
+        for StoredChunk {
             chunk,
             ledgered,
             in_global_orders,
             rewritten_by: _,
-        } = stored;
-        let id = chunk.id();
-        if unindex && !chunk.is_static() {
-            ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
-            if in_global_orders {
-                self.remove_from_global_orders(&chunk);
-            } else {
-                self.num_outside_global_orders -= 1;
-            }
-        }
-        let config = self.config;
-        let mut store_stats = self.view.stats;
-        if let Some(mut entity) = super::entity_mut(
-            &mut self.entities,
-            &mut self.view.entities,
-            chunk.entity_path(),
-            false,
-        ) {
-            if unindex {
-                if chunk.is_static() {
-                    entity.remove_static(id);
+        } in stored
+        {
+            let id = chunk.id();
+            let unindex = holding != Holding::FiguresOnly;
+            if unindex && !chunk.is_static() {
+                ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
+                if in_global_orders {
+                    remove_from_global_orders(
+                        &mut self.temporal_by_row_id,
+                        &mut self.temporal_per_timeline,
+                        &chunk,
+                    );
                 } else {
-                    let extra = entity.remove_temporal(&chunk, &config);
-                    crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
+                    self.num_outside_global_orders -= 1;
                 }
             }
-            entity.index.chunk_ids.remove(&id);
-            entity.remove_components(&chunk);
-            crate::stats::account(
-                &chunk,
-                ledgered,
-                false,
-                &mut store_stats,
-                &mut self.ledgers,
-                &mut entity.view.stats,
-                &mut entity.index.ledger,
-            );
-            if entity.index.chunk_ids.is_empty() {
-                // Nothing left: the entity is forgotten, as if never inserted (its
-                // component types included).
-                self.forget_entity(chunk.entity_path());
-                store_stats.heap_bytes = store_stats
-                    .heap_bytes
-                    .saturating_sub(crate::stats::ENTITY_BYTES);
+            if let Some(entity) = entity.as_mut() {
+                if unindex {
+                    if chunk.is_static() {
+                        entity.remove_static(id);
+                    } else {
+                        let still_grouped = holding == Holding::Everywhere;
+                        let extra = entity.remove_temporal(&chunk, &config, still_grouped);
+                        crate::stats::add_index_bytes(
+                            &mut store_stats,
+                            &mut entity.view.stats,
+                            extra,
+                        );
+                    }
+                }
+                entity.index.chunk_ids.remove(&id);
+                entity.remove_components(&chunk);
+                crate::stats::account(
+                    &chunk,
+                    ledgered,
+                    false,
+                    &mut store_stats,
+                    &mut self.ledgers,
+                    &mut entity.view.stats,
+                    &mut entity.index.ledger,
+                );
             }
+            events.push(StoreEvent::Deletion { chunk, reason });
+        }
+        // Nothing left: the entity is forgotten, as if never inserted (its component types
+        // included).
+        let emptied = entity.is_some_and(|entity| entity.index.chunk_ids.is_empty());
+        if emptied {
+            self.forget_entity(path);
+            store_stats.heap_bytes = store_stats
+                .heap_bytes
+                .saturating_sub(crate::stats::ENTITY_BYTES);
         }
         self.view.stats = store_stats;
-        events.push(StoreEvent::Deletion {
-            chunk: Arc::clone(&chunk),
-            reason,
-        });
-        chunk
     }
+}
 
-    fn remove_from_global_orders(&mut self, chunk: &Chunk) {
-        let id = chunk.id();
-        self.temporal_by_row_id
-            .remove(&(chunk.row_id_range().0, id));
-        for column in chunk.time_columns() {
-            let (min, max) = column.time_range();
-            let name = column.timeline().name();
-            if let Some(per_timeline) = self.temporal_per_timeline.get_mut(name) {
-                per_timeline.by_min_time.remove(&(min, id));
-                per_timeline.by_max_time.remove(&(max, id));
-                if per_timeline.by_min_time.is_empty() {
-                    self.temporal_per_timeline.remove(name);
-                }
+/// Which of the store's orders and indices a temporal chunk joins on addition.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Joining {
+    /// The store-wide orders and the indices: a chunk that stays.
+    Settled,
+    /// The indices only: a chunk compaction on insert keeps waiting for a fan to merge.
+    Waiting,
+    /// Neither: a chunk of the write buffer ([`EntityView::buffered`](super::EntityView)),
+    /// which queries scan.
+    Buffered,
+}
+
+/// Where a chunk leaving the store is still held, besides the chunk map.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Holding {
+    /// In its indices and orders, and in its entity's compaction groups if compaction
+    /// keeps it waiting or in a run.
+    Everywhere,
+    /// In its indices and orders: compaction on insert took it out of the groups (a fan or
+    /// a tier it merges).
+    TakenByCompaction,
+    /// Only in its entity's chunk set and figures: an overwritten static chunk, whose
+    /// Clears stay in the Clear index (SEMANTICS.md section 5).
+    FiguresOnly,
+}
+
+fn remove_from_global_orders(
+    by_row_id: &mut crate::ordered::OrderedSet<(crate::RowId, ChunkId)>,
+    per_timeline: &mut ahash::HashMap<Arc<str>, super::TimelineChunks>,
+    chunk: &Chunk,
+) {
+    let id = chunk.id();
+    by_row_id.remove(&(chunk.row_id_range().0, id));
+    for column in chunk.time_columns() {
+        let (min, max) = column.time_range();
+        let name = column.timeline().name();
+        if let Some(chunks) = per_timeline.get_mut(name) {
+            chunks.by_min_time.remove(&(min, id));
+            chunks.by_max_time.remove(&(max, id));
+            if chunks.by_min_time.is_empty() {
+                per_timeline.remove(name);
             }
         }
     }

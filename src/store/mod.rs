@@ -26,6 +26,7 @@ pub use config::StoreConfig;
 pub(crate) use entity::{EntityIndex, EntityMut};
 use events::Subscribers;
 pub use events::{DeletionReason, EventSubscriber, StoreEvent};
+pub(crate) use membership::{Holding, Joining};
 pub(crate) use pending::{RewriteMark, Run};
 pub(crate) use view::EntityView;
 pub use view::StoreView;

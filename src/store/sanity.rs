@@ -342,6 +342,7 @@ impl EntityIndex {
             static_winners,
             temporal_per_timeline_per_component,
             unindexed,
+            buffered,
             stats: _, // recounted by the store (`check_entities`)
         } = view;
         let types_agree = component_types.len() == element_types.len()
@@ -357,6 +358,18 @@ impl EntityIndex {
         )?;
         if unindexed.iter().any(|c| !chunk_ids.contains(&c.id())) {
             return Err(fail("an unindexed chunk is the store's"));
+        }
+        for chunk in buffered {
+            let waiting = chunks
+                .get(&chunk.id())
+                .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders)
+                && pending.chunks().any(|c| Arc::ptr_eq(c, chunk));
+            if !chunk_ids.contains(&chunk.id()) || !waiting {
+                return Err(fail(
+                    "a buffered chunk is the store's, waiting in its compaction group",
+                )
+                .at(format_args!("{path}: {}", chunk.id())));
+            }
         }
         let counted = view.extra_index_heap_bytes();
         if *large_index_bytes != counted {

@@ -17,8 +17,9 @@ use std::sync::Arc;
 
 use arrow_schema::DataType;
 
+use crate::chunk::ComponentTimeBounds;
 use crate::clear::ClearIndex;
-use crate::index::TemporalComponentIndex;
+use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::sanity::{SanityError, Structure};
 use crate::small_map::SmallMap;
 use crate::stats::{EntityStats, StoreStats};
@@ -59,6 +60,13 @@ pub(crate) struct EntityView {
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
     /// they are the entity's rows all the same (the chunk table lists them).
     pub unindexed: Vec<Arc<Chunk>>,
+    /// The write buffer: small temporal chunks compaction on insert will merge soon (those
+    /// of its first level, fewer than `merge_fanout` rows each), in arrival order and in no
+    /// index. Queries scan them beside the indices: at most `merge_fanout - 1` per layout,
+    /// each a few rows. A row arriving in its own chunk is thus buffered with a push here
+    /// and merged with its fan's, rather than indexed under every (timeline, component) it
+    /// has cells for and taken out again a few inserts later. See `compaction/mod.rs`.
+    pub buffered: Vec<Arc<Chunk>>,
     pub stats: EntityStats,
 }
 
@@ -135,6 +143,7 @@ impl StoreView {
                 entity
                     .unindexed
                     .iter()
+                    .chain(&entity.buffered)
                     .filter_map(|chunk| chunk.time_column(timeline))
                     .map(crate::TimeColumn::time_range)
             }))
@@ -184,6 +193,7 @@ impl StoreView {
                 }
             }
             out.extend(entity.unindexed.iter().cloned());
+            out.extend(entity.buffered.iter().cloned());
             let mine = &mut out[first..];
             mine.sort_unstable_by_key(|chunk| chunk.id());
             let mut seen: Option<ChunkId> = None;
@@ -223,6 +233,95 @@ impl StoreView {
 }
 
 impl EntityView {
+    /// Calls `f` with each buffered chunk that has non-null cells of `component` on
+    /// `timeline`: the chunk, the positions of that time column and component column, and
+    /// the component's bounds there (what its index entry would hold).
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
+    pub(crate) fn for_each_buffered<'a>(
+        &'a self,
+        timeline: &str,
+        component: &str,
+        mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
+    ) {
+        for chunk in &self.buffered {
+            let Some(time_column) = chunk
+                .time_columns()
+                .iter()
+                .position(|column| column.timeline().name() == timeline)
+            else {
+                continue;
+            };
+            let Some((component_column, bounds)) = chunk
+                .components()
+                .iter()
+                .enumerate()
+                .find(|(_, column)| column.name().as_str() == component)
+                .and_then(|(position, column)| Some((position, column.bounds(time_column)?)))
+            else {
+                continue;
+            };
+            f(chunk, time_column as u32, component_column as u32, bounds);
+        }
+    }
+
+    /// Is `chunk` (one of the entity's temporal chunks, indexed or buffered) among the
+    /// `n` chunks with the greatest indices `(time, row id)` for some (timeline,
+    /// component) it has cells for? What garbage collection's `protect_latest` keeps.
+    pub(crate) fn is_among_latest(&self, chunk: &Chunk, n: usize) -> bool {
+        let id = chunk.id();
+        chunk
+            .time_columns()
+            .iter()
+            .enumerate()
+            .any(|(time_position, time_column)| {
+                let timeline = time_column.timeline().name();
+                let per_component = self.temporal_per_timeline_per_component.get(timeline);
+                chunk.components().iter().any(|column| {
+                    let Some(bounds) = column.bounds(time_position) else {
+                        return false;
+                    };
+                    let key = (bounds.max_time, bounds.max_row_id, id);
+                    let mut after = per_component
+                        .and_then(|per_component| per_component.get(column.name()))
+                        .map_or(0, |index| index.count_after(key, n));
+                    if after < n && !self.buffered.is_empty() {
+                        self.for_each_buffered(
+                            timeline,
+                            column.name().as_str(),
+                            |other, _, _, bounds| {
+                                after += usize::from(
+                                    (bounds.max_time, bounds.max_row_id, other.id()) > key,
+                                );
+                            },
+                        );
+                    }
+                    after < n
+                })
+            })
+    }
+
+    /// [`EntityView::for_each_buffered`] as the index entries the chunks would have.
+    pub(crate) fn buffered_entries(&self, timeline: &str, component: &str) -> Vec<IndexedChunk> {
+        let mut entries = Vec::new();
+        self.for_each_buffered(
+            timeline,
+            component,
+            |chunk, time_column, component_column, bounds| {
+                entries.push(IndexedChunk {
+                    chunk: Arc::clone(chunk),
+                    chunk_id: chunk.id(),
+                    time_column,
+                    component_column,
+                    bounds,
+                });
+            },
+        );
+        entries
+    }
+
     /// The view's own invariants: its small maps hold, each index holds, is non-empty and
     /// typed, and holds only the entity's chunks.
     pub(crate) fn sanity_check(&self, path: &EntityPath) -> Result<(), SanityError> {
@@ -232,6 +331,7 @@ impl EntityView {
             static_winners,
             temporal_per_timeline_per_component,
             unindexed,
+            buffered,
             stats: _, // recounted by the store
         } = self;
         static_winners.sanity_check()?;
@@ -250,6 +350,12 @@ impl EntityView {
                 {
                     return Err(fail("an indexed chunk is the entity's own"));
                 }
+                if index
+                    .chunks()
+                    .any(|entry| buffered.iter().any(|b| b.id() == entry.chunk_id))
+                {
+                    return Err(fail("a buffered chunk is in no index"));
+                }
             }
         }
         for chunk in unindexed {
@@ -258,6 +364,18 @@ impl EntityView {
             if chunk.is_static() || has_bounds || chunk.entity_path() != path {
                 return Err(fail(
                     "an unindexed chunk is a temporal chunk of the entity without cells",
+                )
+                .at(chunk.id()));
+            }
+        }
+        for (position, chunk) in buffered.iter().enumerate() {
+            if chunk.is_static()
+                || chunk.entity_path() != path
+                || buffered[..position].iter().any(|b| b.id() == chunk.id())
+                || unindexed.iter().any(|u| u.id() == chunk.id())
+            {
+                return Err(fail(
+                    "a buffered chunk is a temporal chunk of the entity, buffered once",
                 )
                 .at(chunk.id()));
             }
