@@ -10,6 +10,18 @@
 //! A chunk stops growing once it holds half of a threshold: merging it again could not
 //! double it.
 //!
+//! The first level, chunks of fewer than `K` rows, is the **write buffer**: rows that
+//! arrive one or a few at a time. Its chunks are the store's like any other (in the chunk
+//! map, the figures, the events: a subscriber sees each one's addition on insert, then,
+//! when its fan fills, the deletion of the fan's chunks for [`DeletionReason::Compaction`]
+//! and the addition of the sealed chunk, all in the events of the insert that filled it),
+//! but they enter no temporal index: the entity's view lists them, and every query scans
+//! them beside the indices (at most `K - 1` per layout, a few rows each). A row that
+//! arrives in its own chunk thus costs a push and its share of one merge, not an entry in
+//! every (timeline, component) index it has cells for, taken out again a few inserts
+//! later. Snapshots share the buffer with the rest of the entity's view (copied on write,
+//! at most `K - 1` handles per layout). [`ChunkStore::compact`] seals every buffer.
+//!
 //! A chunk that no longer grows *settles*, and settled chunks join their entity's *runs*
 //! (per layout, by *tier*, the level of a run's rows): sets of chunks that overlap none of
 //! each other on the first timeline. A full fan of `K` runs in one tier merges into one run:
@@ -40,6 +52,6 @@ mod plan;
 mod rewrite;
 
 #[cfg(doc)]
-use crate::{ChunkStore, StoreConfig};
+use crate::{ChunkStore, DeletionReason, StoreConfig};
 
 pub use plan::{CompactionGroup, CompactionPlan, CompactionReason};

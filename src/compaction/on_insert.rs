@@ -307,6 +307,17 @@ mod tests {
         assert!(!plan.chunk_ids.contains(&latest));
         assert_eq!(plan.chunk_ids.len(), frames.len() - 1);
 
+        // `compact()` seals the buffer (here on a copy of the store).
+        let mut compacted = store.clone();
+        compacted.compact();
+        assert!(compacted.view.entities[&entity].buffered.is_empty());
+        assert_eq!(compacted.num_chunks(), 1);
+        compacted.sanity_check().unwrap();
+        assert_eq!(
+            range_times(&compacted, &entity, 0, 100),
+            (0..10).collect::<Vec<_>>()
+        );
+
         // A snapshot keeps seeing the buffer as it was when taken.
         let snapshot = store.snapshot();
         let mut last_events = Vec::new();

@@ -117,11 +117,22 @@ impl StoreView {
                 query.timeline(),
                 component,
                 |chunk, time_column, component_column, bounds| {
-                    if bounds.min_time <= query.at {
-                        let candidate =
-                            latest_in_chunk(chunk, time_column, component_column, query.at);
-                        keep_latest(&mut best, candidate);
-                    }
+                    // As in an index: a chunk ending by the time answers with its greatest
+                    // cell, known from its bounds; only one straddling it is searched.
+                    let candidate = if bounds.max_time <= query.at {
+                        Some(Candidate {
+                            time: bounds.max_time,
+                            chunk,
+                            component_column,
+                            row: bounds.max_row,
+                            row_id: Some(bounds.max_row_id),
+                        })
+                    } else if bounds.min_time <= query.at {
+                        latest_in_chunk(chunk, time_column, component_column, query.at)
+                    } else {
+                        None
+                    };
+                    keep_latest(&mut best, candidate);
                 },
             );
         }
