@@ -1,5 +1,6 @@
-//! Latest-at: many entities of sorted chunks, compacted out-of-order data, rows sharing one
-//! time, one long chunk beside many short ones, and static data shadowing temporal data.
+//! Latest-at: many entities of sorted chunks, a live stream with its write buffers,
+//! compacted out-of-order data, rows sharing one time, one long chunk beside many short
+//! ones, and static data shadowing temporal data.
 
 #![allow(
     clippy::expect_used,
@@ -58,6 +59,25 @@ fn latest_at(c: &mut Criterion) {
     let store = store_with(StoreConfig::COMPACTION_OFF, &chunks);
     let queries = random_queries(&points, 1100, 10_000);
     bench_queries(c, "1k_entities/10_chunks_each", &store, &queries);
+
+    // A live stream as a viewer sees it: 100 entities, 1,007 single-row chunks each in
+    // time order, default configuration, so each entity's write buffer holds its last 15
+    // rows (their chunks in no index) and a tenth of the queries ask past the newest.
+    let streams = entities(100, |i| format!("stream/{i}"));
+    let mut stream_chunks = Vec::new();
+    for frame in 0..1007 {
+        for entity in &streams {
+            stream_chunks.push(common::temporal_chunk(
+                &mut ids,
+                entity,
+                vec![frame],
+                vec![(SCALAR, scalars(vec![1.0]))],
+            ));
+        }
+    }
+    let store = store_with(StoreConfig::DEFAULT, &stream_chunks);
+    let queries = random_queries(&streams, 1100, 10_000);
+    bench_queries(c, "stream/100_entities/write_buffer", &store, &queries);
 
     // 20,000 single rows in random time order, compacted on insert.
     let ooo = entities(1, |_| "ooo".to_owned());

@@ -101,7 +101,7 @@ impl ChunkStore {
             return candidates;
         }
         // The write buffer's few chunks are in no index: each is a candidate.
-        view.buffered.iter().for_each(&mut consider);
+        view.buffered.chunks().for_each(&mut consider);
         let Some(per_component) = view
             .temporal_per_timeline_per_component
             .get(first.timeline().name())

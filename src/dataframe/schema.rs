@@ -72,7 +72,7 @@ impl TablePlan {
                 }
             }
             // The write buffer's chunks are in no index, with data all the same.
-            for chunk in &entity_index.buffered {
+            for chunk in entity_index.buffered.chunks() {
                 for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
                     let timeline = time_column.timeline();
                     for (position, column) in chunk.components().iter().enumerate() {

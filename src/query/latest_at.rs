@@ -113,9 +113,10 @@ impl StoreView {
             .and_then(|per_component| per_component.get(component))
             .and_then(|index| latest_in_index(index, query.at));
         if !entity_index.buffered.is_empty() {
-            entity_index.for_each_buffered(
+            entity_index.buffered.for_each_candidate(
                 query.timeline(),
                 component,
+                query.at,
                 |chunk, time_column, component_column, bounds| {
                     // As in an index: a chunk ending by the time answers with its greatest
                     // cell, known from its bounds; only one straddling it is searched.

@@ -209,11 +209,8 @@ impl EntityMut<'_> {
         if still_grouped {
             self.index.pending.remove(chunk, config);
         }
-        if let Some(position) = self.view.buffered.iter().position(|c| c.id() == id) {
-            // A buffered chunk is in no index. (Arrival order is kept: queries do not
-            // depend on it, but `compaction/mod.rs` describes the buffer so.)
-            self.view.buffered.remove(position);
-            return 0;
+        if self.view.buffered.remove(id) {
+            return 0; // a buffered chunk is in no index
         }
         let mut extra = 0;
         let mut indexed = false;
@@ -290,7 +287,7 @@ impl EntityIndex {
     pub(crate) fn extra_index_heap_bytes_of(&self, view: &EntityView, chunk: &Chunk) -> u64 {
         // Most entities have no large index: then no lookup by the chunk's names (whose
         // strings are cold, a cache miss each when planning a GC over many chunks).
-        if self.large_index_bytes == 0 || view.buffered.iter().any(|c| c.id() == chunk.id()) {
+        if self.large_index_bytes == 0 || view.buffered.contains(chunk.id()) {
             return 0; // (a buffered chunk is in no index)
         }
         let per_entry = LARGE_INDEX_BYTES_PER_ENTRY - SMALL_INDEX_BYTES_PER_ENTRY;

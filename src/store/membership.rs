@@ -84,7 +84,7 @@ impl ChunkStore {
             }
         } else {
             let extra = if joining == Joining::Buffered {
-                entity.view.buffered.push(Arc::clone(&chunk));
+                entity.view.buffered.push(&chunk);
                 0
             } else {
                 entity.insert_temporal(&chunk)
@@ -266,6 +266,9 @@ impl ChunkStore {
                 );
             }
             events.push(StoreEvent::Deletion { chunk, reason });
+        }
+        if let Some(entity) = entity.as_mut() {
+            entity.view.buffered.refresh();
         }
         // Nothing left: the entity is forgotten, as if never inserted (its component types
         // included).

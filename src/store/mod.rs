@@ -6,6 +6,7 @@
 //! `add_chunk` and `remove_chunk`, which keep the indices, the figures and the event list
 //! in step; [`sanity`] checks that they did.
 
+mod buffer;
 mod config;
 mod entity;
 mod events;

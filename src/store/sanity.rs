@@ -359,7 +359,7 @@ impl EntityIndex {
         if unindexed.iter().any(|c| !chunk_ids.contains(&c.id())) {
             return Err(fail("an unindexed chunk is the store's"));
         }
-        for chunk in buffered {
+        for chunk in buffered.chunks() {
             let waiting = chunks
                 .get(&chunk.id())
                 .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders)

@@ -17,7 +17,7 @@ use std::sync::Arc;
 
 use arrow_schema::DataType;
 
-use crate::chunk::ComponentTimeBounds;
+use super::buffer::WriteBuffer;
 use crate::clear::ClearIndex;
 use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::sanity::{SanityError, Structure};
@@ -66,7 +66,7 @@ pub(crate) struct EntityView {
     /// each a few rows. A row arriving in its own chunk is thus buffered with a push here
     /// and merged with its fan's, rather than indexed under every (timeline, component) it
     /// has cells for and taken out again a few inserts later. See `compaction/mod.rs`.
-    pub buffered: Vec<Arc<Chunk>>,
+    pub buffered: WriteBuffer,
     pub stats: EntityStats,
 }
 
@@ -143,7 +143,7 @@ impl StoreView {
                 entity
                     .unindexed
                     .iter()
-                    .chain(&entity.buffered)
+                    .chain(entity.buffered.chunks())
                     .filter_map(|chunk| chunk.time_column(timeline))
                     .map(crate::TimeColumn::time_range)
             }))
@@ -193,7 +193,7 @@ impl StoreView {
                 }
             }
             out.extend(entity.unindexed.iter().cloned());
-            out.extend(entity.buffered.iter().cloned());
+            out.extend(entity.buffered.chunks().cloned());
             let mine = &mut out[first..];
             mine.sort_unstable_by_key(|chunk| chunk.id());
             let mut seen: Option<ChunkId> = None;
@@ -233,40 +233,6 @@ impl StoreView {
 }
 
 impl EntityView {
-    /// Calls `f` with each buffered chunk that has non-null cells of `component` on
-    /// `timeline`: the chunk, the positions of that time column and component column, and
-    /// the component's bounds there (what its index entry would hold).
-    #[expect(
-        clippy::cast_possible_truncation,
-        reason = "columns < 2^32, checked in Chunk::from_raw"
-    )]
-    pub(crate) fn for_each_buffered<'a>(
-        &'a self,
-        timeline: &str,
-        component: &str,
-        mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
-    ) {
-        for chunk in &self.buffered {
-            let Some(time_column) = chunk
-                .time_columns()
-                .iter()
-                .position(|column| column.timeline().name() == timeline)
-            else {
-                continue;
-            };
-            let Some((component_column, bounds)) = chunk
-                .components()
-                .iter()
-                .enumerate()
-                .find(|(_, column)| column.name().as_str() == component)
-                .and_then(|(position, column)| Some((position, column.bounds(time_column)?)))
-            else {
-                continue;
-            };
-            f(chunk, time_column as u32, component_column as u32, bounds);
-        }
-    }
-
     /// Is `chunk` (one of the entity's temporal chunks, indexed or buffered) among the
     /// `n` chunks with the greatest indices `(time, row id)` for some (timeline,
     /// component) it has cells for? What garbage collection's `protect_latest` keeps.
@@ -288,7 +254,7 @@ impl EntityView {
                         .and_then(|per_component| per_component.get(column.name()))
                         .map_or(0, |index| index.count_after(key, n));
                     if after < n && !self.buffered.is_empty() {
-                        self.for_each_buffered(
+                        self.buffered.for_each(
                             timeline,
                             column.name().as_str(),
                             |other, _, _, bounds| {
@@ -303,10 +269,10 @@ impl EntityView {
             })
     }
 
-    /// [`EntityView::for_each_buffered`] as the index entries the chunks would have.
+    /// [`WriteBuffer::for_each`] as the index entries the chunks would have.
     pub(crate) fn buffered_entries(&self, timeline: &str, component: &str) -> Vec<IndexedChunk> {
         let mut entries = Vec::new();
-        self.for_each_buffered(
+        self.buffered.for_each(
             timeline,
             component,
             |chunk, time_column, component_column, bounds| {
@@ -352,7 +318,7 @@ impl EntityView {
                 }
                 if index
                     .chunks()
-                    .any(|entry| buffered.iter().any(|b| b.id() == entry.chunk_id))
+                    .any(|entry| buffered.contains(entry.chunk_id))
                 {
                     return Err(fail("a buffered chunk is in no index"));
                 }
@@ -368,17 +334,12 @@ impl EntityView {
                 .at(chunk.id()));
             }
         }
-        for (position, chunk) in buffered.iter().enumerate() {
-            if chunk.is_static()
-                || chunk.entity_path() != path
-                || buffered[..position].iter().any(|b| b.id() == chunk.id())
-                || unindexed.iter().any(|u| u.id() == chunk.id())
-            {
-                return Err(fail(
-                    "a buffered chunk is a temporal chunk of the entity, buffered once",
-                )
-                .at(chunk.id()));
-            }
+        buffered.sanity_check(path)?;
+        if buffered
+            .chunks()
+            .any(|b| unindexed.iter().any(|u| u.id() == b.id()))
+        {
+            return Err(fail("a buffered chunk is not also unindexed"));
         }
         Ok(())
     }

@@ -1,0 +1,323 @@
+//! [`WriteBuffer`]: an entity's small temporal chunks that compaction on insert will soon
+//! merge (its first level), kept out of the temporal indices. See `compaction/mod.rs` for
+//! why and for what a subscriber sees.
+//!
+//! Queries scan the buffer beside the indices, so it is laid out for them: chunks whose
+//! columns have the same names in the same places form one group, and each group keeps,
+//! per time column, its least and greatest time, and per (time column, component column)
+//! its greatest cell. A latest-at at or after a group's greatest time (a viewer asking for
+//! the newest data of a streaming entity) reads that summary; one before its least time
+//! skips the group; only a time inside the group's span looks at its chunks. Without the
+//! summary, a latest-at at a streaming entity read every buffered chunk's columns, each a
+//! cold allocation: 130 → 310 ns a query on 100 entities of 15 buffered chunks each.
+
+use std::sync::Arc;
+
+use smallvec::SmallVec;
+
+use crate::chunk::ComponentTimeBounds;
+use crate::sanity::{SanityError, Structure};
+use crate::{Chunk, ChunkId, EntityPath, TimeInt};
+
+/// The write buffer of one entity: see the module docs.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct WriteBuffer {
+    groups: Vec<BufferGroup>,
+}
+
+/// Buffered chunks whose time columns and component columns have the same names in the
+/// same places, and their summary.
+#[derive(Clone, Debug)]
+struct BufferGroup {
+    /// In arrival order; never empty.
+    chunks: Vec<Arc<Chunk>>,
+    /// Per time column: the least and greatest time of any row of the group.
+    time_ranges: SmallVec<[(TimeInt, TimeInt); 1]>,
+    /// Per (time column `t`, component column `c`), at `t * components + c`: the chunk
+    /// holding the group's greatest non-null cell there, and that chunk's bounds.
+    latest: Vec<Option<(u32, ComponentTimeBounds)>>,
+    /// Has a chunk left since the summary was made? [`WriteBuffer::refresh`] remakes it
+    /// once a removal is done (a seal takes a whole group out one chunk at a time).
+    stale: bool,
+}
+
+/// Where a (timeline, component) is in a group's chunks, and what the group says of it.
+struct Located {
+    time_column: usize,
+    component_column: usize,
+}
+
+/// Do `a` and `b` have the same column names in the same places? Names are mostly one
+/// process-wide allocation each (`shared.rs`), so addresses decide before the bytes do.
+fn same_columns(a: &Chunk, b: &Chunk) -> bool {
+    let same = |x: &str, y: &str| std::ptr::eq(x, y) || x == y;
+    a.time_columns().len() == b.time_columns().len()
+        && a.components().len() == b.components().len()
+        && a.time_columns()
+            .iter()
+            .zip(b.time_columns())
+            .all(|(x, y)| same(x.timeline().name(), y.timeline().name()))
+        && a.components()
+            .iter()
+            .zip(b.components())
+            .all(|(x, y)| same(x.name().as_str(), y.name().as_str()))
+}
+
+/// Is `b` a greater cell than `a` (by `(time, row id)`)?
+fn is_after(b: &ComponentTimeBounds, a: &ComponentTimeBounds) -> bool {
+    (b.max_time, b.max_row_id) > (a.max_time, a.max_row_id)
+}
+
+impl BufferGroup {
+    fn new(chunk: &Arc<Chunk>) -> Self {
+        let mut group = Self {
+            chunks: Vec::new(),
+            time_ranges: SmallVec::new(),
+            latest: Vec::new(),
+            stale: false,
+        };
+        group.chunks.push(Arc::clone(chunk));
+        group.summarize();
+        group
+    }
+
+    fn num_components(&self) -> usize {
+        self.chunks.first().map_or(0, |c| c.components().len())
+    }
+
+    /// Adds chunk number `position` (already in `chunks`) to the summary.
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "a group holds fewer than 2^32 chunks"
+    )]
+    fn add_to_summary(&mut self, position: usize) {
+        let chunk = Arc::clone(&self.chunks[position]);
+        let num_components = self.num_components();
+        for (t, column) in chunk.time_columns().iter().enumerate() {
+            let (least, greatest) = column.time_range();
+            match self.time_ranges.get_mut(t) {
+                Some((min, max)) => {
+                    *min = (*min).min(least);
+                    *max = (*max).max(greatest);
+                }
+                None => self.time_ranges.push((least, greatest)),
+            }
+            for (c, component) in chunk.components().iter().enumerate() {
+                let Some(bounds) = component.bounds(t) else {
+                    continue;
+                };
+                let slot = &mut self.latest[t * num_components + c];
+                if slot.is_none_or(|(_, best)| is_after(&bounds, &best)) {
+                    *slot = Some((position as u32, bounds));
+                }
+            }
+        }
+    }
+
+    /// Recomputes the summary from the chunks.
+    fn summarize(&mut self) {
+        let num_slots = self
+            .chunks
+            .first()
+            .map_or(0, |c| c.time_columns().len() * c.components().len());
+        self.time_ranges.clear();
+        self.latest.clear();
+        self.latest.resize(num_slots, None);
+        for position in 0..self.chunks.len() {
+            self.add_to_summary(position);
+        }
+    }
+
+    /// Where `timeline` and `component` are in this group's chunks.
+    fn locate(&self, timeline: &str, component: &str) -> Option<Located> {
+        let first = self.chunks.first()?;
+        Some(Located {
+            time_column: first
+                .time_columns()
+                .iter()
+                .position(|column| column.timeline().name() == timeline)?,
+            component_column: first
+                .components()
+                .iter()
+                .position(|column| column.name().as_str() == component)?,
+        })
+    }
+}
+
+impl WriteBuffer {
+    pub fn is_empty(&self) -> bool {
+        self.groups.is_empty()
+    }
+
+    /// Number of buffered chunks.
+    #[cfg(test)]
+    pub fn len(&self) -> usize {
+        self.groups.iter().map(|g| g.chunks.len()).sum()
+    }
+
+    /// Every buffered chunk, group by group, each in arrival order.
+    pub fn chunks(&self) -> impl Iterator<Item = &Arc<Chunk>> + '_ {
+        self.groups.iter().flat_map(|g| &g.chunks)
+    }
+
+    pub fn contains(&self, id: ChunkId) -> bool {
+        self.chunks().any(|c| c.id() == id)
+    }
+
+    /// Buffers a temporal chunk (once: the store adds a chunk id once).
+    pub fn push(&mut self, chunk: &Arc<Chunk>) {
+        match self.groups.iter_mut().find(|g| {
+            g.chunks
+                .first()
+                .is_some_and(|first| same_columns(first, chunk))
+        }) {
+            Some(group) => {
+                group.chunks.push(Arc::clone(chunk));
+                group.add_to_summary(group.chunks.len() - 1);
+            }
+            None => self.groups.push(BufferGroup::new(chunk)),
+        }
+    }
+
+    /// Takes a chunk out; returns whether it was buffered. The group's summary is stale
+    /// until [`WriteBuffer::refresh`], which the removal's caller must call before any
+    /// query reads the buffer.
+    pub fn remove(&mut self, id: ChunkId) -> bool {
+        for (g, group) in self.groups.iter_mut().enumerate() {
+            if let Some(position) = group.chunks.iter().position(|c| c.id() == id) {
+                group.chunks.remove(position);
+                if group.chunks.is_empty() {
+                    self.groups.swap_remove(g);
+                } else {
+                    group.stale = true;
+                }
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Remakes the summaries removals left stale.
+    pub fn refresh(&mut self) {
+        for group in self.groups.iter_mut().filter(|g| g.stale) {
+            group.summarize();
+            group.stale = false;
+        }
+    }
+
+    /// Calls `f` with each buffered chunk that has non-null cells of `component` on
+    /// `timeline`: the chunk, the positions of that time column and component column, and
+    /// the component's bounds there (what its index entry would hold).
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
+    pub fn for_each<'a>(
+        &'a self,
+        timeline: &str,
+        component: &str,
+        mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
+    ) {
+        for group in &self.groups {
+            let Some(Located {
+                time_column,
+                component_column,
+            }) = group.locate(timeline, component)
+            else {
+                continue;
+            };
+            for chunk in &group.chunks {
+                if let Some(bounds) = chunk.components()[component_column].bounds(time_column) {
+                    f(chunk, time_column as u32, component_column as u32, bounds);
+                }
+            }
+        }
+    }
+
+    /// [`WriteBuffer::for_each`] for a latest-at at `at`: a group entirely at or before
+    /// `at` gives only its greatest cell (from its summary), and a group entirely after
+    /// `at` nothing; `f` may still get chunks that end after `at`.
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
+    pub fn for_each_candidate<'a>(
+        &'a self,
+        timeline: &str,
+        component: &str,
+        at: TimeInt,
+        mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
+    ) {
+        for group in &self.groups {
+            let Some(Located {
+                time_column,
+                component_column,
+            }) = group.locate(timeline, component)
+            else {
+                continue;
+            };
+            let Some(&(least, greatest)) = group.time_ranges.get(time_column) else {
+                continue;
+            };
+            let (t, c) = (time_column as u32, component_column as u32);
+            if at < least {
+                continue;
+            }
+            if greatest <= at {
+                let slot = time_column * group.num_components() + component_column;
+                if let Some(&Some((position, bounds))) = group.latest.get(slot)
+                    && let Some(chunk) = group.chunks.get(position as usize)
+                {
+                    f(chunk, t, c, bounds);
+                }
+                continue;
+            }
+            for chunk in &group.chunks {
+                if let Some(bounds) = chunk.components()[component_column].bounds(time_column) {
+                    f(chunk, t, c, bounds);
+                }
+            }
+        }
+    }
+
+    /// The buffer's own invariants: groups non-empty, each chunk a temporal chunk of
+    /// `path` buffered once, with its group's column names, and every summary what its
+    /// chunks give.
+    pub fn sanity_check(&self, path: &EntityPath) -> Result<(), SanityError> {
+        let fail =
+            |invariant: &'static str| Err(SanityError::new(Structure::Entity, invariant).at(path));
+        let mut seen = ahash::HashSet::default();
+        for (g, group) in self.groups.iter().enumerate() {
+            let Some(first) = group.chunks.first() else {
+                return fail("a write buffer's group is never empty");
+            };
+            if self.groups[..g]
+                .iter()
+                .any(|other| other.chunks.first().is_some_and(|o| same_columns(o, first)))
+            {
+                return fail("a write buffer has one group per set of column names");
+            }
+            for chunk in &group.chunks {
+                if chunk.is_static()
+                    || chunk.entity_path() != path
+                    || !same_columns(first, chunk)
+                    || !seen.insert(chunk.id())
+                {
+                    return fail(
+                        "a buffered chunk is a temporal chunk of the entity, buffered once, \
+                         in the group of its column names",
+                    );
+                }
+            }
+            let mut recounted = group.clone();
+            recounted.summarize();
+            if group.stale
+                || recounted.time_ranges != group.time_ranges
+                || recounted.latest != group.latest
+            {
+                return fail("a write buffer group's summary is what its chunks give");
+            }
+        }
+        Ok(())
+    }
+}
