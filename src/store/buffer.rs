@@ -321,3 +321,68 @@ impl WriteBuffer {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Float64Array};
+
+    use super::WriteBuffer;
+    use crate::{Chunk, ChunkBuilder, ChunkId, EntityPath, RowId, TimeInt, Timeline};
+
+    fn chunk(component: &str, frames: &[i64]) -> Arc<Chunk> {
+        let mut builder = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("e").unwrap());
+        for &frame in frames {
+            let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+            builder = builder.with_row(
+                RowId::new(),
+                [(Timeline::sequence("frame"), frame)],
+                [(component, value)],
+            );
+        }
+        Arc::new(builder.build().unwrap())
+    }
+
+    fn candidates(buffer: &WriteBuffer, component: &str, at: i64) -> Vec<ChunkId> {
+        let mut ids = Vec::new();
+        let at = TimeInt::new(at).unwrap();
+        buffer.for_each_candidate("frame", component, at, |chunk, _, _, _| {
+            ids.push(chunk.id());
+        });
+        ids.sort();
+        ids
+    }
+
+    /// A latest-at past a group's newest row gets only the group's greatest cell, one
+    /// before its oldest row nothing, one inside its span every chunk; the summary follows
+    /// removals once refreshed, and chunks of other columns form their own group.
+    #[test]
+    fn a_group_answers_from_its_summary_outside_its_span() {
+        let path = EntityPath::parse("e").unwrap();
+        let (a, b, c) = (chunk("x", &[5]), chunk("x", &[2, 3]), chunk("x", &[8]));
+        let other = chunk("y", &[1]);
+        let mut buffer = WriteBuffer::default();
+        for chunk in [&a, &b, &c, &other] {
+            buffer.push(chunk);
+        }
+        buffer.sanity_check(&path).unwrap();
+        assert_eq!(buffer.len(), 4);
+        assert_eq!(candidates(&buffer, "x", 100), vec![c.id()]);
+        assert_eq!(candidates(&buffer, "x", 1), vec![]);
+        let mut all = vec![a.id(), b.id(), c.id()];
+        all.sort();
+        assert_eq!(candidates(&buffer, "x", 6), all);
+        assert_eq!(candidates(&buffer, "y", 100), vec![other.id()]);
+
+        assert!(buffer.remove(c.id()));
+        assert!(buffer.sanity_check(&path).is_err(), "stale until refreshed");
+        buffer.refresh();
+        buffer.sanity_check(&path).unwrap();
+        assert_eq!(candidates(&buffer, "x", 100), vec![a.id()]);
+        assert!(buffer.remove(other.id()) && !buffer.remove(other.id()));
+        buffer.refresh();
+        assert_eq!(candidates(&buffer, "y", 100), vec![]);
+        buffer.sanity_check(&path).unwrap();
+    }
+}

@@ -61,11 +61,12 @@ pub(crate) struct EntityView {
     /// they are the entity's rows all the same (the chunk table lists them).
     pub unindexed: Vec<Arc<Chunk>>,
     /// The write buffer: small temporal chunks compaction on insert will merge soon (those
-    /// of its first level, fewer than `merge_fanout` rows each), in arrival order and in no
-    /// index. Queries scan them beside the indices: at most `merge_fanout - 1` per layout,
-    /// each a few rows. A row arriving in its own chunk is thus buffered with a push here
-    /// and merged with its fan's, rather than indexed under every (timeline, component) it
-    /// has cells for and taken out again a few inserts later. See `compaction/mod.rs`.
+    /// of its first level, fewer than `merge_fanout` rows each), in no index. Queries
+    /// read them beside the indices (at most `merge_fanout - 1` per layout, each a few
+    /// rows, grouped and summarized: see `store/buffer.rs`). A row arriving in its own
+    /// chunk is thus buffered with a push here and merged with its fan's, rather than
+    /// indexed under every (timeline, component) it has cells for and taken out again a
+    /// few inserts later. See `compaction/mod.rs`.
     pub buffered: WriteBuffer,
     pub stats: EntityStats,
 }
