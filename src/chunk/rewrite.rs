@@ -127,46 +127,32 @@ fn used_chunks(num_chunks: usize, rows: &[RowSource]) -> (Vec<usize>, Vec<RowSou
         return (vec![0; num_chunks], rows.to_vec());
     }
     let mut used: Vec<usize> = Vec::new();
-    let mut renumber = |local: &mut dyn FnMut(usize) -> Option<usize>| -> Vec<RowSource> {
+    // A table by chunk position while it is no bigger than a few times the rows (a merge of
+    // small chunks, where hashing each row's chunk cost more than the copy); a hash map for
+    // one piece of a rewrite of thousands of chunks, which a table per piece would make
+    // quadratic again.
+    let renumbered = if num_chunks <= 4 * rows.len() {
+        let mut table = vec![usize::MAX; num_chunks];
         rows.iter()
             .map(|&(c, r)| {
-                let position = local(c).unwrap_or_else(|| {
+                if table[c] == usize::MAX {
+                    table[c] = used.len();
+                    used.push(c);
+                }
+                (table[c], r)
+            })
+            .collect()
+    } else {
+        let mut local: ahash::HashMap<usize, usize> = ahash::HashMap::default();
+        rows.iter()
+            .map(|&(c, r)| {
+                let position = *local.entry(c).or_insert_with(|| {
                     used.push(c);
                     used.len() - 1
                 });
                 (position, r)
             })
             .collect()
-    };
-    // A table by chunk position while it is no bigger than a few times the rows (a merge of
-    // small chunks, where hashing each row's chunk cost more than the copy); a hash map for
-    // one piece of a rewrite of thousands of chunks, which a table per piece would make
-    // quadratic again.
-    let renumbered = if num_chunks <= 4 * rows.len() {
-        let mut table = vec![u32::MAX; num_chunks];
-        let mut next = 0u32;
-        renumber(&mut |c| {
-            let slot = &mut table[c];
-            if *slot == u32::MAX {
-                *slot = next;
-                next += 1;
-                None
-            } else {
-                Some(*slot as usize)
-            }
-        })
-    } else {
-        let mut local: ahash::HashMap<usize, usize> = ahash::HashMap::default();
-        renumber(&mut |c| {
-            let next = local.len();
-            match local.entry(c) {
-                std::collections::hash_map::Entry::Occupied(seen) => Some(*seen.get()),
-                std::collections::hash_map::Entry::Vacant(slot) => {
-                    slot.insert(next);
-                    None
-                }
-            }
-        })
     };
     (used, renumbered)
 }

@@ -3,6 +3,7 @@
 use std::sync::Arc;
 
 use super::QueryCell;
+use crate::chunk::ComponentTimeBounds;
 use crate::index::TemporalComponentIndex;
 use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt};
 
@@ -43,7 +44,22 @@ struct Candidate<'a> {
     row_id: Option<RowId>,
 }
 
-impl Candidate<'_> {
+impl<'a> Candidate<'a> {
+    /// A chunk's greatest cell of the component on the timeline, known from its bounds.
+    fn greatest(
+        chunk: &'a Arc<Chunk>,
+        component_column: u32,
+        bounds: &ComponentTimeBounds,
+    ) -> Self {
+        Self {
+            time: bounds.max_time,
+            chunk,
+            component_column,
+            row: bounds.max_row,
+            row_id: Some(bounds.max_row_id),
+        }
+    }
+
     fn row_id(&self) -> RowId {
         self.row_id
             .unwrap_or_else(|| self.chunk.row_ids()[self.row as usize])
@@ -121,13 +137,7 @@ impl StoreView {
                     // As in an index: a chunk ending by the time answers with its greatest
                     // cell, known from its bounds; only one straddling it is searched.
                     let candidate = if bounds.max_time <= query.at {
-                        Some(Candidate {
-                            time: bounds.max_time,
-                            chunk,
-                            component_column,
-                            row: bounds.max_row,
-                            row_id: Some(bounds.max_row_id),
-                        })
+                        Some(Candidate::greatest(chunk, component_column, &bounds))
                     } else if bounds.min_time <= query.at {
                         latest_in_chunk(chunk, time_column, component_column, query.at)
                     } else {
@@ -148,14 +158,9 @@ impl StoreView {
 }
 
 fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candidate<'_>> {
-    let mut best: Option<Candidate<'_>> =
-        index.latest_ending_at_or_before(at).map(|entry| Candidate {
-            time: entry.bounds.max_time,
-            chunk: &entry.chunk,
-            component_column: entry.component_column,
-            row: entry.bounds.max_row,
-            row_id: Some(entry.bounds.max_row_id),
-        });
+    let mut best: Option<Candidate<'_>> = index
+        .latest_ending_at_or_before(at)
+        .map(|entry| Candidate::greatest(&entry.chunk, entry.component_column, &entry.bounds));
     index.for_each_straddling(at, |entry| {
         let candidate =
             latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at);

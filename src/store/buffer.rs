@@ -41,7 +41,8 @@ struct BufferGroup {
     stale: bool,
 }
 
-/// Where a (timeline, component) is in a group's chunks, and what the group says of it.
+/// Where a (timeline, component) is in a group's chunks.
+#[derive(Clone, Copy)]
 struct Located {
     time_column: usize,
     component_column: usize,
@@ -142,6 +143,28 @@ impl BufferGroup {
                 .position(|column| column.name().as_str() == component)?,
         })
     }
+
+    /// Calls `f` with each of the group's chunks that has non-null cells at `located`: the
+    /// chunk, the column positions, the component's bounds there.
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "columns < 2^32, checked in Chunk::from_raw"
+    )]
+    fn for_each_with_cells<'a>(
+        &'a self,
+        located: &Located,
+        f: &mut impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
+    ) {
+        let Located {
+            time_column,
+            component_column,
+        } = *located;
+        for chunk in &self.chunks {
+            if let Some(bounds) = chunk.components()[component_column].bounds(time_column) {
+                f(chunk, time_column as u32, component_column as u32, bounds);
+            }
+        }
+    }
 }
 
 impl WriteBuffer {
@@ -208,10 +231,6 @@ impl WriteBuffer {
     /// Calls `f` with each buffered chunk that has non-null cells of `component` on
     /// `timeline`: the chunk, the positions of that time column and component column, and
     /// the component's bounds there (what its index entry would hold).
-    #[expect(
-        clippy::cast_possible_truncation,
-        reason = "columns < 2^32, checked in Chunk::from_raw"
-    )]
     pub fn for_each<'a>(
         &'a self,
         timeline: &str,
@@ -219,17 +238,8 @@ impl WriteBuffer {
         mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
     ) {
         for group in &self.groups {
-            let Some(Located {
-                time_column,
-                component_column,
-            }) = group.locate(timeline, component)
-            else {
-                continue;
-            };
-            for chunk in &group.chunks {
-                if let Some(bounds) = chunk.components()[component_column].bounds(time_column) {
-                    f(chunk, time_column as u32, component_column as u32, bounds);
-                }
+            if let Some(located) = group.locate(timeline, component) {
+                group.for_each_with_cells(&located, &mut f);
             }
         }
     }
@@ -249,33 +259,25 @@ impl WriteBuffer {
         mut f: impl FnMut(&'a Arc<Chunk>, u32, u32, ComponentTimeBounds),
     ) {
         for group in &self.groups {
-            let Some(Located {
-                time_column,
-                component_column,
-            }) = group.locate(timeline, component)
-            else {
+            let Some(located) = group.locate(timeline, component) else {
                 continue;
             };
-            let Some(&(least, greatest)) = group.time_ranges.get(time_column) else {
+            let Some(&(least, greatest)) = group.time_ranges.get(located.time_column) else {
                 continue;
             };
-            let (t, c) = (time_column as u32, component_column as u32);
             if at < least {
                 continue;
             }
-            if greatest <= at {
-                let slot = time_column * group.num_components() + component_column;
-                if let Some(&Some((position, bounds))) = group.latest.get(slot)
-                    && let Some(chunk) = group.chunks.get(position as usize)
-                {
-                    f(chunk, t, c, bounds);
-                }
+            if at < greatest {
+                group.for_each_with_cells(&located, &mut f);
                 continue;
             }
-            for chunk in &group.chunks {
-                if let Some(bounds) = chunk.components()[component_column].bounds(time_column) {
-                    f(chunk, t, c, bounds);
-                }
+            let slot = located.time_column * group.num_components() + located.component_column;
+            if let Some(&Some((position, bounds))) = group.latest.get(slot)
+                && let Some(chunk) = group.chunks.get(position as usize)
+            {
+                let (t, c) = (located.time_column as u32, located.component_column as u32);
+                f(chunk, t, c, bounds);
             }
         }
     }

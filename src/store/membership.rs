@@ -218,6 +218,8 @@ impl ChunkStore {
         let mut store_stats = self.view.stats;
         let mut entity =
             super::entity_mut(&mut self.entities, &mut self.view.entities, path, false);
+        let unindex = holding != Holding::FiguresOnly;
+        let still_grouped = holding == Holding::Everywhere;
         for StoredChunk {
             chunk,
             ledgered,
@@ -226,7 +228,6 @@ impl ChunkStore {
         } in stored
         {
             let id = chunk.id();
-            let unindex = holding != Holding::FiguresOnly;
             if unindex && !chunk.is_static() {
                 ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
                 if in_global_orders {
@@ -244,7 +245,6 @@ impl ChunkStore {
                     if chunk.is_static() {
                         entity.remove_static(id);
                     } else {
-                        let still_grouped = holding == Holding::Everywhere;
                         let extra = entity.remove_temporal(&chunk, &config, still_grouped);
                         crate::stats::add_index_bytes(
                             &mut store_stats,
