@@ -63,6 +63,10 @@ pub(super) struct PrimitiveLeaf {
     /// Starting at the items' first value (any slicing already applied). A second handle on
     /// the leaf array's buffer: it shares the allocation.
     pub(super) values: Buffer,
+    /// The list's first offset: where row 0's items start. With one instance per row,
+    /// row `r`'s item is `first_item + r`, found without reading the offsets (a cache miss
+    /// of its own in a store larger than the cache).
+    pub(super) first_item: usize,
 }
 
 impl PrimitiveLeaf {
@@ -76,7 +80,8 @@ impl PrimitiveLeaf {
             items => items.values().inner().clone(),
             _ => return None
         );
-        Some(Self { values })
+        let first_item = usize::try_from(*list.value_offsets().first()?).ok()?;
+        Some(Self { values, first_item })
     }
 
     /// The same values: the very same bytes, not equal ones.
@@ -273,10 +278,7 @@ impl ComponentColumn {
         if shape != fixed_size || *leaf_type != T::DATA_TYPE || !self.is_valid_row(row) {
             return None;
         }
-        let width = fixed_size.unwrap_or(1);
-        let offsets = self.list.value_offsets();
-        let value = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
-        let (start, end) = (value(offsets.get(row)?)?, value(offsets.get(row + 1)?)?);
+        let (start, end) = self.leaf_span(leaf, row, fixed_size.unwrap_or(1))?;
         leaf.values.typed_data::<T::Native>().get(start..end)
     }
 
@@ -295,10 +297,20 @@ impl ComponentColumn {
             return None;
         }
         let width = leaf_type.primitive_width()? * fixed_size.unwrap_or(1);
-        let offsets = self.list.value_offsets();
-        let byte = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
-        let (start, end) = (byte(offsets.get(row)?)?, byte(offsets.get(row + 1)?)?);
+        let (start, end) = self.leaf_span(leaf, row, width)?;
         leaf.values.as_slice().get(start..end)
+    }
+
+    /// Where the cell at `row` lies in `leaf`, in units of `width` leaf elements or bytes
+    /// per item. With one instance per row this is arithmetic, without the offsets.
+    fn leaf_span(&self, leaf: &PrimitiveLeaf, row: usize, width: usize) -> Option<(usize, usize)> {
+        if self.one_instance_per_row {
+            let start = leaf.first_item.checked_add(row)?.checked_mul(width)?;
+            return Some((start, start.checked_add(width)?));
+        }
+        let offsets = self.list.value_offsets();
+        let at = |item: &i32| usize::try_from(*item).ok()?.checked_mul(width);
+        Some((at(offsets.get(row)?)?, at(offsets.get(row + 1)?)?))
     }
 
     /// Is `row` a row of this column, with a non-null cell?

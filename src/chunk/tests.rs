@@ -130,6 +130,61 @@ fn primitive_and_fixed_size_values_read_the_cells() {
     chunk.sanity_check().unwrap();
 }
 
+/// With one instance per row a cell is found without the offsets; the list's own first
+/// offset still counts (a sliced list), and so do null cells and the bounds.
+#[test]
+fn one_instance_cells_read_past_a_sliced_lists_first_offset() {
+    use arrow_array::types::{Float32Type, Float64Type};
+    use arrow_array::{FixedSizeListArray, Float32Array, Float64Array};
+    use arrow_schema::Field;
+
+    // Cells [10] [11] null [13] [14], then sliced to rows 1..5: the first offset is 1.
+    let scalars = ListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float64, true)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1, 2, 3, 4, 5].into()),
+        Arc::new(Float64Array::from(vec![10.0, 11.0, 12.0, 13.0, 14.0])),
+        Some(arrow_buffer::NullBuffer::from(vec![
+            true, true, false, true, true,
+        ])),
+    )
+    .slice(1, 4);
+    let chunk = chunk_of(scalars);
+    let column = &chunk.components()[0];
+    assert!(column.has_one_instance_per_row());
+    assert_eq!(column.primitive_values::<Float64Type>(0), Some(&[11.0][..]));
+    assert_eq!(column.primitive_values::<Float64Type>(1), None, "a null");
+    assert_eq!(column.primitive_values::<Float64Type>(3), Some(&[14.0][..]));
+    assert_eq!(
+        column.primitive_values::<Float64Type>(4),
+        None,
+        "past the end"
+    );
+    assert_eq!(column.leaf_bytes(2), Some(&13.0f64.to_le_bytes()[..]));
+
+    // Points [0,1,2] [3,4,5] [6,7,8], sliced past the first.
+    let xyz = FixedSizeListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float32, false)),
+        3,
+        Arc::new(Float32Array::from_iter_values((0..9u8).map(f32::from))),
+        None,
+    );
+    let points = ListArray::new(
+        Arc::new(Field::new_list_field(xyz.data_type().clone(), false)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1, 2, 3].into()),
+        Arc::new(xyz),
+        None,
+    )
+    .slice(1, 2);
+    let chunk = chunk_of(points);
+    let column = &chunk.components()[0];
+    assert!(column.has_one_instance_per_row());
+    assert_eq!(
+        column.fixed_size_values::<Float32Type, 3>(1),
+        Some(&[[6.0, 7.0, 8.0]][..])
+    );
+    chunk.sanity_check().unwrap();
+}
+
 /// One cell holding one fixed-size list of one `Float64`.
 fn chunk_of_points_1() -> Chunk {
     let xyz = arrow_array::FixedSizeListArray::new(
