@@ -271,40 +271,53 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// The chunk whose greatest index is the greatest at or before `t`.
-    pub fn latest_ending_at_or_before(&self, t: TimeInt) -> Option<&IndexedChunk> {
+    /// Every chunk that may hold the latest-at answer at `t`, as `f(entry, straddles)`: the
+    /// one whose greatest index is the greatest among those ending at or before `t`
+    /// (`straddles == false`: its answer is that greatest cell), and every chunk with
+    /// `min ≤ t < max` (`true`: its answer is not its greatest index, so it needs a search
+    /// inside the chunk).
+    pub fn for_each_latest_at_candidate<'a>(
+        &'a self,
+        t: TimeInt,
+        mut f: impl FnMut(&'a IndexedChunk, bool),
+    ) {
         match self {
-            Self::Small(entries) => entries
-                .iter()
-                .filter(|e| e.bounds.max_time <= t)
-                .max_by_key(|e| max_index_key(e)),
-            Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.max_time <= t);
-                end.checked_sub(1).and_then(|last| entries.get(last))
-            }
-            Self::Large(large) => large.latest_ending_at_or_before(t),
-        }
-    }
-
-    /// Chunks with `min ≤ t < max`: those whose latest-at answer at `t` is not their
-    /// greatest index, and so needs a search inside the chunk.
-    pub fn for_each_straddling<'a>(&'a self, t: TimeInt, mut f: impl FnMut(&'a IndexedChunk)) {
-        match self {
-            Self::Small(entries) => entries
-                .iter()
-                .take_while(|e| e.bounds.min_time <= t)
-                .filter(|e| e.bounds.max_time > t)
-                .for_each(f),
-            // Only the last chunk starting at or before `t` can reach past it.
-            Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.min_time <= t);
-                if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
-                    && e.bounds.max_time > t
-                {
-                    f(e);
+            // One pass, which stops at the first chunk starting after `t`.
+            Self::Small(entries) => {
+                let mut latest_ending: Option<&IndexedChunk> = None;
+                for entry in entries.iter().take_while(|e| e.bounds.min_time <= t) {
+                    if entry.bounds.max_time > t {
+                        f(entry, true);
+                    } else if latest_ending
+                        .is_none_or(|latest| max_index_key(entry) > max_index_key(latest))
+                    {
+                        latest_ending = Some(entry);
+                    }
+                }
+                if let Some(entry) = latest_ending {
+                    f(entry, false);
                 }
             }
-            Self::Large(large) => large.for_each_straddling(t, &mut f),
+            // Greatest indices ascend with the position, and only the last chunk starting
+            // at or before `t` can reach past it.
+            Self::Sequence(entries) => {
+                let ending = entries.partition_point(|e| e.bounds.max_time <= t);
+                if let Some(entry) = ending.checked_sub(1).and_then(|last| entries.get(last)) {
+                    f(entry, false);
+                }
+                let starting = entries.partition_point(|e| e.bounds.min_time <= t);
+                if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last))
+                    && entry.bounds.max_time > t
+                {
+                    f(entry, true);
+                }
+            }
+            Self::Large(large) => {
+                if let Some(entry) = large.latest_ending_at_or_before(t) {
+                    f(entry, false);
+                }
+                large.for_each_straddling(t, &mut |entry| f(entry, true));
+            }
         }
     }
 

@@ -158,12 +158,17 @@ impl StoreView {
 }
 
 fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candidate<'_>> {
-    let mut best: Option<Candidate<'_>> = index
-        .latest_ending_at_or_before(at)
-        .map(|entry| Candidate::greatest(&entry.chunk, entry.component_column, &entry.bounds));
-    index.for_each_straddling(at, |entry| {
-        let candidate =
-            latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at);
+    let mut best: Option<Candidate<'_>> = None;
+    index.for_each_latest_at_candidate(at, |entry, straddles| {
+        let candidate = if straddles {
+            latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at)
+        } else {
+            Some(Candidate::greatest(
+                &entry.chunk,
+                entry.component_column,
+                &entry.bounds,
+            ))
+        };
         keep_latest(&mut best, candidate);
     });
     best
