@@ -277,13 +277,12 @@ impl EntityView {
             timeline,
             component,
             |chunk, time_column, component_column, bounds| {
-                entries.push(IndexedChunk {
-                    chunk: Arc::clone(chunk),
-                    chunk_id: chunk.id(),
+                entries.push(IndexedChunk::new(
+                    chunk,
                     time_column,
                     component_column,
                     bounds,
-                });
+                ));
             },
         );
         entries
