@@ -26,7 +26,6 @@ use component_column::RawComponentColumn;
 use metadata::Metadata;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;
-pub(crate) use time_column::num_sorted_at_or_before;
 use time_column::{RawTimeColumn, RawTimes};
 #[cfg(feature = "rrd")]
 pub(crate) use transport::row_id_field;

@@ -177,11 +177,6 @@ impl TimeColumn {
         &self.times
     }
 
-    /// The times as the buffer holding them, for a second handle on it.
-    pub(crate) fn times_buffer(&self) -> &ScalarBuffer<i64> {
-        &self.times
-    }
-
     /// The Arrow type of the column as it was given.
     pub fn data_type(&self) -> &DataType {
         &self.data_type
@@ -238,17 +233,6 @@ impl TimeColumn {
             }
         }
     }
-}
-
-/// [`TimeColumn::num_positions_at_or_before`] over times already in index order (a column
-/// without an `index_order`), read through a handle of their own. `(min, max)` places the
-/// first probe: the times' least and greatest, or any range around them.
-pub(crate) fn num_sorted_at_or_before(
-    times: &[i64],
-    (min, max): (TimeInt, TimeInt),
-    t: i64,
-) -> usize {
-    guided_partition_point(times.len(), (min, max), t, |p| times[p], |time| time <= t)
 }
 
 /// Below this many positions a plain binary search is as good as a guided one.

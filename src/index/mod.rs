@@ -39,8 +39,6 @@ mod large;
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use arrow_buffer::ScalarBuffer;
-
 use crate::chunk::ComponentTimeBounds;
 use crate::sanity::{SanityError, Structure};
 use crate::{Chunk, ChunkId, RowId, TimeInt};
@@ -57,36 +55,6 @@ pub(crate) struct IndexedChunk {
     pub time_column: u32,
     pub component_column: u32,
     pub bounds: ComponentTimeBounds,
-    /// A second handle on the time column's values when its rows are in `(time, row id)`
-    /// order (`None` otherwise): a latest-at then searches the times in parallel with
-    /// reading the chunk, rather than after it. In a store larger than the cache, the chunk
-    /// and its times are a dependent cache miss each.
-    pub sorted_times: Option<ScalarBuffer<i64>>,
-}
-
-impl IndexedChunk {
-    /// The entry of `chunk`'s component column `component_column` on its time column
-    /// `time_column`, whose non-null cells have `bounds` there.
-    pub fn new(
-        chunk: &Arc<Chunk>,
-        time_column: u32,
-        component_column: u32,
-        bounds: ComponentTimeBounds,
-    ) -> Self {
-        let sorted_times = chunk
-            .time_columns()
-            .get(time_column as usize)
-            .filter(|times| times.index_order().is_none())
-            .map(|times| times.times_buffer().clone());
-        Self {
-            chunk: Arc::clone(chunk),
-            chunk_id: chunk.id(),
-            time_column,
-            component_column,
-            bounds,
-            sorted_times,
-        }
-    }
 }
 
 pub(crate) type MaxIndexKey = (TimeInt, RowId, ChunkId);
@@ -97,12 +65,12 @@ pub(crate) const SMALL_INDEX_MAX_CHUNKS: usize = 32;
 
 /// Heap of one chunk's entry in a small index: its slot in the vector, with the vector's
 /// usual spare capacity. An estimate, held to account by `tests/memory.rs`.
-pub(crate) const SMALL_INDEX_BYTES_PER_ENTRY: u64 = 104;
+pub(crate) const SMALL_INDEX_BYTES_PER_ENTRY: u64 = 80;
 
 /// Heap of one chunk's entry in a large index: its share of the nodes of the two ordered
 /// views (B-tree nodes filled in order are about half full, so an entry costs about twice
 /// its keys and values). Measured with the counting allocator of `tests/memory.rs`.
-pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 538;
+pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
 
 /// The index of one (entity, timeline, component): see the module docs.
 #[derive(Clone, Debug)]
@@ -465,30 +433,12 @@ fn check_bounds(entry: &IndexedChunk) -> Result<(), SanityError> {
         time_column,
         component_column,
         bounds,
-        sorted_times,
     } = entry;
     if *chunk_id != chunk.id() {
         return Err(
             SanityError::new(Structure::TemporalIndex, "an entry carries its chunk's id")
                 .at(chunk.id()),
         );
-    }
-    let times = chunk.time_columns().get(*time_column as usize);
-    let expected = times.filter(|times| times.index_order().is_none());
-    let same = match (sorted_times, expected) {
-        (Some(kept), Some(times)) => {
-            kept.inner().as_ptr() == times.times_buffer().inner().as_ptr()
-                && kept.len() == times.times().len()
-        }
-        (None, None) => true,
-        _ => false,
-    };
-    if !same {
-        return Err(SanityError::new(
-            Structure::TemporalIndex,
-            "an entry keeps its time column's values exactly when they are in index order",
-        )
-        .at(chunk.id()));
     }
     let component = chunk.components().get(*component_column as usize);
     if component.and_then(|c| c.bounds(*time_column as usize)) == Some(*bounds) {

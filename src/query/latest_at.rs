@@ -3,8 +3,8 @@
 use std::sync::Arc;
 
 use super::QueryCell;
-use crate::chunk::{ComponentTimeBounds, num_sorted_at_or_before};
-use crate::index::{IndexedChunk, TemporalComponentIndex};
+use crate::chunk::ComponentTimeBounds;
+use crate::index::TemporalComponentIndex;
 use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt};
 
 /// "As of time `at` on `timeline`".
@@ -161,7 +161,7 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
     let mut best: Option<Candidate<'_>> = None;
     index.for_each_latest_at_candidate(at, |entry, straddles| {
         let candidate = if straddles {
-            latest_in_entry(entry, at)
+            latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at)
         } else {
             Some(Candidate::greatest(
                 &entry.chunk,
@@ -174,18 +174,11 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
     best
 }
 
-/// [`latest_in_chunk`] for an index entry: through the entry's own handle on the chunk's
-/// times when they are in index order, so that the search need not wait for the chunk.
-fn latest_in_entry(entry: &IndexedChunk, at: TimeInt) -> Option<Candidate<'_>> {
-    let Some(times) = &entry.sorted_times else {
-        return latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at);
-    };
-    let range = (entry.bounds.min_time, entry.bounds.max_time);
-    let end = num_sorted_at_or_before(times, range, at.as_i64());
-    last_valid_cell(&entry.chunk, entry.component_column, times, end, |pos| pos)
-}
-
 /// The non-null cell with the greatest index at or before `at` inside one chunk.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
 fn latest_in_chunk(
     chunk: &Arc<Chunk>,
     time_column: u32,
@@ -193,32 +186,14 @@ fn latest_in_chunk(
     at: TimeInt,
 ) -> Option<Candidate<'_>> {
     let times = &chunk.time_columns()[time_column as usize];
-    let end = times.num_positions_at_or_before(at.as_i64());
-    last_valid_cell(chunk, component_column, times.times(), end, |pos| {
-        times.row_at(pos)
-    })
-}
-
-/// The last non-null cell among the first `end` positions of index order, where position
-/// `pos` is row `row_at(pos)` with time `times[row]`.
-#[expect(
-    clippy::cast_possible_truncation,
-    reason = "rows < 2^32, checked in Chunk::from_raw"
-)]
-fn last_valid_cell<'a>(
-    chunk: &'a Arc<Chunk>,
-    component_column: u32,
-    times: &[i64],
-    end: usize,
-    row_at: impl Fn(usize) -> usize,
-) -> Option<Candidate<'a>> {
     let column = &chunk.components()[component_column as usize];
+    let end = times.num_positions_at_or_before(at.as_i64());
     (0..end)
         .rev()
-        .map(row_at)
+        .map(|pos| times.row_at(pos))
         .find(|&row| column.is_valid_in_bounds(row))
         .map(|row| Candidate {
-            time: TimeInt::saturating(times[row]),
+            time: TimeInt::saturating(times.times()[row]),
             chunk,
             component_column,
             row: row as u32,

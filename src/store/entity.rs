@@ -165,12 +165,13 @@ impl EntityMut<'_> {
                 };
                 let index = per_component.get_or_default(column.name().clone());
                 let before = index.extra_heap_bytes();
-                index.insert(IndexedChunk::new(
-                    chunk,
-                    time_position as u32,
-                    component_position as u32,
+                index.insert(IndexedChunk {
+                    chunk: Arc::clone(chunk),
+                    chunk_id: chunk.id(),
+                    time_column: time_position as u32,
+                    component_column: component_position as u32,
                     bounds,
-                ));
+                });
                 indexed = true;
                 extra += signed_difference(index.extra_heap_bytes(), before);
             }

@@ -277,12 +277,13 @@ impl EntityView {
             timeline,
             component,
             |chunk, time_column, component_column, bounds| {
-                entries.push(IndexedChunk::new(
-                    chunk,
+                entries.push(IndexedChunk {
+                    chunk: Arc::clone(chunk),
+                    chunk_id: chunk.id(),
                     time_column,
                     component_column,
                     bounds,
-                ));
+                });
             },
         );
         entries
