@@ -275,7 +275,7 @@ impl TemporalComponentIndex {
     /// one whose greatest index is the greatest among those ending at or before `t`
     /// (`straddles == false`: its answer is that greatest cell), and every chunk with
     /// `min ≤ t < max` (`true`: its answer is not its greatest index, so it needs a search
-    /// inside the chunk).
+    /// inside the chunk). A chunk another one reported is known to beat may be left out.
     pub fn for_each_latest_at_candidate<'a>(
         &'a self,
         t: TimeInt,
@@ -298,18 +298,15 @@ impl TemporalComponentIndex {
                     f(entry, false);
                 }
             }
-            // Greatest indices ascend with the position, and only the last chunk starting
-            // at or before `t` can reach past it.
+            // One search. The last chunk starting at or before `t` is the only one that can
+            // reach past it; if it does not, it is the latest one ending by `t`. If it
+            // does, it has a non-null cell at its least time, at or before `t` and after
+            // every cell of the chunks before it (each ends before the next starts), so it
+            // alone holds the answer.
             Self::Sequence(entries) => {
-                let ending = entries.partition_point(|e| e.bounds.max_time <= t);
-                if let Some(entry) = ending.checked_sub(1).and_then(|last| entries.get(last)) {
-                    f(entry, false);
-                }
                 let starting = entries.partition_point(|e| e.bounds.min_time <= t);
-                if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last))
-                    && entry.bounds.max_time > t
-                {
-                    f(entry, true);
+                if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last)) {
+                    f(entry, entry.bounds.max_time > t);
                 }
             }
             Self::Large(large) => {
