@@ -271,15 +271,14 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// Every chunk that may hold the latest-at answer at `t`, as `f(entry, straddles)`: the
-    /// one whose greatest index is the greatest among those ending at or before `t`
-    /// (`straddles == false`: its answer is that greatest cell), and every chunk with
-    /// `min ≤ t < max` (`true`: its answer is not its greatest index, so it needs a search
-    /// inside the chunk). A chunk another one reported is known to beat may be left out.
+    /// Every chunk that may hold the latest-at answer at `t`: the one whose greatest index
+    /// is the greatest among those ending at or before `t` (its answer is that greatest
+    /// cell), and every chunk with `min ≤ t < max` (its answer needs a search inside it).
+    /// A chunk another one reported is known to beat may be left out.
     pub fn for_each_latest_at_candidate<'a>(
         &'a self,
         t: TimeInt,
-        mut f: impl FnMut(&'a IndexedChunk, bool),
+        mut f: impl FnMut(&'a IndexedChunk),
     ) {
         match self {
             // One pass, which stops at the first chunk starting after `t`.
@@ -287,7 +286,7 @@ impl TemporalComponentIndex {
                 let mut latest_ending: Option<&IndexedChunk> = None;
                 for entry in entries.iter().take_while(|e| e.bounds.min_time <= t) {
                     if entry.bounds.max_time > t {
-                        f(entry, true);
+                        f(entry);
                     } else if latest_ending
                         .is_none_or(|latest| max_index_key(entry) > max_index_key(latest))
                     {
@@ -295,7 +294,7 @@ impl TemporalComponentIndex {
                     }
                 }
                 if let Some(entry) = latest_ending {
-                    f(entry, false);
+                    f(entry);
                 }
             }
             // One search. The last chunk starting at or before `t` is the only one that can
@@ -306,14 +305,14 @@ impl TemporalComponentIndex {
             Self::Sequence(entries) => {
                 let starting = entries.partition_point(|e| e.bounds.min_time <= t);
                 if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last)) {
-                    f(entry, entry.bounds.max_time > t);
+                    f(entry);
                 }
             }
             Self::Large(large) => {
                 if let Some(entry) = large.latest_ending_at_or_before(t) {
-                    f(entry, false);
+                    f(entry);
                 }
-                large.for_each_straddling(t, &mut |entry| f(entry, true));
+                large.for_each_straddling(t, &mut f);
             }
         }
     }
