@@ -271,14 +271,15 @@ impl TemporalComponentIndex {
         }
     }
 
-    /// Every chunk that may hold the latest-at answer at `t`: the one whose greatest index
-    /// is the greatest among those ending at or before `t` (its answer is that greatest
-    /// cell), and every chunk with `min ≤ t < max` (its answer needs a search inside it).
-    /// A chunk another one reported is known to beat may be left out.
+    /// Every chunk that may hold the latest-at answer at `t`, as `f(entry, straddles)`: the
+    /// one whose greatest index is the greatest among those ending at or before `t`
+    /// (`straddles == false`: its answer is that greatest cell), and every chunk with
+    /// `min ≤ t < max` (`true`: its answer is not its greatest index, so it needs a search
+    /// inside the chunk). A chunk another one reported is known to beat may be left out.
     pub fn for_each_latest_at_candidate<'a>(
         &'a self,
         t: TimeInt,
-        mut f: impl FnMut(&'a IndexedChunk),
+        mut f: impl FnMut(&'a IndexedChunk, bool),
     ) {
         match self {
             // One pass, which stops at the first chunk starting after `t`.
@@ -286,7 +287,7 @@ impl TemporalComponentIndex {
                 let mut latest_ending: Option<&IndexedChunk> = None;
                 for entry in entries.iter().take_while(|e| e.bounds.min_time <= t) {
                     if entry.bounds.max_time > t {
-                        f(entry);
+                        f(entry, true);
                     } else if latest_ending
                         .is_none_or(|latest| max_index_key(entry) > max_index_key(latest))
                     {
@@ -294,7 +295,7 @@ impl TemporalComponentIndex {
                     }
                 }
                 if let Some(entry) = latest_ending {
-                    f(entry);
+                    f(entry, false);
                 }
             }
             // One search. The last chunk starting at or before `t` is the only one that can
@@ -305,14 +306,14 @@ impl TemporalComponentIndex {
             Self::Sequence(entries) => {
                 let starting = entries.partition_point(|e| e.bounds.min_time <= t);
                 if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last)) {
-                    f(entry);
+                    f(entry, entry.bounds.max_time > t);
                 }
             }
             Self::Large(large) => {
                 if let Some(entry) = large.latest_ending_at_or_before(t) {
-                    f(entry);
+                    f(entry, false);
                 }
-                large.for_each_straddling(t, &mut f);
+                large.for_each_straddling(t, &mut |entry| f(entry, true));
             }
         }
     }

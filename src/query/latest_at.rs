@@ -134,8 +134,15 @@ impl StoreView {
                 component,
                 query.at,
                 |chunk, time_column, component_column, bounds| {
-                    let candidate =
-                        candidate_at(chunk, time_column, component_column, &bounds, query.at);
+                    // As in an index: a chunk ending by the time answers with its greatest
+                    // cell, known from its bounds; only one straddling it is searched.
+                    let candidate = if bounds.max_time <= query.at {
+                        Some(Candidate::greatest(chunk, component_column, &bounds))
+                    } else if bounds.min_time <= query.at {
+                        latest_in_chunk(chunk, time_column, component_column, query.at)
+                    } else {
+                        None
+                    };
                     keep_latest(&mut best, candidate);
                 },
             );
@@ -152,38 +159,19 @@ impl StoreView {
 
 fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candidate<'_>> {
     let mut best: Option<Candidate<'_>> = None;
-    index.for_each_latest_at_candidate(at, |entry| {
-        let candidate = candidate_at(
-            &entry.chunk,
-            entry.time_column,
-            entry.component_column,
-            &entry.bounds,
-            at,
-        );
+    index.for_each_latest_at_candidate(at, |entry, straddles| {
+        let candidate = if straddles {
+            latest_in_chunk(&entry.chunk, entry.time_column, entry.component_column, at)
+        } else {
+            Some(Candidate::greatest(
+                &entry.chunk,
+                entry.component_column,
+                &entry.bounds,
+            ))
+        };
         keep_latest(&mut best, candidate);
     });
     best
-}
-
-/// A chunk's answer at `at`, decided from its bounds of the component on the timeline (an
-/// index entry's or a buffered chunk's alike): its greatest cell if it ends by `at`, known
-/// without reading the chunk; a search inside it if it straddles `at`; none if it starts
-/// after.
-#[inline]
-fn candidate_at<'a>(
-    chunk: &'a Arc<Chunk>,
-    time_column: u32,
-    component_column: u32,
-    bounds: &ComponentTimeBounds,
-    at: TimeInt,
-) -> Option<Candidate<'a>> {
-    if bounds.max_time <= at {
-        Some(Candidate::greatest(chunk, component_column, bounds))
-    } else if bounds.min_time <= at {
-        latest_in_chunk(chunk, time_column, component_column, at)
-    } else {
-        None
-    }
 }
 
 /// The non-null cell with the greatest index at or before `at` inside one chunk.
