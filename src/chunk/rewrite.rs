@@ -4,10 +4,14 @@
 
 use std::sync::Arc;
 
-use arrow_array::{Array, ArrayRef};
-use arrow_buffer::ScalarBuffer;
+use arrow_array::cast::AsArray;
+use arrow_array::{Array, ArrayRef, ListArray, make_array};
+use arrow_buffer::{ArrowNativeType, Buffer, NullBuffer, OffsetBuffer, ScalarBuffer};
+use arrow_data::ArrayData;
+use arrow_schema::{DataType, FieldRef};
 
-use super::{Chunk, RawComponentColumn, RawTimeColumn, RawTimes};
+use super::component_column::leaf_shape;
+use super::{Chunk, ComponentColumn, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::error::ChunkError;
 use crate::{ChunkId, RowId};
 
@@ -39,11 +43,17 @@ impl Chunk {
             .collect();
         let components = (0..first.components.len())
             .map(|position| {
-                let lists: Vec<&dyn Array> = used
+                let columns: Vec<&ComponentColumn> = used
                     .iter()
-                    .map(|&c| &chunks[c].components[position].list as &dyn Array)
+                    .map(|&c| &chunks[c].components[position])
                     .collect();
-                let array = arrow_select::interleave::interleave(&lists, &local_rows)?;
+                let array = if let Some(array) = gather_single_values(&columns, &local_rows) {
+                    array?
+                } else {
+                    let lists: Vec<&dyn Array> =
+                        columns.iter().map(|c| &c.list as &dyn Array).collect();
+                    arrow_select::interleave::interleave(&lists, &local_rows)?
+                };
                 Ok(first.components[position].rebuilt(array))
             })
             .collect::<Result<Vec<_>, ChunkError>>()?;
@@ -118,6 +128,130 @@ impl super::ComponentColumn {
             field: self.field.clone(),
         }
     }
+}
+
+/// `rows` of `columns` (one component's columns, one layout) as one list column, copied
+/// value by value, when every cell of every column holds exactly one instance and the
+/// items are primitives or fixed-size lists of them with no null instance: the shape of
+/// scalars, positions and colors, which is what rows streamed one at a time mostly hold.
+/// `None` for any other shape, which Arrow's interleave copies instead.
+///
+/// Arrow's interleave takes each row through the list's offsets and then the items'
+/// array, generically (a quarter of an out-of-order insert's merge). Here a row is one
+/// copy from the column's leaf, found by arithmetic as [`ComponentColumn::leaf_bytes`]
+/// finds it, and the offsets are `0, 1, .., n`.
+pub(super) fn gather_single_values(
+    columns: &[&ComponentColumn],
+    rows: &[RowSource],
+) -> Option<Result<ArrayRef, ChunkError>> {
+    let first = columns.first()?;
+    let DataType::List(item_field) = first.list.data_type() else {
+        return None;
+    };
+    let (leaf_type, fixed_size) = leaf_shape(first.list.data_type())?;
+    let per_item = fixed_size.unwrap_or(1);
+    let mut any_null_cell = false;
+    for column in columns {
+        let items = column.list.values();
+        let leaf_nulls = match fixed_size {
+            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
+            None => 0,
+        };
+        if column.leaf.is_none()
+            || !column.one_instance_per_row
+            || items.null_count() + leaf_nulls > 0
+            || column.list.data_type() != first.list.data_type()
+        {
+            return None;
+        }
+        any_null_cell |= column.list.null_count() > 0;
+    }
+    // Copied as unsigned integers of the leaf's width: the bits are all that matter, and
+    // a vector of them keeps the alignment Arrow asks of the values.
+    let values = match leaf_type.primitive_width()? {
+        1 => gather_leaf::<u8>(columns, rows, per_item)?,
+        2 => gather_leaf::<u16>(columns, rows, per_item)?,
+        4 => gather_leaf::<u32>(columns, rows, per_item)?,
+        8 => gather_leaf::<u64>(columns, rows, per_item)?,
+        16 => gather_leaf::<i128>(columns, rows, per_item)?,
+        _ => return None,
+    };
+    let nulls = any_null_cell.then(|| {
+        rows.iter()
+            .map(|&(c, r)| columns[c].list.is_valid(r))
+            .collect::<NullBuffer>()
+    });
+    let leaf_len = rows.len().checked_mul(per_item)?;
+    // List offsets are `i32`s (a merge's piece is far smaller).
+    let len = i32::try_from(rows.len()).ok()?;
+    Some(single_values_list(
+        item_field,
+        leaf_type,
+        fixed_size,
+        (len, leaf_len),
+        values,
+        nulls,
+    ))
+}
+
+/// The leaf values of `rows` of `columns` (checked by [`gather_single_values`] to hold
+/// one item of `per_item` leaf values per row), read as `T`s. `None` if a row is out of
+/// bounds, which a valid merge never asks for.
+fn gather_leaf<T: ArrowNativeType>(
+    columns: &[&ComponentColumn],
+    rows: &[RowSource],
+    per_item: usize,
+) -> Option<Buffer> {
+    // Each column's leaf from its first item: the rows index it from there.
+    let leaves: Vec<&[T]> = columns
+        .iter()
+        .map(|column| {
+            let leaf = column.leaf.as_ref()?;
+            let first = leaf.first_item.checked_mul(per_item)?;
+            leaf.values.typed_data::<T>().get(first..)
+        })
+        .collect::<Option<_>>()?;
+    let mut values: Vec<T> = Vec::with_capacity(rows.len().checked_mul(per_item)?);
+    if per_item == 1 {
+        for &(c, r) in rows {
+            values.push(*leaves.get(c)?.get(r)?);
+        }
+    } else {
+        for &(c, r) in rows {
+            let start = r.checked_mul(per_item)?;
+            values.extend_from_slice(leaves.get(c)?.get(start..start.checked_add(per_item)?)?);
+        }
+    }
+    Some(Buffer::from_vec(values))
+}
+
+/// A list column of `len` cells of one instance each, its items' `leaf_len` primitive
+/// values in `values` (see [`gather_single_values`]).
+fn single_values_list(
+    item_field: &FieldRef,
+    leaf_type: &DataType,
+    fixed_size: Option<usize>,
+    (len, leaf_len): (i32, usize),
+    values: Buffer,
+    nulls: Option<NullBuffer>,
+) -> Result<ArrayRef, ChunkError> {
+    let num_cells = usize::try_from(len).unwrap_or_default();
+    let leaf = ArrayData::try_new(leaf_type.clone(), leaf_len, None, 0, vec![values], vec![])?;
+    let items = match fixed_size {
+        None => leaf,
+        Some(_) => ArrayData::try_new(
+            item_field.data_type().clone(),
+            num_cells,
+            None,
+            0,
+            vec![],
+            vec![leaf],
+        )?,
+    };
+    // `0, 1, .., len`: ascending by construction (Arrow still checks it, in one pass).
+    let offsets = OffsetBuffer::new((0..=len).collect::<ScalarBuffer<i32>>());
+    let list = ListArray::try_new(Arc::clone(item_field), offsets, make_array(items), nulls)?;
+    Ok(Arc::new(list))
 }
 
 /// The chunk positions `rows` refer to, in order of first use, and `rows` renumbered into

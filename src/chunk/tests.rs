@@ -395,3 +395,91 @@ fn is_valid_is_false_past_the_last_row() {
     assert!(!column.is_valid(chunk.num_rows()));
     assert!(!column.is_valid(usize::MAX));
 }
+
+/// A merge's value-by-value copy of one-instance cells gives exactly what Arrow's
+/// interleave gives, through sliced sources, null cells and fixed-size items; any other
+/// shape is left to interleave.
+#[test]
+fn single_values_gather_equals_interleave() {
+    use arrow_array::{Array, FixedSizeListArray, Float32Array, Float64Array, StringArray};
+    use arrow_buffer::{NullBuffer, OffsetBuffer};
+    use arrow_schema::Field;
+
+    use super::rewrite::gather_single_values;
+
+    let scalar_list = |values: Vec<Option<f64>>, offsets: Vec<i32>, nulls: Option<Vec<bool>>| {
+        ListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float64, true)),
+            OffsetBuffer::new(offsets.into()),
+            Arc::new(Float64Array::from(values)),
+            nulls.map(NullBuffer::from),
+        )
+    };
+    let both = |lists: Vec<ListArray>, rows: &[(usize, usize)]| {
+        let chunks: Vec<Chunk> = lists.into_iter().map(chunk_of).collect();
+        let columns: Vec<&ComponentColumn> = chunks.iter().map(|c| &c.components()[0]).collect();
+        let fast = gather_single_values(&columns, rows).map(|array| array.unwrap().to_data());
+        let lists: Vec<&dyn Array> = columns
+            .iter()
+            .map(|c| c.list_array() as &dyn Array)
+            .collect();
+        let slow = arrow_select::interleave::interleave(&lists, rows)
+            .unwrap()
+            .to_data();
+        (fast, slow)
+    };
+
+    // Scalars: one source sliced (its first offset is 2), one with a null cell.
+    let sliced = scalar_list(
+        vec![Some(7.0), Some(8.0), Some(1.0), Some(2.0), Some(3.0)],
+        vec![0, 1, 2, 3, 4, 5],
+        None,
+    )
+    .slice(2, 3);
+    let with_null = scalar_list(
+        vec![Some(10.0), Some(0.0), Some(12.0)],
+        vec![0, 1, 2, 3],
+        Some(vec![true, false, true]),
+    );
+    let rows = [(1, 2), (0, 0), (1, 1), (0, 2), (1, 0), (0, 1)];
+    let (fast, slow) = both(vec![sliced.clone(), with_null.clone()], &rows);
+    assert_eq!(fast.as_ref(), Some(&slow));
+    assert_eq!(fast.unwrap().nulls().map(NullBuffer::null_count), Some(1));
+
+    // Fixed-size lists of three floats (positions).
+    let positions = |n: i32| {
+        let items = FixedSizeListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float32, true)),
+            3,
+            Arc::new(Float32Array::from_iter_values(
+                (0..3 * n).map(|v| f32::from(u8::try_from(v).unwrap())),
+            )),
+            None,
+        );
+        ListArray::new(
+            Arc::new(Field::new_list_field(items.data_type().clone(), true)),
+            OffsetBuffer::from_lengths(std::iter::repeat_n(1, usize::try_from(n).unwrap())),
+            Arc::new(items),
+            None,
+        )
+    };
+    let (fast, slow) = both(vec![positions(2), positions(3)], &[(1, 2), (0, 1), (1, 0)]);
+    assert_eq!(fast, Some(slow));
+
+    // Shapes the copy leaves to interleave (which still answers).
+    let null_instance = scalar_list(vec![Some(1.0), None], vec![0, 1, 2], None);
+    let (fast, _) = both(vec![sliced.clone(), null_instance], &[(1, 0), (0, 0)]);
+    assert!(fast.is_none(), "a null instance");
+    let two_in_a_cell = scalar_list(vec![Some(1.0), Some(2.0)], vec![0, 2], None);
+    let (fast, _) = both(vec![with_null, two_in_a_cell], &[(1, 0), (0, 0)]);
+    assert!(fast.is_none(), "a cell of two instances");
+    let strings = ListArray::new(
+        Arc::new(Field::new_list_field(DataType::Utf8, true)),
+        OffsetBuffer::from_lengths([1, 1]),
+        Arc::new(StringArray::from(vec!["a", "b"])),
+        None,
+    );
+    let (fast, slow) = both(vec![strings], &[(0, 1), (0, 0)]);
+    assert!(fast.is_none(), "strings");
+    assert_eq!(slow.len(), 2);
+}
