@@ -153,6 +153,19 @@ fn duplicate_and_empty_names_are_rejected() {
         chunk(1, vec![], vec![("", one_cell())]),
         Err(ChunkError::EmptyName { kind: "component" })
     ));
+    // A few columns are compared pairwise, many go through a set: both find the pair.
+    for num_columns in [3, 40] {
+        let names: Vec<String> = (0..num_columns).map(|c| format!("c{c}")).collect();
+        let mut columns: Vec<(&str, ArrayRef)> =
+            names.iter().map(|n| (n.as_str(), one_cell())).collect();
+        assert!(chunk(1, vec![], columns.clone()).is_ok());
+        columns.push(("c1", one_cell()));
+        let twice = chunk(1, vec![], columns);
+        assert!(
+            matches!(&twice, Err(ChunkError::DuplicateComponent { component }) if component == "c1"),
+            "{num_columns} columns: {twice:?}"
+        );
+    }
 }
 
 #[test]

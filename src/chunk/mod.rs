@@ -83,6 +83,36 @@ pub struct Chunk {
     memory: memory::ChunkMemory,
 }
 
+/// Every component name is non-empty and appears once. A set for many columns (a chunk
+/// may have 100,000); for the few most chunks have, comparing each with those before it
+/// costs less than making the set (a merge of one-row chunks builds a chunk per 16 rows).
+fn check_component_names(raw_components: &[RawComponentColumn]) -> Result<(), ChunkError> {
+    const FEW_COLUMNS: usize = 16;
+    let names = raw_components
+        .iter()
+        .map(|raw| raw.descriptor.name.as_str());
+    if names.clone().any(str::is_empty) {
+        return Err(ChunkError::EmptyName { kind: "component" });
+    }
+    let duplicate = if raw_components.len() <= FEW_COLUMNS {
+        names
+            .clone()
+            .enumerate()
+            .find(|&(i, name)| names.clone().take(i).any(|before| before == name))
+            .map(|(_, name)| name)
+    } else {
+        let mut seen: ahash::HashSet<&str> = ahash::HashSet::default();
+        seen.reserve(raw_components.len());
+        names.clone().find(|&name| !seen.insert(name))
+    };
+    match duplicate {
+        Some(name) => Err(ChunkError::DuplicateComponent {
+            component: name.to_owned(),
+        }),
+        None => Ok(()),
+    }
+}
+
 impl Chunk {
     /// Builds a chunk from columns, validating everything SEMANTICS.md section 2 asks.
     ///
@@ -195,21 +225,7 @@ impl Chunk {
         }
 
         let mut components: Vec<ComponentColumn> = Vec::with_capacity(raw_components.len());
-        // A set, not a search of the columns before each: a chunk may have 100,000.
-        let mut names: ahash::HashSet<&str> = ahash::HashSet::default();
-        names.reserve(raw_components.len());
-        for raw in &raw_components {
-            let name = raw.descriptor.name.as_str();
-            if name.is_empty() {
-                return Err(ChunkError::EmptyName { kind: "component" });
-            }
-            if !names.insert(name) {
-                return Err(ChunkError::DuplicateComponent {
-                    component: name.to_owned(),
-                });
-            }
-        }
-        drop(names);
+        check_component_names(&raw_components)?;
         for raw in raw_components {
             components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
         }

@@ -78,14 +78,10 @@ impl ChunkStore {
             self.settle_in_global_orders(member.id());
             return;
         };
-        let (mut group, mut level) = entity.pending.push(member, &config);
-        loop {
-            let Some(entity) = self.entities.get_mut(&path) else {
-                return;
-            };
-            let Some(fan) = entity.pending.take_full_fan(group, level, &config) else {
-                return;
-            };
+        let (group, level) = entity.pending.push(member, &config);
+        // The entity just found answers the first question (most pushes complete no fan).
+        let mut full_fan = entity.pending.take_full_fan(group, level, &config);
+        while let Some(fan) = full_fan.take() {
             // The merge's events at once: growing one push at a time reallocated the
             // vector four times per merge.
             events.reserve(fan.len() + 1);
@@ -127,7 +123,8 @@ impl ChunkStore {
                 self.settle_in_global_orders(next.id());
                 return;
             };
-            (group, level) = entity.pending.push(next, &config);
+            let (group, level) = entity.pending.push(next, &config);
+            full_fan = entity.pending.take_full_fan(group, level, &config);
         }
     }
 }
