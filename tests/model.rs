@@ -13,8 +13,10 @@
 //! chunks inserted again (the same chunk, or its rows under a new id, after compaction has
 //! had every chance to absorb them), rows reusing row ids with other contents, and chunks
 //! reusing another chunk's id; garbage collections with random targets, orders and
-//! protections; drops of time ranges and of entities; on-demand compaction. Latest-at and
-//! range queries run between them.
+//! protections; drops of time ranges and of entities; on-demand compaction; runs of 20 to
+//! 40 chunks in time order past the small times, which turn an index into a sequence
+//! (`index/mod.rs`) that overlapping chunks never form. Latest-at and range queries run
+//! between them.
 //!
 //! The named properties of the lifecycle (SEMANTICS.md sections 6 to 8) reuse the same
 //! generator and harness, each in its own test.
@@ -22,7 +24,7 @@
 //! Size: `PROPTEST_CASES` sets the cases of every property (default [`NUM_CASES`] for the
 //! main one, [`PROPERTY_CASES`] for the others), `CHUNKSTORE_MODEL_OPS` the longest
 //! sequence (default [`MAX_OPS`]). The defaults apply about 110,000 operations to stores in
-//! one `cargo test --test model` (45 s in a debug build here);
+//! one `cargo test --test model` (34 s in a release build here, 21 s before the runs);
 //! `CHUNKSTORE_MODEL_REPORT=1 cargo test --test model -- --nocapture` prints the count.
 //! A longer run: `PROPTEST_CASES=5000 CHUNKSTORE_MODEL_OPS=100 cargo test --release --test
 //! model`.
@@ -66,6 +68,10 @@ const TIMELINES: [(&str, TimeType); 3] = [
     ("t3", TimeType::TimestampNs),
 ];
 const MAX_TIME: i64 = 12;
+/// Where [`Op::Run`]s start and how far they reach at most: past the small times, so that
+/// their chunks overlap nothing else.
+const RUN_START: i64 = 100;
+const RUN_END: i64 = RUN_START + 40 + 40 * 2;
 /// Times at both ends of the valid range.
 const EXTREMES: [i64; 4] = [i64::MIN + 1, i64::MIN + 2, i64::MAX - 1, i64::MAX];
 
@@ -361,6 +367,17 @@ enum Op {
     RrdRoundTrip {
         at: i64,
     },
+    /// Chunks of one entity in time order past the small times, each ending before the
+    /// next starts (a live stream's batches), inserted one by one: with compaction off,
+    /// enough of them turn an index into a sequence (more than 32 chunks, which the
+    /// small times' overlapping chunks never form), and later ones before or among
+    /// them take its other paths (a chunk in front, one in a gap, the general form).
+    Run {
+        entity: usize,
+        timelines: u8,
+        start: i64,
+        chunks: Vec<Vec<[Cell; 3]>>,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -405,9 +422,13 @@ fn time() -> impl Strategy<Value = i64> {
     prop_oneof![9 => 0..=MAX_TIME, 1 => prop::sample::select(&EXTREMES[..])]
 }
 
-/// A query time: around the small times, or at an extreme.
+/// A query time: around the small times, among the runs' times, or at an extreme.
 fn query_time() -> impl Strategy<Value = i64> {
-    prop_oneof![9 => -1..=MAX_TIME + 1, 1 => prop::sample::select(&EXTREMES[..])]
+    prop_oneof![
+        9 => -1..=MAX_TIME + 1,
+        2 => RUN_START - 1..=RUN_END + 1,
+        1 => prop::sample::select(&EXTREMES[..]),
+    ]
 }
 
 fn cell() -> impl Strategy<Value = Cell> {
@@ -421,6 +442,25 @@ fn cell() -> impl Strategy<Value = Cell> {
 
 fn temporal_rows() -> impl Strategy<Value = Vec<([i64; 3], [Cell; 3])>> {
     prop::collection::vec(([time(), time(), time()], [cell(), cell(), cell()]), 1..7)
+}
+
+/// An [`Op::Run`] of 20 to 40 chunks of one or two rows.
+fn run_op() -> impl Strategy<Value = Op> {
+    (
+        0..ENTITIES.len(),
+        1u8..=7,
+        RUN_START..=RUN_START + 40,
+        prop::collection::vec(
+            prop::collection::vec([cell(), cell(), cell()], 1..=2),
+            20..=40,
+        ),
+    )
+        .prop_map(|(entity, timelines, start, chunks)| Op::Run {
+            entity,
+            timelines,
+            start,
+            chunks,
+        })
 }
 
 fn op() -> impl Strategy<Value = Op> {
@@ -498,19 +538,22 @@ fn op() -> impl Strategy<Value = Op> {
     let drop_entity = (0..ENTITIES.len(), any::<bool>())
         .prop_map(|(entity, recursive)| Op::DropEntity { entity, recursive });
     prop_oneof![
-        6 => temporal,
-        1 => statics,
-        2 => clear,
-        2 => again,
-        1 => reuse_id,
-        4 => latest,
-        2 => range,
-        1 => gc,
-        1 => drop_range,
-        1 => drop_entity,
-        1 => Just(Op::Compact),
-        1 => query_time().prop_map(|at| Op::RrdRoundTrip { at }),
-        2 => dataframe_op().prop_map(Op::Dataframe),
+        12 => temporal,
+        // About one case in two has a run: each holds more rows than the rest of a
+        // case, and the naive model's work grows with its rows.
+        1 => run_op(),
+        2 => statics,
+        4 => clear,
+        4 => again,
+        2 => reuse_id,
+        8 => latest,
+        4 => range,
+        2 => gc,
+        2 => drop_range,
+        2 => drop_entity,
+        2 => Just(Op::Compact),
+        2 => query_time().prop_map(|at| Op::RrdRoundTrip { at }),
+        4 => dataframe_op().prop_map(Op::Dataframe),
     ]
 }
 
@@ -1162,6 +1205,33 @@ impl Harness {
                 self.model.statics.retain(|chunk| !dropped(chunk.entity));
             }
             Op::RrdRoundTrip { at } => self.check_rrd_round_trip(*at)?,
+            Op::Run {
+                entity,
+                timelines,
+                start,
+                chunks,
+            } => {
+                let mut time = *start;
+                for cells in chunks {
+                    let rows: Vec<([i64; 3], [Cell; 3])> = cells
+                        .iter()
+                        .map(|cells| {
+                            time += 1;
+                            ([time; 3], cells.clone())
+                        })
+                        .collect();
+                    let model = self.temporal_chunk(
+                        ChunkId::new(),
+                        *entity,
+                        *timelines,
+                        &rows,
+                        None,
+                        randomness,
+                    );
+                    let chunk = Arc::new(model.build());
+                    self.insert(model, chunk)?;
+                }
+            }
             Op::Compact => {
                 let events = self.store.compact();
                 self.replay(&events)?;
@@ -1255,8 +1325,9 @@ impl HeldSnapshots {
 fn light_sweep(view: &StoreView, model: &Model, step: usize) -> Result<(), TestCaseError> {
     let (component, timeline) = (step % 3, step / 3 % 3);
     let at = i64::try_from(step).unwrap() % (MAX_TIME + 2) - 1;
+    let in_runs = RUN_START + i64::try_from(step * 7).unwrap() % (RUN_END - RUN_START + 2);
     for entity in 0..ENTITIES.len() {
-        for at in [at, i64::MAX] {
+        for at in [at, in_runs, i64::MAX] {
             check_latest_at(view, model, entity, component, timeline, at)?;
         }
         check_range(
@@ -1289,13 +1360,26 @@ fn full_sweep(view: &StoreView, model: &Model) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-/// The latest-at times of a full sweep: every small time and each extreme.
+/// The latest-at times of a full sweep: every small time, a few among the runs' times
+/// (either side of a chunk's edge and inside two-row chunks) and each extreme.
 fn query_times() -> impl Iterator<Item = i64> {
-    (-1..=MAX_TIME + 1).chain(EXTREMES)
+    const IN_RUNS: [i64; 5] = [
+        RUN_START + 1,
+        RUN_START + 2,
+        RUN_START + 41,
+        RUN_START + 77,
+        RUN_END,
+    ];
+    (-1..=MAX_TIME + 1).chain(IN_RUNS).chain(EXTREMES)
 }
 
 /// The ranges of a full sweep.
-const RANGES: [(i64, i64); 3] = [(i64::MIN + 1, i64::MAX), (0, MAX_TIME), (3, 7)];
+const RANGES: [(i64, i64); 4] = [
+    (i64::MIN + 1, i64::MAX),
+    (0, MAX_TIME),
+    (3, 7),
+    (RUN_START + 10, RUN_START + 70),
+];
 
 /// Runs `ops` on a store with `config`, checking everything after every step.
 fn run_with(config: StoreConfig, ops: &[Op], shuffles: &[u64]) -> Result<Harness, TestCaseError> {
