@@ -698,20 +698,8 @@ fn static_shadow() -> bool {
 
     // op = one of the 100,000 queries (two latest-at lookups, `text` and `scalar`).
     let frame: Arc<str> = FRAME.into();
-    let (ops, ns_per_op, checksum) = time_query(|| {
-        let mut sum = 0u64;
-        for &(i, t) in &queries {
-            if let Some(cell) = latest_at(&store, &frame, t, &entities[i], TEXT)
-                && let Some(len) = first_text_len(cell.component().list_array(), cell.row())
-            {
-                sum = sum.wrapping_add(len as u64);
-            }
-            if let Some(v) = latest_scalar(&store, &frame, t, &entities[i]) {
-                sum = sum.wrapping_add(v as u64);
-            }
-        }
-        (queries.len() as u64, sum)
-    });
+    let (ops, ns_per_op, checksum) =
+        time_query(|| static_shadow_queries(&store, &frame, &entities, &queries));
     Report {
         workload: "static_shadow",
         phase: "query",
@@ -721,6 +709,29 @@ fn static_shadow() -> bool {
         expected: Some(1_566_231),
     }
     .emit(&store)
+}
+
+/// `static_shadow`'s query phase, once: `(ops, checksum)`. Its own function (never
+/// inlined) so that a profiler can count the phase alone (`--toggle-collect`).
+#[inline(never)]
+fn static_shadow_queries(
+    store: &ChunkStore,
+    frame: &Arc<str>,
+    entities: &[EntityPath],
+    queries: &[(usize, i64)],
+) -> (u64, u64) {
+    let mut sum = 0u64;
+    for &(i, t) in queries {
+        if let Some(cell) = latest_at(store, frame, t, &entities[i], TEXT)
+            && let Some(len) = first_text_len(cell.component().list_array(), cell.row())
+        {
+            sum = sum.wrapping_add(len as u64);
+        }
+        if let Some(v) = latest_scalar(store, frame, t, &entities[i]) {
+            sum = sum.wrapping_add(v as u64);
+        }
+    }
+    (queries.len() as u64, sum)
 }
 
 // --- clear_recursive ---
