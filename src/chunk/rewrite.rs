@@ -178,7 +178,7 @@ pub(super) fn gather_single_values(
     };
     let nulls = any_null_cell.then(|| {
         rows.iter()
-            .map(|&(c, r)| columns[c].list.is_valid(r))
+            .map(|&(c, r)| columns.get(c).is_some_and(|column| column.list.is_valid(r)))
             .collect::<NullBuffer>()
     });
     let leaf_len = rows.len().checked_mul(per_item)?;

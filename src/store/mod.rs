@@ -181,7 +181,9 @@ pub(crate) fn entity_mut<'a>(
     path: &EntityPath,
     create: bool,
 ) -> Option<EntityMut<'a>> {
-    let (index, view) = if create {
+    // An entry (which clones the path, and in the hash trie prepares a write on the path
+    // to the key) only for a new entity: most writes are to one the store holds.
+    let (index, view) = if create && !entities.contains_key(path) {
         (
             entities.entry(path.clone()).or_default(),
             views.entry(path.clone()).or_default(),
