@@ -132,6 +132,18 @@ pub enum ChunkError {
         /// The other type.
         second: TimeType,
     },
+    /// A component column describes more values than its buffers could hold at 8 a byte
+    /// (plus one a row): only a type without data (`Null`, a struct without fields, a
+    /// run-end encoding) can, and every copy of such a column (compaction, dataframes)
+    /// allocates per value, so a few bytes could claim gigabytes.
+    UnbackedValues {
+        /// The component.
+        component: String,
+        /// The values its cells describe, every nesting level together.
+        values: usize,
+        /// The bytes of its buffers.
+        bytes: usize,
+    },
     /// A component or timeline name is empty.
     EmptyName {
         /// Which kind of column.
@@ -260,6 +272,16 @@ impl fmt::Display for ChunkError {
             } => write!(
                 f,
                 "timeline {timeline:?} is given as {first:?} and as {second:?}"
+            ),
+            Self::UnbackedValues {
+                component,
+                values,
+                bytes,
+            } => write!(
+                f,
+                "component column {component:?} describes {values} values in {bytes} bytes of \
+                 buffers (more than 8 a byte, as only a type without data can): refused, as \
+                 every copy of it would allocate per value"
             ),
             Self::EmptyName { kind } => write!(f, "a {kind} name must not be empty"),
             Self::MissingRowIds => write!(f, "batch has no `rerun.controls.RowId` column"),

@@ -131,6 +131,80 @@ pub(super) fn has_one_instance_per_row(list: &ListArray) -> bool {
     list.value_offsets().windows(2).all(|w| w[1] - w[0] == 1)
 }
 
+/// Values a column may describe per byte of its buffers: a boolean takes a bit.
+const MAX_VALUES_PER_BYTE: usize = 8;
+
+/// Refuses a column whose cells describe more values than its buffers could hold (see
+/// [`ChunkError::UnbackedValues`]): a list of `Null`s or of empty structs, whose offsets
+/// span billions of values that take no byte, made a merge of a 4 KB input allocate
+/// gigabytes of interleave indices.
+fn check_backed_values(list: &ListArray, name: impl Fn() -> String) -> Result<(), ChunkError> {
+    let values = values_walked(list, 0, list.len()).unwrap_or(usize::MAX);
+    let bytes = list.get_buffer_memory_size();
+    let allowed = bytes
+        .saturating_mul(MAX_VALUES_PER_BYTE)
+        .saturating_add(list.len());
+    if values > allowed {
+        return Err(ChunkError::UnbackedValues {
+            component: name(),
+            values,
+            bytes,
+        });
+    }
+    Ok(())
+}
+
+/// How many values a copy of elements `start..start + len` of `array` walks through, at
+/// every nesting level together (`None` past `usize`, or for offsets out of bounds,
+/// which Arrow's validation already excludes). O(depth): a list's elements below a range
+/// are one span of its offsets.
+fn values_walked(array: &dyn Array, start: usize, len: usize) -> Option<usize> {
+    fn span<O: arrow_array::OffsetSizeTrait>(
+        offsets: &[O],
+        start: usize,
+        len: usize,
+    ) -> Option<(usize, usize)> {
+        let first = offsets.get(start)?.as_usize();
+        let last = offsets.get(start.checked_add(len)?)?.as_usize();
+        Some((first, last.checked_sub(first)?))
+    }
+    let below = match array.data_type() {
+        DataType::List(_) => {
+            let list = array.as_list::<i32>();
+            let (first, count) = span(list.value_offsets(), start, len)?;
+            values_walked(list.values(), first, count)?
+        }
+        DataType::LargeList(_) => {
+            let list = array.as_list::<i64>();
+            let (first, count) = span(list.value_offsets(), start, len)?;
+            values_walked(list.values(), first, count)?
+        }
+        DataType::Map(..) => {
+            let map = array.as_map();
+            let (first, count) = span(map.value_offsets(), start, len)?;
+            values_walked(map.entries(), first, count)?
+        }
+        DataType::FixedSizeList(_, size) => {
+            let size = usize::try_from(*size).ok()?;
+            let list = array.as_fixed_size_list();
+            values_walked(
+                list.values(),
+                start.checked_mul(size)?,
+                len.checked_mul(size)?,
+            )?
+        }
+        DataType::Struct(_) => array
+            .as_struct()
+            .columns()
+            .iter()
+            .try_fold(0usize, |sum, column| {
+                sum.checked_add(values_walked(column.as_ref(), start, len)?)
+            })?,
+        _ => 0,
+    };
+    len.checked_add(below)
+}
+
 /// No row: a chunk has fewer than `u32::MAX` rows (checked in `Chunk::from_raw`), so its
 /// rows are numbered below this.
 pub(super) const NO_ROW: u32 = u32::MAX;
@@ -170,6 +244,10 @@ impl ComponentColumn {
         let best_cell_row = best_cell_row(&list, row_ids);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
+        if leaf.is_none() {
+            // Primitive items (and fixed-size lists of them) take bytes per value.
+            check_backed_values(&list, name)?;
+        }
         let bounds_per_timeline = time_columns
             .iter()
             .map(|column| time_bounds(&list, &column.times, row_ids))

@@ -483,3 +483,73 @@ fn single_values_gather_equals_interleave() {
     assert!(fast.is_none(), "strings");
     assert_eq!(slow.len(), 2);
 }
+
+/// A column may not describe more values than its buffers could hold: offsets spanning a
+/// million values of a type without data (empty structs, nulls, also under a fixed-size
+/// list) are refused, the same shapes at one value a row are not, and booleans (8 to a
+/// byte) are not.
+#[test]
+fn values_without_bytes_are_refused() {
+    use arrow_array::{BooleanArray, FixedSizeListArray, NullArray, StructArray, new_null_array};
+    use arrow_buffer::OffsetBuffer;
+    use arrow_schema::{Field, Fields};
+
+    let build = |items: ArrayRef, lengths: &[usize]| {
+        let field = Arc::new(Field::new_list_field(items.data_type().clone(), true));
+        let list = ListArray::new(
+            field,
+            OffsetBuffer::from_lengths(lengths.iter().copied()),
+            items,
+            None,
+        );
+        let n = u32::try_from(list.len()).unwrap();
+        Chunk::try_new(
+            ChunkId::new(),
+            EntityPath::parse("a").unwrap(),
+            (1..=u128::from(n)).map(RowId::from_u128).collect(),
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(arrow_array::Int64Array::from_iter_values(0..i64::from(n))) as ArrayRef,
+            )],
+            vec![("x".into(), Arc::new(list) as ArrayRef)],
+        )
+    };
+    let empty_structs = |n: usize| Arc::new(StructArray::new_empty_fields(n, None)) as ArrayRef;
+    let nulls = |n: usize| Arc::new(NullArray::new(n)) as ArrayRef;
+    let unbacked = |result: Result<Chunk, ChunkError>| {
+        matches!(result, Err(ChunkError::UnbackedValues { ref component, values, .. })
+            if component == "x" && values > 1_000_000)
+    };
+
+    assert!(unbacked(build(empty_structs(1_000_000), &[1_000_000])));
+    assert!(unbacked(build(nulls(1_000_001), &[1, 1_000_000])));
+    // A million nulls as one fixed-size item.
+    let fixed = FixedSizeListArray::new(
+        Arc::new(Field::new_list_field(DataType::Null, true)),
+        1_000_000,
+        nulls(1_000_000),
+        None,
+    );
+    assert!(unbacked(build(Arc::new(fixed), &[1])));
+    // Structs of a field that takes no bytes either.
+    let struct_of_nulls = StructArray::new(
+        Fields::from(vec![Field::new("n", DataType::Null, true)]),
+        vec![new_null_array(&DataType::Null, 1_000_000)],
+        None,
+    );
+    assert!(unbacked(build(Arc::new(struct_of_nulls), &[1_000_000])));
+
+    // One value a row, of any type, and booleans at eight to a byte, are fine.
+    assert!(build(empty_structs(3), &[1, 1, 1]).is_ok());
+    assert!(build(nulls(2), &[1, 0, 1]).is_ok());
+    let booleans = BooleanArray::from(vec![true; 80_000]);
+    assert!(build(Arc::new(booleans), &[40_000, 40_000]).is_ok());
+    // The message names the column and the figures.
+    let message = build(empty_structs(1_000_000), &[1_000_000])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("\"x\"") && message.contains("1000001 values"),
+        "{message}"
+    );
+}
