@@ -9,8 +9,8 @@ use super::time_column::guided_partition_point;
 use super::*;
 use crate::error::ChunkError;
 
-/// A chunk of one `frame` row per cell of `list` (times 0, 1, …).
-fn chunk_of(list: ListArray) -> Chunk {
+/// A chunk of one `frame` row per cell of `list` (times 0, 1, …), component `x`.
+fn try_chunk_of(list: ListArray) -> Result<Chunk, ChunkError> {
     let n = u32::try_from(list.len()).unwrap();
     Chunk::try_new(
         ChunkId::new(),
@@ -22,7 +22,11 @@ fn chunk_of(list: ListArray) -> Chunk {
         )],
         vec![("x".into(), Arc::new(list) as ArrayRef)],
     )
-    .unwrap()
+}
+
+/// [`try_chunk_of`] for a valid column.
+fn chunk_of(list: ListArray) -> Chunk {
+    try_chunk_of(list).unwrap()
 }
 
 /// The flag holds exactly when every cell spans one value, a null cell included.
@@ -496,23 +500,8 @@ fn values_without_bytes_are_refused() {
 
     let build = |items: ArrayRef, lengths: &[usize]| {
         let field = Arc::new(Field::new_list_field(items.data_type().clone(), true));
-        let list = ListArray::new(
-            field,
-            OffsetBuffer::from_lengths(lengths.iter().copied()),
-            items,
-            None,
-        );
-        let n = u32::try_from(list.len()).unwrap();
-        Chunk::try_new(
-            ChunkId::new(),
-            EntityPath::parse("a").unwrap(),
-            (1..=u128::from(n)).map(RowId::from_u128).collect(),
-            vec![(
-                Timeline::sequence("frame"),
-                Arc::new(arrow_array::Int64Array::from_iter_values(0..i64::from(n))) as ArrayRef,
-            )],
-            vec![("x".into(), Arc::new(list) as ArrayRef)],
-        )
+        let offsets = OffsetBuffer::from_lengths(lengths.iter().copied());
+        try_chunk_of(ListArray::new(field, offsets, items, None))
     };
     let empty_structs = |n: usize| Arc::new(StructArray::new_empty_fields(n, None)) as ArrayRef;
     let nulls = |n: usize| Arc::new(NullArray::new(n)) as ArrayRef;
