@@ -159,30 +159,30 @@ fn check_backed_values(list: &ListArray, name: impl Fn() -> String) -> Result<()
 /// which Arrow's validation already excludes). O(depth): a list's elements below a range
 /// are one span of its offsets.
 fn values_walked(array: &dyn Array, start: usize, len: usize) -> Option<usize> {
-    fn span<O: arrow_array::OffsetSizeTrait>(
+    /// The values below elements `start..start + len` of a list-like array: its offsets'
+    /// span of `child`.
+    fn below_span<O: arrow_array::OffsetSizeTrait>(
         offsets: &[O],
+        child: &dyn Array,
         start: usize,
         len: usize,
-    ) -> Option<(usize, usize)> {
+    ) -> Option<usize> {
         let first = offsets.get(start)?.as_usize();
         let last = offsets.get(start.checked_add(len)?)?.as_usize();
-        Some((first, last.checked_sub(first)?))
+        values_walked(child, first, last.checked_sub(first)?)
     }
     let below = match array.data_type() {
         DataType::List(_) => {
             let list = array.as_list::<i32>();
-            let (first, count) = span(list.value_offsets(), start, len)?;
-            values_walked(list.values(), first, count)?
+            below_span(list.value_offsets(), list.values(), start, len)?
         }
         DataType::LargeList(_) => {
             let list = array.as_list::<i64>();
-            let (first, count) = span(list.value_offsets(), start, len)?;
-            values_walked(list.values(), first, count)?
+            below_span(list.value_offsets(), list.values(), start, len)?
         }
         DataType::Map(..) => {
             let map = array.as_map();
-            let (first, count) = span(map.value_offsets(), start, len)?;
-            values_walked(map.entries(), first, count)?
+            below_span(map.value_offsets(), map.entries(), start, len)?
         }
         DataType::FixedSizeList(_, size) => {
             let size = usize::try_from(*size).ok()?;
@@ -364,19 +364,27 @@ impl ComponentColumn {
     /// fixed-size lists of them without any null (then the bytes are the whole cell; a null
     /// instance would hide whatever its slot holds). `None` otherwise, or for a null cell.
     pub(crate) fn leaf_bytes(&self, row: usize) -> Option<&[u8]> {
-        let leaf = self.leaf.as_ref()?;
+        let leaf = self.null_free_leaf()?;
         let (leaf_type, fixed_size) = leaf_shape(self.list.data_type())?;
-        let items = self.list.values();
-        let leaf_nulls = match fixed_size {
-            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
-            None => 0,
-        };
-        if items.null_count() + leaf_nulls > 0 || !self.is_valid_row(row) {
+        if !self.is_valid_row(row) {
             return None;
         }
         let width = leaf_type.primitive_width()? * fixed_size.unwrap_or(1);
         let (start, end) = self.leaf_span(leaf, row, width)?;
         leaf.values.as_slice().get(start..end)
+    }
+
+    /// The column's leaf, when neither its items nor (for fixed-size lists) their values
+    /// hold a null instance: then a cell's leaf values are the whole cell, since a null
+    /// instance would hide whatever its slot holds.
+    pub(super) fn null_free_leaf(&self) -> Option<&PrimitiveLeaf> {
+        let leaf = self.leaf.as_ref()?;
+        let items = self.list.values();
+        let leaf_nulls = match leaf_shape(self.list.data_type())?.1 {
+            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
+            None => 0,
+        };
+        (items.null_count() + leaf_nulls == 0).then_some(leaf)
     }
 
     /// Where the cell at `row` lies in `leaf`, in units of `width` leaf elements or bytes

@@ -4,7 +4,6 @@
 
 use std::sync::Arc;
 
-use arrow_array::cast::AsArray;
 use arrow_array::{Array, ArrayRef, ListArray, make_array};
 use arrow_buffer::{ArrowNativeType, Buffer, NullBuffer, OffsetBuffer, ScalarBuffer};
 use arrow_data::ArrayData;
@@ -152,14 +151,8 @@ pub(super) fn gather_single_values(
     let per_item = fixed_size.unwrap_or(1);
     let mut any_null_cell = false;
     for column in columns {
-        let items = column.list.values();
-        let leaf_nulls = match fixed_size {
-            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
-            None => 0,
-        };
-        if column.leaf.is_none()
+        if column.null_free_leaf().is_none()
             || !column.one_instance_per_row
-            || items.null_count() + leaf_nulls > 0
             || column.list.data_type() != first.list.data_type()
         {
             return None;
@@ -181,16 +174,12 @@ pub(super) fn gather_single_values(
             .map(|&(c, r)| columns.get(c).is_some_and(|column| column.list.is_valid(r)))
             .collect::<NullBuffer>()
     });
-    let leaf_len = rows.len().checked_mul(per_item)?;
-    // List offsets are `i32`s (a merge's piece is far smaller).
-    let len = i32::try_from(rows.len()).ok()?;
+    // `0, 1, .., n` (list offsets are `i32`s; a merge's piece is far smaller): ascending by
+    // construction, and Arrow still checks it, in one pass.
+    let end = i32::try_from(rows.len()).ok()?;
+    let offsets = OffsetBuffer::new((0..=end).collect::<ScalarBuffer<i32>>());
     Some(single_values_list(
-        item_field,
-        leaf_type,
-        fixed_size,
-        (len, leaf_len),
-        values,
-        nulls,
+        item_field, leaf_type, fixed_size, offsets, values, nulls,
     ))
 }
 
@@ -225,17 +214,19 @@ fn gather_leaf<T: ArrowNativeType>(
     Some(Buffer::from_vec(values))
 }
 
-/// A list column of `len` cells of one instance each, its items' `leaf_len` primitive
-/// values in `values` (see [`gather_single_values`]).
+/// A list column of one instance per cell (`offsets` are `0, 1, .., n`), its items'
+/// primitive values in `values` (see [`gather_single_values`]).
 fn single_values_list(
     item_field: &FieldRef,
     leaf_type: &DataType,
     fixed_size: Option<usize>,
-    (len, leaf_len): (i32, usize),
+    offsets: OffsetBuffer<i32>,
     values: Buffer,
     nulls: Option<NullBuffer>,
 ) -> Result<ArrayRef, ChunkError> {
-    let num_cells = usize::try_from(len).unwrap_or_default();
+    let num_cells = offsets.len() - 1;
+    // Checked against `values` by Arrow: a wrong length is an error, not a misread.
+    let leaf_len = num_cells.saturating_mul(fixed_size.unwrap_or(1));
     let leaf = ArrayData::try_new(leaf_type.clone(), leaf_len, None, 0, vec![values], vec![])?;
     let items = match fixed_size {
         None => leaf,
@@ -248,8 +239,6 @@ fn single_values_list(
             vec![leaf],
         )?,
     };
-    // `0, 1, .., len`: ascending by construction (Arrow still checks it, in one pass).
-    let offsets = OffsetBuffer::new((0..=len).collect::<ScalarBuffer<i32>>());
     let list = ListArray::try_new(Arc::clone(item_field), offsets, make_array(items), nulls)?;
     Ok(Arc::new(list))
 }
