@@ -548,3 +548,37 @@ fn the_stream_is_a_record_batch_reader_and_the_default_batch_is_bounded_by_cells
     let stream = wide.dataframe(&frame()).unwrap();
     assert_eq!(stream.batch_rows(), chunkstore::DEFAULT_BATCH_CELLS / 2000);
 }
+
+#[test]
+fn a_snapshot_streams_the_same_table_from_another_thread_while_the_store_changes() {
+    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..30)
+        .map(|i| (i, i as u128 + 1, Some(vec![i as f64])))
+        .collect();
+    let mut store = store_of([scalars("/a", "x", &rows)]);
+    let query = frame().with_batch_rows(7).with_fill_latest_at(true);
+    let expected: Vec<RecordBatch> = store
+        .dataframe(&query)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+
+    let stream = store.snapshot().into_dataframe(&query).unwrap();
+    // Written after the snapshot: the owned stream must not see it.
+    store
+        .insert(scalars("/a", "x", &[(100, 1_000, Some(vec![-1.0]))]))
+        .unwrap();
+    let streamed = std::thread::spawn(move || stream.map(Result::unwrap).collect::<Vec<_>>())
+        .join()
+        .unwrap();
+    assert_eq!(streamed, expected);
+    assert_eq!(
+        streamed.iter().map(RecordBatch::num_rows).sum::<usize>(),
+        30
+    );
+    assert_eq!(render(&store, &frame()).1.len(), 31);
+
+    let unknown = store
+        .snapshot()
+        .into_dataframe(&DataframeQuery::new("nope"));
+    assert!(matches!(unknown, Err(DataframeError::UnknownIndex { .. })));
+}

@@ -18,7 +18,7 @@ mod stream;
 use std::fmt;
 use std::sync::Arc;
 
-use crate::{StoreView, TimeInt, TimeRange};
+use crate::{Snapshot, StoreView, TimeInt, TimeRange};
 
 pub use chunk_table::{ChunkTableQuery, ChunkTableStream};
 pub use filter::{EntityPathFilter, EntityPathFilterError};
@@ -200,6 +200,11 @@ impl StoreView {
     /// # Errors
     /// An index timeline the store has never seen, or a batch size of zero.
     pub fn dataframe(&self, query: &DataframeQuery) -> Result<DataframeStream<'_>, DataframeError> {
+        let plan = self.plan_dataframe(query)?;
+        DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan).map_err(column_error)
+    }
+
+    fn plan_dataframe(&self, query: &DataframeQuery) -> Result<schema::TablePlan, DataframeError> {
         if query.batch_rows == Some(0) {
             return Err(DataframeError::ZeroBatchRows);
         }
@@ -213,9 +218,36 @@ impl StoreView {
                     .collect(),
             });
         };
-        let plan = schema::TablePlan::new(self, query, time_type);
-        DataframeStream::new(self, query, plan).map_err(|e| DataframeError::Column {
-            message: e.to_string(),
-        })
+        Ok(schema::TablePlan::new(self, query, time_type))
+    }
+}
+
+fn column_error(error: arrow_schema::ArrowError) -> DataframeError {
+    DataframeError::Column {
+        message: error.to_string(),
+    }
+}
+
+impl Snapshot {
+    /// [`StoreView::dataframe`] over this snapshot, owning it: the stream is `'static` and
+    /// `Send`, so it can be handed to another thread or to a foreign caller (a Python
+    /// `RecordBatchReader`) while the store it came from goes on changing.
+    ///
+    /// ```
+    /// use chunkstore::{ChunkStore, DataframeQuery};
+    ///
+    /// let store = ChunkStore::new();
+    /// // The store has no timeline yet: the query is refused, as `dataframe` refuses it.
+    /// assert!(store.snapshot().into_dataframe(&DataframeQuery::new("frame")).is_err());
+    /// ```
+    ///
+    /// # Errors
+    /// As [`StoreView::dataframe`].
+    pub fn into_dataframe(
+        self,
+        query: &DataframeQuery,
+    ) -> Result<DataframeStream<'static>, DataframeError> {
+        let plan = self.plan_dataframe(query)?;
+        DataframeStream::new(stream::ViewRef::Owned(self), query, plan).map_err(column_error)
     }
 }

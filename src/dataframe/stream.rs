@@ -11,16 +11,17 @@ use super::schema::{ColumnPlan, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
-use crate::{LatestAtQuery, RowId, StoreView, TimeInt, TimeRange};
+use crate::{LatestAtQuery, RowId, Snapshot, StoreView, TimeInt, TimeRange};
 
 /// The rows of a dataframe view, as Arrow record batches of at most the query's batch
 /// size, in ascending order of the index (or in the order of the sampled values). The
-/// schema is known before the first batch. Borrows the store: a table is read from one
-/// state of it.
+/// schema is known before the first batch. Reads one state of the store: it borrows the
+/// store ([`StoreView::dataframe`]), or holds a snapshot ([`Snapshot::into_dataframe`],
+/// a `DataframeStream<'static>` that can cross threads and outlive the store's handle).
 ///
 /// Implements [`RecordBatchReader`], so it can be handed to any Arrow writer as it is.
 pub struct DataframeStream<'a> {
-    store: &'a StoreView,
+    store: ViewRef<'a>,
     plan: TablePlan,
     columns: Vec<ColumnState>,
     rows: Rows,
@@ -33,6 +34,23 @@ pub struct DataframeStream<'a> {
     maxima: Vec<Option<i64>>,
     /// Set once the stream has ended (its last batch, or an error, was handed out).
     done: bool,
+}
+
+/// The state a [`DataframeStream`] reads: borrowed, or frozen and owned.
+pub(super) enum ViewRef<'a> {
+    Borrowed(&'a StoreView),
+    Owned(Snapshot),
+}
+
+impl std::ops::Deref for ViewRef<'_> {
+    type Target = StoreView;
+
+    fn deref(&self) -> &StoreView {
+        match self {
+            Self::Borrowed(view) => view,
+            Self::Owned(snapshot) => snapshot,
+        }
+    }
 }
 
 impl std::fmt::Debug for DataframeStream<'_> {
@@ -172,7 +190,7 @@ fn visible_cell(
 
 impl<'a> DataframeStream<'a> {
     pub(super) fn new(
-        store: &'a StoreView,
+        store: ViewRef<'a>,
         query: &DataframeQuery,
         plan: TablePlan,
     ) -> Result<Self, ArrowError> {
@@ -185,7 +203,7 @@ impl<'a> DataframeStream<'a> {
         let mut columns = Vec::with_capacity(plan.columns.len());
         let mut next = NextEvents::default();
         for (number, column) in plan.columns.iter().enumerate() {
-            let state = column_state(store, &plan, column, range, query, sampling.is_none())?;
+            let state = column_state(&store, &plan, column, range, query, sampling.is_none())?;
             if let Kind::Temporal(temporal) = &state.kind
                 && let Some(time) = temporal.next_time()
             {
