@@ -358,6 +358,10 @@ fn lazy_answers_equal_eager_answers_and_decode_a_fraction() {
     let stats = lazy.stats();
     assert!(stats.chunks_decoded <= 2, "{stats:?}");
     assert!(stats.bytes_read < stats.file_bytes / 4, "{stats:?}");
+    // Handed over after one query: the whole recording, as the eager reader loads it.
+    let handed_over = lazy.into_store().unwrap();
+    assert_eq!(handed_over.stats().num_rows(), store.stats().num_rows());
+    assert_eq!(handed_over.entity_paths(), store.entity_paths());
 
     // Every entity, component and time on every timeline: the same answers.
     for (timeline, times) in [

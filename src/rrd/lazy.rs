@@ -357,6 +357,17 @@ impl<R: Read + Seek> LazyRecording<R> {
         Ok(&self.store)
     }
 
+    /// Decodes every chunk not decoded yet and hands over the whole recording's store
+    /// (closing the input): for a caller that started lazily and now needs everything,
+    /// to write to, collect or share.
+    ///
+    /// # Errors
+    /// As [`LazyRecording::latest_at`]; the recording is gone either way.
+    pub fn into_store(mut self) -> Result<ChunkStore, RrdError> {
+        self.load_all()?;
+        Ok(self.store)
+    }
+
     fn load(&mut self, entries: &[usize]) -> Result<(), RrdError> {
         for &i in entries {
             let entry = &self.manifest.entries[i];
