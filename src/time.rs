@@ -153,7 +153,7 @@ impl TimeType {
 
     /// A time column of this type ([`Self::to_arrow`]) holding `values`, nulls where a row
     /// has no time.
-    pub(crate) fn array(self, values: Vec<Option<i64>>) -> arrow_array::ArrayRef {
+    pub fn array(self, values: Vec<Option<i64>>) -> arrow_array::ArrayRef {
         use arrow_array::PrimitiveArray;
         use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
         match self {

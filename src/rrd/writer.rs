@@ -148,7 +148,7 @@ impl<W: Write> RrdWriter<W> {
 /// same directory, synced, then renamed over `path`. If anything fails (or the process
 /// dies), `path` is untouched and the temporary file is removed (or, after a crash, left
 /// under a name starting with `.` and ending `.tmp`). `progress` is called after each
-/// chunk with the bytes written so far.
+/// chunk with the bytes written so far. Returns the file's size in bytes, footer included.
 ///
 /// # Errors
 /// [`RrdErrorKind::Io`] if the file cannot be created, written, synced or renamed.
@@ -167,11 +167,16 @@ pub fn write_rrd_file(
                 writer.write_chunk(&chunk)?;
                 progress(writer.position());
             }
-            let size = writer.position();
+            let before_footer = writer.position();
             let out = writer.finish()?;
             let file = out
                 .into_inner()
-                .map_err(|e| RrdError::new(size, RrdErrorKind::Io(e.into_error())))?;
+                .map_err(|e| RrdError::new(before_footer, RrdErrorKind::Io(e.into_error())))?;
+            // The footer's length is the encoder's business: the file says what it came to.
+            let size = file
+                .metadata()
+                .map_err(|e| RrdError::new(before_footer, RrdErrorKind::Io(e)))?
+                .len();
             Ok((file, size))
         },
     )

@@ -1,0 +1,322 @@
+"""chunkstore: a columnar chunk store for spatiotemporal data, from Python.
+
+Open a Rerun recording (``.rrd``) or a directory of Arrow IPC chunk files, ask for the
+latest value of a component at a time, every value in a time range, or a whole
+dataframe view, and get Arrow data back: ``pyarrow`` record batches and tables that
+Polars, pandas and DuckDB read without a copy.
+
+>>> import chunkstore
+>>> store = chunkstore.open("recording.rrd")            # doctest: +SKIP
+>>> store.timelines()                                   # doctest: +SKIP
+[Timeline(name='frame_id', type='sequence', min=0, max=59), ...]
+>>> store.dataframe("frame_id").read_all()              # doctest: +SKIP
+
+Times are integers in the timeline's unit (sequence numbers, or nanoseconds), or, on
+duration and timestamp timelines, ``datetime.timedelta``/``numpy.timedelta64`` and
+``datetime.datetime``/``numpy.datetime64`` (a naive ``datetime`` is taken as UTC).
+
+Every query runs on a snapshot with the GIL released: other Python threads may query,
+and one may insert, at the same time.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from typing import TYPE_CHECKING, Any, Iterable, NamedTuple, Optional, Sequence, Union
+
+from . import _chunkstore
+from ._chunkstore import CorruptFileError, Error, InvalidInputError, UnknownTimelineError
+
+if TYPE_CHECKING:
+    import pyarrow
+
+__all__ = [
+    "CorruptFileError",
+    "Error",
+    "InvalidInputError",
+    "Store",
+    "Timeline",
+    "UnknownTimelineError",
+    "open",
+]
+
+Time = Union[int, _dt.datetime, _dt.timedelta, Any]
+"""An integer in the timeline's unit, or a datetime/timedelta (Python or numpy)."""
+
+_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
+
+
+class Timeline(NamedTuple):
+    """A timeline of the store: its name, its type (``"sequence"``, ``"duration"`` or
+    ``"timestamp"``) and the least and greatest time of its data (integers in its unit,
+    ``None`` when no data is left on it)."""
+
+    name: str
+    type: str
+    min: Optional[int]
+    max: Optional[int]
+
+
+def _timedelta_ns(value: _dt.timedelta) -> int:
+    return (value.days * 86_400 + value.seconds) * 1_000_000_000 + value.microseconds * 1_000
+
+
+def _to_time(value: Time, time_type: str, what: str) -> int:
+    """``value`` as an integer on a timeline of ``time_type``."""
+    if isinstance(value, bool):
+        raise InvalidInputError(f"{what}: a bool is not a time")
+    if isinstance(value, int):
+        return value
+    type_name = type(value).__module__ + "." + type(value).__name__
+    if type_name == "numpy.datetime64":
+        if time_type != "timestamp":
+            raise InvalidInputError(f"{what}: a datetime64 on a {time_type} timeline")
+        return int(value.astype("datetime64[ns]").astype("int64"))
+    if type_name == "numpy.timedelta64":
+        if time_type == "sequence":
+            raise InvalidInputError(f"{what}: a timedelta64 on a sequence timeline")
+        return int(value.astype("timedelta64[ns]").astype("int64"))
+    if type(value).__module__ == "numpy" and hasattr(value, "dtype") and value.dtype.kind in "iu":
+        return int(value)
+    if isinstance(value, _dt.datetime):
+        if time_type != "timestamp":
+            raise InvalidInputError(f"{what}: a datetime on a {time_type} timeline")
+        if value.tzinfo is None:
+            value = value.replace(tzinfo=_dt.timezone.utc)
+        return _timedelta_ns(value - _EPOCH)
+    if isinstance(value, _dt.timedelta):
+        if time_type == "sequence":
+            raise InvalidInputError(f"{what}: a timedelta on a sequence timeline")
+        return _timedelta_ns(value)
+    raise InvalidInputError(
+        f"{what}: expected an int, datetime or timedelta, got {type(value).__name__}"
+    )
+
+
+def _contents(contents: Union[None, str, Iterable[str]]) -> Optional[list]:
+    if contents is None:
+        return None
+    if isinstance(contents, str):
+        return [contents]
+    rules = list(contents)
+    if not all(isinstance(rule, str) for rule in rules):
+        raise InvalidInputError("contents: expected a string or strings of entity path rules")
+    return rules
+
+
+class Store:
+    """A chunk store in memory (or a recording read lazily through its footer).
+
+    ``Store()`` is empty; :func:`open` reads a file or directory. ``compaction=False``
+    keeps chunks exactly as inserted (by default small chunks are merged as they
+    arrive, which changes no answer).
+    """
+
+    __slots__ = ("_native",)
+
+    def __init__(self, compaction: bool = True, *, _native: Any = None) -> None:
+        self._native = _native if _native is not None else _chunkstore.NativeStore(compaction)
+
+    # --- discovery -------------------------------------------------------------------
+
+    def entities(self) -> list:
+        """Every entity path with data, sorted (``["/world/robot", ...]``)."""
+        return self._native.entities()
+
+    def components(self, entity: str) -> list:
+        """The component names of ``entity``, sorted (empty if it holds no data)."""
+        return self._native.components(entity)
+
+    def timelines(self) -> list:
+        """Every timeline, sorted by name, as :class:`Timeline` tuples."""
+        return [Timeline(*t) for t in self._native.timelines()]
+
+    def schema(self, index: str, contents: Union[None, str, Iterable[str]] = None) -> "pyarrow.Schema":
+        """The schema :meth:`dataframe` gives on ``index`` for ``contents``."""
+        return self._native.schema(index, _contents(contents))
+
+    @property
+    def num_chunks(self) -> int:
+        """Chunks held (for a lazy recording: chunks in the file)."""
+        return self._native.counts()[1]
+
+    @property
+    def is_lazy(self) -> bool:
+        """Is the store still reading its ``.rrd`` lazily (only the chunks queries needed
+        are decoded)?"""
+        return self._native.is_lazy()
+
+    def __len__(self) -> int:
+        """Rows held (for a lazy recording: rows in the file)."""
+        return self._native.counts()[0]
+
+    def __repr__(self) -> str:
+        rows, chunks = self._native.counts()
+        timelines = ", ".join(
+            f"{t.name} ({t.type}) [{t.min}, {t.max}]" if t.min is not None else f"{t.name} ({t.type}) empty"
+            for t in self.timelines()
+        )
+        lazy = ", lazy" if self.is_lazy else ""
+        return (
+            f"<chunkstore.Store: {len(self.entities())} entities, {chunks} chunks, {rows} rows"
+            f"{lazy}; timelines: {timelines or 'none'}>"
+        )
+
+    # --- writes ----------------------------------------------------------------------
+
+    def insert(self, data: Any) -> int:
+        """Inserts chunks in Rerun's chunk layout: a ``pyarrow.RecordBatch`` (one chunk),
+        a ``pyarrow.Table`` or any iterable of record batches (one chunk each). Returns
+        the rows inserted. Rows the store already holds (same row id) change nothing."""
+        import pyarrow
+
+        if isinstance(data, pyarrow.RecordBatch):
+            return self._native.insert(data)
+        if isinstance(data, pyarrow.Table):
+            batches = data.to_batches()
+        else:
+            batches = data
+        return sum(self._native.insert(batch) for batch in batches)
+
+    def gc(
+        self,
+        fraction: Optional[float] = None,
+        *,
+        bytes: Optional[int] = None,
+        protect_latest: int = 0,
+    ) -> tuple:
+        """Garbage collection: drops whole temporal chunks until at least ``fraction`` of
+        the heap (or ``bytes`` bytes) is freed; with neither, every unprotected temporal
+        chunk. Static data is never dropped; ``protect_latest=n`` keeps the ``n`` latest
+        chunks of every (entity, timeline, component). Returns ``(chunks, rows)``
+        dropped."""
+        return self._native.gc(fraction, bytes, protect_latest)
+
+    def compact(self) -> tuple:
+        """Merges small chunks into time-sorted ones (answers unchanged). Returns
+        ``(chunks before, chunks after)``."""
+        return self._native.compact()
+
+    # --- queries ---------------------------------------------------------------------
+
+    def _time_type(self, timeline: str) -> str:
+        if not isinstance(timeline, str):
+            raise InvalidInputError(f"timeline: expected a name (str), got {type(timeline).__name__}")
+        return self._native.time_type(timeline)
+
+    def latest_at(
+        self,
+        timeline: str,
+        time: Time,
+        entity: str,
+        components: Union[None, str, Sequence[str]] = None,
+    ) -> "pyarrow.RecordBatch":
+        """The value of each component of ``entity`` as of ``time`` on ``timeline``
+        (static data wins; Clears hide older values).
+
+        One row: the greatest time and row id among the answers, then one list column per
+        component (null where it has no value yet). No row when no component has one.
+        """
+        time_type = self._time_type(timeline)
+        if isinstance(components, str):
+            components = [components]
+        elif components is not None:
+            components = list(components)
+        return self._native.latest_at(timeline, _to_time(time, time_type, "time"), entity, components)
+
+    def range(
+        self,
+        timeline: str,
+        lo: Time,
+        hi: Time,
+        *,
+        entity: str,
+        component: str,
+    ) -> "pyarrow.Table":
+        """Every value of ``entity``'s ``component`` logged in ``[lo, hi]`` (inclusive) on
+        ``timeline``, in (time, row id) order: columns ``<timeline>``, ``row_id`` and the
+        component's list column. Static data shows as one row with a null time."""
+        time_type = self._time_type(timeline)
+        return self._native.range(
+            timeline,
+            _to_time(lo, time_type, "lo"),
+            _to_time(hi, time_type, "hi"),
+            entity,
+            component,
+        )
+
+    def dataframe(
+        self,
+        index: str,
+        contents: Union[None, str, Iterable[str]] = None,
+        range: Optional[tuple] = None,
+        index_values: Optional[Iterable[Time]] = None,
+        fill_latest_at: bool = False,
+        batch_rows: Optional[int] = None,
+    ) -> "pyarrow.RecordBatchReader":
+        """The store as a table on timeline ``index`` (SEMANTICS.md section 9), streamed
+        from one snapshot as a ``pyarrow.RecordBatchReader``.
+
+        ``contents``: entity path rules (``"/world/**"``, ``"-/world/noise"``); by default
+        every entity but ``/__properties``. ``range=(lo, hi)``: only rows in it.
+        ``index_values``: one row per value given, each column's latest-at there, instead
+        of a row per time with data. ``fill_latest_at``: nulls filled with the latest
+        value before. ``batch_rows``: rows per batch.
+
+        ``.read_all()`` gives a ``pyarrow.Table``; ``polars.from_arrow(reader)`` a Polars
+        frame; ``reader.read_pandas()`` a pandas one.
+        """
+        time_type = self._time_type(index)
+        if range is not None:
+            try:
+                lo, hi = range
+            except (TypeError, ValueError):
+                raise InvalidInputError("range: expected a (lo, hi) pair") from None
+            range = (_to_time(lo, time_type, "range"), _to_time(hi, time_type, "range"))
+        if index_values is not None:
+            if type(index_values).__module__ == "numpy":
+                index_values = index_values.tolist() if index_values.dtype.kind in "iu" else list(index_values)
+            index_values = [_to_time(v, time_type, "index_values") for v in index_values]
+        return self._native.dataframe(
+            index, _contents(contents), range, index_values, fill_latest_at, batch_rows
+        )
+
+    # --- files -----------------------------------------------------------------------
+
+    def write_rrd(self, path: Union[str, os.PathLike], application_id: str = "chunkstore") -> int:
+        """Writes every chunk to an ``.rrd`` file that Rerun opens (atomically: the file
+        appears whole or not at all). Returns its size in bytes."""
+        return self._native.write_rrd(os.fspath(path), application_id)
+
+    def to_parquet(
+        self,
+        path: Union[str, os.PathLike],
+        index: str,
+        contents: Union[None, str, Iterable[str]] = None,
+        range: Optional[tuple] = None,
+        index_values: Optional[Iterable[Time]] = None,
+        fill_latest_at: bool = False,
+        row_group_rows: Optional[int] = None,
+    ) -> int:
+        """Writes :meth:`dataframe`'s table to a Parquet file (atomically), with the
+        statistics engines prune by. Returns the rows written."""
+        time_type = self._time_type(index)
+        if range is not None:
+            lo, hi = range
+            range = (_to_time(lo, time_type, "range"), _to_time(hi, time_type, "range"))
+        if index_values is not None:
+            index_values = [_to_time(v, time_type, "index_values") for v in index_values]
+        return self._native.to_parquet(
+            os.fspath(path), index, _contents(contents), range, index_values, fill_latest_at, row_group_rows
+        )
+
+
+def open(path: Union[str, os.PathLike], *, lazy: bool = True) -> Store:
+    """Opens an ``.rrd`` file (lazily, through its footer, when it has one and ``lazy``
+    is true), a directory of Arrow IPC chunk files, or one such file.
+
+    Raises ``FileNotFoundError`` (and other ``OSError``) from the file system, and
+    :class:`CorruptFileError` for a file that does not parse.
+    """
+    return Store(_native=_chunkstore.open(os.fspath(path), lazy))

@@ -1,0 +1,108 @@
+//! The package's exceptions, and how each crate error maps to one.
+
+use chunkstore::rrd::{RrdError, RrdErrorKind};
+use chunkstore::{ChunkError, DataframeError, InsertError, IoError};
+use pyo3::PyErr;
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+
+create_exception!(
+    chunkstore,
+    Error,
+    PyException,
+    "Every error chunkstore raises (besides OSError from the file system)."
+);
+create_exception!(
+    chunkstore,
+    InvalidInputError,
+    Error,
+    "Input the store refuses: a record batch that is not a chunk, a bad entity path or \
+     filter, an argument out of range."
+);
+create_exception!(
+    chunkstore,
+    CorruptFileError,
+    Error,
+    "A file that is not what it claims: not an .rrd or Arrow IPC, truncated, or corrupt."
+);
+create_exception!(
+    chunkstore,
+    UnknownTimelineError,
+    Error,
+    "A timeline the store has never seen."
+);
+
+/// `chunkstore.InvalidInputError` with `message`.
+pub fn invalid(message: impl Into<String>) -> PyErr {
+    InvalidInputError::new_err(message.into())
+}
+
+/// An I/O error as Python's own `OSError` subclass, the path named.
+pub fn os_error(path: &std::path::Path, error: std::io::Error) -> PyErr {
+    let error = std::io::Error::new(error.kind(), format!("{}: {error}", path.display()));
+    PyErr::from(error)
+}
+
+/// A `.rrd` error: the file system's own, or the file's fault.
+pub fn rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
+    if let RrdErrorKind::Io(io) = &error.kind
+        && io.kind() != std::io::ErrorKind::UnexpectedEof
+    {
+        return os_error(path, std::io::Error::new(io.kind(), io.to_string()));
+    }
+    CorruptFileError::new_err(format!("{}: {error}", path.display()))
+}
+
+/// An Arrow IPC error: the file system's own, or the file's fault.
+pub fn ipc_error(error: IoError) -> PyErr {
+    match error {
+        IoError::Io { path, source } => os_error(&path, source),
+        other => CorruptFileError::new_err(other.to_string()),
+    }
+}
+
+/// A chunk the store refuses.
+pub fn chunk_error(error: ChunkError) -> PyErr {
+    invalid(format!("not a valid chunk: {error}"))
+}
+
+/// An insert the store refuses.
+pub fn insert_error(error: InsertError) -> PyErr {
+    invalid(error.to_string())
+}
+
+/// A dataframe query the store cannot answer.
+pub fn dataframe_error(error: DataframeError) -> PyErr {
+    match error {
+        DataframeError::UnknownIndex { .. } => UnknownTimelineError::new_err(error.to_string()),
+        other => invalid(other.to_string()),
+    }
+}
+
+/// An unknown timeline, the known ones named.
+pub fn unknown_timeline(name: &str, known: impl IntoIterator<Item = String>) -> PyErr {
+    let known: Vec<String> = known.into_iter().collect();
+    UnknownTimelineError::new_err(format!(
+        "unknown timeline {name:?} (the store has: {})",
+        if known.is_empty() {
+            "none".to_owned()
+        } else {
+            known.join(", ")
+        }
+    ))
+}
+
+/// Runs `work`, turning a panic (a bug in the store: user data never panics it) into
+/// `chunkstore.Error`, so that Python never sees pyo3's `PanicException`.
+pub fn no_panic<T>(work: impl FnOnce() -> Result<T, PyErr>) -> Result<T, PyErr> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)).unwrap_or_else(|panic| {
+        let message = panic
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".to_owned());
+        Err(Error::new_err(format!(
+            "internal error in chunkstore (a bug, please report it): {message}"
+        )))
+    })
+}

@@ -1,0 +1,123 @@
+//! `chunkstore.open(path)`: an `.rrd` file (lazily through its footer when it has one), a
+//! directory of Arrow IPC chunk files, or one such file, told apart by their contents.
+
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+
+use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
+use chunkstore::ChunkStore;
+use pyo3::prelude::*;
+
+use crate::errors::{CorruptFileError, ipc_error, no_panic, os_error, rrd_error};
+use crate::store::NativeStore;
+
+/// Opens `path`: see the module docs. `lazy=False` decodes an `.rrd` whole at once.
+#[pyfunction]
+#[pyo3(signature = (path, lazy = true))]
+pub fn open(py: Python<'_>, path: PathBuf, lazy: bool) -> PyResult<NativeStore> {
+    py.detach(|| no_panic(|| open_path(&path, lazy)))
+}
+
+fn open_path(path: &Path, lazy: bool) -> PyResult<NativeStore> {
+    let metadata = std::fs::metadata(path).map_err(|e| os_error(path, e))?;
+    if metadata.is_dir() {
+        return load_directory(path).map(|store| NativeStore::loaded(store, None));
+    }
+    let head = file_head(path)?;
+    if chunkstore::rrd::looks_like_rrd(&head) {
+        if lazy
+            && let Some(recording) = LazyRecording::open(path).map_err(|e| rrd_error(path, e))?
+        {
+            return Ok(NativeStore::lazy(recording, path.to_owned()));
+        }
+        let (store, info) = load_rrd(path)?;
+        return Ok(NativeStore::loaded(store, info));
+    }
+    if head.starts_with(b"ARROW1") || head.starts_with(&[0xff; 4]) {
+        let mut store = new_store();
+        insert_ipc_file(&mut store, path)?;
+        return Ok(NativeStore::loaded(store, None));
+    }
+    Err(CorruptFileError::new_err(format!(
+        "{}: neither an .rrd file nor Arrow IPC (it starts with {:?})",
+        path.display(),
+        String::from_utf8_lossy(&head)
+    )))
+}
+
+fn new_store() -> ChunkStore {
+    ChunkStore::new()
+}
+
+/// The first 8 bytes (fewer if the file is shorter).
+fn file_head(path: &Path) -> PyResult<Vec<u8>> {
+    let file = std::fs::File::open(path).map_err(|e| os_error(path, e))?;
+    let mut head = Vec::with_capacity(8);
+    file.take(8)
+        .read_to_end(&mut head)
+        .map_err(|e| os_error(path, e))?;
+    Ok(head)
+}
+
+/// Every chunk of an `.rrd` file, streamed into a store, and its first store info.
+fn load_rrd(path: &Path) -> PyResult<(ChunkStore, Option<StoreInfo>)> {
+    let file = std::fs::File::open(path).map_err(|e| os_error(path, e))?;
+    let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
+        .map_err(|e| rrd_error(path, e))?;
+    let mut store = new_store();
+    let mut info = None;
+    for item in reader {
+        match item.map_err(|e| rrd_error(path, e))? {
+            RrdItem::Chunk { chunk, offset, .. } => {
+                store.insert(chunk).map_err(|e| {
+                    CorruptFileError::new_err(format!(
+                        "{}: the chunk at byte {offset}: {e}",
+                        path.display(),
+                    ))
+                })?;
+            }
+            RrdItem::StoreInfo(found) => {
+                info.get_or_insert(found);
+            }
+            _ => {}
+        }
+    }
+    Ok((store, info))
+}
+
+/// Every Arrow IPC file (`.arrow`, `.arrows`, `.ipc`, `.feather`) of a directory, in name
+/// order.
+fn load_directory(dir: &Path) -> PyResult<ChunkStore> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| os_error(dir, e))? {
+        let path = entry.map_err(|e| os_error(dir, e))?.path();
+        let is_ipc = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| ["arrow", "arrows", "ipc", "feather"].contains(&e));
+        if is_ipc && path.is_file() {
+            files.push(path);
+        }
+    }
+    files.sort();
+    if files.is_empty() {
+        return Err(CorruptFileError::new_err(format!(
+            "{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)",
+            dir.display()
+        )));
+    }
+    let mut store = new_store();
+    for file in &files {
+        insert_ipc_file(&mut store, file)?;
+    }
+    Ok(store)
+}
+
+fn insert_ipc_file(store: &mut ChunkStore, path: &Path) -> PyResult<()> {
+    for chunk in chunkstore::io::read_chunks_from_path(path).map_err(ipc_error)? {
+        store
+            .insert(chunk)
+            .map_err(|e| CorruptFileError::new_err(format!("{}: {e}", path.display())))?;
+    }
+    Ok(())
+}

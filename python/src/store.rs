@@ -1,0 +1,621 @@
+//! `NativeStore`: the store behind `chunkstore.Store`. Every method takes plain integers
+//! and strings (the Python half converts), releases the GIL, and reads one snapshot.
+//!
+//! A store opened from an `.rrd` with a footer starts *lazy*: discovery (entities,
+//! timelines, components, length) reads the footer's manifest, and `latest_at`/`range`
+//! decode only the chunks that could answer. Anything that needs every chunk (a
+//! dataframe, a write, GC, compaction, export) decodes the rest once, and from then on
+//! the store is an ordinary shared store.
+//!
+//! Locking: the state's mutex is only ever taken with the GIL released (inside
+//! `Python::detach`), so a thread waiting for it never holds the GIL that the holder
+//! needs to return.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::{Array, RecordBatch, RecordBatchReader};
+use arrow_pyarrow::{PyArrowType, Table};
+use arrow_schema::{DataType, Field, Schema};
+use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::rrd::{LazyRecording, StoreId, StoreInfo};
+use chunkstore::{
+    Chunk, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, GcOptions, GcTarget,
+    LatestAtQuery, RangeQuery, SharedStore, Snapshot, StoreConfig, StoreEvent, StoreView,
+    TimeInt, TimeRange, TimeType,
+};
+use parking_lot::Mutex;
+use pyo3::prelude::*;
+
+use crate::errors::{
+    Error, chunk_error, dataframe_error, insert_error, invalid, no_panic, os_error, rrd_error,
+    unknown_timeline,
+};
+use crate::tables::{Answer, latest_at_batch, range_batches};
+
+/// What a store is: a recording still read lazily, or a store in memory.
+enum State {
+    Lazy {
+        recording: Box<LazyRecording>,
+        path: PathBuf,
+    },
+    Loaded(SharedStore),
+}
+
+/// The native store (see the module docs); Python code uses `chunkstore.Store`.
+#[pyclass(module = "chunkstore._chunkstore", frozen)]
+pub struct NativeStore {
+    state: Mutex<State>,
+    /// The recording's store info, written back by `write_rrd`.
+    store_info: Mutex<Option<StoreInfo>>,
+}
+
+impl NativeStore {
+    /// A store over a store in memory.
+    pub fn loaded(store: ChunkStore, store_info: Option<StoreInfo>) -> Self {
+        Self {
+            state: Mutex::new(State::Loaded(SharedStore::new(store))),
+            store_info: Mutex::new(store_info),
+        }
+    }
+
+    /// A store over a recording read lazily through its footer.
+    pub fn lazy(recording: LazyRecording, path: PathBuf) -> Self {
+        let store_info = recording.store_info().cloned();
+        Self {
+            state: Mutex::new(State::Lazy {
+                recording: Box::new(recording),
+                path,
+            }),
+            store_info: Mutex::new(store_info),
+        }
+    }
+
+    /// The shared store, decoding the rest of a lazy recording first. GIL released.
+    fn shared(&self) -> PyResult<SharedStore> {
+        let mut state = self.state.lock();
+        if let State::Lazy { recording, path } = &mut *state {
+            recording.load_all().map_err(|e| rrd_error(path, e))?;
+            let loaded = State::Loaded(SharedStore::new(ChunkStore::new()));
+            if let State::Lazy { recording, path } = std::mem::replace(&mut *state, loaded) {
+                let store = recording.into_store().map_err(|e| rrd_error(&path, e))?;
+                *state = State::Loaded(SharedStore::new(store));
+            }
+        }
+        match &*state {
+            State::Loaded(shared) => Ok(shared.clone()),
+            State::Lazy { .. } => Err(Error::new_err("the recording could not be loaded")),
+        }
+    }
+
+    /// A snapshot of the whole store. GIL released.
+    fn snapshot(&self) -> PyResult<Snapshot> {
+        Ok(self.shared()?.snapshot())
+    }
+
+    /// Runs `read` with the GIL released: on the lazy recording if the store is still
+    /// lazy, else on a snapshot.
+    fn read<T: Send>(
+        &self,
+        py: Python<'_>,
+        read: impl FnOnce(Source<'_>) -> PyResult<T> + Send,
+    ) -> PyResult<T> {
+        py.detach(|| {
+            no_panic(|| {
+                let mut state = self.state.lock();
+                match &mut *state {
+                    State::Lazy { recording, path } => read(Source::Lazy(recording, path)),
+                    State::Loaded(shared) => {
+                        let snapshot = shared.snapshot();
+                        drop(state);
+                        read(Source::Snapshot(&snapshot))
+                    }
+                }
+            })
+        })
+    }
+
+    /// Runs `work` on a snapshot of the whole store, with the GIL released.
+    fn with_snapshot<T: Send>(
+        &self,
+        py: Python<'_>,
+        work: impl FnOnce(&StoreView) -> PyResult<T> + Send,
+    ) -> PyResult<T> {
+        py.detach(|| no_panic(|| work(self.snapshot()?.view())))
+    }
+
+    /// Runs `write` on the shared store, with the GIL released.
+    fn write<T: Send>(
+        &self,
+        py: Python<'_>,
+        write: impl FnOnce(&SharedStore) -> PyResult<T> + Send,
+    ) -> PyResult<T> {
+        py.detach(|| no_panic(|| write(&self.shared()?)))
+    }
+}
+
+/// What a read runs on.
+enum Source<'a> {
+    Lazy(&'a mut LazyRecording, &'a Path),
+    Snapshot(&'a StoreView),
+}
+
+impl Source<'_> {
+    fn time_type(&self, timeline: &str) -> PyResult<TimeType> {
+        let found = match self {
+            Source::Lazy(recording, _) => recording
+                .timelines()
+                .into_iter()
+                .find(|(t, _, _)| t.name() == timeline)
+                .map(|(t, _, _)| t.time_type()),
+            Source::Snapshot(view) => view.time_type(timeline),
+        };
+        found.ok_or_else(|| {
+            let known: Vec<String> = match self {
+                Source::Lazy(recording, _) => recording
+                    .timelines()
+                    .into_iter()
+                    .map(|(t, _, _)| t.name().to_owned())
+                    .collect(),
+                Source::Snapshot(view) => {
+                    view.timelines().iter().map(|t| t.name().to_owned()).collect()
+                }
+            };
+            unknown_timeline(timeline, known)
+        })
+    }
+
+    fn entity_paths(&self) -> Vec<EntityPath> {
+        match self {
+            Source::Lazy(recording, _) => recording.entity_paths(),
+            Source::Snapshot(view) => view.entity_paths(),
+        }
+    }
+
+    fn component_names(&self, entity: &EntityPath) -> Vec<chunkstore::ComponentName> {
+        match self {
+            Source::Lazy(recording, _) => recording.component_names(entity),
+            Source::Snapshot(view) => view.component_names(entity),
+        }
+    }
+
+    /// The entity, which must hold data.
+    fn entity(&self, text: &str) -> PyResult<EntityPath> {
+        let entity = parse_entity(text)?;
+        if self.component_names(&entity).is_empty() {
+            let known: Vec<String> = self.entity_paths().iter().map(ToString::to_string).collect();
+            return Err(invalid(format!(
+                "no data at entity {entity} (the store has: {})",
+                if known.is_empty() {
+                    "nothing".to_owned()
+                } else {
+                    known.join(", ")
+                }
+            )));
+        }
+        Ok(entity)
+    }
+}
+
+fn parse_entity(text: &str) -> PyResult<EntityPath> {
+    EntityPath::parse(text).map_err(|e| invalid(format!("entity path {text:?}: {e}")))
+}
+
+fn time(value: i64) -> PyResult<TimeInt> {
+    TimeInt::new(value).ok_or_else(|| invalid(format!("time {value} is out of range")))
+}
+
+fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathFilter>> {
+    contents
+        .map(|rules| {
+            EntityPathFilter::parse(&rules)
+                .map_err(|e| invalid(format!("contents {rules:?}: {e}")))
+        })
+        .transpose()
+}
+
+/// A dataframe query from the Python arguments.
+fn dataframe_query(
+    index: &str,
+    contents: Option<Vec<String>>,
+    range: Option<(i64, i64)>,
+    index_values: Option<Vec<i64>>,
+    fill_latest_at: bool,
+    batch_rows: Option<usize>,
+) -> PyResult<DataframeQuery> {
+    let mut query = DataframeQuery::new(index).with_fill_latest_at(fill_latest_at);
+    if let Some(filter) = contents_filter(contents)? {
+        query = query.with_contents(filter);
+    }
+    if let Some((lo, hi)) = range {
+        if lo > hi {
+            return Err(invalid(format!("range ({lo}, {hi}): the start is after the end")));
+        }
+        query = query.with_range(TimeRange::new(time(lo)?, time(hi)?));
+    }
+    if let Some(values) = index_values {
+        let values: Vec<TimeInt> = values.into_iter().map(time).collect::<PyResult<_>>()?;
+        query = query.with_index_values(values);
+    }
+    if let Some(rows) = batch_rows {
+        if rows == 0 {
+            return Err(invalid("batch_rows must be at least 1"));
+        }
+        query = query.with_batch_rows(rows);
+    }
+    Ok(query)
+}
+
+fn time_type_name(time_type: TimeType) -> &'static str {
+    match time_type {
+        TimeType::Sequence => "sequence",
+        TimeType::DurationNs => "duration",
+        TimeType::TimestampNs => "timestamp",
+    }
+}
+
+fn count_deleted(events: &[StoreEvent]) -> (u64, u64) {
+    let mut chunks = 0;
+    let mut rows = 0;
+    for event in events {
+        if let StoreEvent::Deletion { chunk, .. } = event {
+            chunks += 1;
+            rows += chunk.num_rows() as u64;
+        }
+    }
+    (chunks, rows)
+}
+
+#[pymethods]
+impl NativeStore {
+    /// An empty store; `compaction=False` keeps chunks as inserted.
+    #[new]
+    #[pyo3(signature = (compaction = true))]
+    fn new(compaction: bool) -> PyResult<Self> {
+        let config = if compaction {
+            StoreConfig::DEFAULT
+        } else {
+            StoreConfig::COMPACTION_OFF
+        };
+        let store = ChunkStore::with_config(config).map_err(|e| invalid(e.to_string()))?;
+        Ok(Self::loaded(store, None))
+    }
+
+    /// Is the store still reading its recording lazily?
+    fn is_lazy(&self, py: Python<'_>) -> bool {
+        py.detach(|| matches!(&*self.state.lock(), State::Lazy { .. }))
+    }
+
+    /// Inserts one record batch in Rerun's chunk layout; returns its rows.
+    fn insert(&self, py: Python<'_>, batch: PyArrowType<RecordBatch>) -> PyResult<usize> {
+        let batch = batch.0;
+        self.write(py, move |shared| {
+            let chunk = Chunk::from_record_batch(&batch).map_err(chunk_error)?;
+            let rows = chunk.num_rows();
+            shared.insert(chunk).map_err(insert_error)?;
+            Ok(rows)
+        })
+    }
+
+    /// Every entity with data, sorted, as text.
+    fn entities(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        self.read(py, |source| {
+            Ok(source.entity_paths().iter().map(ToString::to_string).collect())
+        })
+    }
+
+    /// The components of an entity, sorted.
+    fn components(&self, py: Python<'_>, entity: &str) -> PyResult<Vec<String>> {
+        let entity = parse_entity(entity)?;
+        self.read(py, move |source| {
+            Ok(source
+                .component_names(&entity)
+                .iter()
+                .map(|c| c.as_str().to_owned())
+                .collect())
+        })
+    }
+
+    /// `(name, type, min, max)` per timeline, sorted by name; type is `"sequence"`,
+    /// `"duration"` or `"timestamp"`; min and max are `None` when no data is left.
+    #[allow(clippy::type_complexity)]
+    fn timelines(&self, py: Python<'_>) -> PyResult<Vec<(String, &'static str, Option<i64>, Option<i64>)>> {
+        self.read(py, |source| {
+            Ok(match source {
+                Source::Lazy(recording, _) => recording
+                    .timelines()
+                    .into_iter()
+                    .map(|(t, min, max)| {
+                        (
+                            t.name().to_owned(),
+                            time_type_name(t.time_type()),
+                            Some(min.as_i64()),
+                            Some(max.as_i64()),
+                        )
+                    })
+                    .collect(),
+                Source::Snapshot(view) => view
+                    .timelines()
+                    .into_iter()
+                    .map(|t| {
+                        let range = view.time_range(t.name());
+                        (
+                            t.name().to_owned(),
+                            time_type_name(t.time_type()),
+                            range.map(|(min, _)| min.as_i64()),
+                            range.map(|(_, max)| max.as_i64()),
+                        )
+                    })
+                    .collect(),
+            })
+        })
+    }
+
+    /// The type name of a timeline (`"sequence"`, `"duration"`, `"timestamp"`).
+    fn time_type(&self, py: Python<'_>, timeline: &str) -> PyResult<&'static str> {
+        self.read(py, |source| source.time_type(timeline).map(time_type_name))
+    }
+
+    /// `(rows, chunks)`: for a lazy recording, as its footer lists them.
+    fn counts(&self, py: Python<'_>) -> PyResult<(u64, u64)> {
+        self.read(py, |source| {
+            Ok(match source {
+                Source::Lazy(recording, _) => {
+                    let entries = &recording.manifest().entries;
+                    (
+                        entries.iter().map(|e| e.num_rows).sum(),
+                        entries.len() as u64,
+                    )
+                }
+                Source::Snapshot(view) => {
+                    let stats = view.stats();
+                    (stats.num_rows(), stats.num_chunks())
+                }
+            })
+        })
+    }
+
+    /// Heap bytes the store holds (decodes a lazy recording).
+    fn heap_bytes(&self, py: Python<'_>) -> PyResult<u64> {
+        self.with_snapshot(py, |view| Ok(view.stats().heap_bytes))
+    }
+
+    /// The latest-at table: see `tables::latest_at_batch`.
+    #[pyo3(signature = (timeline, at, entity, components = None))]
+    fn latest_at(
+        &self,
+        py: Python<'_>,
+        timeline: &str,
+        at: i64,
+        entity: &str,
+        components: Option<Vec<String>>,
+    ) -> PyResult<PyArrowType<RecordBatch>> {
+        let at = time(at)?;
+        self.read(py, move |mut source| {
+            let time_type = source.time_type(timeline)?;
+            let entity = source.entity(entity)?;
+            let known = source.component_names(&entity);
+            let wanted = match components {
+                None => known.clone(),
+                Some(names) => names
+                    .iter()
+                    .map(|name| {
+                        known.iter().find(|k| k.as_str() == name).cloned().ok_or_else(|| {
+                            invalid(format!(
+                                "entity {entity} has no component {name:?} (it has: {})",
+                                known.iter().map(|k| k.as_str()).collect::<Vec<_>>().join(", ")
+                            ))
+                        })
+                    })
+                    .collect::<PyResult<Vec<_>>>()?,
+            };
+            let query = LatestAtQuery::new(timeline, at);
+            let mut answers = Vec::with_capacity(wanted.len());
+            for component in wanted {
+                let cell = match &mut source {
+                    Source::Lazy(recording, path) => recording
+                        .latest_at(&query, &entity, component.as_str())
+                        .map_err(|e| rrd_error(path, e))?,
+                    Source::Snapshot(view) => view.latest_at(&query, &entity, component.as_str()),
+                };
+                let answer = match cell {
+                    Some(cell) => Answer::Found(cell),
+                    None => Answer::Missing(list_type(&source, &entity, component.as_str())),
+                };
+                answers.push((component, answer));
+            }
+            latest_at_batch(timeline, time_type, &entity, answers)
+                .map(PyArrowType)
+                .map_err(|e| invalid(e.to_string()))
+        })
+    }
+
+    /// Every row of one component in `[lo, hi]` on `timeline`, in `(time, row id)` order.
+    fn range(
+        &self,
+        py: Python<'_>,
+        timeline: &str,
+        lo: i64,
+        hi: i64,
+        entity: &str,
+        component: &str,
+    ) -> PyResult<PyArrowType<Table>> {
+        if lo > hi {
+            return Err(invalid(format!("range ({lo}, {hi}): the start is after the end")));
+        }
+        let span = TimeRange::new(time(lo)?, time(hi)?);
+        self.read(py, move |mut source| {
+            let time_type = source.time_type(timeline)?;
+            let entity = source.entity(entity)?;
+            if !source.component_names(&entity).iter().any(|c| c.as_str() == component) {
+                return Err(invalid(format!("entity {entity} has no component {component:?}")));
+            }
+            let query = RangeQuery::new(timeline, span);
+            let result = match &mut source {
+                Source::Lazy(recording, path) => recording
+                    .range(&query, &entity, component)
+                    .map_err(|e| rrd_error(path, e))?,
+                Source::Snapshot(view) => view.range(&query, &entity, component),
+            };
+            let list_type = result
+                .runs()
+                .next()
+                .map(|run| run.column().list_array().data_type().clone())
+                .unwrap_or_else(|| list_type(&source, &entity, component));
+            let (batches, schema) =
+                range_batches(timeline, time_type, &entity, component, list_type, &result)
+                    .map_err(|e| invalid(e.to_string()))?;
+            Table::try_new(batches, schema)
+                .map(PyArrowType)
+                .map_err(|e| invalid(e.to_string()))
+        })
+    }
+
+    /// The dataframe schema for `index` (see `dataframe`).
+    #[pyo3(signature = (index, contents = None))]
+    fn schema(
+        &self,
+        py: Python<'_>,
+        index: &str,
+        contents: Option<Vec<String>>,
+    ) -> PyResult<PyArrowType<Schema>> {
+        let query = dataframe_query(index, contents, None, None, false, None)?;
+        self.with_snapshot(py, move |view| {
+            let stream = view.dataframe(&query).map_err(dataframe_error)?;
+            Ok(PyArrowType(Arc::unwrap_or_clone(stream.schema())))
+        })
+    }
+
+    /// A dataframe view (SEMANTICS.md section 9), streamed from one snapshot.
+    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn dataframe(
+        &self,
+        py: Python<'_>,
+        index: &str,
+        contents: Option<Vec<String>>,
+        range: Option<(i64, i64)>,
+        index_values: Option<Vec<i64>>,
+        fill_latest_at: bool,
+        batch_rows: Option<usize>,
+    ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
+        let query = dataframe_query(index, contents, range, index_values, fill_latest_at, batch_rows)?;
+        py.detach(|| {
+            no_panic(|| {
+                let stream = self
+                    .snapshot()?
+                    .into_dataframe(&query)
+                    .map_err(dataframe_error)?;
+                Ok(PyArrowType(
+                    Box::new(stream) as Box<dyn RecordBatchReader + Send>
+                ))
+            })
+        })
+    }
+
+    /// Garbage collection; returns `(chunks dropped, rows dropped)`.
+    #[pyo3(signature = (fraction = None, bytes = None, protect_latest = 0))]
+    fn gc(
+        &self,
+        py: Python<'_>,
+        fraction: Option<f64>,
+        bytes: Option<u64>,
+        protect_latest: usize,
+    ) -> PyResult<(u64, u64)> {
+        let target = match (fraction, bytes) {
+            (Some(_), Some(_)) => {
+                return Err(invalid("gc: give a fraction or a number of bytes, not both"));
+            }
+            (Some(fraction), None) => GcTarget::drop_at_least_fraction(fraction)
+                .map_err(|e| invalid(format!("gc: {e}")))?,
+            (None, Some(bytes)) => GcTarget::DropAtLeastBytes(bytes),
+            (None, None) => GcTarget::Everything,
+        };
+        let options = GcOptions::everything()
+            .with_target(target)
+            .with_protect_latest(protect_latest);
+        self.write(py, move |shared| Ok(count_deleted(&shared.gc(&options))))
+    }
+
+    /// Compaction; returns `(chunks before, chunks after)`.
+    fn compact(&self, py: Python<'_>) -> PyResult<(u64, u64)> {
+        self.write(py, |shared| {
+            let before = shared.snapshot().stats().num_chunks();
+            shared.compact();
+            Ok((before, shared.snapshot().stats().num_chunks()))
+        })
+    }
+
+    /// Writes every chunk to an `.rrd` file (atomically); returns the bytes written.
+    #[pyo3(signature = (path, application_id = "chunkstore"))]
+    fn write_rrd(&self, py: Python<'_>, path: PathBuf, application_id: &str) -> PyResult<u64> {
+        py.detach(|| {
+            no_panic(|| {
+                let snapshot = self.snapshot()?;
+                let info = self.store_info.lock().clone().unwrap_or_else(|| {
+                    let recording = path.file_stem().map_or_else(
+                        || "recording".to_owned(),
+                        |s| s.to_string_lossy().into_owned(),
+                    );
+                    StoreInfo::new(StoreId::recording(application_id, recording))
+                });
+                chunkstore::rrd::write_rrd_file(&path, &info, snapshot.export_chunks(), |_| {})
+                    .map_err(|e| rrd_error(&path, e))
+            })
+        })
+    }
+
+    /// Writes a dataframe view to a Parquet file (atomically); returns the rows written.
+    #[pyo3(signature = (path, index, contents = None, range = None, index_values = None, fill_latest_at = false, row_group_rows = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn to_parquet(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        index: &str,
+        contents: Option<Vec<String>>,
+        range: Option<(i64, i64)>,
+        index_values: Option<Vec<i64>>,
+        fill_latest_at: bool,
+        row_group_rows: Option<usize>,
+    ) -> PyResult<u64> {
+        let sampled = index_values.is_some();
+        let query = dataframe_query(index, contents, range, index_values, fill_latest_at, None)?;
+        let mut options = ParquetOptions::default();
+        if !sampled {
+            // A sampled table's rows follow the values given, not the index.
+            options = options.with_sorted_by(index);
+        }
+        if let Some(rows) = row_group_rows {
+            if rows == 0 {
+                return Err(invalid("row_group_rows must be at least 1"));
+            }
+            options = options.with_row_group_rows(rows);
+        }
+        self.with_snapshot(py, move |view| {
+            let stream = view.dataframe(&query).map_err(dataframe_error)?;
+            let summary = write_parquet_file(&path, stream, &options).map_err(|e| match e {
+                chunkstore::parquet_export::ParquetExportError::Io { path, source } => {
+                    os_error(&path, source)
+                }
+                other => Error::new_err(format!("{}: {other}", path.display())),
+            })?;
+            Ok(summary.rows)
+        })
+    }
+}
+
+/// The list type of a component's column, when no answer carries it.
+fn list_type(source: &Source<'_>, entity: &EntityPath, component: &str) -> DataType {
+    let element = match source {
+        Source::Lazy(recording, _) => recording
+            .loaded_store()
+            .element_type(entity, component)
+            .cloned(),
+        Source::Snapshot(view) => view.element_type(entity, component).cloned(),
+    };
+    DataType::List(Arc::new(Field::new_list_field(
+        element.unwrap_or(DataType::Null),
+        true,
+    )))
+}
