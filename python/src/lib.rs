@@ -26,8 +26,14 @@ use pyo3::prelude::*;
 fn _chunkstore(module: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = module.py();
     module.add("Error", py.get_type::<errors::Error>())?;
-    module.add("InvalidInputError", py.get_type::<errors::InvalidInputError>())?;
-    module.add("CorruptFileError", py.get_type::<errors::CorruptFileError>())?;
+    module.add(
+        "InvalidInputError",
+        py.get_type::<errors::InvalidInputError>(),
+    )?;
+    module.add(
+        "CorruptFileError",
+        py.get_type::<errors::CorruptFileError>(),
+    )?;
     module.add(
         "UnknownTimelineError",
         py.get_type::<errors::UnknownTimelineError>(),

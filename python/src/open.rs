@@ -4,8 +4,8 @@
 use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
-use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
 use chunkstore::ChunkStore;
+use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
 use pyo3::prelude::*;
 
 use crate::errors::{CorruptFileError, ipc_error, no_panic, os_error, rrd_error};

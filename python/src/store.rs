@@ -21,8 +21,8 @@ use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
 use chunkstore::rrd::{LazyRecording, StoreId, StoreInfo};
 use chunkstore::{
     Chunk, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, GcOptions, GcTarget,
-    LatestAtQuery, RangeQuery, SharedStore, Snapshot, StoreConfig, StoreEvent, StoreView,
-    TimeInt, TimeRange, TimeType,
+    LatestAtQuery, RangeQuery, SharedStore, Snapshot, StoreConfig, StoreEvent, StoreView, TimeInt,
+    TimeRange, TimeType,
 };
 use parking_lot::Mutex;
 use pyo3::prelude::*;
@@ -157,9 +157,11 @@ impl Source<'_> {
                     .into_iter()
                     .map(|(t, _, _)| t.name().to_owned())
                     .collect(),
-                Source::Snapshot(view) => {
-                    view.timelines().iter().map(|t| t.name().to_owned()).collect()
-                }
+                Source::Snapshot(view) => view
+                    .timelines()
+                    .iter()
+                    .map(|t| t.name().to_owned())
+                    .collect(),
             };
             unknown_timeline(timeline, known)
         })
@@ -183,7 +185,11 @@ impl Source<'_> {
     fn entity(&self, text: &str) -> PyResult<EntityPath> {
         let entity = parse_entity(text)?;
         if self.component_names(&entity).is_empty() {
-            let known: Vec<String> = self.entity_paths().iter().map(ToString::to_string).collect();
+            let known: Vec<String> = self
+                .entity_paths()
+                .iter()
+                .map(ToString::to_string)
+                .collect();
             return Err(invalid(format!(
                 "no data at entity {entity} (the store has: {})",
                 if known.is_empty() {
@@ -208,8 +214,7 @@ fn time(value: i64) -> PyResult<TimeInt> {
 fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathFilter>> {
     contents
         .map(|rules| {
-            EntityPathFilter::parse(&rules)
-                .map_err(|e| invalid(format!("contents {rules:?}: {e}")))
+            EntityPathFilter::parse(&rules).map_err(|e| invalid(format!("contents {rules:?}: {e}")))
         })
         .transpose()
 }
@@ -229,7 +234,9 @@ fn dataframe_query(
     }
     if let Some((lo, hi)) = range {
         if lo > hi {
-            return Err(invalid(format!("range ({lo}, {hi}): the start is after the end")));
+            return Err(invalid(format!(
+                "range ({lo}, {hi}): the start is after the end"
+            )));
         }
         query = query.with_range(TimeRange::new(time(lo)?, time(hi)?));
     }
@@ -300,7 +307,11 @@ impl NativeStore {
     /// Every entity with data, sorted, as text.
     fn entities(&self, py: Python<'_>) -> PyResult<Vec<String>> {
         self.read(py, |source| {
-            Ok(source.entity_paths().iter().map(ToString::to_string).collect())
+            Ok(source
+                .entity_paths()
+                .iter()
+                .map(ToString::to_string)
+                .collect())
         })
     }
 
@@ -319,7 +330,10 @@ impl NativeStore {
     /// `(name, type, min, max)` per timeline, sorted by name; type is `"sequence"`,
     /// `"duration"` or `"timestamp"`; min and max are `None` when no data is left.
     #[allow(clippy::type_complexity)]
-    fn timelines(&self, py: Python<'_>) -> PyResult<Vec<(String, &'static str, Option<i64>, Option<i64>)>> {
+    fn timelines(
+        &self,
+        py: Python<'_>,
+    ) -> PyResult<Vec<(String, &'static str, Option<i64>, Option<i64>)>> {
         self.read(py, |source| {
             Ok(match source {
                 Source::Lazy(recording, _) => recording
@@ -400,12 +414,20 @@ impl NativeStore {
                 Some(names) => names
                     .iter()
                     .map(|name| {
-                        known.iter().find(|k| k.as_str() == name).cloned().ok_or_else(|| {
-                            invalid(format!(
-                                "entity {entity} has no component {name:?} (it has: {})",
-                                known.iter().map(|k| k.as_str()).collect::<Vec<_>>().join(", ")
-                            ))
-                        })
+                        known
+                            .iter()
+                            .find(|k| k.as_str() == name)
+                            .cloned()
+                            .ok_or_else(|| {
+                                invalid(format!(
+                                    "entity {entity} has no component {name:?} (it has: {})",
+                                    known
+                                        .iter()
+                                        .map(chunkstore::ComponentName::as_str)
+                                        .collect::<Vec<_>>()
+                                        .join(", ")
+                                ))
+                            })
                     })
                     .collect::<PyResult<Vec<_>>>()?,
             };
@@ -441,14 +463,22 @@ impl NativeStore {
         component: &str,
     ) -> PyResult<PyArrowType<Table>> {
         if lo > hi {
-            return Err(invalid(format!("range ({lo}, {hi}): the start is after the end")));
+            return Err(invalid(format!(
+                "range ({lo}, {hi}): the start is after the end"
+            )));
         }
         let span = TimeRange::new(time(lo)?, time(hi)?);
         self.read(py, move |mut source| {
             let time_type = source.time_type(timeline)?;
             let entity = source.entity(entity)?;
-            if !source.component_names(&entity).iter().any(|c| c.as_str() == component) {
-                return Err(invalid(format!("entity {entity} has no component {component:?}")));
+            if !source
+                .component_names(&entity)
+                .iter()
+                .any(|c| c.as_str() == component)
+            {
+                return Err(invalid(format!(
+                    "entity {entity} has no component {component:?}"
+                )));
             }
             let query = RangeQuery::new(timeline, span);
             let result = match &mut source {
@@ -457,11 +487,10 @@ impl NativeStore {
                     .map_err(|e| rrd_error(path, e))?,
                 Source::Snapshot(view) => view.range(&query, &entity, component),
             };
-            let list_type = result
-                .runs()
-                .next()
-                .map(|run| run.column().list_array().data_type().clone())
-                .unwrap_or_else(|| list_type(&source, &entity, component));
+            let list_type = result.runs().next().map_or_else(
+                || list_type(&source, &entity, component),
+                |run| run.column().list_array().data_type().clone(),
+            );
             let (batches, schema) =
                 range_batches(timeline, time_type, &entity, component, list_type, &result)
                     .map_err(|e| invalid(e.to_string()))?;
@@ -499,7 +528,14 @@ impl NativeStore {
         fill_latest_at: bool,
         batch_rows: Option<usize>,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let query = dataframe_query(index, contents, range, index_values, fill_latest_at, batch_rows)?;
+        let query = dataframe_query(
+            index,
+            contents,
+            range,
+            index_values,
+            fill_latest_at,
+            batch_rows,
+        )?;
         py.detach(|| {
             no_panic(|| {
                 let stream = self
@@ -524,7 +560,9 @@ impl NativeStore {
     ) -> PyResult<(u64, u64)> {
         let target = match (fraction, bytes) {
             (Some(_), Some(_)) => {
-                return Err(invalid("gc: give a fraction or a number of bytes, not both"));
+                return Err(invalid(
+                    "gc: give a fraction or a number of bytes, not both",
+                ));
             }
             (Some(fraction), None) => GcTarget::drop_at_least_fraction(fraction)
                 .map_err(|e| invalid(format!("gc: {e}")))?,

@@ -48,7 +48,7 @@ pub fn latest_at_batch(
     let time = answers
         .iter()
         .filter_map(|(_, a)| match a {
-            Answer::Found(cell) => cell.time().map(|t| t.as_i64()),
+            Answer::Found(cell) => cell.time().map(chunkstore::TimeInt::as_i64),
             Answer::Missing(_) => None,
         })
         .max();
@@ -124,7 +124,8 @@ pub fn range_batches(
             Some(span) if span.len() == rows.len() => Arc::new(list.slice(span.start, span.len())),
             _ => {
                 let indices = arrow_array::UInt32Array::from_iter_values(
-                    rows.iter().map(|&row| u32::try_from(row).unwrap_or(u32::MAX)),
+                    rows.iter()
+                        .map(|&row| u32::try_from(row).unwrap_or(u32::MAX)),
                 );
                 arrow_select::take::take(list, &indices, None)?
             }

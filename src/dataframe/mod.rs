@@ -201,7 +201,8 @@ impl StoreView {
     /// An index timeline the store has never seen, or a batch size of zero.
     pub fn dataframe(&self, query: &DataframeQuery) -> Result<DataframeStream<'_>, DataframeError> {
         let plan = self.plan_dataframe(query)?;
-        DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan).map_err(column_error)
+        DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan)
+            .map_err(|e| column_error(&e))
     }
 
     fn plan_dataframe(&self, query: &DataframeQuery) -> Result<schema::TablePlan, DataframeError> {
@@ -222,7 +223,7 @@ impl StoreView {
     }
 }
 
-fn column_error(error: arrow_schema::ArrowError) -> DataframeError {
+fn column_error(error: &arrow_schema::ArrowError) -> DataframeError {
     DataframeError::Column {
         message: error.to_string(),
     }
@@ -248,6 +249,7 @@ impl Snapshot {
         query: &DataframeQuery,
     ) -> Result<DataframeStream<'static>, DataframeError> {
         let plan = self.plan_dataframe(query)?;
-        DataframeStream::new(stream::ViewRef::Owned(self), query, plan).map_err(column_error)
+        DataframeStream::new(stream::ViewRef::Owned(self), query, plan)
+            .map_err(|e| column_error(&e))
     }
 }
