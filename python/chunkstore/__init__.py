@@ -132,8 +132,20 @@ class Store:
         """Every timeline, sorted by name, as :class:`Timeline` tuples."""
         return [Timeline(*t) for t in self._native.timelines()]
 
-    def schema(self, index: str, contents: Union[None, str, Iterable[str]] = None) -> "pyarrow.Schema":
-        """The schema :meth:`dataframe` gives on ``index`` for ``contents``."""
+    def schema(
+        self, index: Optional[str] = None, contents: Union[None, str, Iterable[str]] = None
+    ) -> "pyarrow.Schema":
+        """The schema :meth:`dataframe` gives on ``index`` (by default the first timeline
+        by name) for ``contents``: the index columns, then a list column per (entity,
+        component), each with Rerun's field metadata. Empty for a store without
+        timelines."""
+        if index is None:
+            timelines = self._native.timelines()
+            if not timelines:
+                import pyarrow
+
+                return pyarrow.schema([])
+            index = timelines[0][0]
         return self._native.schema(index, _contents(contents))
 
     @property

@@ -47,6 +47,8 @@ def test_discovery(robot):
 def test_schema_matches_the_dataframe(robot):
     schema = robot.schema("frame_id")
     assert isinstance(schema, pa.Schema)
+    assert robot.schema() == schema  # frame_id is the first timeline by name
+    assert chunkstore.Store().schema() == pa.schema([])
     assert schema == robot.dataframe("frame_id").schema
     assert schema.names[:3] == ["frame_id", "log_time", "sim_time"]
     assert f"{ROBOT}:{TRANSLATION}" in schema.names
