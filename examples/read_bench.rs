@@ -10,8 +10,9 @@
 //! The recording is the dataframe workload's (`benches/common`: `/fleet/g<k>/r<e>`, each
 //! row a scalar, a 3D point and a text on the `frame` timeline, chunks of 1,000 rows), so
 //! rows = entities × times. `measure` prints one JSON line: seconds to open it (every
-//! chunk into a store), to read one entity's scalar series whole (`range`), and to stream
-//! the whole dataframe on `frame` (every batch read), and the peak RSS (`VmHWM`).
+//! chunk into a store), to read one entity's scalar series whole (`range`), to stream the
+//! whole dataframe on `frame` (every batch read, then dropped) and to collect it (every
+//! batch kept, as Python's `read_all()` does), and the peak RSS (`VmHWM`).
 
 #![allow(
     clippy::expect_used,
@@ -69,20 +70,49 @@ fn measure(path: &str) {
     }
     let open_s = start.elapsed().as_secs_f64();
 
-    let start = Instant::now();
-    let entity = EntityPath::parse("/fleet/g0/r0").expect("a path");
-    let series = store.range(
-        &RangeQuery::everything(common::FRAME),
-        &entity,
-        common::SCALAR,
-    );
-    let series_rows = series.num_rows();
-    let range_s = start.elapsed().as_secs_f64();
+    // Each query step: the median of RUNS (default 5) runs, as the Python side does.
+    let runs: usize = std::env::var("RUNS").ok().and_then(|r| r.parse().ok()).unwrap_or(5);
+    let median = |step: &mut dyn FnMut()| {
+        let mut times: Vec<f64> = (0..runs.max(1))
+            .map(|_| {
+                let start = Instant::now();
+                step();
+                start.elapsed().as_secs_f64()
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        times[times.len() / 2]
+    };
 
-    let start = Instant::now();
-    let (rows, columns, non_null) =
-        common::stream_dataframe(&store, &DataframeQuery::new(common::FRAME));
-    let dataframe_s = start.elapsed().as_secs_f64();
+    // `BATCH_ROWS` overrides the dataframe's default batch size.
+    let query = match std::env::var("BATCH_ROWS").ok().and_then(|r| r.parse().ok()) {
+        Some(rows) => DataframeQuery::new(common::FRAME).with_batch_rows(rows),
+        None => DataframeQuery::new(common::FRAME),
+    };
+
+    let entity = EntityPath::parse("/fleet/g0/r0").expect("a path");
+    let mut series_rows = 0;
+    let range_s = median(&mut || {
+        let series = store.range(&RangeQuery::everything(common::FRAME), &entity, common::SCALAR);
+        series_rows = series.num_rows();
+    });
+
+    let mut counts = (0, 0, 0);
+    let dataframe_s = median(&mut || {
+        counts = common::stream_dataframe(&store, &query);
+    });
+    let (rows, columns, non_null) = counts;
+
+    // What Python's `read_all()` does: every batch kept, none looked at.
+    let collect_s = median(&mut || {
+        let batches: Vec<_> = store
+            .dataframe(&query)
+            .expect("a known index")
+            .collect::<Result<_, _>>()
+            .expect("batches");
+        let kept_rows: usize = batches.iter().map(arrow_array::RecordBatch::num_rows).sum();
+        assert_eq!(kept_rows as u64, rows);
+    });
 
     let peak = std::fs::read_to_string("/proc/self/status")
         .ok()
@@ -94,7 +124,7 @@ fn measure(path: &str) {
         .unwrap_or(0);
     println!(
         "{{\"engine\": \"chunkstore (Rust)\", \"rows_stored\": {}, \"open_s\": {open_s:.4}, \
-         \"range_s\": {range_s:.6}, \"range_rows\": {series_rows}, \"dataframe_s\": {dataframe_s:.4}, \
+         \"range_s\": {range_s:.6}, \"range_rows\": {series_rows}, \"dataframe_s\": {dataframe_s:.4}, \"dataframe_collect_s\": {collect_s:.4}, \
          \"dataframe_rows\": {rows}, \"dataframe_columns\": {columns}, \"non_null_cells\": {non_null}, \
          \"peak_rss_mib\": {:.1}}}",
         store.stats().num_rows(),

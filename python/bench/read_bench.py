@@ -7,7 +7,7 @@ process; prints one JSON line (seconds per step, rows, peak RSS).
     python python/bench/read_bench.py /tmp/r1m.rrd rerun [RUNS]     # rerun-sdk==0.41.0
     cargo run --release --example read_bench -- measure /tmp/r1m.rrd  # the same in Rust
 
-Steps (each the median of RUNS, default 3, except opening, done once):
+Steps (each the median of RUNS, default 5, except opening, done once):
 - open: every chunk decoded into a store (chunkstore: ``open(path, lazy=False)``;
   Rerun: ``ChunkStore.from_chunks(RrdReader(path).stream().to_chunks())``); chunkstore's
   lazy open (footer only) is timed too.
@@ -25,7 +25,7 @@ import sys
 import time
 
 path, engine = sys.argv[1], sys.argv[2]
-runs = int(sys.argv[3]) if len(sys.argv) > 3 else 3
+runs = int(sys.argv[3]) if len(sys.argv) > 3 else 5
 ENTITY, COMPONENT = "/fleet/g0/r0", "scalar"
 
 

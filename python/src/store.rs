@@ -219,6 +219,14 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
         .transpose()
 }
 
+/// Cells per dataframe batch unless rows are asked for: 8 times the crate's default.
+/// Each batch crosses into pyarrow array by array, a fixed cost per (batch, column), so
+/// small batches of a wide table cost Python more than they cost Rust: on a table of
+/// 3,000 columns (the crate's default is then 349 rows a batch), reading it whole took
+/// 4.6 s from Python and 2.8 s in Rust; at 2,796 rows a batch, 2.9 s (read benchmark,
+/// `docs/PERFORMANCE.md`).
+const PYTHON_BATCH_CELLS: usize = 8 << 20;
+
 /// A dataframe query from the Python arguments.
 fn dataframe_query(
     index: &str,
@@ -244,11 +252,10 @@ fn dataframe_query(
         let values: Vec<TimeInt> = values.into_iter().map(time).collect::<PyResult<_>>()?;
         query = query.with_index_values(values);
     }
-    if let Some(rows) = batch_rows {
-        if rows == 0 {
-            return Err(invalid("batch_rows must be at least 1"));
-        }
-        query = query.with_batch_rows(rows);
+    match batch_rows {
+        Some(0) => return Err(invalid("batch_rows must be at least 1")),
+        Some(rows) => query = query.with_batch_rows(rows),
+        None => query = query.with_batch_cells(PYTHON_BATCH_CELLS),
     }
     Ok(query)
 }
@@ -442,7 +449,7 @@ impl NativeStore {
                 };
                 let answer = match cell {
                     Some(cell) => Answer::Found(cell),
-                    None => Answer::Missing(list_type(&source, &entity, component.as_str())),
+                    None => Answer::Missing(list_type(&mut source, &entity, component.as_str())),
                 };
                 answers.push((component, answer));
             }
@@ -488,7 +495,7 @@ impl NativeStore {
                 Source::Snapshot(view) => view.range(&query, &entity, component),
             };
             let list_type = result.runs().next().map_or_else(
-                || list_type(&source, &entity, component),
+                || list_type(&mut source, &entity, component),
                 |run| run.column().list_array().data_type().clone(),
             );
             let (batches, schema) =
@@ -643,17 +650,30 @@ impl NativeStore {
     }
 }
 
-/// The list type of a component's column, when no answer carries it.
-fn list_type(source: &Source<'_>, entity: &EntityPath, component: &str) -> DataType {
-    let element = match source {
+/// The list type of a component's column, when no answer carries it: the type of its
+/// newest cell on any timeline (a lookup per timeline; a lazy recording decodes the one
+/// or two chunks that hold it), so that a missing answer has the same type whether the
+/// store is lazy or loaded.
+fn list_type(source: &mut Source<'_>, entity: &EntityPath, component: &str) -> DataType {
+    let timelines: Vec<String> = match source {
         Source::Lazy(recording, _) => recording
-            .loaded_store()
-            .element_type(entity, component)
-            .cloned(),
-        Source::Snapshot(view) => view.element_type(entity, component).cloned(),
+            .timelines()
+            .into_iter()
+            .map(|(t, _, _)| t.name().to_owned())
+            .collect(),
+        Source::Snapshot(view) => view.timelines().iter().map(|t| t.name().to_owned()).collect(),
     };
-    DataType::List(Arc::new(Field::new_list_field(
-        element.unwrap_or(DataType::Null),
-        true,
-    )))
+    for timeline in timelines {
+        let query = LatestAtQuery::new(timeline, TimeInt::MAX);
+        let newest = match source {
+            // A chunk that cannot be decoded leaves the fallback below; the query that
+            // needs it reports the error.
+            Source::Lazy(recording, _) => recording.latest_at(&query, entity, component).ok().flatten(),
+            Source::Snapshot(view) => view.latest_at(&query, entity, component),
+        };
+        if let Some(cell) = newest {
+            return cell.component().list_array().data_type().clone();
+        }
+    }
+    DataType::List(Arc::new(Field::new_list_field(DataType::Null, true)))
 }

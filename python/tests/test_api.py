@@ -244,3 +244,16 @@ def test_readers_query_while_a_writer_inserts():
     assert errors == []
     assert len(store) == 261
     assert store.dataframe("frame_id").read_all().num_rows == 60
+
+
+def test_a_missing_answer_has_the_same_type_lazy_or_loaded():
+    lazy = chunkstore.open(RRD)
+    loaded = chunkstore.open(RRD, lazy=False)
+    for entity in loaded.entities():
+        before_first = lazy.latest_at("frame_id", -1, entity)
+        assert before_first.schema == loaded.latest_at("frame_id", -1, entity).schema, entity
+        for field in before_first.schema:
+            assert field.type != pa.list_(pa.null()), (entity, field.name)
+    assert lazy.range("frame_id", 1000, 2000, entity=COST, component=SCALARS).schema == loaded.range(
+        "frame_id", 1000, 2000, entity=COST, component=SCALARS
+    ).schema

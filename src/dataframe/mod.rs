@@ -63,6 +63,7 @@ pub struct DataframeQuery {
     index_values: Option<Arc<[TimeInt]>>,
     fill_latest_at: bool,
     batch_rows: Option<usize>,
+    batch_cells: Option<usize>,
 }
 
 impl DataframeQuery {
@@ -76,6 +77,7 @@ impl DataframeQuery {
             index_values: None,
             fill_latest_at: false,
             batch_rows: None,
+            batch_cells: None,
         }
     }
 
@@ -118,6 +120,17 @@ impl DataframeQuery {
         self
     }
 
+    /// Without [`Self::with_batch_rows`]: batches of about `cells` cells (rows × data
+    /// columns; default [`DEFAULT_BATCH_CELLS`]), at least one row and at most 65,536.
+    /// Larger batches cost more memory while they are built and less per row: a caller
+    /// that pays a fixed cost per batch and column (a foreign-language binding importing
+    /// each array) wants them larger. Zero is refused when the query runs.
+    #[must_use]
+    pub fn with_batch_cells(mut self, cells: usize) -> Self {
+        self.batch_cells = Some(cells);
+        self
+    }
+
     /// The index timeline's name.
     pub fn index(&self) -> &str {
         &self.index
@@ -147,6 +160,11 @@ impl DataframeQuery {
     pub fn batch_rows(&self) -> Option<usize> {
         self.batch_rows
     }
+
+    /// The cells per batch asked for, if any.
+    pub fn batch_cells(&self) -> Option<usize> {
+        self.batch_cells
+    }
 }
 
 /// A dataframe query the store cannot answer.
@@ -160,7 +178,7 @@ pub enum DataframeError {
         /// The timelines the store knows, sorted.
         known: Vec<String>,
     },
-    /// A batch of zero rows was asked for.
+    /// A batch of zero rows (or zero cells) was asked for.
     ZeroBatchRows,
     /// A column's chunks could not be read as one list type (an Arrow error).
     Column {
@@ -181,7 +199,7 @@ impl fmt::Display for DataframeError {
                     known.join(", ")
                 }
             ),
-            Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
+            Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row (and one cell)"),
             Self::Column { message } => write!(f, "dataframe column: {message}"),
         }
     }
@@ -206,7 +224,7 @@ impl StoreView {
     }
 
     fn plan_dataframe(&self, query: &DataframeQuery) -> Result<schema::TablePlan, DataframeError> {
-        if query.batch_rows == Some(0) {
+        if query.batch_rows == Some(0) || query.batch_cells == Some(0) {
             return Err(DataframeError::ZeroBatchRows);
         }
         let Some(time_type) = self.time_type(&query.index) else {

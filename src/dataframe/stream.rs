@@ -220,7 +220,10 @@ impl<'a> DataframeStream<'a> {
         };
         let batch_rows = query
             .batch_rows
-            .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / plan.columns.len().max(1)).clamp(1, 65_536));
+            .unwrap_or_else(|| {
+                let cells = query.batch_cells.unwrap_or(DEFAULT_BATCH_CELLS);
+                (cells / plan.columns.len().max(1)).clamp(1, 65_536)
+            });
         Ok(Self {
             store,
             index_values: vec![Vec::new(); plan.index_columns.len()],
