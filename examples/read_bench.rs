@@ -71,7 +71,10 @@ fn measure(path: &str) {
     let open_s = start.elapsed().as_secs_f64();
 
     // Each query step: the median of RUNS (default 5) runs, as the Python side does.
-    let runs: usize = std::env::var("RUNS").ok().and_then(|r| r.parse().ok()).unwrap_or(5);
+    let runs: usize = std::env::var("RUNS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(5);
     let median = |step: &mut dyn FnMut()| {
         let mut times: Vec<f64> = (0..runs.max(1))
             .map(|_| {
@@ -85,7 +88,10 @@ fn measure(path: &str) {
     };
 
     // `BATCH_ROWS` overrides the dataframe's default batch size.
-    let query = match std::env::var("BATCH_ROWS").ok().and_then(|r| r.parse().ok()) {
+    let query = match std::env::var("BATCH_ROWS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+    {
         Some(rows) => DataframeQuery::new(common::FRAME).with_batch_rows(rows),
         None => DataframeQuery::new(common::FRAME),
     };
@@ -93,7 +99,11 @@ fn measure(path: &str) {
     let entity = EntityPath::parse("/fleet/g0/r0").expect("a path");
     let mut series_rows = 0;
     let range_s = median(&mut || {
-        let series = store.range(&RangeQuery::everything(common::FRAME), &entity, common::SCALAR);
+        let series = store.range(
+            &RangeQuery::everything(common::FRAME),
+            &entity,
+            common::SCALAR,
+        );
         series_rows = series.num_rows();
     });
 

@@ -547,17 +547,20 @@ fn the_stream_is_a_record_batch_reader_and_the_default_batch_is_bounded_by_cells
     let wide = store_of((0..2000).map(|i| scalar(&format!("/e{i}"), "x", 1, i + 1, 1.0)));
     let stream = wide.dataframe(&frame()).unwrap();
     assert_eq!(stream.batch_rows(), chunkstore::DEFAULT_BATCH_CELLS / 2000);
-    // Cells per batch asked for: rows follow; rows asked for win; zero is refused.
-    let stream = wide.dataframe(&frame().with_batch_cells(8_000)).unwrap();
-    assert_eq!(stream.batch_rows(), 4);
-    let stream = wide.dataframe(&frame().with_batch_cells(10)).unwrap();
-    assert_eq!(stream.batch_rows(), 1, "at least one row");
-    let both = frame().with_batch_cells(8_000).with_batch_rows(3);
+    // A floor on the rows: wide tables get it, narrow ones keep their cells' worth;
+    // rows asked for win.
+    let stream = wide.dataframe(&frame().with_min_batch_rows(4_096)).unwrap();
+    assert_eq!(stream.batch_rows(), 4_096);
+    let stream = store
+        .dataframe(&frame().with_min_batch_rows(4_096))
+        .unwrap();
+    assert_eq!(stream.batch_rows(), 65_536);
+    let stream = store
+        .dataframe(&frame().with_min_batch_rows(100_000))
+        .unwrap();
+    assert_eq!(stream.batch_rows(), 100_000);
+    let both = frame().with_min_batch_rows(4_096).with_batch_rows(3);
     assert_eq!(wide.dataframe(&both).unwrap().batch_rows(), 3);
-    assert!(matches!(
-        wide.dataframe(&frame().with_batch_cells(0)),
-        Err(DataframeError::ZeroBatchRows)
-    ));
 }
 
 #[test]

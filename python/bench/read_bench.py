@@ -5,6 +5,7 @@ process; prints one JSON line (seconds per step, rows, peak RSS).
     cargo run --release --example read_bench -- generate /tmp/r1m.rrd 100 10000
     python python/bench/read_bench.py /tmp/r1m.rrd chunkstore [RUNS]
     python python/bench/read_bench.py /tmp/r1m.rrd rerun [RUNS]     # rerun-sdk==0.41.0
+    python python/bench/read_bench.py /tmp/r1m.rrd compare          # same answers?
     cargo run --release --example read_bench -- measure /tmp/r1m.rrd  # the same in Rust
 
 Steps (each the median of RUNS, default 5, except opening, done once):
@@ -16,7 +17,9 @@ Steps (each the median of RUNS, default 5, except opening, done once):
   Python API reads one series).
 - dataframe: the whole sparse dataframe on ``frame`` as one ``pyarrow.Table``
   (``dataframe("frame").read_all()``; Rerun: ``reader(index="frame").to_arrow_table()``).
-Not run by CI.
+``compare`` loads the file with both and checks that the series and the whole table are
+the same, column by column (Rerun's columns cast to ours where it widens a type). Not run
+by CI.
 """
 
 import json
@@ -69,8 +72,43 @@ elif engine == "rerun":
         lambda: store.reader(index="frame", contents={ENTITY: [COMPONENT]}).to_arrow_table()
     )
     out["dataframe_s"], table = median_time(lambda: store.reader(index="frame").to_arrow_table())
+elif engine == "compare":
+    import chunkstore
+    import rerun.chunk as rc
+
+    ours = chunkstore.open(path, lazy=False)
+    theirs = rc.ChunkStore.from_chunks(rc.RrdReader(path).stream().to_chunks())
+    series = ours.range("frame", -(2**62), 2**62, entity=ENTITY, component=COMPONENT)
+    their_series = theirs.reader(index="frame", contents={ENTITY: [COMPONENT]}).to_arrow_table()
+    column = f"{ENTITY}:{COMPONENT}"
+    same_series = series.column(COMPONENT).to_pylist() == their_series.column(column).to_pylist() and (
+        series.column("frame").to_pylist() == their_series.column("frame").to_pylist()
+    )
+    table = ours.dataframe("frame").read_all()
+    their_table = theirs.reader(index="frame").to_arrow_table().sort_by("frame")
+    same_names = table.column_names == their_table.column_names
+    mismatched = [
+        name
+        for name in table.column_names
+        if ":" in name
+        and not table.column(name)
+        .combine_chunks()
+        .cast(their_table.schema.field(name).type)
+        .equals(their_table.column(name).combine_chunks())
+    ]
+    print(json.dumps({
+        "engine": "compare",
+        "same_series": same_series,
+        "series_rows": series.num_rows,
+        "same_column_names": same_names,
+        "data_columns": sum(":" in n for n in table.column_names),
+        "mismatched_columns": mismatched[:5],
+        "rows": [table.num_rows, their_table.num_rows],
+        "same_frame_column": table.column("frame").to_pylist() == their_table.column("frame").to_pylist(),
+    }), flush=True)
+    sys.exit(0 if same_series and same_names and not mismatched else 1)
 else:
-    sys.exit(f"unknown engine {engine!r}: chunkstore or rerun")
+    sys.exit(f"unknown engine {engine!r}: chunkstore, rerun or compare")
 
 out["range_rows"] = series.num_rows
 out["dataframe_rows"] = table.num_rows

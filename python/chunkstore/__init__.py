@@ -274,8 +274,8 @@ class Store:
         every entity but ``/__properties``. ``range=(lo, hi)``: only rows in it.
         ``index_values``: one row per value given, each column's latest-at there, instead
         of a row per time with data. ``fill_latest_at``: nulls filled with the latest
-        value before. ``batch_rows``: rows per batch (by default about 8 million cells a
-        batch: memory while a batch is built, against a fixed cost per batch and column).
+        value before. ``batch_rows``: rows per batch (by default about a million cells a
+        batch, and at least 4,096 rows: each batch and column costs a fixed import).
 
         ``.read_all()`` gives a ``pyarrow.Table``; ``polars.from_arrow(reader)`` a Polars
         frame; ``reader.read_pandas()`` a pandas one.

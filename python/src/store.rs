@@ -219,13 +219,13 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
         .transpose()
 }
 
-/// Cells per dataframe batch unless rows are asked for: 8 times the crate's default.
-/// Each batch crosses into pyarrow array by array, a fixed cost per (batch, column), so
-/// small batches of a wide table cost Python more than they cost Rust: on a table of
-/// 3,000 columns (the crate's default is then 349 rows a batch), reading it whole took
-/// 4.6 s from Python and 2.8 s in Rust; at 2,796 rows a batch, 2.9 s (read benchmark,
-/// `docs/PERFORMANCE.md`).
-const PYTHON_BATCH_CELLS: usize = 8 << 20;
+/// Rows per dataframe batch at least, unless rows are asked for. Each batch crosses into
+/// pyarrow array by array, a fixed cost per (batch, column), so a wide table's short
+/// default batches (349 rows at 3,000 columns) cost Python more than they cost Rust:
+/// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
+/// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/PERFORMANCE.md`). Narrower
+/// tables already have batches this long.
+const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
 
 /// A dataframe query from the Python arguments.
 fn dataframe_query(
@@ -255,7 +255,7 @@ fn dataframe_query(
     match batch_rows {
         Some(0) => return Err(invalid("batch_rows must be at least 1")),
         Some(rows) => query = query.with_batch_rows(rows),
-        None => query = query.with_batch_cells(PYTHON_BATCH_CELLS),
+        None => query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS),
     }
     Ok(query)
 }
@@ -661,14 +661,21 @@ fn list_type(source: &mut Source<'_>, entity: &EntityPath, component: &str) -> D
             .into_iter()
             .map(|(t, _, _)| t.name().to_owned())
             .collect(),
-        Source::Snapshot(view) => view.timelines().iter().map(|t| t.name().to_owned()).collect(),
+        Source::Snapshot(view) => view
+            .timelines()
+            .iter()
+            .map(|t| t.name().to_owned())
+            .collect(),
     };
     for timeline in timelines {
         let query = LatestAtQuery::new(timeline, TimeInt::MAX);
         let newest = match source {
             // A chunk that cannot be decoded leaves the fallback below; the query that
             // needs it reports the error.
-            Source::Lazy(recording, _) => recording.latest_at(&query, entity, component).ok().flatten(),
+            Source::Lazy(recording, _) => recording
+                .latest_at(&query, entity, component)
+                .ok()
+                .flatten(),
             Source::Snapshot(view) => view.latest_at(&query, entity, component),
         };
         if let Some(cell) = newest {

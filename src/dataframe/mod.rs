@@ -63,7 +63,7 @@ pub struct DataframeQuery {
     index_values: Option<Arc<[TimeInt]>>,
     fill_latest_at: bool,
     batch_rows: Option<usize>,
-    batch_cells: Option<usize>,
+    min_batch_rows: usize,
 }
 
 impl DataframeQuery {
@@ -77,7 +77,7 @@ impl DataframeQuery {
             index_values: None,
             fill_latest_at: false,
             batch_rows: None,
-            batch_cells: None,
+            min_batch_rows: 1,
         }
     }
 
@@ -120,14 +120,14 @@ impl DataframeQuery {
         self
     }
 
-    /// Without [`Self::with_batch_rows`]: batches of about `cells` cells (rows × data
-    /// columns; default [`DEFAULT_BATCH_CELLS`]), at least one row and at most 65,536.
-    /// Larger batches cost more memory while they are built and less per row: a caller
+    /// Without [`Self::with_batch_rows`]: batches of about [`DEFAULT_BATCH_CELLS`] cells
+    /// as usual, but never fewer than `rows` rows (at most 65,536, or `rows` if more). A
+    /// wide table's batches are short by default (349 rows at 3,000 columns); a caller
     /// that pays a fixed cost per batch and column (a foreign-language binding importing
-    /// each array) wants them larger. Zero is refused when the query runs.
+    /// each array) wants them longer, and the memory of a batch grows with them.
     #[must_use]
-    pub fn with_batch_cells(mut self, cells: usize) -> Self {
-        self.batch_cells = Some(cells);
+    pub fn with_min_batch_rows(mut self, rows: usize) -> Self {
+        self.min_batch_rows = rows.max(1);
         self
     }
 
@@ -161,9 +161,9 @@ impl DataframeQuery {
         self.batch_rows
     }
 
-    /// The cells per batch asked for, if any.
-    pub fn batch_cells(&self) -> Option<usize> {
-        self.batch_cells
+    /// The least rows per batch when batches are sized by cells (1 unless asked).
+    pub fn min_batch_rows(&self) -> usize {
+        self.min_batch_rows
     }
 }
 
@@ -178,7 +178,7 @@ pub enum DataframeError {
         /// The timelines the store knows, sorted.
         known: Vec<String>,
     },
-    /// A batch of zero rows (or zero cells) was asked for.
+    /// A batch of zero rows was asked for.
     ZeroBatchRows,
     /// A column's chunks could not be read as one list type (an Arrow error).
     Column {
@@ -199,7 +199,7 @@ impl fmt::Display for DataframeError {
                     known.join(", ")
                 }
             ),
-            Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row (and one cell)"),
+            Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
             Self::Column { message } => write!(f, "dataframe column: {message}"),
         }
     }
@@ -224,7 +224,7 @@ impl StoreView {
     }
 
     fn plan_dataframe(&self, query: &DataframeQuery) -> Result<schema::TablePlan, DataframeError> {
-        if query.batch_rows == Some(0) || query.batch_cells == Some(0) {
+        if query.batch_rows == Some(0) {
             return Err(DataframeError::ZeroBatchRows);
         }
         let Some(time_type) = self.time_type(&query.index) else {

@@ -218,12 +218,10 @@ impl<'a> DataframeStream<'a> {
                 fill: query.fill_latest_at,
             },
         };
-        let batch_rows = query
-            .batch_rows
-            .unwrap_or_else(|| {
-                let cells = query.batch_cells.unwrap_or(DEFAULT_BATCH_CELLS);
-                (cells / plan.columns.len().max(1)).clamp(1, 65_536)
-            });
+        let batch_rows = query.batch_rows.unwrap_or_else(|| {
+            let least = query.min_batch_rows;
+            (DEFAULT_BATCH_CELLS / plan.columns.len().max(1)).clamp(least, least.max(65_536))
+        });
         Ok(Self {
             store,
             index_values: vec![Vec::new(); plan.index_columns.len()],
