@@ -21,10 +21,6 @@
 )]
 
 #[path = "../benches/common/mod.rs"]
-#[allow(
-    dead_code,
-    reason = "the benches' shared module: this example uses part of it"
-)]
 mod common;
 
 use std::time::Instant;
