@@ -163,7 +163,11 @@ pub(crate) struct FinishScratch {
 enum Run {
     Nulls(u32),
     Empties(u32),
+    /// `nulls_before` null cells, then rows `start..start + len` of `source`. A sparse
+    /// column alternates nulls and rows; folding each gap into the run after it makes
+    /// that one run per cell, not two.
     Rows {
+        nulls_before: u32,
         source: u32,
         start: u32,
         len: u32,
@@ -217,14 +221,27 @@ impl ColumnCells {
         self.len += 1;
         match (&mut self.last, cell) {
             (Some(Run::Nulls(n)), None) | (Some(Run::Empties(n)), Some(Cell::Empty)) => *n += 1,
-            (Some(Run::Rows { source, start, len }), Some(Cell::Row { source: s, row }))
-                if *source == s && *start + *len == row =>
-            {
+            (
+                Some(Run::Rows {
+                    source, start, len, ..
+                }),
+                Some(Cell::Row { source: s, row }),
+            ) if *source == s && *start + *len == row => {
                 *len += 1;
+            }
+            (Some(Run::Nulls(n)), Some(Cell::Row { source, row })) => {
+                let nulls_before = *n;
+                self.last = Some(Run::Rows {
+                    nulls_before,
+                    source,
+                    start: row,
+                    len: 1,
+                });
             }
             (_, None) => self.open(Run::Nulls(1)),
             (_, Some(Cell::Empty)) => self.open(Run::Empties(1)),
             (_, Some(Cell::Row { source, row })) => self.open(Run::Rows {
+                nulls_before: 0,
                 source,
                 start: row,
                 len: 1,
@@ -263,7 +280,13 @@ impl ColumnCells {
             match run {
                 Run::Nulls(n) => out.repeat_offset(n as usize, false),
                 Run::Empties(n) => out.repeat_offset(n as usize, true),
-                Run::Rows { source, start, len } => {
+                Run::Rows {
+                    nulls_before,
+                    source,
+                    start,
+                    len,
+                } => {
+                    out.repeat_offset(nulls_before as usize, false);
                     out.rows(
                         source,
                         &sources.arrays[source as usize].list,
