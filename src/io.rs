@@ -46,6 +46,36 @@ pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoErr
     read_chunks_from_bytes(&bytes)
 }
 
+/// File name extensions [`chunk_files`] takes for Arrow IPC.
+pub const IPC_EXTENSIONS: [&str; 4] = ["arrow", "arrows", "ipc", "feather"];
+
+/// The Arrow IPC files of a directory (by extension: [`IPC_EXTENSIONS`]), sorted by
+/// name: a directory of chunk files, as Rerun's exports and `chunkstore convert` write
+/// them. Empty if there are none (the caller decides whether that is an error).
+///
+/// # Errors
+/// [`IoError::Io`] if the directory cannot be listed.
+pub fn chunk_files(dir: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, IoError> {
+    let dir = dir.as_ref();
+    let io = |source| IoError::Io {
+        path: dir.to_owned(),
+        source,
+    };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let path = entry.map_err(io)?.path();
+        let is_ipc = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| IPC_EXTENSIONS.contains(&e));
+        if is_ipc && path.is_file() {
+            files.push(path);
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
 /// Decodes the record batches of an Arrow IPC file or stream.
 ///
 /// The framing is checked first ([`IoError::MalformedFraming`]): arrow-ipc allocates

@@ -280,6 +280,13 @@ class Store:
         ``.read_all()`` gives a ``pyarrow.Table``; ``polars.from_arrow(reader)`` a Polars
         frame; ``reader.read_pandas()`` a pandas one.
         """
+        range, index_values = self._view_times(index, range, index_values)
+        return self._native.dataframe(
+            index, _contents(contents), range, index_values, fill_latest_at, batch_rows
+        )
+
+    def _view_times(self, index: str, range: Optional[tuple], index_values: Optional[Iterable[Time]]) -> tuple:
+        """A view's range and sampled values as integers on timeline ``index``."""
         time_type = self._time_type(index)
         if range is not None:
             try:
@@ -291,9 +298,7 @@ class Store:
             if type(index_values).__module__ == "numpy":
                 index_values = index_values.tolist() if index_values.dtype.kind in "iu" else list(index_values)
             index_values = [_to_time(v, time_type, "index_values") for v in index_values]
-        return self._native.dataframe(
-            index, _contents(contents), range, index_values, fill_latest_at, batch_rows
-        )
+        return range, index_values
 
     # --- files -----------------------------------------------------------------------
 
@@ -314,12 +319,7 @@ class Store:
     ) -> int:
         """Writes :meth:`dataframe`'s table to a Parquet file (atomically), with the
         statistics engines prune by. Returns the rows written."""
-        time_type = self._time_type(index)
-        if range is not None:
-            lo, hi = range
-            range = (_to_time(lo, time_type, "range"), _to_time(hi, time_type, "range"))
-        if index_values is not None:
-            index_values = [_to_time(v, time_type, "index_values") for v in index_values]
+        range, index_values = self._view_times(index, range, index_values)
         return self._native.to_parquet(
             os.fspath(path), index, _contents(contents), range, index_values, fill_latest_at, row_group_rows
         )

@@ -88,22 +88,12 @@ fn load_rrd(path: &Path) -> PyResult<(ChunkStore, Option<StoreInfo>)> {
 /// Every Arrow IPC file (`.arrow`, `.arrows`, `.ipc`, `.feather`) of a directory, in name
 /// order.
 fn load_directory(dir: &Path) -> PyResult<ChunkStore> {
-    let mut files = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(|e| os_error(dir, e))? {
-        let path = entry.map_err(|e| os_error(dir, e))?.path();
-        let is_ipc = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| ["arrow", "arrows", "ipc", "feather"].contains(&e));
-        if is_ipc && path.is_file() {
-            files.push(path);
-        }
-    }
-    files.sort();
+    let files = chunkstore::io::chunk_files(dir).map_err(ipc_error)?;
     if files.is_empty() {
         return Err(CorruptFileError::new_err(format!(
-            "{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)",
-            dir.display()
+            "{}: no Arrow IPC files (.{})",
+            dir.display(),
+            chunkstore::io::IPC_EXTENSIONS.join(", .")
         )));
     }
     let mut store = new_store();

@@ -150,21 +150,23 @@ impl Source<'_> {
                 .map(|(t, _, _)| t.time_type()),
             Source::Snapshot(view) => view.time_type(timeline),
         };
-        found.ok_or_else(|| {
-            let known: Vec<String> = match self {
-                Source::Lazy(recording, _) => recording
-                    .timelines()
-                    .into_iter()
-                    .map(|(t, _, _)| t.name().to_owned())
-                    .collect(),
-                Source::Snapshot(view) => view
-                    .timelines()
-                    .iter()
-                    .map(|t| t.name().to_owned())
-                    .collect(),
-            };
-            unknown_timeline(timeline, known)
-        })
+        found.ok_or_else(|| unknown_timeline(timeline, self.timeline_names()))
+    }
+
+    /// Every timeline's name, sorted.
+    fn timeline_names(&self) -> Vec<String> {
+        match self {
+            Source::Lazy(recording, _) => recording
+                .timelines()
+                .into_iter()
+                .map(|(t, _, _)| t.name().to_owned())
+                .collect(),
+            Source::Snapshot(view) => view
+                .timelines()
+                .iter()
+                .map(|t| t.name().to_owned())
+                .collect(),
+        }
     }
 
     fn entity_paths(&self) -> Vec<EntityPath> {
@@ -655,19 +657,7 @@ impl NativeStore {
 /// or two chunks that hold it), so that a missing answer has the same type whether the
 /// store is lazy or loaded.
 fn list_type(source: &mut Source<'_>, entity: &EntityPath, component: &str) -> DataType {
-    let timelines: Vec<String> = match source {
-        Source::Lazy(recording, _) => recording
-            .timelines()
-            .into_iter()
-            .map(|(t, _, _)| t.name().to_owned())
-            .collect(),
-        Source::Snapshot(view) => view
-            .timelines()
-            .iter()
-            .map(|t| t.name().to_owned())
-            .collect(),
-    };
-    for timeline in timelines {
+    for timeline in source.timeline_names() {
         let query = LatestAtQuery::new(timeline, TimeInt::MAX);
         let newest = match source {
             // A chunk that cannot be decoded leaves the fallback below; the query that

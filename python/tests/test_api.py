@@ -257,3 +257,14 @@ def test_a_missing_answer_has_the_same_type_lazy_or_loaded():
     assert lazy.range("frame_id", 1000, 2000, entity=COST, component=SCALARS).schema == loaded.range(
         "frame_id", 1000, 2000, entity=COST, component=SCALARS
     ).schema
+
+
+def test_to_parquet_takes_the_dataframe_arguments(tmp_path, robot):
+    path = tmp_path / "sampled.parquet"
+    assert robot.to_parquet(path, "sim_time", contents=COST, index_values=np.array([0, 10**9], dtype="timedelta64[ns]")) == 2
+    ranged = tmp_path / "ranged.parquet"
+    assert robot.to_parquet(ranged, "frame_id", range=(10, 19), fill_latest_at=True, row_group_rows=4) == 10
+    assert pq.ParquetFile(ranged).metadata.num_row_groups == 3
+    with pytest.raises(chunkstore.InvalidInputError, match="range"):
+        robot.to_parquet(tmp_path / "bad.parquet", "frame_id", range=3)
+    assert not (tmp_path / "bad.parquet").exists()

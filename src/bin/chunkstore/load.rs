@@ -282,23 +282,12 @@ fn insert_items(
 }
 
 fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
-    let entries = std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut files = Vec::new();
-    for entry in entries {
-        let path = entry.map_err(|e| format!("{}: {e}", dir.display()))?.path();
-        let is_ipc = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| ["arrow", "arrows", "ipc", "feather"].contains(&e));
-        if is_ipc && path.is_file() {
-            files.push(path);
-        }
-    }
-    files.sort();
+    let files = chunkstore::io::chunk_files(dir).map_err(|e| e.to_string())?;
     if files.is_empty() {
         return Err(format!(
-            "{}: no Arrow IPC files (.arrow, .arrows, .ipc, .feather)",
-            dir.display()
+            "{}: no Arrow IPC files (.{})",
+            dir.display(),
+            chunkstore::io::IPC_EXTENSIONS.join(", .")
         ));
     }
     Ok(files)
