@@ -154,6 +154,12 @@ class Store:
         return self._native.counts()[1]
 
     @property
+    def heap_bytes(self) -> int:
+        """Heap bytes the store's chunks and indices hold (a shared Arrow buffer counted
+        once). Decodes a lazy recording whole."""
+        return self._native.heap_bytes()
+
+    @property
     def is_lazy(self) -> bool:
         """Is the store still reading its ``.rrd`` lazily (only the chunks queries needed
         are decoded)?"""

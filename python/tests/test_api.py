@@ -63,6 +63,7 @@ def test_a_lazy_store_decodes_only_what_a_query_needs():
     store.dataframe("frame_id").read_all()
     assert not store.is_lazy
     assert len(store) == 261
+    assert store.heap_bytes > 200_000  # the images alone are about that
 
 
 # --- latest-at and range -----------------------------------------------------------
