@@ -141,6 +141,27 @@ impl std::str::FromStr for ChunkId {
     }
 }
 
+impl RowId {
+    /// Row ids as an Arrow column the way Rerun writes them: `FixedSizeBinary(16)`, 16
+    /// big-endian bytes each ([`RowId::to_be_bytes`]), no nulls.
+    ///
+    /// ```
+    /// use arrow_array::Array;
+    /// use chunkstore::RowId;
+    /// let column = RowId::array([RowId::from_u128(1), RowId::from_u128(2)]);
+    /// assert_eq!(column.len(), 2);
+    /// assert_eq!(column.data_type(), &arrow_schema::DataType::FixedSizeBinary(16));
+    /// ```
+    pub fn array(row_ids: impl IntoIterator<Item = RowId>) -> arrow_array::ArrayRef {
+        let bytes: Vec<u8> = row_ids.into_iter().flat_map(RowId::to_be_bytes).collect();
+        std::sync::Arc::new(arrow_array::FixedSizeBinaryArray::new(
+            16,
+            arrow_buffer::Buffer::from_vec(bytes),
+            None,
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

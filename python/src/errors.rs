@@ -79,16 +79,20 @@ pub fn dataframe_error(error: DataframeError) -> PyErr {
     }
 }
 
+/// `known` for a message, comma-separated; `none` if there is nothing.
+pub fn listing(known: &[String], none: &str) -> String {
+    if known.is_empty() {
+        none.to_owned()
+    } else {
+        known.join(", ")
+    }
+}
+
 /// An unknown timeline, the known ones named.
-pub fn unknown_timeline(name: &str, known: impl IntoIterator<Item = String>) -> PyErr {
-    let known: Vec<String> = known.into_iter().collect();
+pub fn unknown_timeline(name: &str, known: &[String]) -> PyErr {
     UnknownTimelineError::new_err(format!(
         "unknown timeline {name:?} (the store has: {})",
-        if known.is_empty() {
-            "none".to_owned()
-        } else {
-            known.join(", ")
-        }
+        listing(known, "none")
     ))
 }
 

@@ -28,8 +28,8 @@ use parking_lot::Mutex;
 use pyo3::prelude::*;
 
 use crate::errors::{
-    Error, chunk_error, dataframe_error, insert_error, invalid, no_panic, os_error, rrd_error,
-    unknown_timeline,
+    Error, chunk_error, dataframe_error, insert_error, invalid, listing, no_panic, os_error,
+    rrd_error, unknown_timeline,
 };
 use crate::tables::{Answer, latest_at_batch, range_batches};
 
@@ -75,6 +75,8 @@ impl NativeStore {
     fn shared(&self) -> PyResult<SharedStore> {
         let mut state = self.state.lock();
         if let State::Lazy { recording, path } = &mut *state {
+            // Decoded in place first: a chunk that fails leaves the recording lazy (and
+            // usable), where `into_store` would have consumed it; then it decodes nothing.
             recording.load_all().map_err(|e| rrd_error(path, e))?;
             let loaded = State::Loaded(SharedStore::new(ChunkStore::new()));
             if let State::Lazy { recording, path } = std::mem::replace(&mut *state, loaded) {
@@ -150,7 +152,7 @@ impl Source<'_> {
                 .map(|(t, _, _)| t.time_type()),
             Source::Snapshot(view) => view.time_type(timeline),
         };
-        found.ok_or_else(|| unknown_timeline(timeline, self.timeline_names()))
+        found.ok_or_else(|| unknown_timeline(timeline, &self.timeline_names()))
     }
 
     /// Every timeline's name, sorted.
@@ -194,11 +196,7 @@ impl Source<'_> {
                 .collect();
             return Err(invalid(format!(
                 "no data at entity {entity} (the store has: {})",
-                if known.is_empty() {
-                    "nothing".to_owned()
-                } else {
-                    known.join(", ")
-                }
+                listing(&known, "nothing")
             )));
         }
         Ok(entity)
@@ -213,6 +211,16 @@ fn time(value: i64) -> PyResult<TimeInt> {
     TimeInt::new(value).ok_or_else(|| invalid(format!("time {value} is out of range")))
 }
 
+/// `[lo, hi]` as a time range; `lo` after `hi` is refused, not read as empty.
+fn time_range(lo: i64, hi: i64) -> PyResult<TimeRange> {
+    if lo > hi {
+        return Err(invalid(format!(
+            "range ({lo}, {hi}): the start is after the end"
+        )));
+    }
+    Ok(TimeRange::new(time(lo)?, time(hi)?))
+}
+
 fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathFilter>> {
     contents
         .map(|rules| {
@@ -221,7 +229,8 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
         .transpose()
 }
 
-/// Rows per dataframe batch at least, unless rows are asked for. Each batch crosses into
+/// Rows per batch at least of a dataframe read from Python, unless rows are asked for
+/// (`to_parquet`'s batches stay in Rust and keep the crate's default). Each batch crosses into
 /// pyarrow array by array, a fixed cost per (batch, column), so a wide table's short
 /// default batches (349 rows at 3,000 columns) cost Python more than they cost Rust:
 /// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
@@ -243,21 +252,17 @@ fn dataframe_query(
         query = query.with_contents(filter);
     }
     if let Some((lo, hi)) = range {
-        if lo > hi {
-            return Err(invalid(format!(
-                "range ({lo}, {hi}): the start is after the end"
-            )));
-        }
-        query = query.with_range(TimeRange::new(time(lo)?, time(hi)?));
+        query = query.with_range(time_range(lo, hi)?);
     }
     if let Some(values) = index_values {
         let values: Vec<TimeInt> = values.into_iter().map(time).collect::<PyResult<_>>()?;
         query = query.with_index_values(values);
     }
-    match batch_rows {
-        Some(0) => return Err(invalid("batch_rows must be at least 1")),
-        Some(rows) => query = query.with_batch_rows(rows),
-        None => query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS),
+    if let Some(rows) = batch_rows {
+        if rows == 0 {
+            return Err(invalid("batch_rows must be at least 1"));
+        }
+        query = query.with_batch_rows(rows);
     }
     Ok(query)
 }
@@ -471,12 +476,7 @@ impl NativeStore {
         entity: &str,
         component: &str,
     ) -> PyResult<PyArrowType<Table>> {
-        if lo > hi {
-            return Err(invalid(format!(
-                "range ({lo}, {hi}): the start is after the end"
-            )));
-        }
-        let span = TimeRange::new(time(lo)?, time(hi)?);
+        let span = time_range(lo, hi)?;
         self.read(py, move |mut source| {
             let time_type = source.time_type(timeline)?;
             let entity = source.entity(entity)?;
@@ -537,7 +537,7 @@ impl NativeStore {
         fill_latest_at: bool,
         batch_rows: Option<usize>,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let query = dataframe_query(
+        let mut query = dataframe_query(
             index,
             contents,
             range,
@@ -545,6 +545,10 @@ impl NativeStore {
             fill_latest_at,
             batch_rows,
         )?;
+        if batch_rows.is_none() {
+            // The batches cross into pyarrow (to_parquet's never leave Rust).
+            query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
+        }
         py.detach(|| {
             no_panic(|| {
                 let stream = self

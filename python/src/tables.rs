@@ -5,19 +5,12 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use arrow_array::{Array, ArrayRef, FixedSizeBinaryArray, RecordBatch, new_null_array};
-use arrow_buffer::Buffer;
+use arrow_array::{Array, ArrayRef, RecordBatch, new_null_array};
 use arrow_schema::{ArrowError, DataType, Field, Schema, SchemaRef};
 use chunkstore::{ComponentName, EntityPath, QueryCell, RangeResult, RowId, TimeType};
 
 /// The name of the row id column in every table this package builds.
 pub const ROW_ID: &str = "row_id";
-
-/// Row ids as Rerun writes them: 16 big-endian bytes each.
-fn row_id_array(row_ids: impl Iterator<Item = RowId>) -> ArrayRef {
-    let bytes: Vec<u8> = row_ids.flat_map(RowId::to_be_bytes).collect();
-    Arc::new(FixedSizeBinaryArray::new(16, Buffer::from_vec(bytes), None))
-}
 
 fn component_field(entity: &EntityPath, name: &str, data_type: DataType) -> Field {
     Field::new(name, data_type, true).with_metadata(HashMap::from([
@@ -65,7 +58,7 @@ pub fn latest_at_batch(
     ];
     let mut columns: Vec<ArrayRef> = vec![
         time_type.array(vec![time; rows]),
-        row_id_array(row_id.into_iter().take(rows)),
+        RowId::array(row_id.into_iter().take(rows)),
     ];
     for (name, answer) in answers {
         let column = match answer {
@@ -138,7 +131,7 @@ pub fn range_batches(
             )));
         }
         let row_ids = run.chunk().row_ids();
-        let row_id_column = row_id_array(rows.iter().map(|&row| row_ids[row]));
+        let row_id_column = RowId::array(rows.iter().map(|&row| row_ids[row]));
         batches.push(RecordBatch::try_new(
             Arc::clone(&schema),
             vec![time_type.array(times), row_id_column, cells],

@@ -5,7 +5,6 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, FixedSizeBinaryArray, RecordBatch};
-use arrow_buffer::Buffer;
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema};
 
 use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn, RawTimes};
@@ -99,11 +98,6 @@ fn row_ids_from_arrow(array: &ArrayRef) -> Result<Vec<RowId>, ChunkError> {
             RowId::from_be_bytes(be)
         })
         .collect())
-}
-
-fn row_ids_to_arrow(row_ids: &[RowId]) -> ArrayRef {
-    let bytes: Vec<u8> = row_ids.iter().flat_map(|id| id.to_be_bytes()).collect();
-    Arc::new(FixedSizeBinaryArray::new(16, Buffer::from_vec(bytes), None))
 }
 
 /// [`Chunk::from_record_batch`], for code generic over conversions.
@@ -239,7 +233,7 @@ impl Chunk {
             self.is_sorted_by_row_id.to_string(),
         );
         fields.push(Arc::new(row_id.with_metadata(row_id_meta)));
-        columns.push(row_ids_to_arrow(&self.row_ids));
+        columns.push(RowId::array(self.row_ids.iter().copied()));
 
         for column in &self.time_columns {
             let mut meta = column.field_metadata.to_map();
