@@ -1943,6 +1943,18 @@ struct DataframeOp {
     /// `Some((e, false))`: everything but it.
     contents: Option<(usize, bool)>,
     batch_rows: usize,
+    /// `Some(mask)`: only the data columns whose position in the full view has its bit
+    /// set (`DataframeQuery::with_columns`; the index columns stay); the rows stay the
+    /// full view's.
+    columns: Option<u64>,
+}
+
+impl DataframeOp {
+    /// Is data column `position` (in the full view) kept?
+    fn keeps(&self, position: usize) -> bool {
+        self.columns
+            .is_none_or(|mask| position >= 64 || mask & (1 << position) != 0)
+    }
 }
 
 fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
@@ -1954,9 +1966,10 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
         prop::option::weighted(0.3, prop::collection::vec(query_time(), 0..6)),
         prop::option::weighted(0.4, (0..ENTITIES.len(), any::<bool>())),
         1..5usize,
+        prop::option::weighted(0.3, any::<u64>()),
     )
         .prop_map(
-            |(timeline, min, len, fill, sample, contents, batch_rows)| DataframeOp {
+            |(timeline, min, len, fill, sample, contents, batch_rows, columns)| DataframeOp {
                 timeline,
                 min,
                 max: if len == 5 {
@@ -1968,6 +1981,7 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
                 sample,
                 contents,
                 batch_rows,
+                columns,
             },
         )
 }
@@ -2240,6 +2254,25 @@ fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<Table<Cell>>
         };
         query = query.with_contents(EntityPathFilter::parse([rule]).unwrap());
     }
+    if op.columns.is_some() {
+        let Ok(full) = store.dataframe_schema(&query) else {
+            return None; // an unknown index: refused with or without columns
+        };
+        let mut data = 0;
+        let kept: Vec<String> = full
+            .fields()
+            .iter()
+            .filter(|f| {
+                if !f.name().contains(':') {
+                    return true; // index columns
+                }
+                data += 1;
+                op.keeps(data - 1)
+            })
+            .map(|f| f.name().clone())
+            .collect();
+        query = query.with_columns(kept);
+    }
     // Half the queries read through a stream that owns its snapshot (as the Python
     // package's readers do): the same table either way.
     let stream = if op.batch_rows % 2 == 1 {
@@ -2309,6 +2342,14 @@ fn check_dataframe(
     op: &DataframeOp,
 ) -> Result<(), TestCaseError> {
     let (expected_names, expected_times, expected_cells) = model.dataframe(op);
+    // Columns left out by `with_columns` are gone; the rows are the full view's.
+    let (expected_names, expected_cells): (Vec<String>, Vec<Vec<DataframeCell>>) = expected_names
+        .into_iter()
+        .zip(expected_cells)
+        .enumerate()
+        .filter(|(position, _)| op.keeps(*position))
+        .map(|(_, column)| column)
+        .unzip();
     let Some((names, times, cells)) = dataframe_answer(store, op) else {
         // A timeline the store never saw: the model has nothing on it either.
         let index_known = store.time_type(TIMELINES[op.timeline].0).is_some();

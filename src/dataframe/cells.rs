@@ -98,6 +98,11 @@ impl Sources {
         Ok(number)
     }
 
+    /// The ids of the chunks registered (repeats included).
+    pub fn chunk_ids(&self) -> impl Iterator<Item = ChunkId> + '_ {
+        self.arrays.iter().map(|source| source.chunk.id())
+    }
+
     /// The source of `(chunk, component_column)`, registered on first use.
     pub fn find_or_push(
         &mut self,

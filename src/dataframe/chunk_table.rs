@@ -12,7 +12,7 @@ use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
-use crate::{Chunk, RowId, StoreView, TimeInt, Timeline};
+use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt, TimeRange, Timeline};
 
 /// Which chunk rows a [`StoreView::chunk_table`] holds and in which order.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -21,6 +21,8 @@ pub struct ChunkTableQuery {
     index: Option<Arc<str>>,
     contents: Option<EntityPathFilter>,
     batch_rows: Option<usize>,
+    row_entities: Option<Arc<[EntityPath]>>,
+    rows_overlapping: Option<(Arc<str>, TimeRange)>,
 }
 
 impl ChunkTableQuery {
@@ -50,6 +52,51 @@ impl ChunkTableQuery {
     pub fn with_batch_rows(mut self, rows: usize) -> Self {
         self.batch_rows = Some(rows);
         self
+    }
+
+    /// Only the rows of these entities. Unlike [`Self::with_contents`], the table keeps
+    /// the columns of every entity `contents` selects: a narrowed table has the whole
+    /// table's schema (what a SQL scan that pushes a filter down needs).
+    #[must_use]
+    pub fn with_row_entities(mut self, entities: impl IntoIterator<Item = EntityPath>) -> Self {
+        let mut entities: Vec<EntityPath> = entities.into_iter().collect();
+        entities.sort();
+        entities.dedup();
+        self.row_entities = Some(entities.into());
+        self
+    }
+
+    /// Only the rows of chunks that hold a time in `range` on `timeline` (every row of
+    /// such a chunk, in the range or not: a caller wanting exactly the range filters the
+    /// rows again). Chunks without that timeline, static ones included, are left out. The
+    /// columns stay the whole table's, as with [`Self::with_row_entities`].
+    #[must_use]
+    pub fn with_rows_overlapping(
+        mut self,
+        timeline: impl Into<Arc<str>>,
+        range: TimeRange,
+    ) -> Self {
+        self.rows_overlapping = Some((timeline.into(), range));
+        self
+    }
+
+    /// Does `chunk` pass the row filters ([`Self::with_row_entities`],
+    /// [`Self::with_rows_overlapping`])?
+    fn keeps_rows_of(&self, chunk: &Chunk) -> bool {
+        let entity_kept = self
+            .row_entities
+            .as_ref()
+            .is_none_or(|entities| entities.binary_search(chunk.entity_path()).is_ok());
+        let time_kept = self
+            .rows_overlapping
+            .as_ref()
+            .is_none_or(|(timeline, range)| {
+                chunk.time_column(timeline).is_some_and(|column| {
+                    let (least, greatest) = column.time_range();
+                    range.intersects(TimeRange::new(least, greatest))
+                })
+            });
+        entity_kept && time_kept
     }
 }
 
@@ -127,13 +174,15 @@ impl StoreView {
         if let Some(filter) = &query.contents {
             chunks.retain(|c| filter.matches(c.entity_path()));
         }
-        Ok(ChunkTableStream::new(chunks, query))
+        let columns = table_columns(&chunks);
+        chunks.retain(|c| query.keeps_rows_of(c));
+        Ok(ChunkTableStream::new(columns, chunks, query))
     }
 }
 
 impl ChunkTableStream {
-    fn new(chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Self {
-        let (timelines, fields, component_columns, sources) = table_columns(&chunks);
+    fn new(columns: TableColumns, chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Self {
+        let (timelines, fields, component_columns, sources) = columns;
         let index = query.index.as_deref();
         let mut heap = BinaryHeap::new();
         let mut unmerged = Vec::new();
@@ -191,6 +240,11 @@ impl ChunkTableStream {
             batch_rows,
             done: false,
         }
+    }
+
+    /// How many chunks the table's rows come from.
+    pub fn num_chunks(&self) -> usize {
+        self.chunks.len()
     }
 
     /// The table's schema.

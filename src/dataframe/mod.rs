@@ -64,6 +64,7 @@ pub struct DataframeQuery {
     fill_latest_at: bool,
     batch_rows: Option<usize>,
     min_batch_rows: usize,
+    columns: Option<Arc<[String]>>,
 }
 
 impl DataframeQuery {
@@ -78,6 +79,7 @@ impl DataframeQuery {
             fill_latest_at: false,
             batch_rows: None,
             min_batch_rows: 1,
+            columns: None,
         }
     }
 
@@ -131,6 +133,23 @@ impl DataframeQuery {
         self
     }
 
+    /// Only these columns in the batches (names of the full view's schema, index columns
+    /// included), in the full view's order. The rows stay the full view's: every selected
+    /// entity's times still decide which rows there are (SEMANTICS.md section 9), but the
+    /// cells of the columns left out are never read or built. An empty list keeps the
+    /// rows and no column (what `SELECT count(*)` asks for). A name the view does not
+    /// have is refused when the query runs.
+    #[must_use]
+    pub fn with_columns<S: Into<String>>(mut self, columns: impl IntoIterator<Item = S>) -> Self {
+        self.columns = Some(columns.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// The columns asked for by [`Self::with_columns`], if any.
+    pub fn columns(&self) -> Option<&[String]> {
+        self.columns.as_deref()
+    }
+
     /// The index timeline's name.
     pub fn index(&self) -> &str {
         &self.index
@@ -180,6 +199,13 @@ pub enum DataframeError {
     },
     /// A batch of zero rows was asked for.
     ZeroBatchRows,
+    /// [`DataframeQuery::with_columns`] named a column the view does not have.
+    UnknownColumn {
+        /// The name asked for.
+        name: String,
+        /// How many columns the view has.
+        num_columns: usize,
+    },
     /// A column's chunks could not be read as one list type (an Arrow error).
     Column {
         /// Arrow's message.
@@ -200,6 +226,10 @@ impl fmt::Display for DataframeError {
                 }
             ),
             Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
+            Self::UnknownColumn { name, num_columns } => write!(
+                f,
+                "the dataframe view has no column {name:?} (it has {num_columns} columns)"
+            ),
             Self::Column { message } => write!(f, "dataframe column: {message}"),
         }
     }
@@ -219,8 +249,22 @@ impl StoreView {
     /// An index timeline the store has never seen, or a batch size of zero.
     pub fn dataframe(&self, query: &DataframeQuery) -> Result<DataframeStream<'_>, DataframeError> {
         let plan = self.plan_dataframe(query)?;
-        DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan)
+        let selection = plan.selection(query)?;
+        DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan, selection)
             .map_err(|e| column_error(&e))
+    }
+
+    /// The schema [`StoreView::dataframe`] would stream for `query`, without setting up
+    /// the stream (which reads every selected column's index).
+    ///
+    /// # Errors
+    /// As [`StoreView::dataframe`].
+    pub fn dataframe_schema(
+        &self,
+        query: &DataframeQuery,
+    ) -> Result<arrow_schema::SchemaRef, DataframeError> {
+        let plan = self.plan_dataframe(query)?;
+        Ok(plan.selection(query)?.schema)
     }
 
     fn plan_dataframe(&self, query: &DataframeQuery) -> Result<schema::TablePlan, DataframeError> {
@@ -267,7 +311,8 @@ impl Snapshot {
         query: &DataframeQuery,
     ) -> Result<DataframeStream<'static>, DataframeError> {
         let plan = self.plan_dataframe(query)?;
-        DataframeStream::new(stream::ViewRef::Owned(self), query, plan)
+        let selection = plan.selection(query)?;
+        DataframeStream::new(stream::ViewRef::Owned(self), query, plan, selection)
             .map_err(|e| column_error(&e))
     }
 }

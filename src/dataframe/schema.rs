@@ -119,6 +119,58 @@ impl TablePlan {
     }
 }
 
+/// Which of a plan's columns a stream builds ([`DataframeQuery::with_columns`]).
+#[derive(Clone, Debug)]
+pub(crate) struct Selection {
+    /// Per index column of the plan: is it in the output?
+    pub index: Vec<bool>,
+    /// Per data column of the plan: is it in the output?
+    pub data: Vec<bool>,
+    /// The output's schema: the plan's, less the columns left out.
+    pub schema: SchemaRef,
+}
+
+impl TablePlan {
+    /// The columns `query` keeps (all of them unless it names some).
+    pub fn selection(&self, query: &DataframeQuery) -> Result<Selection, super::DataframeError> {
+        let Some(names) = query.columns() else {
+            return Ok(Selection {
+                index: vec![true; self.index_columns.len()],
+                data: vec![true; self.columns.len()],
+                schema: Arc::clone(&self.schema),
+            });
+        };
+        let wanted: std::collections::HashSet<&str> = names.iter().map(String::as_str).collect();
+        let keep: Vec<bool> = self
+            .schema
+            .fields()
+            .iter()
+            .map(|field| wanted.contains(field.name().as_str()))
+            .collect();
+        if let Some(missing) = names
+            .iter()
+            .find(|name| self.schema.fields().iter().all(|f| f.name() != *name))
+        {
+            return Err(super::DataframeError::UnknownColumn {
+                name: missing.clone(),
+                num_columns: self.schema.fields().len(),
+            });
+        }
+        let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
+        let schema = Arc::new(
+            self.schema
+                .project(&kept)
+                .map_err(|e| super::column_error(&e))?,
+        );
+        let (index, data) = keep.split_at(self.index_columns.len());
+        Ok(Selection {
+            index: index.to_vec(),
+            data: data.to_vec(),
+            schema,
+        })
+    }
+}
+
 /// Index fields (named by timeline, `rerun:kind=index`), then data fields named
 /// `<entity>:<component>` with the entity, component and, where the source had them,
 /// archetype and component type in their metadata, as Rerun writes them.

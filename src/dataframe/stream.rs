@@ -7,7 +7,7 @@ use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
-use super::schema::{ColumnPlan, TablePlan};
+use super::schema::{ColumnPlan, Selection, TablePlan};
 use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
@@ -23,6 +23,7 @@ use crate::{LatestAtQuery, RowId, Snapshot, StoreView, TimeInt, TimeRange};
 pub struct DataframeStream<'a> {
     store: ViewRef<'a>,
     plan: TablePlan,
+    selection: Selection,
     columns: Vec<ColumnState>,
     rows: Rows,
     batch_rows: usize,
@@ -56,7 +57,7 @@ impl std::ops::Deref for ViewRef<'_> {
 impl std::fmt::Debug for DataframeStream<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("DataframeStream")
-            .field("schema", &self.plan.schema)
+            .field("schema", &self.selection.schema)
             .field("batch_rows", &self.batch_rows)
             .finish_non_exhaustive()
     }
@@ -193,6 +194,7 @@ impl<'a> DataframeStream<'a> {
         store: ViewRef<'a>,
         query: &DataframeQuery,
         plan: TablePlan,
+        selection: Selection,
     ) -> Result<Self, ArrowError> {
         let sampling = query.index_values.clone();
         let range = if sampling.is_some() {
@@ -232,6 +234,7 @@ impl<'a> DataframeStream<'a> {
                 .collect(),
             maxima: vec![None; plan.index_columns.len()],
             plan,
+            selection,
             columns,
             rows,
             batch_rows,
@@ -240,9 +243,25 @@ impl<'a> DataframeStream<'a> {
     }
 
     /// The table's schema: index columns (sorted by timeline name), then one list column
-    /// per (entity, component) with data, ordered by entity path, then component.
+    /// per (entity, component) with data, ordered by entity path, then component (only
+    /// those [`DataframeQuery::with_columns`] kept, if it was given).
     pub fn schema(&self) -> SchemaRef {
-        Arc::clone(&self.plan.schema)
+        Arc::clone(&self.selection.schema)
+    }
+
+    /// How many distinct chunks the stream reads: those of its columns that overlap the
+    /// range (their times decide the rows; the selected columns' cells are copied from
+    /// them), plus, when filling or sampling, the chunks of latest-at answers found so
+    /// far. A query the index can narrow (a short range, a few entities) reads few.
+    pub fn num_chunks_read(&self) -> usize {
+        let mut ids: Vec<crate::ChunkId> = self
+            .columns
+            .iter()
+            .flat_map(|column| column.sources.chunk_ids())
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids.len()
     }
 
     /// How many rows a batch holds at most.
@@ -264,13 +283,15 @@ impl<'a> DataframeStream<'a> {
             let Kind::Temporal(column) = &mut state.kind else {
                 continue;
             };
-            let cells = &mut self.cells[number as usize];
-            cells.pad(if *fill { column.fill } else { None }, num_rows);
             let cell = column.take_events_at(time);
             if let Some(cell) = cell {
                 state.sources.raise_times(cell, &mut self.maxima);
             }
-            cells.push(cell);
+            if self.selection.data[number as usize] {
+                let cells = &mut self.cells[number as usize];
+                cells.pad(if *fill { column.fill } else { None }, num_rows);
+                cells.push(cell);
+            }
             if *fill && !column.hidden_by_static_clear && cell.is_some() {
                 column.fill = cell;
             }
@@ -294,11 +315,12 @@ impl<'a> DataframeStream<'a> {
         *next += 1;
         self.maxima.fill(None);
         let query = LatestAtQuery::new(Arc::clone(self.plan.index.name_arc()), at);
-        for ((state, plan), cells) in self
+        for (((state, plan), cells), &selected) in self
             .columns
             .iter_mut()
             .zip(&self.plan.columns)
             .zip(&mut self.cells)
+            .zip(&self.selection.data)
         {
             let cell = match &mut state.kind {
                 Kind::Static(cell) => Some(*cell),
@@ -329,7 +351,9 @@ impl<'a> DataframeStream<'a> {
                     cell
                 }
             };
-            cells.push(cell);
+            if selected {
+                cells.push(cell);
+            }
         }
         self.push_index_values(at);
         true
@@ -351,12 +375,29 @@ impl<'a> DataframeStream<'a> {
             return Ok(None);
         }
         let fill = matches!(self.rows, Rows::Merge { fill: true, .. });
-        let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.plan.schema.fields().len());
-        for (timeline, values) in self.plan.index_columns.iter().zip(&mut self.index_values) {
-            arrays.push(timeline.time_type().array(std::mem::take(values)));
+        let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.selection.schema.fields().len());
+        for ((timeline, values), &selected) in self
+            .plan
+            .index_columns
+            .iter()
+            .zip(&mut self.index_values)
+            .zip(&self.selection.index)
+        {
+            let values = std::mem::take(values);
+            if selected {
+                arrays.push(timeline.time_type().array(values));
+            }
         }
         let mut scratch = FinishScratch::default();
-        for (state, cells) in self.columns.iter().zip(&mut self.cells) {
+        for ((state, cells), &selected) in self
+            .columns
+            .iter()
+            .zip(&mut self.cells)
+            .zip(&self.selection.data)
+        {
+            if !selected {
+                continue;
+            }
             let pad = match &state.kind {
                 Kind::Static(cell) => Some(*cell),
                 Kind::Temporal(column) if fill => column.fill,
@@ -365,7 +406,10 @@ impl<'a> DataframeStream<'a> {
             cells.pad(pad, num_rows);
             arrays.push(cells.finish(&state.sources, num_rows, &mut scratch)?);
         }
-        RecordBatch::try_new(Arc::clone(&self.plan.schema), arrays).map(Some)
+        // With no column kept, the batch still says how many rows it stands for.
+        let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(num_rows));
+        RecordBatch::try_new_with_options(Arc::clone(&self.selection.schema), arrays, &options)
+            .map(Some)
     }
 }
 
@@ -491,6 +535,6 @@ impl Iterator for DataframeStream<'_> {
 
 impl RecordBatchReader for DataframeStream<'_> {
     fn schema(&self) -> SchemaRef {
-        Arc::clone(&self.plan.schema)
+        Arc::clone(&self.selection.schema)
     }
 }
