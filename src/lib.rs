@@ -108,10 +108,13 @@
 //!   them. Needs `arrow-ipc`.
 //! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
-//! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files.
-//!   Needs `parquet` (Snappy only).
+//! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files, and
+//!   `hive_export`, Hive-partitioned datasets of them. Needs `parquet` (Snappy only).
+//! - `datafusion`: `sql`, the store's views as DataFusion tables with filters pushed down
+//!   to its indices, the `latest_at` table function and `asof_join`; implies `parquet`.
+//!   Needs `datafusion` 54 (a long build), `tokio`, `futures` and `async-trait`.
 //! - `cli`: the `chunkstore` command-line tool (`cargo install --features cli`); implies
-//!   `rrd` and `parquet`.
+//!   `rrd` and `parquet`. With `datafusion` too, its `sql` command runs queries.
 #![forbid(unsafe_code)]
 
 #[cfg(any(feature = "ipc", feature = "parquet"))]
@@ -127,6 +130,8 @@ mod error;
 mod export;
 mod gc;
 mod held;
+#[cfg(feature = "parquet")]
+pub mod hive_export;
 mod ids;
 mod index;
 mod insert;
@@ -142,6 +147,8 @@ mod sanity;
 mod shared;
 mod small_map;
 mod snapshot;
+#[cfg(feature = "datafusion")]
+pub mod sql;
 mod stats;
 mod store;
 mod time;

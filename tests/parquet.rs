@@ -256,3 +256,115 @@ fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
     .unwrap_err();
     assert!(error.to_string().contains("\"nope\""));
 }
+
+/// A Hive dataset by entity: one file per entity, each with the whole chunk table's
+/// schema and exactly that entity's rows, which together are the whole table.
+#[test]
+fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
+    use chunkstore::hive_export::{HiveLayout, escape, write_hive_dataset};
+    let store = robot();
+    let dir = temp_path("hive-by-entity");
+    let _ = std::fs::remove_dir_all(&dir);
+    let layout = HiveLayout::ByEntity {
+        timeline: Some("frame_id".into()),
+    };
+    let summary = write_hive_dataset(&store, &dir, &layout).unwrap();
+    let whole = collect(store.chunk_table(&ChunkTableQuery::new()).unwrap());
+    assert_eq!(summary.rows(), whole.num_rows() as u64);
+    let entities = store.entity_paths();
+    assert_eq!(summary.files.len(), entities.len());
+    for entity in &entities {
+        let file = dir
+            .join(format!("entity={}", escape(&entity.to_string())))
+            .join("part-0.parquet");
+        let (batch, _) = read_back(&file);
+        assert_eq!(batch.schema().fields(), whole.schema().fields(), "{entity}");
+        let paths = batch
+            .column_by_name("entity_path")
+            .unwrap()
+            .as_any()
+            .downcast_ref::<arrow_array::StringArray>()
+            .unwrap()
+            .iter()
+            .map(|p| p.unwrap().to_owned())
+            .collect::<std::collections::BTreeSet<_>>();
+        assert_eq!(
+            paths.into_iter().collect::<Vec<_>>(),
+            vec![entity.to_string()]
+        );
+        let expected = store
+            .chunks()
+            .filter(|c| c.entity_path() == entity)
+            .map(|c| c.num_rows())
+            .sum::<usize>();
+        assert_eq!(batch.num_rows(), expected, "{entity}");
+    }
+    // A second write to the same directory is refused, and leaves it as it was.
+    assert!(write_hive_dataset(&store, &dir, &layout).is_err());
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), entities.len());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A Hive dataset by time bucket: the files, in bucket order, are the dataframe view cut
+/// at multiples of the width, and every file's index lies in its bucket.
+#[test]
+fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
+    use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
+    let store = robot();
+    let view = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
+    for width in [1, 7, 25, 1_000] {
+        let dir = temp_path(&format!("hive-by-bucket-{width}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        let layout = HiveLayout::ByTimeBucket {
+            timeline: "frame_id".into(),
+            width,
+            query: None,
+        };
+        let summary = write_hive_dataset(&store, &dir, &layout).unwrap();
+        let mut parts = Vec::new();
+        for (file, written) in &summary.files {
+            let (batch, _) = read_back(file);
+            assert_eq!(batch.num_rows() as u64, written.rows);
+            let bucket: i64 = file
+                .parent()
+                .unwrap()
+                .file_name()
+                .unwrap()
+                .to_str()
+                .unwrap()
+                .strip_prefix("frame_id_bucket=")
+                .unwrap()
+                .parse()
+                .unwrap();
+            let index = batch
+                .column_by_name("frame_id")
+                .unwrap()
+                .as_any()
+                .downcast_ref::<arrow_array::Int64Array>()
+                .unwrap();
+            assert!(
+                index.values().iter().all(|t| t.div_euclid(width) == bucket),
+                "{width}"
+            );
+            parts.push(batch);
+        }
+        let joined = arrow_select::concat::concat_batches(&view.schema(), &parts).unwrap();
+        assert_eq!(joined.num_rows(), view.num_rows(), "{width}");
+        for i in 0..view.num_columns() {
+            assert_eq!(
+                joined.column(i).to_data(),
+                view.column(i).to_data(),
+                "{width}: column {i}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+    let zero = HiveLayout::ByTimeBucket {
+        timeline: "frame_id".into(),
+        width: 0,
+        query: None,
+    };
+    let dir = temp_path("hive-zero");
+    assert!(write_hive_dataset(&store, &dir, &zero).is_err());
+    assert!(!dir.exists(), "nothing is left behind");
+}

@@ -1,0 +1,322 @@
+//! Partitioned Parquet datasets in Hive layout (feature `parquet`): a directory of
+//! `key=value/part-0.parquet` files that DuckDB
+//! (`read_parquet('dir/**/*.parquet', hive_partitioning = true)`), Polars (`scan_parquet(..., hive_partitioning=True)`),
+//! Spark, pyarrow datasets and DataFusion-based engines (Ballista among them) read as
+//! one table, skipping the partitions a filter on the key rules out. Every file has the
+//! same schema (the whole table's), so no reader has to merge schemas.
+//!
+//! Two layouts ([`HiveLayout`]):
+//! - by entity: the raw chunk table (`StoreView::chunk_table`), one partition per entity,
+//!   `entity=<path>/part-0.parquet`, rows in `(time, row id)` order on the timeline given;
+//! - by time bucket: one timeline's dataframe view (`StoreView::dataframe`), one
+//!   partition per bucket of `width` index values, `<timeline>_bucket=<k>/part-0.parquet`
+//!   holding the rows with `k * width <= index < (k + 1) * width` (empty buckets have no
+//!   file).
+//!
+//! Partition values are percent-encoded as Hive encodes them (`/` is `%2F`): engines
+//! decode them back into the entity path. Each file carries the min/max statistics and
+//! the sort order of [`write_parquet_file`]; the whole directory appears at once (written
+//! under a temporary name and renamed) or not at all.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow_array::{RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, DataType, SchemaRef};
+
+use crate::parquet_export::{
+    ParquetExportError, ParquetOptions, ParquetSummary, write_parquet_file,
+};
+use crate::{ChunkTableQuery, DataframeQuery, StoreView};
+
+/// How a dataset is partitioned: see the module docs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum HiveLayout {
+    /// The chunk table, a partition per entity, rows ordered on `timeline` when given.
+    ByEntity {
+        /// The timeline rows are ordered by within a file (else chunk by chunk).
+        timeline: Option<Arc<str>>,
+    },
+    /// A timeline's dataframe view, a partition per `width` index values.
+    ByTimeBucket {
+        /// The index timeline.
+        timeline: Arc<str>,
+        /// Index values per bucket (at least 1).
+        width: i64,
+        /// The view's query (contents, fill); its index must be `timeline`, and its range
+        /// narrows what is written.
+        query: Option<DataframeQuery>,
+    },
+}
+
+/// What a dataset write produced: each partition's file and summary, in order.
+#[derive(Clone, Debug, Default)]
+#[non_exhaustive]
+pub struct HiveSummary {
+    /// `(file, what was written to it)` per partition.
+    pub files: Vec<(PathBuf, ParquetSummary)>,
+}
+
+impl HiveSummary {
+    /// Rows written, over every file.
+    pub fn rows(&self) -> u64 {
+        self.files.iter().map(|(_, s)| s.rows).sum()
+    }
+}
+
+/// Percent-encodes a partition value as Hive does: every byte outside `[A-Za-z0-9._-]`
+/// becomes `%XX`.
+///
+/// ```
+/// assert_eq!(chunkstore::hive_export::escape("/robot/arm 1"), "%2Frobot%2Farm%201");
+/// ```
+pub fn escape(value: &str) -> String {
+    let mut out = String::with_capacity(value.len());
+    for byte in value.bytes() {
+        if byte.is_ascii_alphanumeric() || matches!(byte, b'.' | b'_' | b'-') {
+            out.push(char::from(byte));
+        } else {
+            const HEX: &[u8; 16] = b"0123456789ABCDEF";
+            out.push('%');
+            out.push(char::from(HEX[usize::from(byte >> 4)]));
+            out.push(char::from(HEX[usize::from(byte & 0xF)]));
+        }
+    }
+    out
+}
+
+/// Writes `view` as a Hive-partitioned Parquet dataset in the new directory `dir` (which
+/// must not exist), laid out as `layout` says. An empty store writes an empty directory.
+///
+/// # Errors
+/// An existing `dir`, the file system's errors, a bucket width below 1, an unknown
+/// timeline, and the Parquet writer's errors; nothing is left under `dir` on error.
+pub fn write_hive_dataset(
+    view: &StoreView,
+    dir: &Path,
+    layout: &HiveLayout,
+) -> Result<HiveSummary, ParquetExportError> {
+    let io = |path: &Path, source| ParquetExportError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    if dir.exists() {
+        return Err(io(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "the dataset directory exists",
+            ),
+        ));
+    }
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let partial = dir.with_file_name(format!(".{name}.partial-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&partial);
+    std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
+    let written = match layout {
+        HiveLayout::ByEntity { timeline } => by_entity(view, &partial, timeline.as_deref()),
+        HiveLayout::ByTimeBucket {
+            timeline,
+            width,
+            query,
+        } => by_time_bucket(view, &partial, timeline, *width, query.as_ref()),
+    };
+    let mut summary = match written {
+        Ok(summary) => summary,
+        Err(error) => {
+            let _ = std::fs::remove_dir_all(&partial);
+            return Err(error);
+        }
+    };
+    if let Err(error) = std::fs::rename(&partial, dir) {
+        let _ = std::fs::remove_dir_all(&partial);
+        return Err(io(dir, error));
+    }
+    for (file, _) in &mut summary.files {
+        if let Ok(relative) = file.strip_prefix(&partial) {
+            *file = dir.join(relative);
+        }
+    }
+    Ok(summary)
+}
+
+fn arrow_error(message: String) -> ParquetExportError {
+    ParquetExportError::Arrow(ArrowError::InvalidArgumentError(message))
+}
+
+fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, ParquetExportError> {
+    let partition = dir.join(format!("{key}={}", escape(value)));
+    std::fs::create_dir_all(&partition).map_err(|source| ParquetExportError::Io {
+        path: partition.clone(),
+        source,
+    })?;
+    Ok(partition.join("part-0.parquet"))
+}
+
+fn by_entity(
+    view: &StoreView,
+    dir: &Path,
+    timeline: Option<&str>,
+) -> Result<HiveSummary, ParquetExportError> {
+    let mut summary = HiveSummary::default();
+    let mut entities = view.entity_paths();
+    entities.sort();
+    for entity in entities {
+        let mut query = ChunkTableQuery::new().with_row_entities([entity.clone()]);
+        if let Some(timeline) = timeline {
+            query = query.with_index(timeline);
+        }
+        let table = view
+            .chunk_table(&query)
+            .map_err(|e| arrow_error(e.to_string()))?;
+        let path = partition_file(dir, "entity", &entity.to_string())?;
+        let written = write_parquet_file(&path, table, &ParquetOptions::default())?;
+        summary.files.push((path, written));
+    }
+    Ok(summary)
+}
+
+fn by_time_bucket(
+    view: &StoreView,
+    dir: &Path,
+    timeline: &Arc<str>,
+    width: i64,
+    query: Option<&DataframeQuery>,
+) -> Result<HiveSummary, ParquetExportError> {
+    if width < 1 {
+        return Err(arrow_error(format!(
+            "a time bucket is at least 1 wide, not {width}"
+        )));
+    }
+    let query = match query {
+        Some(query) if query.index() == &**timeline => query.clone(),
+        Some(query) => {
+            return Err(arrow_error(format!(
+                "the query's index {:?} is not the bucketed timeline {timeline:?}",
+                query.index()
+            )));
+        }
+        None => DataframeQuery::new(Arc::clone(timeline)),
+    };
+    let stream = view
+        .dataframe(&query)
+        .map_err(|e| arrow_error(e.to_string()))?;
+    let schema = stream.schema();
+    let index = schema
+        .index_of(timeline)
+        .map_err(ParquetExportError::Arrow)?;
+    let key = format!("{timeline}_bucket");
+    let options = ParquetOptions::default().with_sorted_by(Arc::clone(timeline));
+    let mut pieces = Buckets {
+        batches: Box::new(stream),
+        index,
+        width,
+        pending: None,
+    };
+    let mut summary = HiveSummary::default();
+    while let Some(bucket) = pieces.next_bucket()? {
+        let path = partition_file(dir, &key, &bucket.to_string())?;
+        let reader = BucketReader {
+            buckets: &mut pieces,
+            bucket,
+            schema: Arc::clone(&schema),
+        };
+        let written = write_parquet_file(&path, reader, &options)?;
+        summary.files.push((path, written));
+    }
+    Ok(summary)
+}
+
+/// A dataframe's batches cut where the index crosses into the next bucket.
+struct Buckets<'a> {
+    batches: Box<dyn Iterator<Item = Result<RecordBatch, ArrowError>> + 'a>,
+    index: usize,
+    width: i64,
+    /// A batch read, its index values, and where its rows not handed out yet start
+    /// (always before its end).
+    pending: Option<(RecordBatch, Vec<i64>, usize)>,
+}
+
+impl Buckets<'_> {
+    /// The bucket of the next row (reading a batch if none is pending), or `None` at the
+    /// end.
+    fn next_bucket(&mut self) -> Result<Option<i64>, ParquetExportError> {
+        loop {
+            if let Some((_, times, start)) = &self.pending {
+                return Ok(Some(times[*start].div_euclid(self.width)));
+            }
+            let Some(batch) = self.batches.next() else {
+                return Ok(None);
+            };
+            let batch = batch.map_err(ParquetExportError::Arrow)?;
+            if batch.num_rows() > 0 {
+                let times = index_values(batch.column(self.index).as_ref())?;
+                self.pending = Some((batch, times, 0));
+            }
+        }
+    }
+
+    /// The pending rows of `bucket` (index values ascend, so they come first); the rows
+    /// after them stay pending.
+    fn take(&mut self, bucket: i64) -> Result<Option<RecordBatch>, ParquetExportError> {
+        if self.next_bucket()? != Some(bucket) {
+            return Ok(None);
+        }
+        let Some((batch, times, start)) = self.pending.take() else {
+            return Ok(None);
+        };
+        let end = start + times[start..].partition_point(|&t| t.div_euclid(self.width) == bucket);
+        let piece = batch.slice(start, end - start);
+        if end < times.len() {
+            self.pending = Some((batch, times, end));
+        }
+        Ok(Some(piece))
+    }
+}
+
+/// The index column's values as `i64` (sequence, duration and timestamp timelines all
+/// hold 64-bit integers).
+fn index_values(column: &dyn arrow_array::Array) -> Result<Vec<i64>, ParquetExportError> {
+    let data = column.to_data();
+    match column.data_type() {
+        DataType::Int64 | DataType::Duration(_) | DataType::Timestamp(..) => {
+            let ints = arrow_array::Int64Array::from(
+                data.into_builder()
+                    .data_type(DataType::Int64)
+                    .build()
+                    .map_err(ParquetExportError::Arrow)?,
+            );
+            Ok(ints.values().to_vec())
+        }
+        other => Err(arrow_error(format!("an index column of type {other}"))),
+    }
+}
+
+/// The pieces of one bucket, as a reader for [`write_parquet_file`].
+struct BucketReader<'a, 'b> {
+    buckets: &'a mut Buckets<'b>,
+    bucket: i64,
+    schema: SchemaRef,
+}
+
+impl Iterator for BucketReader<'_, '_> {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        match self.buckets.take(self.bucket) {
+            Ok(piece) => piece.map(Ok),
+            Err(ParquetExportError::Arrow(error)) => Some(Err(error)),
+            Err(other) => Some(Err(ArrowError::ExternalError(Box::new(other)))),
+        }
+    }
+}
+
+impl RecordBatchReader for BucketReader<'_, '_> {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+}

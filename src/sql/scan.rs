@@ -1,0 +1,264 @@
+//! [`StoreScanExec`]: the execution plan that reads one of the store's tables from a
+//! snapshot, with what was pushed down to it (a time range, entities, columns, a limit).
+
+use std::fmt;
+use std::sync::Arc;
+
+use arrow_array::RecordBatch;
+use arrow_schema::{ArrowError, SchemaRef};
+use datafusion::common::{DataFusionError, Result};
+use datafusion::execution::TaskContext;
+use datafusion::physical_expr::EquivalenceProperties;
+use datafusion::physical_plan::execution_plan::{Boundedness, EmissionType};
+use datafusion::physical_plan::metrics::{
+    Count, ExecutionPlanMetricsSet, MetricBuilder, MetricsSet,
+};
+use datafusion::physical_plan::stream::RecordBatchStreamAdapter;
+use datafusion::physical_plan::{
+    DisplayAs, DisplayFormatType, ExecutionPlan, Partitioning, PlanProperties,
+    SendableRecordBatchStream,
+};
+
+use crate::{ChunkTableQuery, DataframeQuery, Snapshot};
+
+/// What a scan reads.
+#[derive(Clone, Debug)]
+pub(crate) enum ScanSource {
+    /// A dataframe view: its query holds the range and the columns (which it builds in
+    /// the view's order; `projection` puts them in the order asked for).
+    Dataframe {
+        query: DataframeQuery,
+        projection: Option<Vec<usize>>,
+    },
+    /// The chunk table: its query holds the row filters; `projection` picks the columns
+    /// of each batch (the chunk table builds them all).
+    Chunks {
+        query: ChunkTableQuery,
+        projection: Option<Vec<usize>>,
+    },
+}
+
+/// Reads one of the store's tables ([`super::register`]) from a snapshot, as one
+/// partition. `EXPLAIN` shows what was pushed down to it; `EXPLAIN ANALYZE` also shows
+/// `chunks_read`, the chunks the store read to answer (the store's own count), and
+/// `rows_built`, the rows the store built before any `LIMIT` cut them.
+#[derive(Debug)]
+pub struct StoreScanExec {
+    snapshot: Snapshot,
+    table: String,
+    source: ScanSource,
+    /// What the scan applies itself, for `EXPLAIN`.
+    pushed_down: Vec<String>,
+    limit: Option<usize>,
+    schema: SchemaRef,
+    properties: Arc<PlanProperties>,
+    metrics: ExecutionPlanMetricsSet,
+}
+
+impl StoreScanExec {
+    pub(crate) fn new(
+        snapshot: Snapshot,
+        table: String,
+        source: ScanSource,
+        pushed_down: Vec<String>,
+        limit: Option<usize>,
+        schema: SchemaRef,
+    ) -> Self {
+        let properties = PlanProperties::new(
+            EquivalenceProperties::new(Arc::clone(&schema)),
+            Partitioning::UnknownPartitioning(1),
+            EmissionType::Incremental,
+            Boundedness::Bounded,
+        );
+        Self {
+            snapshot,
+            table,
+            source,
+            pushed_down,
+            limit,
+            schema,
+            properties: Arc::new(properties),
+            metrics: ExecutionPlanMetricsSet::new(),
+        }
+    }
+
+    /// What the scan applies itself (a range, entities, columns, a limit), as `EXPLAIN`
+    /// prints it.
+    pub fn pushed_down(&self) -> &[String] {
+        &self.pushed_down
+    }
+}
+
+impl DisplayAs for StoreScanExec {
+    fn fmt_as(&self, t: DisplayFormatType, f: &mut fmt::Formatter) -> fmt::Result {
+        match t {
+            DisplayFormatType::Default | DisplayFormatType::Verbose => {
+                write!(f, "StoreScanExec: table={}", self.table)?;
+                for pushed in &self.pushed_down {
+                    write!(f, ", {pushed}")?;
+                }
+                Ok(())
+            }
+            DisplayFormatType::TreeRender => {
+                writeln!(f, "table={}", self.table)?;
+                for pushed in &self.pushed_down {
+                    writeln!(f, "{pushed}")?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+impl ExecutionPlan for StoreScanExec {
+    fn name(&self) -> &'static str {
+        "StoreScanExec"
+    }
+
+    fn properties(&self) -> &Arc<PlanProperties> {
+        &self.properties
+    }
+
+    fn children(&self) -> Vec<&Arc<dyn ExecutionPlan>> {
+        Vec::new()
+    }
+
+    fn with_new_children(
+        self: Arc<Self>,
+        children: Vec<Arc<dyn ExecutionPlan>>,
+    ) -> Result<Arc<dyn ExecutionPlan>> {
+        if children.is_empty() {
+            Ok(self)
+        } else {
+            Err(DataFusionError::Internal(
+                "StoreScanExec has no children".to_owned(),
+            ))
+        }
+    }
+
+    fn execute(
+        &self,
+        partition: usize,
+        _context: Arc<TaskContext>,
+    ) -> Result<SendableRecordBatchStream> {
+        if partition != 0 {
+            return Err(DataFusionError::Internal(format!(
+                "StoreScanExec has one partition, not {}",
+                partition + 1
+            )));
+        }
+        let chunks_read = MetricBuilder::new(&self.metrics).counter("chunks_read", partition);
+        let rows_built = MetricBuilder::new(&self.metrics).counter("rows_built", partition);
+        let (batches, projection): (Box<dyn Iterator<Item = _> + Send>, _) = match &self.source {
+            ScanSource::Dataframe { query, projection } => {
+                let stream = self
+                    .snapshot
+                    .clone()
+                    .into_dataframe(query)
+                    .map_err(|e| DataFusionError::External(Box::new(e)))?;
+                let counted = CountedDataframe {
+                    stream,
+                    counted: 0,
+                    chunks_read,
+                };
+                (Box::new(counted), projection.clone())
+            }
+            ScanSource::Chunks { query, projection } => {
+                let stream = self
+                    .snapshot
+                    .chunk_table(query)
+                    .map_err(|e| DataFusionError::External(Box::new(e)))?;
+                chunks_read.add(stream.num_chunks());
+                (Box::new(stream), projection.clone())
+            }
+        };
+        let batches =
+            Box::new(batches.map(
+                move |batch: Result<RecordBatch, ArrowError>| match &projection {
+                    Some(columns) => batch?.project(columns),
+                    None => batch,
+                },
+            ));
+        let limited = Limited {
+            batches,
+            remaining: self.limit,
+            rows_built,
+        };
+        let schema = Arc::clone(&self.schema);
+        let checked = limited.map(move |batch| {
+            let batch = batch?;
+            // The table's schema was taken from the same snapshot; a mismatch is a bug,
+            // reported as an error rather than a wrong table.
+            if batch.schema().fields() != schema.fields() {
+                return Err(DataFusionError::Internal(format!(
+                    "a store scan produced columns {:?} where {:?} were planned",
+                    batch
+                        .schema()
+                        .fields()
+                        .iter()
+                        .map(|f| f.name())
+                        .collect::<Vec<_>>(),
+                    schema.fields().iter().map(|f| f.name()).collect::<Vec<_>>()
+                )));
+            }
+            Ok(batch.with_schema(Arc::clone(&schema))?)
+        });
+        Ok(Box::pin(RecordBatchStreamAdapter::new(
+            Arc::clone(&self.schema),
+            futures::stream::iter(checked),
+        )))
+    }
+
+    fn metrics(&self) -> Option<MetricsSet> {
+        Some(self.metrics.clone_inner())
+    }
+}
+
+/// A dataframe stream that reports the chunks it read as it goes (filling and sampling
+/// find more while they run).
+struct CountedDataframe {
+    stream: crate::DataframeStream<'static>,
+    counted: usize,
+    chunks_read: Count,
+}
+
+impl Iterator for CountedDataframe {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let next = self.stream.next();
+        let read = self.stream.num_chunks_read();
+        self.chunks_read.add(read.saturating_sub(self.counted));
+        self.counted = self.counted.max(read);
+        next
+    }
+}
+
+/// At most `remaining` rows (all of them when `None`), the last batch cut short; the
+/// source is not asked for more once the limit is reached.
+struct Limited {
+    batches: Box<dyn Iterator<Item = Result<RecordBatch, ArrowError>> + Send>,
+    remaining: Option<usize>,
+    rows_built: Count,
+}
+
+impl Iterator for Limited {
+    type Item = Result<RecordBatch, DataFusionError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.remaining == Some(0) {
+            return None;
+        }
+        let batch = match self.batches.next()? {
+            Ok(batch) => batch,
+            Err(error) => return Some(Err(error.into())),
+        };
+        self.rows_built.add(batch.num_rows());
+        let Some(remaining) = &mut self.remaining else {
+            return Some(Ok(batch));
+        };
+        let rows = batch.num_rows().min(*remaining);
+        *remaining -= rows;
+        Some(Ok(batch.slice(0, rows)))
+    }
+}

@@ -1,0 +1,382 @@
+//! The store's tables for DataFusion: [`TimelineTable`], one per timeline (the dataframe
+//! view on it), and [`ChunksTable`], every stored row across entities.
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+
+use arrow_schema::SchemaRef;
+use async_trait::async_trait;
+use datafusion::catalog::Session;
+use datafusion::common::{DataFusionError, Result};
+use datafusion::datasource::{TableProvider, TableType};
+use datafusion::logical_expr::{Expr, TableProviderFilterPushDown};
+use datafusion::physical_plan::ExecutionPlan;
+
+use super::pushdown::{self, TimeFilter};
+use super::scan::{ScanSource, StoreScanExec};
+use crate::{
+    ChunkTableQuery, DataframeQuery, EntityPath, EntityPathFilter, Snapshot, TimeInt, TimeRange,
+    Timeline,
+};
+
+/// The name of the chunk table's entity path column.
+const ENTITY_PATH: &str = "entity_path";
+
+/// Batches no longer than this when a small `LIMIT` is pushed down (a longer limit keeps
+/// the view's own batch size).
+const SMALL_LIMIT: usize = 4_096;
+
+fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusionError {
+    DataFusionError::External(Box::new(error))
+}
+
+/// One timeline's dataframe view of a snapshot (SEMANTICS.md section 9) as a DataFusion
+/// table: the timelines' index columns, then one list column per `<entity>:<component>`.
+///
+/// Filters on the index column (`=`, `<`, `<=`, `>`, `>=`, `BETWEEN`) become the view's
+/// range, which the store's index applies exactly (`Exact` pushdown); `IN` reads the
+/// range covering its values and DataFusion filters again. A projection builds only the
+/// selected columns (every selected entity's times still decide the rows, as the view's
+/// rows are), and a `LIMIT` stops the stream early.
+#[derive(Debug, Clone)]
+pub struct TimelineTable {
+    snapshot: Snapshot,
+    index: Timeline,
+    contents: EntityPathFilter,
+    /// Sampling at these times (the `latest_at` table function), else the sparse view.
+    samples: Option<Arc<[TimeInt]>>,
+    schema: SchemaRef,
+}
+
+impl TimelineTable {
+    /// The sparse view of `snapshot` on `timeline`, over `contents`.
+    ///
+    /// # Errors
+    /// A timeline the snapshot has never seen.
+    pub fn new(snapshot: Snapshot, timeline: &str, contents: EntityPathFilter) -> Result<Self> {
+        Self::build(snapshot, timeline, contents, None)
+    }
+
+    /// One row per time of `times`, in that order, each cell the latest-at answer there
+    /// (the view sampled, SEMANTICS.md section 9).
+    ///
+    /// # Errors
+    /// A timeline the snapshot has never seen.
+    pub fn sampled(
+        snapshot: Snapshot,
+        timeline: &str,
+        contents: EntityPathFilter,
+        times: impl IntoIterator<Item = TimeInt>,
+    ) -> Result<Self> {
+        Self::build(
+            snapshot,
+            timeline,
+            contents,
+            Some(times.into_iter().collect()),
+        )
+    }
+
+    fn build(
+        snapshot: Snapshot,
+        timeline: &str,
+        contents: EntityPathFilter,
+        samples: Option<Arc<[TimeInt]>>,
+    ) -> Result<Self> {
+        let mut table = Self {
+            index: Timeline::new(timeline, crate::TimeType::Sequence),
+            contents,
+            samples,
+            schema: Arc::new(arrow_schema::Schema::empty()),
+            snapshot,
+        };
+        let query = table.query();
+        table.schema = table.snapshot.dataframe_schema(&query).map_err(external)?;
+        let time_type = table.snapshot.time_type(timeline).ok_or_else(|| {
+            DataFusionError::Plan(format!("the store has no timeline {timeline:?}"))
+        })?;
+        table.index = Timeline::new(timeline, time_type);
+        Ok(table)
+    }
+
+    /// The index timeline.
+    pub fn index(&self) -> &Timeline {
+        &self.index
+    }
+
+    fn query(&self) -> DataframeQuery {
+        let query = DataframeQuery::new(Arc::clone(self.index.name_arc()))
+            .with_contents(self.contents.clone());
+        match &self.samples {
+            Some(times) => query.with_index_values(times.iter().copied()),
+            None => query,
+        }
+    }
+
+    fn time_filter(&self, filter: &Expr) -> Option<TimeFilter> {
+        if self.samples.is_some() {
+            return None; // a sample's rows are its times: a range would not narrow them
+        }
+        pushdown::time_filter(filter, self.index.name(), self.index.time_type())
+    }
+}
+
+#[async_trait]
+impl TableProvider for TimelineTable {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+
+    fn table_type(&self) -> TableType {
+        TableType::Base
+    }
+
+    fn supports_filters_pushdown(
+        &self,
+        filters: &[&Expr],
+    ) -> Result<Vec<TableProviderFilterPushDown>> {
+        Ok(filters
+            .iter()
+            .map(|filter| pushdown::support(self.time_filter(filter).map(|f| f.exact)))
+            .collect())
+    }
+
+    async fn scan(
+        &self,
+        _state: &dyn Session,
+        projection: Option<&Vec<usize>>,
+        filters: &[Expr],
+        limit: Option<usize>,
+    ) -> Result<Arc<dyn ExecutionPlan>> {
+        let mut query = self.query();
+        let mut pushed_down = Vec::new();
+        if let Some(times) = &self.samples {
+            pushed_down.push(format!("sampled at {} times", times.len()));
+        }
+        let ranges: Vec<TimeRange> = filters
+            .iter()
+            .filter_map(|filter| self.time_filter(filter))
+            .map(|filter| filter.range)
+            .collect();
+        if let Some(range) = ranges.into_iter().reduce(pushdown::intersect) {
+            query = query.with_range(range);
+            pushed_down.push(pushdown::describe(self.index.name(), range));
+        }
+        let (schema, projection) = project(&self.schema, projection, &mut pushed_down)?;
+        if let Some((names, _)) = &projection {
+            query = query.with_columns(names.iter().cloned());
+        }
+        if let Some(limit) = limit {
+            if limit < SMALL_LIMIT {
+                query = query.with_batch_rows(limit.max(1));
+            }
+            pushed_down.push(format!("limit={limit}"));
+        }
+        let source = ScanSource::Dataframe {
+            query,
+            projection: projection.and_then(|(_, order)| order),
+        };
+        Ok(Arc::new(StoreScanExec::new(
+            self.snapshot.clone(),
+            self.index.name().to_owned(),
+            source,
+            pushed_down,
+            limit,
+            schema,
+        )))
+    }
+}
+
+/// A projection of `schema`: the projected schema and, when there is a projection, the
+/// names of its columns and the order to put the view's columns in (`None` when the view's
+/// own order is the one asked for).
+type Projected = (SchemaRef, Option<(Vec<String>, Option<Vec<usize>>)>);
+
+fn project(
+    schema: &SchemaRef,
+    projection: Option<&Vec<usize>>,
+    pushed_down: &mut Vec<String>,
+) -> Result<Projected> {
+    let Some(projection) = projection else {
+        return Ok((Arc::clone(schema), None));
+    };
+    let projected = Arc::new(schema.project(projection)?);
+    let mut sorted = projection.clone();
+    sorted.sort_unstable();
+    sorted.dedup();
+    let order: Vec<usize> = projection
+        .iter()
+        .map(|i| sorted.partition_point(|s| s < i))
+        .collect();
+    let in_view_order =
+        order.iter().enumerate().all(|(a, &b)| a == b) && order.len() == sorted.len();
+    pushed_down.push(format!(
+        "columns={} of {}",
+        sorted.len(),
+        schema.fields().len()
+    ));
+    let names = sorted
+        .iter()
+        .map(|&i| schema.field(i).name().clone())
+        .collect();
+    Ok((
+        projected,
+        Some((names, if in_view_order { None } else { Some(order) })),
+    ))
+}
+
+/// Every stored row of a snapshot, across entities (`StoreView::chunk_table`):
+/// `entity_path`, `chunk_id`, `row_id`, one column per timeline, one list column per
+/// component name.
+///
+/// Filters on `entity_path` (`=`, `IN`, `LIKE`, `starts_with`) are matched against the
+/// store's entity paths and read only the matching entities' chunks (`Exact`); a filter
+/// on a timeline column reads only the chunks whose times there overlap it, and
+/// DataFusion filters their rows again (`Inexact`). A `LIMIT` stops the stream early.
+#[derive(Debug, Clone)]
+pub struct ChunksTable {
+    snapshot: Snapshot,
+    /// Every entity path, with its text as the `entity_path` column shows it.
+    entities: Vec<(EntityPath, String)>,
+    timelines: Vec<Timeline>,
+    schema: SchemaRef,
+}
+
+impl ChunksTable {
+    /// Every stored row of `snapshot`.
+    ///
+    /// # Errors
+    /// None in practice (the chunk table of a store always plans); DataFusion's error type
+    /// for uniformity.
+    pub fn new(snapshot: Snapshot) -> Result<Self> {
+        let schema = snapshot
+            .chunk_table(&ChunkTableQuery::new().with_row_entities([]))
+            .map_err(external)?
+            .schema();
+        let entities = snapshot
+            .entity_paths()
+            .into_iter()
+            .map(|path| {
+                let text = path.to_string();
+                (path, text)
+            })
+            .collect();
+        let timelines = snapshot.timelines();
+        Ok(Self {
+            snapshot,
+            entities,
+            timelines,
+            schema,
+        })
+    }
+
+    fn entity_filter(&self, filter: &Expr) -> Option<BTreeSet<EntityPath>> {
+        pushdown::entity_filter(filter, ENTITY_PATH, &self.entities)
+    }
+
+    fn time_filter(&self, filter: &Expr) -> Option<(&Timeline, TimeFilter)> {
+        self.timelines.iter().find_map(|timeline| {
+            pushdown::time_filter(filter, timeline.name(), timeline.time_type())
+                .map(|f| (timeline, f))
+        })
+    }
+}
+
+#[async_trait]
+impl TableProvider for ChunksTable {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+
+    fn table_type(&self) -> TableType {
+        TableType::Base
+    }
+
+    fn supports_filters_pushdown(
+        &self,
+        filters: &[&Expr],
+    ) -> Result<Vec<TableProviderFilterPushDown>> {
+        Ok(filters
+            .iter()
+            .map(|filter| {
+                if self.entity_filter(filter).is_some() {
+                    TableProviderFilterPushDown::Exact
+                } else if self.time_filter(filter).is_some() {
+                    TableProviderFilterPushDown::Inexact
+                } else {
+                    TableProviderFilterPushDown::Unsupported
+                }
+            })
+            .collect())
+    }
+
+    async fn scan(
+        &self,
+        _state: &dyn Session,
+        projection: Option<&Vec<usize>>,
+        filters: &[Expr],
+        limit: Option<usize>,
+    ) -> Result<Arc<dyn ExecutionPlan>> {
+        let mut query = ChunkTableQuery::new();
+        let mut pushed_down = Vec::new();
+        let entities = filters
+            .iter()
+            .filter_map(|filter| self.entity_filter(filter))
+            .reduce(|a, b| a.intersection(&b).cloned().collect());
+        if let Some(entities) = entities {
+            pushed_down.push(format!(
+                "entities={} of {}",
+                entities.len(),
+                self.entities.len()
+            ));
+            query = query.with_row_entities(entities);
+        }
+        // One timeline's range narrows the chunks read; DataFusion applies every filter
+        // on times again.
+        let mut overlapping: Option<(&Timeline, TimeRange)> = None;
+        for (timeline, filter) in filters.iter().filter_map(|f| self.time_filter(f)) {
+            match &mut overlapping {
+                Some((first, range)) if *first == timeline => {
+                    *range = pushdown::intersect(*range, filter.range);
+                }
+                Some(_) => {}
+                None => overlapping = Some((timeline, filter.range)),
+            }
+        }
+        if let Some((timeline, range)) = overlapping {
+            pushed_down.push(format!(
+                "chunks overlapping {}",
+                pushdown::describe(timeline.name(), range)
+            ));
+            query = query.with_rows_overlapping(Arc::clone(timeline.name_arc()), range);
+        }
+        let schema = match projection {
+            Some(columns) => {
+                pushed_down.push(format!(
+                    "columns={} of {}",
+                    columns.len(),
+                    self.schema.fields().len()
+                ));
+                Arc::new(self.schema.project(columns)?)
+            }
+            None => Arc::clone(&self.schema),
+        };
+        if let Some(limit) = limit {
+            if limit < SMALL_LIMIT {
+                query = query.with_batch_rows(limit.max(1));
+            }
+            pushed_down.push(format!("limit={limit}"));
+        }
+        let source = ScanSource::Chunks {
+            query,
+            projection: projection.cloned(),
+        };
+        Ok(Arc::new(StoreScanExec::new(
+            self.snapshot.clone(),
+            "chunks".to_owned(),
+            source,
+            pushed_down,
+            limit,
+            schema,
+        )))
+    }
+}
