@@ -792,3 +792,138 @@ fn dataframe_names_every_bad_argument_and_input_on_one_line() {
         fails(&[copy, "dataframe", "frame_id", "--out", copy]).contains("overwrite the source")
     );
 }
+
+/// `sql` over the robot recording: a table, JSON lines, files; bad SQL is one line and
+/// exit code 2.
+#[cfg(feature = "datafusion")]
+#[test]
+fn sql_answers_as_a_table_as_json_lines_and_as_files() {
+    let rrd = recording_rrd();
+    let (table, _) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new(
+            r#"SELECT frame_id, "/metrics/planner/cost:Scalars:scalars" AS cost FROM frame_id WHERE frame_id BETWEEN 10 AND 12"#,
+        ),
+    ]);
+    assert!(table.contains("| frame_id | cost"), "{table}");
+    assert_eq!(
+        table.lines().filter(|l| l.starts_with("| 1")).count(),
+        3,
+        "{table}"
+    );
+
+    let (json, _) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new(
+            "SELECT entity_path, count(*) AS n FROM chunks WHERE entity_path LIKE '/world/%' GROUP BY entity_path ORDER BY entity_path",
+        ),
+        OsStr::new("--json"),
+    ]);
+    let rows: Vec<serde_json::Value> = json
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(rows.len(), 4, "{json}");
+    assert_eq!(rows[1]["entity_path"], "/world/robot");
+    assert_eq!(rows[1]["n"], 60);
+
+    let dir = scratch_dir("sql-out");
+    for name in ["answer.parquet", "answer.arrow"] {
+        let out = dir.join(name);
+        ok(&[
+            rrd.as_os_str(),
+            OsStr::new("sql"),
+            OsStr::new("SELECT * FROM latest_at('frame_id', 30)"),
+            OsStr::new("--out"),
+            out.as_os_str(),
+        ]);
+        assert!(std::fs::metadata(&out).unwrap().len() > 0, "{name}");
+    }
+    let reader = std::fs::File::open(dir.join("answer.arrow")).unwrap();
+    let batches: Vec<_> = arrow_ipc::reader::FileReader::try_new(reader, None)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(
+        batches
+            .iter()
+            .map(arrow_array::RecordBatch::num_rows)
+            .sum::<usize>(),
+        1
+    );
+
+    for bad in [
+        "SELEC 1",
+        "SELECT nope FROM frame_id",
+        "SELECT * FROM latest_at('nope', 1)",
+    ] {
+        let line = fails(&[rrd.as_os_str(), OsStr::new("sql"), OsStr::new(bad)]);
+        assert!(line.len() > 10, "{bad}: {line}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[cfg(not(feature = "datafusion"))]
+#[test]
+fn sql_without_the_datafusion_feature_says_how_to_build_it() {
+    let line = fails(&[
+        recording_rrd().as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new("SELECT 1"),
+    ]);
+    assert!(line.contains("--features cli,datafusion"), "{line}");
+}
+
+/// `hive` writes a partitioned dataset, by entity or by time bucket, and refuses an
+/// existing directory.
+#[test]
+fn hive_writes_a_partitioned_dataset() {
+    let rrd = recording_rrd();
+    let dir = scratch_dir("hive");
+    let by_entity = dir.join("by_entity");
+    let (_, stderr) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("hive"),
+        by_entity.as_os_str(),
+        OsStr::new("--index"),
+        OsStr::new("frame_id"),
+    ]);
+    assert!(stderr.contains("wrote 261 rows in 8 files"), "{stderr}");
+    assert!(
+        by_entity
+            .join("entity=%2Fworld%2Frobot/part-0.parquet")
+            .is_file()
+    );
+
+    let by_bucket = dir.join("by_bucket");
+    let (_, stderr) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("hive"),
+        by_bucket.as_os_str(),
+        OsStr::new("--index"),
+        OsStr::new("frame_id"),
+        OsStr::new("--bucket"),
+        OsStr::new("25"),
+    ]);
+    assert!(stderr.contains("in 3 files"), "{stderr}");
+    for k in 0..3 {
+        assert!(
+            by_bucket
+                .join(format!("frame_id_bucket={k}/part-0.parquet"))
+                .is_file()
+        );
+    }
+    let line = fails(&[rrd.as_os_str(), OsStr::new("hive"), by_bucket.as_os_str()]);
+    assert!(line.contains("already exists"), "{line}");
+    let line = fails(&[
+        rrd.as_os_str(),
+        OsStr::new("hive"),
+        dir.join("x").as_os_str(),
+        OsStr::new("--index"),
+        OsStr::new("nope"),
+    ]);
+    assert!(line.contains("unknown timeline"), "{line}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -16,7 +16,8 @@ Examples:
   chunkstore chunks/ stats
   chunkstore recording.rrd print --json
   chunkstore --compact recording.rrd convert optimized.rrd
-  chunkstore recording.rrd dataframe frame_id --fill-latest-at --out robot.parquet";
+  chunkstore recording.rrd dataframe frame_id --fill-latest-at --out robot.parquet
+  chunkstore recording.rrd sql 'SELECT count(*) FROM frame_id WHERE frame_id < 100'";
 
 /// Look inside recordings: latest-at and range queries, statistics, a chunk listing,
 /// conversion between `.rrd` files and directories of Arrow IPC chunk files, and
@@ -143,6 +144,67 @@ pub enum Command {
     /// dataframe view), as an Arrow IPC stream on stdout, or a file with `--out`.
     #[command(after_help = DATAFRAME_EXAMPLES, allow_negative_numbers = true)]
     Dataframe(DataframeArgs),
+    /// A SQL query (DataFusion's dialect) over the source's tables: one per timeline,
+    /// named after it (its dataframe view: index columns, then `"<entity>:<component>"`
+    /// list columns), and `chunks` (every stored row across entities); and the table
+    /// function `latest_at('<timeline>', <time>)`. Prints a table, JSON lines with
+    /// `--json`, or writes a file with `--out`. Needs a build with the `datafusion`
+    /// feature.
+    #[command(after_help = SQL_EXAMPLES)]
+    Sql(SqlArgs),
+    /// Write a partitioned Parquet dataset in Hive layout to the new directory DIR, which
+    /// DuckDB, Polars, Spark, pyarrow and DataFusion-based engines read as one table: the
+    /// raw chunk table by entity (`entity=<path>/part-0.parquet`), or with `--bucket` a
+    /// timeline's dataframe view by buckets of index values
+    /// (`<timeline>_bucket=<k>/part-0.parquet`). DIR appears whole or not at all.
+    #[command(after_help = HIVE_EXAMPLES)]
+    Hive(HiveArgs),
+}
+
+const HIVE_EXAMPLES: &str = "\
+Examples:
+  chunkstore recording.rrd hive by_entity/ --index frame_id
+  chunkstore recording.rrd hive by_second/ --index log_time --bucket 1000000000
+  duckdb -c \"SELECT entity, count(*) FROM read_parquet('by_entity/**/*.parquet', \\
+      hive_partitioning = true) GROUP BY entity\"";
+
+/// The arguments of `hive`.
+#[derive(Args, Debug)]
+pub struct HiveArgs {
+    /// The directory to create.
+    pub dir: PathBuf,
+    /// The timeline: rows in its order within each entity's file, or the timeline whose
+    /// index values `--bucket` groups.
+    #[arg(long, value_name = "TIMELINE")]
+    pub index: Option<String>,
+    /// Partition a dataframe view on `--index` by buckets of this many index values (in
+    /// nanoseconds on duration and timestamp timelines) instead of the chunk table by
+    /// entity.
+    #[arg(long, value_name = "WIDTH", requires = "index")]
+    pub bucket: Option<i64>,
+}
+
+const SQL_EXAMPLES: &str = "\
+Examples:
+  chunkstore recording.rrd sql 'SHOW TABLES'
+  chunkstore recording.rrd sql 'SELECT frame_id, \"/robot/arm:joint_torque\" FROM frame_id \\
+      WHERE frame_id BETWEEN 100 AND 200 LIMIT 5'
+  chunkstore recording.rrd sql \"SELECT entity_path, count(*) FROM chunks \\
+      WHERE entity_path LIKE '/robot/%' GROUP BY entity_path\" --json
+  chunkstore recording.rrd sql \"SELECT * FROM latest_at('frame_id', 42)\" --out answer.parquet";
+
+/// The arguments of `sql`.
+#[derive(Args, Debug)]
+pub struct SqlArgs {
+    /// The query.
+    pub query: String,
+    /// One JSON object per result row instead of a table.
+    #[arg(long, conflicts_with = "out")]
+    pub json: bool,
+    /// Write the result as an Arrow IPC file (or Parquet, for a name ending `.parquet`)
+    /// instead of printing it.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
 }
 
 const DATAFRAME_EXAMPLES: &str = "\

@@ -12,7 +12,7 @@ use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange};
 use indicatif::ProgressBar;
 
 use crate::Failure;
-use crate::args::DataframeArgs;
+use crate::args::{DataframeArgs, HiveArgs};
 use crate::load::{self, Options};
 
 pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
@@ -90,6 +90,58 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     };
     bar.0.finish_and_clear();
     result
+}
+
+/// `hive`: a Hive-partitioned Parquet dataset of the source.
+pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Failure> {
+    use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
+    if args.dir.exists() {
+        return Err(format!(
+            "{}: already exists (hive writes a new directory)",
+            args.dir.display()
+        )
+        .into());
+    }
+    if let Some(width) = args.bucket
+        && width < 1
+    {
+        return Err(format!("--bucket {width}: a bucket is at least 1 wide").into());
+    }
+    let loaded = load::load(source, options)?;
+    let store = &loaded.store;
+    if let Some(index) = &args.index
+        && store.time_type(index).is_none()
+    {
+        let known: Vec<String> = store
+            .timelines()
+            .iter()
+            .map(|t| t.name().to_owned())
+            .collect();
+        return Err(format!(
+            "unknown timeline {index:?} (the source has: {})",
+            known.join(", ")
+        )
+        .into());
+    }
+    let layout = match (&args.index, args.bucket) {
+        (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
+            timeline: index.as_str().into(),
+            width,
+            query: None,
+        },
+        (index, _) => HiveLayout::ByEntity {
+            timeline: index.as_deref().map(Into::into),
+        },
+    };
+    let summary = write_hive_dataset(store, &args.dir, &layout)
+        .map_err(|e| format!("{}: {e}", args.dir.display()))?;
+    eprintln!(
+        "wrote {} rows in {} files under {}",
+        summary.rows(),
+        summary.files.len(),
+        args.dir.display()
+    );
+    Ok(())
 }
 
 /// A failed stream to stdout: a reader that went away (`| head -c`) is no error of ours.

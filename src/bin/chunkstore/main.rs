@@ -9,6 +9,8 @@
 //! chunkstore [OPTIONS] <SOURCE> convert <OUT>
 //! chunkstore [OPTIONS] <SOURCE> dataframe <INDEX> [--contents EXPR]... [--range MIN MAX]
 //!            [--index-values V[,V...]] [--fill-latest-at] [--out FILE]
+//! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE]
+//! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]]
 //! ```
 //!
 //! `chunkstore --help` and `chunkstore <SOURCE> <COMMAND> --help` say the rest. Answers
@@ -20,6 +22,7 @@ mod convert;
 mod dataframe;
 mod load;
 mod output;
+mod sql;
 
 use std::cell::RefCell;
 use std::ffi::OsString;
@@ -154,5 +157,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             recording_id.as_deref(),
         ),
         Command::Dataframe(args) => dataframe::dataframe(source, args, &options),
+        Command::Sql(args) => sql::sql(source, args, &options),
+        Command::Hive(args) => dataframe::hive(source, args, &options),
     }
 }

@@ -1,0 +1,98 @@
+//! `sql`: a SQL query over the source's tables (`chunkstore::sql`), printed as a table, as
+//! JSON lines, or written to an Arrow IPC or Parquet file.
+
+use std::path::Path;
+
+use crate::Failure;
+use crate::args::SqlArgs;
+use crate::load::Options;
+
+#[cfg(not(feature = "datafusion"))]
+pub fn sql(_source: &Path, _args: &SqlArgs, _options: &Options) -> Result<(), Failure> {
+    Err("this chunkstore was built without SQL: build it with \
+         `cargo build --release --features cli,datafusion`"
+        .to_owned()
+        .into())
+}
+
+#[cfg(feature = "datafusion")]
+pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failure> {
+    use std::io::Write;
+
+    use arrow_array::RecordBatch;
+    use datafusion::prelude::{SessionConfig, SessionContext};
+
+    if let Some(out) = &args.out
+        && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
+        && a == b
+    {
+        return Err(format!("{}: the output would overwrite the source", out.display()).into());
+    }
+    let loaded = crate::load::load(source, options)?;
+    let snapshot = loaded.store.snapshot();
+    // `SHOW TABLES` and `SHOW COLUMNS` need the information schema.
+    let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
+    chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .build()
+        .map_err(|e| format!("starting the query runtime: {e}"))?;
+    let (schema, batches): (_, Vec<RecordBatch>) = runtime
+        .block_on(async {
+            let frame = ctx.sql(&args.query).await?;
+            let schema = frame.schema().inner().clone();
+            let batches = frame.collect().await?;
+            Ok::<_, datafusion::error::DataFusionError>((schema, batches))
+        })
+        .map_err(|e| e.to_string())?;
+    if let Some(out) = &args.out {
+        let reader = arrow_array::RecordBatchIterator::new(batches.into_iter().map(Ok), schema);
+        let is_parquet = out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
+        let written = if is_parquet {
+            chunkstore::parquet_export::write_parquet_file(
+                out,
+                reader,
+                &chunkstore::parquet_export::ParquetOptions::default(),
+            )
+            .map(drop)
+            .map_err(|e| e.to_string())
+        } else {
+            chunkstore::io::write_ipc_file(out, reader)
+                .map(drop)
+                .map_err(|e| e.to_string())
+        };
+        return written.map_err(|e| format!("{}: {e}", out.display()).into());
+    }
+    let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
+    let written = if args.json {
+        let mut writer = arrow_json::LineDelimitedWriter::new(&mut stdout);
+        let mut result = Ok(());
+        for batch in &batches {
+            if let Err(e) = writer.write(batch) {
+                result = Err(e);
+                break;
+            }
+        }
+        result.and_then(|()| writer.finish())
+    } else {
+        datafusion::arrow::util::pretty::pretty_format_batches_with_schema(schema, &batches)
+            .and_then(|table| {
+                writeln!(stdout, "{table}")
+                    .map_err(|e| arrow_schema::ArrowError::IoError(e.to_string(), e))
+            })
+    };
+    match written.and_then(|()| {
+        stdout
+            .flush()
+            .map_err(|e| arrow_schema::ArrowError::IoError(e.to_string(), e))
+    }) {
+        Ok(()) => Ok(()),
+        Err(arrow_schema::ArrowError::IoError(_, e))
+            if e.kind() == std::io::ErrorKind::BrokenPipe =>
+        {
+            Err(Failure::BrokenPipe)
+        }
+        Err(e) => Err(format!("stdout: {e}").into()),
+    }
+}
