@@ -10,6 +10,12 @@
 //! (entities, frames, rows per chunk: 100 entities × 1,000,000 frames = 100 M rows). Every
 //! entity `/e/{i}` logs `x` = frame + i at every frame, in chunks of consecutive frames,
 //! compaction off (the chunks as generated).
+#![allow(
+    clippy::expect_used,
+    clippy::cast_precision_loss,
+    clippy::cast_possible_wrap,
+    reason = "a benchmark over generated data: failing loudly is its error handling, and its sizes are small integers"
+)]
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -45,11 +51,6 @@ fn memory() -> (u64, u64) {
     (field("VmHWM:"), field("VmRSS:"))
 }
 
-#[expect(
-    clippy::cast_precision_loss,
-    clippy::cast_possible_wrap,
-    reason = "bench sizes are small integers"
-)]
 fn build(entities: usize, frames: usize, rows_per_chunk: usize) -> ChunkStore {
     let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).expect("a valid config");
     let item = Arc::new(Field::new("item", DataType::Float64, true));
