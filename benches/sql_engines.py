@@ -1,0 +1,53 @@
+"""The SQL benchmark's query on the store's view exported as Parquet, through DuckDB and
+DataFusion's Python package (`pip install duckdb datafusion`), for docs/PERFORMANCE.md.
+
+    cargo run --release --features datafusion --example sql_bench -- 100 1000000 1000 /tmp/v.parquet
+    python benches/sql_engines.py /tmp/v.parquet 500000 509999
+
+Three runs of each query, the median; `frame + 0` defeats the range's pushdown.
+"""
+
+import resource
+import statistics
+import sys
+import time
+
+import datafusion
+import duckdb
+
+
+def bench(name, run):
+    times = []
+    answer = None
+    for _ in range(3):
+        start = time.perf_counter()
+        answer = run()
+        times.append(time.perf_counter() - start)
+    print(f"{name}: median {statistics.median(times):.4f} s of {[round(t, 4) for t in times]}, answer {answer}")
+
+
+def main():
+    path, lo, hi = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+
+    def query(source, column):
+        return (
+            f'SELECT count(*) AS n, avg("/e/7:x"[1]) AS mean FROM {source} '
+            f"WHERE {column} BETWEEN {lo} AND {hi}"
+        )
+
+    con = duckdb.connect()
+    source = f"read_parquet('{path}')"
+    bench(f"duckdb {duckdb.__version__} range", lambda: con.sql(query(source, "frame")).fetchall())
+    bench(f"duckdb {duckdb.__version__} no pushdown", lambda: con.sql(query(source, "frame + 0")).fetchall())
+    ctx = datafusion.SessionContext()
+    ctx.register_parquet("v", path)
+    bench(f"datafusion {datafusion.__version__} range", lambda: ctx.sql(query("v", "frame")).collect()[0].to_pylist())
+    bench(
+        f"datafusion {datafusion.__version__} no pushdown",
+        lambda: ctx.sql(query("v", "frame + 0")).collect()[0].to_pylist(),
+    )
+    print("peak RSS MiB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
+
+
+if __name__ == "__main__":
+    main()
