@@ -26,6 +26,14 @@ const ENTITY_PATH: &str = "entity_path";
 /// the view's own batch size).
 const SMALL_LIMIT: usize = 4_096;
 
+/// The batch size a pushed-down `LIMIT` asks of the scan (batches no longer than a short
+/// limit, so that no row past it is built), the limit noted for `EXPLAIN`.
+fn limit_batch_rows(limit: Option<usize>, pushed_down: &mut Vec<String>) -> Option<usize> {
+    let limit = limit?;
+    pushed_down.push(format!("limit={limit}"));
+    (limit < SMALL_LIMIT).then_some(limit.max(1))
+}
+
 fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusionError {
     DataFusionError::External(Box::new(error))
 }
@@ -165,11 +173,8 @@ impl TableProvider for TimelineTable {
         if let Some((names, _)) = &projection {
             query = query.with_columns(names.iter().cloned());
         }
-        if let Some(limit) = limit {
-            if limit < SMALL_LIMIT {
-                query = query.with_batch_rows(limit.max(1));
-            }
-            pushed_down.push(format!("limit={limit}"));
+        if let Some(rows) = limit_batch_rows(limit, &mut pushed_down) {
+            query = query.with_batch_rows(rows);
         }
         let source = ScanSource::Dataframe {
             query,
@@ -360,11 +365,8 @@ impl TableProvider for ChunksTable {
             }
             None => Arc::clone(&self.schema),
         };
-        if let Some(limit) = limit {
-            if limit < SMALL_LIMIT {
-                query = query.with_batch_rows(limit.max(1));
-            }
-            pushed_down.push(format!("limit={limit}"));
+        if let Some(rows) = limit_batch_rows(limit, &mut pushed_down) {
+            query = query.with_batch_rows(rows);
         }
         let source = ScanSource::Chunks {
             query,
