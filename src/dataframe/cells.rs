@@ -98,6 +98,11 @@ impl Sources {
         Ok(number)
     }
 
+    /// How many sources are registered (they are only ever added).
+    pub fn num_sources(&self) -> usize {
+        self.arrays.len()
+    }
+
     /// The ids of the chunks registered (repeats included).
     pub fn chunk_ids(&self) -> impl Iterator<Item = ChunkId> + '_ {
         self.arrays.iter().map(|source| source.chunk.id())

@@ -264,6 +264,13 @@ impl<'a> DataframeStream<'a> {
         ids.len()
     }
 
+    /// How many (chunk, column) sources the columns have registered: it grows only when
+    /// filling or sampling finds a chunk not seen yet, so a caller reporting
+    /// [`Self::num_chunks_read`] as the stream goes recounts only when this changed.
+    pub(crate) fn num_sources(&self) -> usize {
+        self.columns.iter().map(|c| c.sources.num_sources()).sum()
+    }
+
     /// How many rows a batch holds at most.
     pub fn batch_rows(&self) -> usize {
         self.batch_rows

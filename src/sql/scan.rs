@@ -159,6 +159,7 @@ impl ExecutionPlan for StoreScanExec {
                 let counted = CountedDataframe {
                     stream,
                     counted: 0,
+                    sources_counted: None,
                     chunks_read,
                 };
                 (Box::new(counted), projection.clone())
@@ -219,6 +220,9 @@ impl ExecutionPlan for StoreScanExec {
 struct CountedDataframe {
     stream: crate::DataframeStream<'static>,
     counted: usize,
+    /// The stream's sources when last counted: counting sorts every source's chunk id,
+    /// which only needs doing again when a source was added.
+    sources_counted: Option<usize>,
     chunks_read: Count,
 }
 
@@ -227,9 +231,13 @@ impl Iterator for CountedDataframe {
 
     fn next(&mut self) -> Option<Self::Item> {
         let next = self.stream.next();
-        let read = self.stream.num_chunks_read();
-        self.chunks_read.add(read.saturating_sub(self.counted));
-        self.counted = self.counted.max(read);
+        let sources = self.stream.num_sources();
+        if self.sources_counted != Some(sources) {
+            self.sources_counted = Some(sources);
+            let read = self.stream.num_chunks_read();
+            self.chunks_read.add(read.saturating_sub(self.counted));
+            self.counted = self.counted.max(read);
+        }
         next
     }
 }
