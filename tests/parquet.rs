@@ -15,26 +15,11 @@ use arrow_array::{Array, RecordBatch, RecordBatchIterator, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 use arrow_select::concat::concat_batches;
 use chunkstore::parquet_export::{ParquetExportError, ParquetOptions, write_parquet_file};
-use chunkstore::{ChunkStore, ChunkTableQuery, DataframeQuery, TimeInt, TimeRange, io};
+use chunkstore::{ChunkTableQuery, DataframeQuery, TimeInt, TimeRange};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::file::statistics::Statistics;
 
-fn robot() -> ChunkStore {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/chunks");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    let mut store = ChunkStore::new();
-    for file in files {
-        for chunk in io::read_chunks_from_path(&file).unwrap() {
-            store.insert(chunk).unwrap();
-        }
-    }
-    store
-}
+mod common;
 
 fn temp_path(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("chunkstore-parquet-{}", std::process::id()));
@@ -74,7 +59,7 @@ fn int64_bounds(
 
 #[test]
 fn a_dataframe_reads_back_equal_with_ordered_row_groups_and_statistics() {
-    let store = robot();
+    let store = common::robot();
     for fill in [false, true] {
         let query = DataframeQuery::new("frame_id")
             .with_fill_latest_at(fill)
@@ -106,7 +91,7 @@ fn a_dataframe_reads_back_equal_with_ordered_row_groups_and_statistics() {
 
 #[test]
 fn sampled_and_ranged_dataframes_read_back_equal() {
-    let store = robot();
+    let store = common::robot();
     let t = |v| TimeInt::new(v).unwrap();
     for query in [
         DataframeQuery::new("sim_time").with_range(TimeRange::new(t(0), t(500_000_000))),
@@ -131,7 +116,7 @@ fn sampled_and_ranged_dataframes_read_back_equal() {
 
 #[test]
 fn the_chunk_table_reads_back_equal_and_prunes_on_time_and_entity() {
-    let store = robot();
+    let store = common::robot();
     let query = ChunkTableQuery::new()
         .with_index("frame_id")
         .with_batch_rows(50);
@@ -166,7 +151,7 @@ fn the_chunk_table_reads_back_equal_and_prunes_on_time_and_entity() {
 
 #[test]
 fn the_chunk_table_holds_every_row_once_with_its_cells() {
-    let store = robot();
+    let store = common::robot();
     let table = collect(store.chunk_table(&ChunkTableQuery::new()).unwrap());
     let row_ids = arrow_array::cast::AsArray::as_fixed_size_binary(table.column(2));
     let mut seen: Vec<&[u8]> = row_ids.iter().map(Option::unwrap).collect();
@@ -217,7 +202,7 @@ impl RecordBatchReader for FailingReader {
 
 #[test]
 fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
-    let store = robot();
+    let store = common::robot();
     let batch = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
     let path = temp_path("interrupted.parquet");
     let _ = std::fs::remove_file(&path);
@@ -262,7 +247,7 @@ fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
 #[test]
 fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
     use chunkstore::hive_export::{HiveLayout, escape, write_hive_dataset};
-    let store = robot();
+    let store = common::robot();
     let dir = temp_path("hive-by-entity");
     let _ = std::fs::remove_dir_all(&dir);
     let layout = HiveLayout::ByEntity {
@@ -310,7 +295,7 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
 #[test]
 fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
     use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
-    let store = robot();
+    let store = common::robot();
     let view = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
     for width in [1, 7, 25, 1_000] {
         let dir = temp_path(&format!("hive-by-bucket-{width}"));

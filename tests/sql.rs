@@ -11,7 +11,6 @@
     reason = "tests fail loudly on unexpected values; test values are small integers"
 )]
 
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, Float64Array, Int64Array, RecordBatch, StringArray};
@@ -20,7 +19,7 @@ use arrow_select::concat::concat_batches;
 use chunkstore::sql::StoreScanExec;
 use chunkstore::{
     ChunkBuilder, ChunkId, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, LatestAtQuery,
-    RowId, Snapshot, StoreConfig, TimeInt, TimeRange, Timeline, io,
+    RowId, Snapshot, StoreConfig, TimeInt, TimeRange, Timeline,
 };
 use datafusion::physical_plan::{ExecutionPlan, collect};
 use datafusion::prelude::SessionContext;
@@ -32,23 +31,6 @@ fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_current_thread()
         .build()
         .unwrap()
-}
-
-fn robot() -> ChunkStore {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/chunks");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    let mut store = ChunkStore::new();
-    for file in files {
-        for chunk in io::read_chunks_from_path(&file).unwrap() {
-            store.insert(chunk).unwrap();
-        }
-    }
-    store
 }
 
 /// A query's result as one batch, the chunks its store scans read and the rows they
@@ -127,7 +109,7 @@ fn assert_same_table(sql: &RecordBatch, api: &RecordBatch, what: &str) {
 
 #[test]
 fn every_timeline_table_of_the_robot_recording_equals_its_dataframe_view() {
-    let store = robot();
+    let store = common::robot();
     let snapshot = store.snapshot();
     let ctx = context(&snapshot);
     let timelines = snapshot.timelines();

@@ -128,3 +128,23 @@ pub fn first_f64(cell: &ArrayRef) -> f64 {
 pub fn cell_len(cell: &ArrayRef) -> usize {
     cell.len()
 }
+
+/// The robot recording that Rerun 0.41's SDK wrote, loaded from its chunk files in name
+/// order into a store of the default configuration.
+pub fn robot() -> chunkstore::ChunkStore {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/chunks");
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
+        .collect();
+    files.sort();
+    let mut store = chunkstore::ChunkStore::new();
+    for file in files {
+        for chunk in chunkstore::io::read_chunks_from_path(&file).unwrap() {
+            store.insert(chunk).unwrap();
+        }
+    }
+    store
+}
