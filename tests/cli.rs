@@ -13,6 +13,9 @@ use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
+mod common;
+use common::ScratchDir;
+
 const CHUNKS: &str = "testdata/rerun-0.41/a_robot/chunks";
 
 fn recording_chunks() -> PathBuf {
@@ -54,12 +57,9 @@ fn fails<S: AsRef<OsStr>>(args: &[S]) -> String {
     stderr
 }
 
-/// A fresh, empty directory under the system's temporary directory.
-fn scratch_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("chunkstore-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh, empty directory under the system's temporary directory, removed when dropped.
+fn scratch_dir(name: &str) -> ScratchDir {
+    ScratchDir::new(&format!("cli-{name}"))
 }
 
 /// The recording's chunk files, sorted.
@@ -108,7 +108,6 @@ fn duplicated_files_answer_like_the_recording_under_every_compaction_option() {
             assert_eq!(with(&dir, options), expected, "{options:?} {command:?}");
         }
     }
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Issue 12, item 9: an argument that is not UTF-8 used to panic (exit code 101). `<SOURCE>`
@@ -159,7 +158,6 @@ fn a_file_that_makes_arrow_panic_gives_one_line_on_stderr() {
         line.contains("bad.arrow") && line.contains("decoder panicked"),
         "{line}"
     );
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Issue 12, item 11: one bad file among good ones aborted the whole load. It still does
@@ -203,8 +201,6 @@ fn skip_bad_reports_each_bad_file_and_loads_the_rest() {
         OsStr::new("stats"),
     ]);
     assert!(line.contains("could be read"), "{line}");
-    std::fs::remove_dir_all(dir).unwrap();
-    std::fs::remove_dir_all(empty).unwrap();
 }
 
 /// Issue 12, item 10: a timeline the data never uses, and a range whose start is after its
@@ -530,7 +526,6 @@ fn convert_round_trips_and_is_careful_with_files() {
         .collect();
     names.sort();
     assert_eq!(names, ["back.rrd", "chunks", "compacted.rrd", "copy.rrd"]);
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// A source holding one chunk twice (a chunk file copied under another name) converts to
@@ -557,7 +552,6 @@ fn convert_writes_a_chunk_the_source_holds_twice_once() {
         cli(&[], &["print", "--json"]),
         "each chunk once, in order"
     );
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Issue 14: a damaged `.rrd` is one line naming the byte offset; `--skip-bad` loads what
@@ -609,7 +603,6 @@ fn a_damaged_rrd_is_one_line_and_skip_bad_keeps_the_rest() {
         assert_eq!(warning.lines().count(), 1, "{warning}");
         assert!(warning.contains("Rerun 0.99.0, newer"), "{warning}");
     }
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 /// Issue 14: `--help` on the tool and on every command exits 0 and shows an example.
@@ -862,7 +855,6 @@ fn sql_answers_as_a_table_as_json_lines_and_as_files() {
         let line = fails(&[rrd.as_os_str(), OsStr::new("sql"), OsStr::new(bad)]);
         assert!(line.len() > 10, "{bad}: {line}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[cfg(not(feature = "datafusion"))]
@@ -925,5 +917,4 @@ fn hive_writes_a_partitioned_dataset() {
         OsStr::new("nope"),
     ]);
     assert!(line.contains("unknown timeline"), "{line}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -20,12 +20,7 @@ use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::file::statistics::Statistics;
 
 mod common;
-
-fn temp_path(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("chunkstore-parquet-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
-}
+use common::ScratchDir;
 
 fn collect(reader: impl RecordBatchReader) -> RecordBatch {
     let schema = reader.schema();
@@ -60,13 +55,14 @@ fn int64_bounds(
 #[test]
 fn a_dataframe_reads_back_equal_with_ordered_row_groups_and_statistics() {
     let store = common::robot();
+    let scratch = ScratchDir::new("parquet-robot");
     for fill in [false, true] {
         let query = DataframeQuery::new("frame_id")
             .with_fill_latest_at(fill)
             .with_batch_rows(16);
         let expected = collect(store.dataframe(&query).unwrap());
         assert_eq!(expected.num_rows(), 60);
-        let path = temp_path(&format!("robot-{fill}.parquet"));
+        let path = scratch.join(format!("robot-{fill}.parquet"));
         let options = ParquetOptions::default()
             .with_sorted_by("frame_id")
             .with_row_group_rows(25);
@@ -92,6 +88,7 @@ fn a_dataframe_reads_back_equal_with_ordered_row_groups_and_statistics() {
 #[test]
 fn sampled_and_ranged_dataframes_read_back_equal() {
     let store = common::robot();
+    let scratch = ScratchDir::new("parquet-queries");
     let t = |v| TimeInt::new(v).unwrap();
     for query in [
         DataframeQuery::new("sim_time").with_range(TimeRange::new(t(0), t(500_000_000))),
@@ -99,7 +96,7 @@ fn sampled_and_ranged_dataframes_read_back_equal() {
         DataframeQuery::new("frame_id").with_index_values([t(-1), t(30), t(99)]),
         DataframeQuery::new("frame_id").with_range(TimeRange::new(t(1000), t(2000))),
     ] {
-        let path = temp_path("query.parquet");
+        let path = scratch.join("query.parquet");
         write_parquet_file(
             &path,
             store.dataframe(&query).unwrap(),
@@ -122,7 +119,8 @@ fn the_chunk_table_reads_back_equal_and_prunes_on_time_and_entity() {
         .with_batch_rows(50);
     let expected = collect(store.chunk_table(&query).unwrap());
     assert_eq!(expected.num_rows() as u64, store.stats().num_rows());
-    let path = temp_path("chunks.parquet");
+    let scratch = ScratchDir::new("parquet-chunks");
+    let path = scratch.join("chunks.parquet");
     let options = ParquetOptions::default().with_row_group_rows(64);
     let summary = write_parquet_file(&path, store.chunk_table(&query).unwrap(), &options).unwrap();
     assert_eq!(summary.rows, expected.num_rows() as u64);
@@ -204,8 +202,8 @@ impl RecordBatchReader for FailingReader {
 fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
     let store = common::robot();
     let batch = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
-    let path = temp_path("interrupted.parquet");
-    let _ = std::fs::remove_file(&path);
+    let scratch = ScratchDir::new("parquet-interrupted");
+    let path = scratch.join("interrupted.parquet");
     let failing = FailingReader {
         schema: batch.schema(),
         batch: Some(batch.clone()),
@@ -248,8 +246,8 @@ fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
 fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
     use chunkstore::hive_export::{HiveLayout, escape, write_hive_dataset};
     let store = common::robot();
-    let dir = temp_path("hive-by-entity");
-    let _ = std::fs::remove_dir_all(&dir);
+    let scratch = ScratchDir::new("parquet-hive-by-entity");
+    let dir = scratch.join("dataset");
     let layout = HiveLayout::ByEntity {
         timeline: Some("frame_id".into()),
     };
@@ -287,7 +285,6 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
     // A second write to the same directory is refused, and leaves it as it was.
     assert!(write_hive_dataset(&store, &dir, &layout).is_err());
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), entities.len());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A Hive dataset by time bucket: the files, in bucket order, are the dataframe view cut
@@ -297,9 +294,9 @@ fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
     use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
     let store = common::robot();
     let view = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
+    let scratch = ScratchDir::new("parquet-hive-by-bucket");
     for width in [1, 7, 25, 1_000] {
-        let dir = temp_path(&format!("hive-by-bucket-{width}"));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = scratch.join(format!("width-{width}"));
         let layout = HiveLayout::ByTimeBucket {
             timeline: "frame_id".into(),
             width,
@@ -342,14 +339,14 @@ fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
                 "{width}: column {i}"
             );
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
     let zero = HiveLayout::ByTimeBucket {
         timeline: "frame_id".into(),
         width: 0,
         query: None,
     };
-    let dir = temp_path("hive-zero");
+    let scratch = ScratchDir::new("parquet-hive-zero");
+    let dir = scratch.join("dataset");
     assert!(write_hive_dataset(&store, &dir, &zero).is_err());
     assert!(!dir.exists(), "nothing is left behind");
 }

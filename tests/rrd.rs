@@ -14,6 +14,8 @@ use arrow_buffer::Buffer;
 use chunkstore::rrd::{self, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreId, StoreKind};
 use chunkstore::{Chunk, io};
 
+mod common;
+
 fn recording() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot")
 }
@@ -299,8 +301,7 @@ fn blueprint_chunks_are_skipped() {
 
 #[test]
 fn files_are_written_atomically() {
-    let dir = std::env::temp_dir().join(format!("chunkstore-rrd-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::ScratchDir::new("rrd");
     let path = dir.join("out.rrd");
     std::fs::write(&path, b"old contents").unwrap();
     let chunks: Vec<Arc<Chunk>> = chunk_files().into_iter().map(Arc::new).collect();
@@ -319,7 +320,6 @@ fn files_are_written_atomically() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(leftovers, vec![std::ffi::OsString::from("out.rrd")]);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn eager_store() -> chunkstore::ChunkStore {
@@ -404,8 +404,7 @@ fn lazy_answers_equal_eager_answers_and_decode_a_fraction() {
 
 #[test]
 fn lazy_open_needs_a_footer_and_checks_it() {
-    let dir = std::env::temp_dir().join(format!("chunkstore-lazy-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::ScratchDir::new("lazy");
     let chunks: Vec<Arc<Chunk>> = chunk_files().into_iter().map(Arc::new).collect();
     // No footer: `None`.
     let mut writer = RrdWriter::new(Vec::new(), StoreId::recording("a", "r")).unwrap();
@@ -428,7 +427,6 @@ fn lazy_open_needs_a_footer_and_checks_it() {
     std::fs::write(&bad, &bytes).unwrap();
     let err = rrd::LazyRecording::open(&bad).err().unwrap();
     assert!(matches!(err.kind, RrdErrorKind::Footer { .. }), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A footer whose manifest says the chunks are elsewhere than they are: named, at the End
