@@ -8,7 +8,7 @@
     reason = "tests fail loudly on unexpected values"
 )]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use arrow_array::{Array, RecordBatch, RecordBatchIterator, RecordBatchReader};
