@@ -596,3 +596,57 @@ fn a_snapshot_streams_the_same_table_from_another_thread_while_the_store_changes
         .into_dataframe(&DataframeQuery::new("nope"));
     assert!(matches!(unknown, Err(DataframeError::UnknownIndex { .. })));
 }
+
+/// `ChunkTableQuery::with_columns` builds exactly the whole table's columns it names, in
+/// the table's order, with the same rows; no column at all keeps the row count; an unknown
+/// name is refused.
+#[test]
+fn a_chunk_table_with_columns_equals_the_whole_table_projected() {
+    use arrow_select::concat::concat_batches;
+    use chunkstore::ChunkTableQuery;
+    let store = common::robot();
+    let collect = |query: &ChunkTableQuery| {
+        let stream = store.chunk_table(query).unwrap();
+        let schema = stream.schema();
+        let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
+        let rows = batches.iter().map(RecordBatch::num_rows).sum::<usize>();
+        (rows, concat_batches(&schema, &batches).unwrap())
+    };
+    for base in [
+        ChunkTableQuery::new(),
+        ChunkTableQuery::new()
+            .with_index("frame_id")
+            .with_batch_rows(7),
+    ] {
+        let (rows, whole) = collect(&base);
+        let schema = whole.schema();
+        let n = schema.fields().len();
+        assert!(n > 6, "the robot's table has ids, timelines and components");
+        // Each column alone, each neighbouring pair, every other one, and the last three
+        // named backwards (the table's order wins).
+        let mut selections: Vec<Vec<usize>> = (0..n).map(|i| vec![i]).collect();
+        selections.extend((1..n).map(|i| vec![i - 1, i]));
+        selections.push((0..n).step_by(2).collect());
+        selections.push(vec![n - 1, n - 2, n - 3]);
+        for selection in selections {
+            let names: Vec<String> = selection
+                .iter()
+                .map(|&i| schema.field(i).name().clone())
+                .collect();
+            let (_, ours) = collect(&base.clone().with_columns(names.iter().cloned()));
+            let mut sorted = selection.clone();
+            sorted.sort_unstable();
+            assert_eq!(ours, whole.project(&sorted).unwrap(), "{names:?}");
+        }
+        let (none_rows, none) = collect(&base.clone().with_columns(Vec::<String>::new()));
+        assert_eq!(none.num_columns(), 0);
+        assert_eq!(none_rows, rows);
+        let error = store
+            .chunk_table(&base.clone().with_columns(["nope"]))
+            .unwrap_err();
+        assert!(
+            matches!(&error, DataframeError::UnknownColumn { name, num_columns } if name == "nope" && *num_columns == n),
+            "{error}"
+        );
+    }
+}

@@ -18,8 +18,8 @@ use arrow_schema::SchemaRef;
 use arrow_select::concat::concat_batches;
 use chunkstore::sql::StoreScanExec;
 use chunkstore::{
-    ChunkBuilder, ChunkId, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, LatestAtQuery,
-    RowId, Snapshot, StoreConfig, TimeInt, TimeRange, Timeline,
+    ChunkBuilder, ChunkId, ChunkStore, ChunkTableQuery, DataframeQuery, EntityPath,
+    EntityPathFilter, LatestAtQuery, RowId, Snapshot, StoreConfig, TimeInt, TimeRange, Timeline,
 };
 use datafusion::physical_plan::{ExecutionPlan, collect};
 use datafusion::prelude::SessionContext;
@@ -82,6 +82,14 @@ fn scan_metric(plan: &dyn ExecutionPlan, name: &str) -> usize {
 
 fn dataframe(snapshot: &Snapshot, query: &DataframeQuery) -> RecordBatch {
     let stream = snapshot.dataframe(query).unwrap();
+    let schema = stream.schema();
+    let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
+    concat_batches(&schema, &batches).unwrap()
+}
+
+/// The whole chunk table of `snapshot`, from the API.
+fn chunk_table(snapshot: &Snapshot) -> RecordBatch {
+    let stream = snapshot.chunk_table(&ChunkTableQuery::new()).unwrap();
     let schema = stream.schema();
     let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
     concat_batches(&schema, &batches).unwrap()
@@ -279,6 +287,61 @@ fn projections_build_only_the_selected_columns_and_keep_the_rows() {
         .unwrap()
         .value(0);
     assert_eq!(n, 100);
+    // The chunk table builds only its selected columns too, in the order SQL asks for.
+    let chunks = run(&ctx, "SELECT x, frame, entity_path FROM chunks").unwrap();
+    assert!(chunks.plan.contains("columns=3 of 5"), "{}", chunks.plan);
+    let whole = chunk_table(&snapshot);
+    for (i, name) in ["x", "frame", "entity_path"].into_iter().enumerate() {
+        assert_eq!(
+            chunks.batch.column(i).to_data(),
+            whole.column_by_name(name).unwrap().to_data(),
+            "{name}"
+        );
+    }
+    let count = run(&ctx, "SELECT count(*) FROM chunks").unwrap();
+    assert!(count.plan.contains("columns=0 of 5"), "{}", count.plan);
+    let n = count
+        .batch
+        .column(0)
+        .as_any()
+        .downcast_ref::<Int64Array>()
+        .unwrap()
+        .value(0);
+    assert_eq!(usize::try_from(n).unwrap(), whole.num_rows());
+}
+
+/// The sparse view's rows ascend on the index, and the scan says so: `ORDER BY` the index
+/// costs no sort. Sampled rows keep the order asked for, so they are sorted.
+#[test]
+fn a_timeline_table_needs_no_sort_to_be_ordered_by_its_index() {
+    let store = grid();
+    let snapshot = store.snapshot();
+    let ctx = context(&snapshot);
+    let frames = |answer: &Answer| -> Vec<i64> {
+        let column = answer.batch.column_by_name("frame").unwrap();
+        column
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .unwrap()
+            .values()
+            .to_vec()
+    };
+    let query = r#"SELECT frame, "/e/1:x" FROM frame WHERE frame < 50"#;
+    let sorted = run(&ctx, &format!("{query} ORDER BY frame")).unwrap();
+    assert!(!sorted.plan.contains("SortExec"), "{}", sorted.plan);
+    assert_eq!(frames(&sorted), (0..50).collect::<Vec<i64>>());
+    let unsorted = run(&ctx, query).unwrap();
+    assert_same_table(&sorted.batch, &unsorted.batch, "ORDER BY the index");
+    let descending = run(&ctx, &format!("{query} ORDER BY frame DESC")).unwrap();
+    assert!(descending.plan.contains("SortExec"), "{}", descending.plan);
+    assert_eq!(frames(&descending), (0..50).rev().collect::<Vec<i64>>());
+    let sampled = run(
+        &ctx,
+        "SELECT frame FROM latest_at('frame', [5, 1, 3]) ORDER BY frame",
+    )
+    .unwrap();
+    assert!(sampled.plan.contains("SortExec"), "{}", sampled.plan);
+    assert_eq!(frames(&sampled), vec![1, 3, 5]);
 }
 
 #[test]

@@ -23,6 +23,7 @@ pub struct ChunkTableQuery {
     batch_rows: Option<usize>,
     row_entities: Option<Arc<[EntityPath]>>,
     rows_overlapping: Option<(Arc<str>, TimeRange)>,
+    columns: Option<Arc<[String]>>,
 }
 
 impl ChunkTableQuery {
@@ -80,6 +81,16 @@ impl ChunkTableQuery {
         self
     }
 
+    /// Only these columns in the batches (names of the whole table's schema), in the
+    /// table's order; the columns left out are never built. The rows stay the same. An
+    /// empty list keeps the rows and no column (what `SELECT count(*)` asks for). A name
+    /// the table does not have is refused when the table is made.
+    #[must_use]
+    pub fn with_columns<S: Into<String>>(mut self, columns: impl IntoIterator<Item = S>) -> Self {
+        self.columns = Some(columns.into_iter().map(Into::into).collect());
+        self
+    }
+
     /// Does `chunk` pass the row filters ([`Self::with_row_entities`],
     /// [`Self::with_rows_overlapping`])?
     fn keeps_rows_of(&self, chunk: &Chunk) -> bool {
@@ -120,10 +131,13 @@ struct TableChunk {
 /// null where a row has no time there), then one list column per component name (sorted;
 /// null where a row's chunk has no such column). Where entities use one component name
 /// with different types, each further type gets its own column, named `<component>#2`,
-/// `#3`… in the order of entity paths. Holds the chunks it reads (not the store): it may
+/// `#3`… in the order of entity paths. [`ChunkTableQuery::with_columns`] keeps some of
+/// these columns, in this order. Holds the chunks it reads (not the store): it may
 /// outlive the borrow it was made from.
 pub struct ChunkTableStream {
     schema: SchemaRef,
+    /// Which of `entity_path`, `chunk_id` and `row_id` are built.
+    ids: [bool; 3],
     chunks: Vec<TableChunk>,
     /// Chunks written whole in order, before the merge: their numbers, and the next one.
     unmerged: Vec<usize>,
@@ -175,13 +189,22 @@ impl StoreView {
             chunks.retain(|c| filter.matches(c.entity_path()));
         }
         let columns = table_columns(&chunks);
+        let (columns, ids) = match &query.columns {
+            Some(names) => select_columns(columns, names)?,
+            None => (columns, [true; 3]),
+        };
         chunks.retain(|c| query.keeps_rows_of(c));
-        Ok(ChunkTableStream::new(columns, chunks, query))
+        Ok(ChunkTableStream::new(columns, ids, chunks, query))
     }
 }
 
 impl ChunkTableStream {
-    fn new(columns: TableColumns, chunks: Vec<Arc<Chunk>>, query: &ChunkTableQuery) -> Self {
+    fn new(
+        columns: TableColumns,
+        ids: [bool; 3],
+        chunks: Vec<Arc<Chunk>>,
+        query: &ChunkTableQuery,
+    ) -> Self {
         let (timelines, fields, component_columns, sources) = columns;
         let index = query.index.as_deref();
         let mut heap = BinaryHeap::new();
@@ -220,12 +243,13 @@ impl ChunkTableStream {
                 }
             })
             .collect();
-        let num_columns = fields.len();
+        let num_columns = fields.len().max(1);
         let batch_rows = query
             .batch_rows
             .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / num_columns).clamp(1, 65_536));
         Self {
             schema: Arc::new(Schema::new(fields)),
+            ids,
             chunks: table_chunks,
             unmerged,
             next_unmerged: 0,
@@ -315,12 +339,19 @@ impl ChunkTableStream {
             };
             let columns = self.chunk_columns(number)?.to_vec();
             let chunk = &self.chunks[number];
-            if entity_text.as_ref().is_none_or(|(n, _)| *n != number) {
-                entity_text = Some((number, chunk.chunk.entity_path().to_string()));
+            let [entity_path, chunk_id, row_id] = self.ids;
+            if entity_path {
+                if entity_text.as_ref().is_none_or(|(n, _)| *n != number) {
+                    entity_text = Some((number, chunk.chunk.entity_path().to_string()));
+                }
+                entity_paths.append_value(entity_text.as_ref().map_or("", |(_, text)| text));
             }
-            entity_paths.append_value(entity_text.as_ref().map_or("", |(_, text)| text));
-            chunk_ids.append_value(chunk.chunk.id().to_be_bytes())?;
-            row_ids.append_value(chunk.chunk.row_ids()[row].to_be_bytes())?;
+            if chunk_id {
+                chunk_ids.append_value(chunk.chunk.id().to_be_bytes())?;
+            }
+            if row_id {
+                row_ids.append_value(chunk.chunk.row_ids()[row].to_be_bytes())?;
+            }
             for (values, column) in times.iter_mut().zip(&chunk.time_columns) {
                 values.push(column.map(|c| chunk.chunk.time_columns()[c].times()[row]));
             }
@@ -335,11 +366,12 @@ impl ChunkTableStream {
         if num_rows == 0 {
             return Ok(None);
         }
-        let mut arrays: Vec<ArrayRef> = vec![
+        let ids: [ArrayRef; 3] = [
             Arc::new(entity_paths.finish()),
             Arc::new(chunk_ids.finish()),
             Arc::new(row_ids.finish()),
         ];
+        let mut arrays: Vec<ArrayRef> = kept(ids, &self.ids);
         for (timeline, values) in self.timelines.iter().zip(times) {
             arrays.push(timeline.time_type().array(values));
         }
@@ -348,8 +380,49 @@ impl ChunkTableStream {
             cells.pad(None, num_rows);
             arrays.push(cells.finish(sources, num_rows, &mut scratch)?);
         }
-        RecordBatch::try_new(Arc::clone(&self.schema), arrays).map(Some)
+        // The row count matters when no column is kept (`count(*)`).
+        let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(num_rows));
+        RecordBatch::try_new_with_options(Arc::clone(&self.schema), arrays, &options).map(Some)
     }
+}
+
+/// The columns of `columns` that `names` names, in the table's order, and which of the
+/// three id columns are kept.
+fn select_columns(
+    columns: TableColumns,
+    names: &[String],
+) -> Result<(TableColumns, [bool; 3]), DataframeError> {
+    let (timelines, fields, component_columns, sources) = columns;
+    let num_columns = fields.len();
+    let mut keep = vec![false; num_columns];
+    for name in names {
+        let position = fields
+            .iter()
+            .position(|field| field.name() == name)
+            .ok_or_else(|| DataframeError::UnknownColumn {
+                name: name.clone(),
+                num_columns,
+            })?;
+        keep[position] = true;
+    }
+    let ids = [keep[0], keep[1], keep[2]];
+    let (timeline_keep, component_keep) = keep[3..].split_at(timelines.len());
+    let timelines = kept(timelines, timeline_keep);
+    let (component_columns, sources) =
+        kept(component_columns.into_iter().zip(sources), component_keep)
+            .into_iter()
+            .unzip();
+    let fields = kept(fields, &keep);
+    Ok(((timelines, fields, component_columns, sources), ids))
+}
+
+/// The items of `items` whose flag in `keep` is set.
+fn kept<T>(items: impl IntoIterator<Item = T>, keep: &[bool]) -> Vec<T> {
+    items
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(item, &kept)| kept.then_some(item))
+        .collect()
 }
 
 /// The timelines, fields, component columns and their sources of a table of `chunks`.

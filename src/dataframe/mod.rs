@@ -199,11 +199,12 @@ pub enum DataframeError {
     },
     /// A batch of zero rows was asked for.
     ZeroBatchRows,
-    /// [`DataframeQuery::with_columns`] named a column the view does not have.
+    /// [`DataframeQuery::with_columns`] or [`ChunkTableQuery::with_columns`] named a
+    /// column the table does not have.
     UnknownColumn {
         /// The name asked for.
         name: String,
-        /// How many columns the view has.
+        /// How many columns the table has.
         num_columns: usize,
     },
     /// A column's chunks could not be read as one list type (an Arrow error).
@@ -228,7 +229,7 @@ impl fmt::Display for DataframeError {
             Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
             Self::UnknownColumn { name, num_columns } => write!(
                 f,
-                "the dataframe view has no column {name:?} (it has {num_columns} columns)"
+                "the table has no column {name:?} (it has {num_columns} columns)"
             ),
             Self::Column { message } => write!(f, "dataframe column: {message}"),
         }

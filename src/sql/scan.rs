@@ -5,10 +5,11 @@ use std::fmt;
 use std::sync::Arc;
 
 use arrow_array::RecordBatch;
-use arrow_schema::{ArrowError, SchemaRef};
+use arrow_schema::{ArrowError, SchemaRef, SortOptions};
 use datafusion::common::{DataFusionError, Result};
 use datafusion::execution::TaskContext;
-use datafusion::physical_expr::EquivalenceProperties;
+use datafusion::physical_expr::expressions::Column;
+use datafusion::physical_expr::{EquivalenceProperties, PhysicalSortExpr};
 use datafusion::physical_plan::execution_plan::{Boundedness, EmissionType};
 use datafusion::physical_plan::metrics::{
     Count, ExecutionPlanMetricsSet, MetricBuilder, MetricsSet,
@@ -30,8 +31,8 @@ pub(crate) enum ScanSource {
         query: DataframeQuery,
         projection: Option<Vec<usize>>,
     },
-    /// The chunk table: its query holds the row filters; `projection` picks the columns
-    /// of each batch (the chunk table builds them all).
+    /// The chunk table: its query holds the row filters and the columns (built in the
+    /// table's order; `projection` puts them in the order asked for).
     Chunks {
         query: ChunkTableQuery,
         projection: Option<Vec<usize>>,
@@ -64,12 +65,7 @@ impl StoreScanExec {
         limit: Option<usize>,
         schema: SchemaRef,
     ) -> Self {
-        let properties = PlanProperties::new(
-            EquivalenceProperties::new(Arc::clone(&schema)),
-            Partitioning::UnknownPartitioning(1),
-            EmissionType::Incremental,
-            Boundedness::Bounded,
-        );
+        let properties = plan_properties(EquivalenceProperties::new(Arc::clone(&schema)));
         Self {
             snapshot,
             table,
@@ -82,11 +78,45 @@ impl StoreScanExec {
         }
     }
 
+    /// Declares the scan's rows ascending on `column` (a timeline view's index: one row
+    /// per distinct time, in order), so that DataFusion needs no sort for `ORDER BY` it.
+    /// Nothing changes when the projection left the column out.
+    pub(crate) fn sorted_by(mut self, column: &str) -> Self {
+        if let Ok(position) = self.schema.index_of(column) {
+            // The column has no nulls, so both null placements hold; SQL's `ORDER BY x`
+            // means `NULLS LAST` in DataFusion.
+            let mut ordered = EquivalenceProperties::new(Arc::clone(&self.schema));
+            for nulls_first in [false, true] {
+                let options = SortOptions {
+                    descending: false,
+                    nulls_first,
+                };
+                ordered.add_ordering([PhysicalSortExpr::new(
+                    Arc::new(Column::new(column, position)),
+                    options,
+                )]);
+            }
+            self.properties = Arc::new(plan_properties(ordered));
+        }
+        self
+    }
+
     /// What the scan applies itself (a range, entities, columns, a limit), as `EXPLAIN`
     /// prints it.
     pub fn pushed_down(&self) -> &[String] {
         &self.pushed_down
     }
+}
+
+/// One partition, emitted batch by batch, bounded; `ordered` says what is known of the
+/// rows' order.
+fn plan_properties(ordered: EquivalenceProperties) -> PlanProperties {
+    PlanProperties::new(
+        ordered,
+        Partitioning::UnknownPartitioning(1),
+        EmissionType::Incremental,
+        Boundedness::Bounded,
+    )
 }
 
 impl DisplayAs for StoreScanExec {

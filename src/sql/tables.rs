@@ -45,7 +45,8 @@ fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusion
 /// range, which the store's index applies exactly (`Exact` pushdown); `IN` reads the
 /// range covering its values and DataFusion filters again. A projection builds only the
 /// selected columns (every selected entity's times still decide the rows, as the view's
-/// rows are), and a `LIMIT` stops the stream early.
+/// rows are), and a `LIMIT` stops the stream early. The rows ascend on the index and the
+/// scan declares it, so `ORDER BY <index>` costs no sort.
 #[derive(Debug, Clone)]
 pub struct TimelineTable {
     snapshot: Snapshot,
@@ -180,20 +181,28 @@ impl TableProvider for TimelineTable {
             query,
             projection: projection.and_then(|(_, order)| order),
         };
-        Ok(Arc::new(StoreScanExec::new(
+        let scan = StoreScanExec::new(
             self.snapshot.clone(),
             self.index.name().to_owned(),
             source,
             pushed_down,
             limit,
             schema,
-        )))
+        );
+        // The sparse view's rows ascend on the index; sampled rows come in the order of
+        // the times asked for.
+        Ok(Arc::new(if self.samples.is_none() {
+            scan.sorted_by(self.index.name())
+        } else {
+            scan
+        }))
     }
 }
 
 /// A projection of `schema`: the projected schema and, when there is a projection, the
-/// names of its columns and the order to put the view's columns in (`None` when the view's
-/// own order is the one asked for).
+/// names of its columns and the order to put the table's columns in (`None` when the
+/// table's own order is the one asked for). The store builds the named columns in its
+/// own order.
 type Projected = (SchemaRef, Option<(Vec<String>, Option<Vec<usize>>)>);
 
 fn project(
@@ -236,7 +245,8 @@ fn project(
 /// Filters on `entity_path` (`=`, `IN`, `LIKE`, `starts_with`) are matched against the
 /// store's entity paths and read only the matching entities' chunks (`Exact`); a filter
 /// on a timeline column reads only the chunks whose times there overlap it, and
-/// DataFusion filters their rows again (`Inexact`). A `LIMIT` stops the stream early.
+/// DataFusion filters their rows again (`Inexact`). A projection builds only the selected
+/// columns, and a `LIMIT` stops the stream early.
 #[derive(Debug, Clone)]
 pub struct ChunksTable {
     snapshot: Snapshot,
@@ -354,23 +364,16 @@ impl TableProvider for ChunksTable {
             ));
             query = query.with_rows_overlapping(Arc::clone(timeline.name_arc()), range);
         }
-        let schema = match projection {
-            Some(columns) => {
-                pushed_down.push(format!(
-                    "columns={} of {}",
-                    columns.len(),
-                    self.schema.fields().len()
-                ));
-                Arc::new(self.schema.project(columns)?)
-            }
-            None => Arc::clone(&self.schema),
-        };
+        let (schema, projection) = project(&self.schema, projection, &mut pushed_down)?;
+        if let Some((names, _)) = &projection {
+            query = query.with_columns(names.iter().cloned());
+        }
         if let Some(rows) = limit_batch_rows(limit, &mut pushed_down) {
             query = query.with_batch_rows(rows);
         }
         let source = ScanSource::Chunks {
             query,
-            projection: projection.cloned(),
+            projection: projection.and_then(|(_, order)| order),
         };
         Ok(Arc::new(StoreScanExec::new(
             self.snapshot.clone(),
