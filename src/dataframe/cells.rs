@@ -99,6 +99,7 @@ impl Sources {
     }
 
     /// How many sources are registered (they are only ever added).
+    #[cfg(feature = "datafusion")]
     pub fn num_sources(&self) -> usize {
         self.arrays.len()
     }

@@ -266,7 +266,9 @@ impl<'a> DataframeStream<'a> {
 
     /// How many (chunk, column) sources the columns have registered: it grows only when
     /// filling or sampling finds a chunk not seen yet, so a caller reporting
-    /// [`Self::num_chunks_read`] as the stream goes recounts only when this changed.
+    /// [`Self::num_chunks_read`] as the stream goes recounts only when this changed (the
+    /// SQL scan's `chunks_read`).
+    #[cfg(feature = "datafusion")]
     pub(crate) fn num_sources(&self) -> usize {
         self.columns.iter().map(|c| c.sources.num_sources()).sum()
     }
