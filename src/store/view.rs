@@ -180,7 +180,12 @@ impl StoreView {
     /// own `chunks()` walks its chunk map instead, in no particular order.
     pub fn chunks(&self) -> Vec<Arc<Chunk>> {
         let mut out = Vec::with_capacity(usize::try_from(self.stats.num_chunks()).unwrap_or(0));
-        for entity in self.entities.values() {
+        // Entities in path order, each one's chunks sorted by id: the list comes out
+        // sorted without comparing paths per chunk (sorting the whole list by path was
+        // most of a SQL query on one entity of a 100,000-chunk store).
+        let mut entities: Vec<_> = self.entities.iter().collect();
+        entities.sort_unstable_by(|a, b| a.0.cmp(b.0));
+        for (_, entity) in entities {
             let first = out.len();
             out.extend(
                 entity
@@ -209,7 +214,7 @@ impl StoreView {
             }
             out.truncate(kept);
         }
-        out.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
+        debug_assert!(out.is_sorted_by_key(|chunk| (chunk.entity_path().clone(), chunk.id())));
         out
     }
 
