@@ -300,8 +300,9 @@ impl ChunkTableStream {
         Some((number, row))
     }
 
-    /// Where each component of chunk `number` goes, registering its columns on first use.
-    fn chunk_columns(&mut self, number: usize) -> Result<&[(usize, u32)], ArrowError> {
+    /// Registers where each component of chunk `number` goes (its `components`), on the
+    /// first row written from it.
+    fn register_columns(&mut self, number: usize) -> Result<(), ArrowError> {
         if self.chunks[number].components.is_none() {
             let chunk = Arc::clone(&self.chunks[number].chunk);
             let mut columns = Vec::with_capacity(chunk.components().len());
@@ -320,10 +321,7 @@ impl ChunkTableStream {
             }
             self.chunks[number].components = Some(columns);
         }
-        Ok(self.chunks[number]
-            .components
-            .as_deref()
-            .unwrap_or_default())
+        Ok(())
     }
 
     fn next_batch(&mut self) -> Result<Option<RecordBatch>, ArrowError> {
@@ -337,7 +335,7 @@ impl ChunkTableStream {
             let Some((number, row)) = self.next_row() else {
                 break;
             };
-            let columns = self.chunk_columns(number)?.to_vec();
+            self.register_columns(number)?;
             let chunk = &self.chunks[number];
             let [entity_path, chunk_id, row_id] = self.ids;
             if entity_path {
@@ -356,7 +354,7 @@ impl ChunkTableStream {
                 values.push(column.map(|c| chunk.chunk.time_columns()[c].times()[row]));
             }
             let row = u32::try_from(row).unwrap_or(u32::MAX);
-            for (output, source) in columns {
+            for &(output, source) in chunk.components.as_deref().unwrap_or_default() {
                 let cells = &mut self.cells[output];
                 cells.pad(None, num_rows);
                 cells.push(Some(Cell::Row { source, row }));
@@ -437,21 +435,28 @@ fn table_columns(chunks: &[Arc<Chunk>]) -> TableColumns {
     let mut timelines: BTreeMap<String, Timeline> = BTreeMap::new();
     // Component columns by name, then one per distinct list type in entity order.
     let mut by_name: BTreeMap<Arc<str>, Vec<(DataType, FieldRef)>> = BTreeMap::new();
+    // Every chunk is looked at (a query's table has every selected entity's columns), so
+    // a name is allocated only the first time it is seen: an entity's chunks mostly
+    // repeat the same columns.
     for chunk in chunks {
         for column in chunk.time_columns() {
-            timelines
-                .entry(column.timeline().name().to_owned())
-                .or_insert_with(|| column.timeline().clone());
+            let timeline = column.timeline();
+            if !timelines.contains_key(timeline.name()) {
+                timelines.insert(timeline.name().to_owned(), timeline.clone());
+            }
         }
         for column in chunk.components() {
-            let data_type = column.list_array().data_type().clone();
-            let DataType::List(item) = &data_type else {
+            let data_type = column.list_array().data_type();
+            let DataType::List(item) = data_type else {
                 continue;
             };
-            let item = Arc::clone(item);
-            let types = by_name.entry(column.name().as_str().into()).or_default();
-            if !types.iter().any(|(t, _)| *t == data_type) {
-                types.push((data_type, item));
+            let name = column.name().as_str();
+            let types = match by_name.get_mut(name) {
+                Some(types) => types,
+                None => by_name.entry(name.into()).or_default(),
+            };
+            if !types.iter().any(|(t, _)| t == data_type) {
+                types.push((data_type.clone(), Arc::clone(item)));
             }
         }
     }
