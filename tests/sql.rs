@@ -87,6 +87,18 @@ fn dataframe(snapshot: &Snapshot, query: &DataframeQuery) -> RecordBatch {
     concat_batches(&schema, &batches).unwrap()
 }
 
+/// The values of an `Int64` column of an answer.
+fn int64s(answer: &Answer, column: usize) -> Vec<i64> {
+    answer
+        .batch
+        .column(column)
+        .as_any()
+        .downcast_ref::<Int64Array>()
+        .unwrap()
+        .values()
+        .to_vec()
+}
+
 /// The whole chunk table of `snapshot`, from the API.
 fn chunk_table(snapshot: &Snapshot) -> RecordBatch {
     let stream = snapshot.chunk_table(&ChunkTableQuery::new()).unwrap();
@@ -163,13 +175,7 @@ fn every_timeline_table_of_the_robot_recording_equals_its_dataframe_view() {
     // The chunk table holds every stored row.
     let rows: usize = snapshot.chunks().iter().map(|c| c.num_rows()).sum();
     let count = run(&ctx, "SELECT count(*) AS n FROM chunks").unwrap();
-    let n = count
-        .batch
-        .column(0)
-        .as_any()
-        .downcast_ref::<Int64Array>()
-        .unwrap()
-        .value(0);
+    let n = int64s(&count, 0)[0];
     assert_eq!(usize::try_from(n).unwrap(), rows);
 }
 
@@ -279,13 +285,7 @@ fn projections_build_only_the_selected_columns_and_keep_the_rows() {
     assert_eq!(answer.batch.column(1).to_data(), api.column(0).to_data());
     // count(*) needs no column at all, and still counts the view's rows.
     let count = run(&ctx, "SELECT count(*) FROM frame").unwrap();
-    let n = count
-        .batch
-        .column(0)
-        .as_any()
-        .downcast_ref::<Int64Array>()
-        .unwrap()
-        .value(0);
+    let n = int64s(&count, 0)[0];
     assert_eq!(n, 100);
     // The chunk table builds only its selected columns too, in the order SQL asks for.
     let chunks = run(&ctx, "SELECT x, frame, entity_path FROM chunks").unwrap();
@@ -300,13 +300,7 @@ fn projections_build_only_the_selected_columns_and_keep_the_rows() {
     }
     let count = run(&ctx, "SELECT count(*) FROM chunks").unwrap();
     assert!(count.plan.contains("columns=0 of 5"), "{}", count.plan);
-    let n = count
-        .batch
-        .column(0)
-        .as_any()
-        .downcast_ref::<Int64Array>()
-        .unwrap()
-        .value(0);
+    let n = int64s(&count, 0)[0];
     assert_eq!(usize::try_from(n).unwrap(), whole.num_rows());
 }
 
@@ -317,31 +311,22 @@ fn a_timeline_table_needs_no_sort_to_be_ordered_by_its_index() {
     let store = grid();
     let snapshot = store.snapshot();
     let ctx = context(&snapshot);
-    let frames = |answer: &Answer| -> Vec<i64> {
-        let column = answer.batch.column_by_name("frame").unwrap();
-        column
-            .as_any()
-            .downcast_ref::<Int64Array>()
-            .unwrap()
-            .values()
-            .to_vec()
-    };
     let query = r#"SELECT frame, "/e/1:x" FROM frame WHERE frame < 50"#;
     let sorted = run(&ctx, &format!("{query} ORDER BY frame")).unwrap();
     assert!(!sorted.plan.contains("SortExec"), "{}", sorted.plan);
-    assert_eq!(frames(&sorted), (0..50).collect::<Vec<i64>>());
+    assert_eq!(int64s(&sorted, 0), (0..50).collect::<Vec<i64>>());
     let unsorted = run(&ctx, query).unwrap();
     assert_same_table(&sorted.batch, &unsorted.batch, "ORDER BY the index");
     let descending = run(&ctx, &format!("{query} ORDER BY frame DESC")).unwrap();
     assert!(descending.plan.contains("SortExec"), "{}", descending.plan);
-    assert_eq!(frames(&descending), (0..50).rev().collect::<Vec<i64>>());
+    assert_eq!(int64s(&descending, 0), (0..50).rev().collect::<Vec<i64>>());
     let sampled = run(
         &ctx,
         "SELECT frame FROM latest_at('frame', [5, 1, 3]) ORDER BY frame",
     )
     .unwrap();
     assert!(sampled.plan.contains("SortExec"), "{}", sampled.plan);
-    assert_eq!(frames(&sampled), vec![1, 3, 5]);
+    assert_eq!(int64s(&sampled, 0), vec![1, 3, 5]);
 }
 
 #[test]
@@ -358,13 +343,7 @@ fn a_limit_stops_the_scan_early() {
     );
     let all = run(&ctx, "SELECT frame FROM frame").unwrap();
     assert_eq!(all.rows_built, 100);
-    let frames = answer
-        .batch
-        .column(0)
-        .as_any()
-        .downcast_ref::<Int64Array>()
-        .unwrap();
-    assert_eq!(frames.values().to_vec(), (0..7).collect::<Vec<i64>>());
+    assert_eq!(int64s(&answer, 0), (0..7).collect::<Vec<i64>>());
 }
 
 #[test]
@@ -445,13 +424,7 @@ fn latest_at_as_a_table_function_equals_the_store_latest_at() {
     )
     .unwrap();
     assert_eq!(answer.batch.num_columns(), 2);
-    let frames = answer
-        .batch
-        .column(0)
-        .as_any()
-        .downcast_ref::<Int64Array>()
-        .unwrap();
-    assert_eq!(frames.values().to_vec(), vec![5, 500, -1]);
+    assert_eq!(int64s(&answer, 0), vec![5, 500, -1]);
     let x = answer
         .batch
         .column(1)
