@@ -16,9 +16,9 @@
 //! Partition values are percent-encoded as Hive encodes them (`/` is `%2F`): DuckDB,
 //! Spark, pyarrow and Polars decode them back into the entity path; DataFusion 54 keeps
 //! them as written (`%2Fworld%2Frobot`). Every file also holds the `entity_path` column,
-//! whose row-group statistics let any engine prune on the path itself. Each file carries the min/max statistics and
-//! the sort order of [`write_parquet_file`]; the whole directory appears at once (written
-//! under a temporary name and renamed) or not at all.
+//! whose row-group statistics let any engine prune on the path itself. Each file carries
+//! the min/max statistics and the sort order of [`write_parquet_file`]; the whole
+//! directory appears at once (written under a temporary name and renamed) or not at all.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

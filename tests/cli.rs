@@ -64,13 +64,7 @@ fn scratch_dir(name: &str) -> ScratchDir {
 
 /// The recording's chunk files, sorted.
 fn chunk_files() -> Vec<PathBuf> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(recording_chunks())
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    files
+    common::robot_chunk_files()
 }
 
 /// Issue 12, item 1: a directory holding every chunk file twice, under two names, answers

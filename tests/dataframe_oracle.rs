@@ -9,32 +9,17 @@
     reason = "tests fail loudly on unexpected values"
 )]
 
-use std::path::{Path, PathBuf};
-
 use arrow_array::{Array, RecordBatch};
 use arrow_select::concat::concat_batches;
 use chunkstore::{ChunkStore, DataframeQuery, EntityPathFilter, TimeInt, TimeRange, io};
 
-const RECORDING: &str = "testdata/rerun-0.41/a_robot";
 const TIMELINES: [&str; 3] = ["frame_id", "sim_time", "log_time"];
 
-fn recording() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(RECORDING)
-}
+mod common;
+use common::robot_recording as recording;
 
 fn stores() -> Vec<ChunkStore> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(recording().join("chunks"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    let mut from_chunks = ChunkStore::new();
-    for file in &files {
-        for chunk in io::read_chunks_from_path(file).unwrap() {
-            from_chunks.insert(chunk).unwrap();
-        }
-    }
+    let from_chunks = common::robot();
     let bytes = std::fs::read(recording().join("a_robot.rrd")).unwrap();
     let contents = chunkstore::rrd::read_rrd(arrow_buffer::Buffer::from_vec(bytes), false).unwrap();
     let mut from_rrd = ChunkStore::new();

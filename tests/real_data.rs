@@ -10,33 +10,25 @@
 )]
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
 
 use arrow_array::{Array, ArrayRef, ListArray, RecordBatch};
 use chunkstore::{
     Chunk, ChunkStore, EntityPath, LatestAtQuery, RangeQuery, TimeInt, TimeRange, io,
 };
 
-const RECORDING: &str = "testdata/rerun-0.41/a_robot";
 const TIMELINES: [&str; 3] = ["frame_id", "sim_time", "log_time"];
 const PROPERTIES: &str = "/__properties";
 
-fn recording() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(RECORDING)
-}
+mod common;
+use common::robot_recording as recording;
 
 fn load_chunks() -> Vec<Chunk> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(recording().join("chunks"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    assert_eq!(files.len(), 37, "the recording has 37 chunk files");
-    files
-        .iter()
-        .flat_map(|f| io::read_chunks_from_path(f).unwrap())
-        .collect()
+    assert_eq!(
+        common::robot_chunk_files().len(),
+        37,
+        "the recording has 37 chunk files"
+    );
+    common::robot_chunks()
 }
 
 fn load_store() -> ChunkStore {

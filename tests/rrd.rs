@@ -7,34 +7,22 @@
     reason = "tests fail loudly on unexpected values"
 )]
 
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use arrow_buffer::Buffer;
+use chunkstore::Chunk;
 use chunkstore::rrd::{self, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreId, StoreKind};
-use chunkstore::{Chunk, io};
 
 mod common;
 
-fn recording() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot")
-}
+use common::robot_recording as recording;
 
 fn rrd_bytes() -> Vec<u8> {
     std::fs::read(recording().join("a_robot.rrd")).unwrap()
 }
 
 fn chunk_files() -> Vec<Chunk> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(recording().join("chunks"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
-        .collect();
-    files.sort();
-    files
-        .iter()
-        .flat_map(|f| io::read_chunks_from_path(f).unwrap())
-        .collect()
+    common::robot_chunks()
 }
 
 fn same_chunks(a: &[Chunk], b: &[Chunk]) {

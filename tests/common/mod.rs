@@ -129,22 +129,37 @@ pub fn cell_len(cell: &ArrayRef) -> usize {
     cell.len()
 }
 
-/// The robot recording that Rerun 0.41's SDK wrote, loaded from its chunk files in name
-/// order into a store of the default configuration.
-pub fn robot() -> chunkstore::ChunkStore {
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/chunks");
-    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+/// The robot recording that Rerun 0.41's SDK wrote: its directory (the `.rrd` file and
+/// the `chunks/` it was written from).
+pub fn robot_recording() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot")
+}
+
+/// The robot recording's chunk files (`.arrow`), sorted by name.
+pub fn robot_chunk_files() -> Vec<std::path::PathBuf> {
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(robot_recording().join("chunks"))
         .unwrap()
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "arrow"))
         .collect();
     files.sort();
+    files
+}
+
+/// The chunks of the robot recording's chunk files, in file name order.
+pub fn robot_chunks() -> Vec<Chunk> {
+    robot_chunk_files()
+        .iter()
+        .flat_map(|f| chunkstore::io::read_chunks_from_path(f).unwrap())
+        .collect()
+}
+
+/// The robot recording, loaded from its chunk files in name order into a store of the
+/// default configuration.
+pub fn robot() -> chunkstore::ChunkStore {
     let mut store = chunkstore::ChunkStore::new();
-    for file in files {
-        for chunk in chunkstore::io::read_chunks_from_path(&file).unwrap() {
-            store.insert(chunk).unwrap();
-        }
+    for chunk in robot_chunks() {
+        store.insert(chunk).unwrap();
     }
     store
 }
