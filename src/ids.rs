@@ -6,27 +6,59 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use parking_lot::Mutex;
 
-/// The last id handed out by [`next_id`], shared by [`RowId`] and [`ChunkId`].
+/// The state of the process-wide id generator, shared by [`RowId`] and [`ChunkId`].
 ///
 /// One generator for both keeps every id of the process unique, so a row id can never
 /// collide with a chunk id in a log a person reads.
-static LAST_ID: Mutex<u128> = Mutex::new(0);
+static GENERATOR: Mutex<Option<Generator>> = Mutex::new(None);
 
-/// A strictly increasing 128-bit id: high 64 bits are nanoseconds since the Unix epoch,
-/// low 64 bits a counter that absorbs clock ties and clock steps backwards.
+/// The last id handed out, as its two halves.
+struct Generator {
+    /// Nanoseconds since the Unix epoch (or later, after clock ties and steps back).
+    time_ns: u64,
+    /// Incremented for every id; starts at a random value per process.
+    inc: u64,
+}
+
+/// A strictly increasing 128-bit id, laid out as a TUID: the high 64 bits are nanoseconds
+/// since the Unix epoch, the low 64 bits a counter that starts at a random value in each
+/// process and grows by one per id. Two processes minting ids in the same nanosecond (two
+/// SDK clients, two converters) then still differ in the low half, where a counter that
+/// started at zero in both would collide, and a collision would lose data (the store
+/// refuses a second chunk under one id).
 fn next_id() -> u128 {
     let now_ns = SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX));
-    let from_clock = u128::from(now_ns) << 64;
-    let mut last = LAST_ID.lock();
-    let id = if from_clock > *last {
-        from_clock
-    } else {
-        last.wrapping_add(1)
-    };
-    *last = id;
-    id
+    let mut state = GENERATOR.lock();
+    let state = state.get_or_insert_with(|| Generator {
+        time_ns: 0,
+        inc: random_u64(),
+    });
+    state.inc = state.inc.wrapping_add(1);
+    if now_ns > state.time_ns {
+        state.time_ns = now_ns;
+    } else if state.inc == 0 {
+        // The counter wrapped within one nanosecond (or while the clock stood still or
+        // stepped back): the high half moves on, so the id still grows.
+        state.time_ns = state.time_ns.wrapping_add(1);
+    }
+    (u128::from(state.time_ns) << 64) | u128::from(state.inc)
+}
+
+/// 64 random bits from the standard library's per-process hash keys (drawn from the
+/// operating system's randomness), mixed with the process id and the clock: no crate for
+/// randomness is needed for one draw per process.
+fn random_u64() -> u64 {
+    use std::hash::{BuildHasher as _, Hasher as _};
+    let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+    hasher.write_u32(std::process::id());
+    hasher.write_u128(
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    hasher.finish()
 }
 
 macro_rules! define_id {
@@ -178,6 +210,24 @@ mod tests {
             ChunkId::new().as_u128() > previous.as_u128(),
             "one generator serves both kinds"
         );
+    }
+
+    /// Issue 32, item 5: the low half is a per-process random start plus a counter, not
+    /// zero (ids minted in two processes in one nanosecond must still differ).
+    #[test]
+    fn the_low_half_is_not_zero_and_counts_up() {
+        let ids: Vec<u128> = (0..1_000).map(|_| RowId::new().as_u128()).collect();
+        let low = |id: u128| u64::try_from(id & u128::from(u64::MAX)).unwrap();
+        assert!(ids.iter().all(|&id| low(id) != 0), "{:x}", ids[0]);
+        for pair in ids.windows(2) {
+            assert_eq!(
+                low(pair[1]),
+                low(pair[0]).wrapping_add(1),
+                "one step per id"
+            );
+        }
+        // Two draws of the per-process start differ (2^-64 odds of a false failure).
+        assert_ne!(random_u64(), random_u64());
     }
 
     #[test]
