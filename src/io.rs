@@ -143,15 +143,28 @@ fn contain_panics(
     }
 }
 
-/// Writes one chunk as an Arrow IPC file in the transport layout.
+/// Writes one chunk as an Arrow IPC file in the transport layout, its rows in row-id order.
 ///
 /// # Errors
 /// [`IoError::Ipc`] if Arrow fails to encode or write.
 pub fn write_chunk_ipc_file(chunk: &Chunk, writer: impl Write) -> Result<(), IoError> {
-    let batch = chunk.to_record_batch().map_err(IoError::Ipc)?;
+    let batch = export_batch(chunk)?;
     let mut writer = FileWriter::try_new(writer, &batch.schema()).map_err(IoError::Ipc)?;
     writer.write(&batch).map_err(IoError::Ipc)?;
     writer.finish().map_err(IoError::Ipc)
+}
+
+/// The chunk as it goes into a file: in the transport layout, its rows in row-id order
+/// (Rerun refuses a chunk whose row ids are out of order; see [`Chunk::sorted_by_row_id`]).
+pub(crate) fn export_batch(chunk: &Chunk) -> Result<arrow_array::RecordBatch, IoError> {
+    let sorted = chunk
+        .sorted_by_row_id()
+        .map_err(|e| IoError::Ipc(ArrowError::ComputeError(e.to_string())))?;
+    sorted
+        .as_ref()
+        .unwrap_or(chunk)
+        .to_record_batch()
+        .map_err(IoError::Ipc)
 }
 
 /// Writes every batch `reader` yields as an Arrow IPC **file** at `path`, atomically: the

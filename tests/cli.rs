@@ -912,3 +912,227 @@ fn hive_writes_a_partitioned_dataset() {
     ]);
     assert!(line.contains("unknown timeline"), "{line}");
 }
+
+const IDENTITY: &str = "testdata/rerun-0.41/identity";
+
+/// A recording Rerun 0.41's SDK wrote (see `testdata/rerun-0.41/identity/gen_identity.py`).
+fn identity_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(IDENTITY)
+        .join(name)
+}
+
+/// The recording store infos of an `.rrd` file written by us: (application id, recording
+/// id) of each, and every chunk checked as Rerun checks it before loading.
+fn written_identity(path: &Path) -> Vec<(String, String)> {
+    let contents = chunkstore::rrd::read_rrd(
+        arrow_buffer::Buffer::from_vec(std::fs::read(path).unwrap()),
+        false,
+    )
+    .unwrap();
+    contents
+        .chunks
+        .iter()
+        .for_each(|(_, c)| common::assert_rerun_loads(c));
+    let recording = chunkstore::rrd::StoreKind::Recording;
+    assert!(
+        contents.chunks.iter().all(|(store, _)| {
+            store.kind == recording && contents.store_infos.iter().any(|i| &i.store_id == store)
+        }),
+        "every chunk under a store the file describes"
+    );
+    contents
+        .store_infos
+        .iter()
+        .map(|i| {
+            assert_eq!(i.store_id.kind, recording, "{i:?}");
+            (
+                i.store_id.application_id.clone(),
+                i.store_id.recording_id.clone(),
+            )
+        })
+        .collect()
+}
+
+/// Issue 32, items 1 and 4: `RecordingStream.save(path, default_blueprint=…)` writes the
+/// blueprint's store first. `convert` (plain and `--compact`) used to write the recording's
+/// chunks under the blueprint's store id, which chunkstore and Rerun then read as no
+/// recording at all; and a directory kept no store info, so `.rrd → directory → .rrd`
+/// lost the application and recording ids.
+#[test]
+fn convert_keeps_the_recording_s_identity_not_the_blueprint_s() {
+    let dir = scratch_dir("identity");
+    let source = identity_file("blueprint_first.rrd");
+    let expected = vec![(
+        "chunkstore_identity".to_owned(),
+        "blueprint-first-rec".to_owned(),
+    )];
+    let answers = cli_on(&source, &[], &["latest-at", "frame", "4"]);
+    assert!(answers.contains("/plot/a"), "{answers}");
+    for (options, name) in [(&[][..], "plain.rrd"), (&["--compact"][..], "compact.rrd")] {
+        let out = dir.join(name);
+        let mut args: Vec<&OsStr> = options.iter().map(OsStr::new).collect();
+        args.extend([source.as_os_str(), OsStr::new("convert"), out.as_os_str()]);
+        let (_, stderr) = ok(&args);
+        assert!(stderr.contains("left out its blueprint"), "{stderr}");
+        assert_eq!(written_identity(&out), expected, "{name}");
+        assert_eq!(cli_on(&out, &[], &["latest-at", "frame", "4"]), answers);
+        assert_eq!(
+            cli_on(&out, &["--eager"], &["latest-at", "frame", "4"]),
+            answers
+        );
+    }
+    // Through a directory of chunk files and back: the ids survive.
+    let as_dir = dir.join("chunks");
+    let back = dir.join("back.rrd");
+    ok(&[
+        source.as_os_str(),
+        OsStr::new("convert"),
+        as_dir.as_os_str(),
+    ]);
+    assert!(as_dir.join(chunkstore::rrd::STORE_INFO_FILE).is_file());
+    ok(&[as_dir.as_os_str(), OsStr::new("convert"), back.as_os_str()]);
+    assert_eq!(written_identity(&back), expected);
+    assert_eq!(cli_on(&back, &[], &["latest-at", "frame", "4"]), answers);
+    // A directory names its recording: asking for another is an error naming it.
+    let line = fails(&[
+        OsStr::new("--recording"),
+        OsStr::new("other"),
+        as_dir.as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    assert!(line.contains("\"blueprint-first-rec\""), "{line}");
+}
+
+/// Issue 32, item 2: rows logged at frames 2, 1, 3 compact into a chunk in time order,
+/// whose row ids are then out of order; Rerun 0.41 refuses such a chunk. `--compact`
+/// output is sorted by row id, and answers as the source does.
+#[test]
+fn compacted_output_of_out_of_order_rows_loads_in_rerun() {
+    let dir = scratch_dir("out-of-order");
+    let source = identity_file("out_of_order.rrd");
+    let out = dir.join("compact.rrd");
+    ok(&[
+        OsStr::new("--compact"),
+        source.as_os_str(),
+        OsStr::new("convert"),
+        out.as_os_str(),
+    ]);
+    assert_eq!(
+        written_identity(&out),
+        [(
+            "chunkstore_identity".to_owned(),
+            "out-of-order-rec".to_owned()
+        )]
+    );
+    let as_dir = dir.join("chunks");
+    ok(&[
+        OsStr::new("--compact"),
+        source.as_os_str(),
+        OsStr::new("convert"),
+        as_dir.as_os_str(),
+    ]);
+    for file in chunkstore::io::chunk_files(&as_dir).unwrap() {
+        for chunk in chunkstore::io::read_chunks_from_path(&file).unwrap() {
+            common::assert_rerun_loads(&chunk);
+        }
+    }
+    let range = ["range", "frame", "0", "9"];
+    let expected = cli_on(&source, &[], &range);
+    assert_eq!(expected.matches("/plot/a").count(), 3, "{expected}");
+    let strip = |text: String| -> Vec<serde_json::Value> {
+        text.lines()
+            .map(|l| {
+                let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+                v.as_object_mut().unwrap().remove("chunk_id");
+                v
+            })
+            .collect()
+    };
+    assert_eq!(strip(cli_on(&out, &[], &range)), strip(expected.clone()));
+    assert_eq!(strip(cli_on(&as_dir, &[], &range)), strip(expected));
+}
+
+/// Issue 32, item 3: two recordings in one file (`cat a.rrd b.rrd`) are kept apart. Lazy
+/// queries used to fail on the second stream's footer; `--eager`, `stats` and `convert`
+/// merged both recordings into one store. Now every command names both recordings and
+/// asks for `--recording ID`, and with it answers exactly as that recording's own file.
+#[test]
+fn a_file_of_two_recordings_is_never_merged() {
+    let dir = scratch_dir("two-recordings");
+    let a = identity_file("blueprint_first.rrd");
+    let b = identity_file("out_of_order.rrd");
+    let both = dir.join("both.rrd");
+    let mut bytes = std::fs::read(&a).unwrap();
+    bytes.extend(std::fs::read(&b).unwrap());
+    std::fs::write(&both, bytes).unwrap();
+
+    for (options, command) in [
+        (&[][..], &["latest-at", "frame", "2"][..]),
+        (&["--eager"], &["latest-at", "frame", "2"]),
+        (&[], &["range", "frame", "0", "9"]),
+        (&[], &["stats"]),
+        (&[], &["dataframe", "frame"]),
+    ] {
+        let mut args: Vec<&OsStr> = options.iter().map(OsStr::new).collect();
+        args.push(both.as_os_str());
+        args.extend(command.iter().map(OsStr::new));
+        let line = fails(&args);
+        assert!(
+            line.contains("\"blueprint-first-rec\", \"out-of-order-rec\"")
+                && line.contains("--recording"),
+            "{command:?}: {line}"
+        );
+    }
+    let out = dir.join("b.rrd");
+    fails(&[both.as_os_str(), OsStr::new("convert"), out.as_os_str()]);
+    assert!(!out.exists());
+
+    for (file, id) in [(&a, "blueprint-first-rec"), (&b, "out-of-order-rec")] {
+        let chosen = ["--recording", id];
+        for command in [
+            &["latest-at", "frame", "2"][..],
+            &["range", "frame", "0", "9"],
+        ] {
+            let expected = cli_on(file, &[], command);
+            assert!(!expected.is_empty());
+            assert_eq!(
+                cli_on(&both, &chosen, command),
+                expected,
+                "{id} {command:?}"
+            );
+            let eager = ["--recording", id, "--eager"];
+            assert_eq!(cli_on(&both, &eager, command), expected, "{id} {command:?}");
+        }
+        assert_eq!(
+            cli_on(&both, &chosen, &["stats"]),
+            cli_on(file, &[], &["stats"])
+        );
+        let out = dir.join(format!("{id}.rrd"));
+        let mut args: Vec<&OsStr> = chosen.iter().map(OsStr::new).collect();
+        args.extend([both.as_os_str(), OsStr::new("convert"), out.as_os_str()]);
+        ok(&args);
+        assert_eq!(
+            written_identity(&out),
+            [("chunkstore_identity".to_owned(), id.to_owned())]
+        );
+    }
+    let line = fails(&[
+        OsStr::new("--recording"),
+        OsStr::new("nope"),
+        both.as_os_str(),
+        OsStr::new("latest-at"),
+        OsStr::new("frame"),
+        OsStr::new("2"),
+    ]);
+    assert!(line.contains("no recording \"nope\""), "{line}");
+    // The same recording twice (`cat a.rrd a.rrd`) is one recording, not two.
+    let twice = dir.join("twice.rrd");
+    let mut bytes = std::fs::read(&b).unwrap();
+    bytes.extend(std::fs::read(&b).unwrap());
+    std::fs::write(&twice, bytes).unwrap();
+    assert_eq!(
+        cli_on(&twice, &[], &["range", "frame", "0", "9"]),
+        cli_on(&b, &[], &["range", "frame", "0", "9"])
+    );
+}

@@ -308,10 +308,21 @@ class Store:
 
     # --- files -----------------------------------------------------------------------
 
-    def write_rrd(self, path: Union[str, os.PathLike], application_id: str = "chunkstore") -> int:
+    def write_rrd(
+        self,
+        path: Union[str, os.PathLike],
+        application_id: str = "chunkstore",
+        recording_id: Optional[str] = None,
+    ) -> int:
         """Writes every chunk to an ``.rrd`` file that Rerun opens (atomically: the file
-        appears whole or not at all). Returns its size in bytes."""
-        return self._native.write_rrd(os.fspath(path), application_id)
+        appears whole or not at all). Returns its size in bytes.
+
+        The recording keeps the store info it was read with (its application and
+        recording ids); ``recording_id`` renames it. A store that has none (built in
+        memory, or from chunk files) is named ``application_id`` and ``recording_id``
+        (default: the file's name). Writing over the file the store was opened from is
+        refused (:class:`InvalidInputError`)."""
+        return self._native.write_rrd(os.fspath(path), application_id, recording_id)
 
     def to_parquet(
         self,
@@ -331,11 +342,15 @@ class Store:
         )
 
 
-def open(path: Union[str, os.PathLike], *, lazy: bool = True) -> Store:
+def open(path: Union[str, os.PathLike], *, lazy: bool = True, recording: Optional[str] = None) -> Store:
     """Opens an ``.rrd`` file (lazily, through its footer, when it has one and ``lazy``
     is true), a directory of Arrow IPC chunk files, or one such file.
+
+    A file can hold several recordings (streams concatenated, or several recordings in
+    one stream): ``recording`` chooses one by its recording id; without it, such a file
+    raises :class:`InvalidInputError` naming them. A blueprint is never read as data.
 
     Raises ``FileNotFoundError`` (and other ``OSError``) from the file system, and
     :class:`CorruptFileError` for a file that does not parse.
     """
-    return Store(_native=_chunkstore.open(os.fspath(path), lazy))
+    return Store(_native=_chunkstore.open(os.fspath(path), lazy, recording))

@@ -53,6 +53,28 @@ pub fn rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
     CorruptFileError::new_err(format!("{}: {error}", path.display()))
 }
 
+/// A file holding several recordings where none was chosen, or not the one asked for:
+/// `InvalidInputError`, naming the recordings it holds (the file itself is fine).
+pub fn recording_error(path: &std::path::Path, kind: RrdErrorKind) -> PyErr {
+    let error = RrdError { offset: 0, kind };
+    invalid(format!(
+        "{}: {error} (open(path, recording=ID) chooses)",
+        path.display()
+    ))
+}
+
+/// [`recording_error`] where the error is about recordings, else [`rrd_error`].
+pub fn recording_or_rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
+    if matches!(
+        error.kind,
+        RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
+    ) {
+        recording_error(path, error.kind)
+    } else {
+        rrd_error(path, error)
+    }
+}
+
 /// An Arrow IPC error: the file system's own, or the file's fault.
 pub fn ipc_error(error: IoError) -> PyErr {
     match error {

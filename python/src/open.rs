@@ -5,38 +5,58 @@ use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
 use chunkstore::ChunkStore;
-use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
+use chunkstore::rrd::{LazyRecording, RecordingSelector, RrdItem, RrdReader, StoreInfo};
 use pyo3::prelude::*;
 
-use crate::errors::{CorruptFileError, ipc_error, no_panic, os_error, rrd_error};
+use crate::errors::{
+    CorruptFileError, ipc_error, no_panic, os_error, recording_error, recording_or_rrd_error,
+    rrd_error,
+};
 use crate::store::NativeStore;
 
-/// Opens `path`: see the module docs. `lazy=False` decodes an `.rrd` whole at once.
+/// Opens `path`: see the module docs. `lazy=False` decodes an `.rrd` whole at once;
+/// `recording` chooses one recording of a file that holds several.
 #[pyfunction]
-#[pyo3(signature = (path, lazy = true))]
-pub fn open(py: Python<'_>, path: PathBuf, lazy: bool) -> PyResult<NativeStore> {
-    py.detach(|| no_panic(|| open_path(&path, lazy)))
+#[pyo3(signature = (path, lazy = true, recording = None))]
+pub fn open(
+    py: Python<'_>,
+    path: PathBuf,
+    lazy: bool,
+    recording: Option<String>,
+) -> PyResult<NativeStore> {
+    py.detach(|| no_panic(|| open_path(&path, lazy, recording.as_deref())))
 }
 
-fn open_path(path: &Path, lazy: bool) -> PyResult<NativeStore> {
+fn open_path(path: &Path, lazy: bool, recording: Option<&str>) -> PyResult<NativeStore> {
     let metadata = std::fs::metadata(path).map_err(|e| os_error(path, e))?;
     if metadata.is_dir() {
-        return load_directory(path).map(|store| NativeStore::loaded(store, None));
+        let info = chunkstore::rrd::read_directory_store_info(path)
+            .map_err(|e| rrd_error(&path.join(chunkstore::rrd::STORE_INFO_FILE), e))?;
+        let mut selector = RecordingSelector::new(recording);
+        if let Some(info) = &info {
+            selector.observe(info);
+        }
+        selector
+            .finish()
+            .map_err(|kind| recording_error(path, kind))?;
+        return load_directory(path).map(|store| NativeStore::loaded(store, info, Some(path)));
     }
     let head = file_head(path)?;
     if chunkstore::rrd::looks_like_rrd(&head) {
-        if lazy
-            && let Some(recording) = LazyRecording::open(path).map_err(|e| rrd_error(path, e))?
-        {
-            return Ok(NativeStore::lazy(recording, path.to_owned()));
+        if lazy {
+            match LazyRecording::open_recording(path, recording) {
+                Ok(Some(lazy)) => return Ok(NativeStore::lazy(lazy, path.to_owned())),
+                Ok(None) => {}
+                Err(error) => return Err(recording_or_rrd_error(path, error)),
+            }
         }
-        let (store, info) = load_rrd(path)?;
-        return Ok(NativeStore::loaded(store, info));
+        let (store, info) = load_rrd(path, recording)?;
+        return Ok(NativeStore::loaded(store, info, Some(path)));
     }
     if head.starts_with(b"ARROW1") || head.starts_with(&[0xff; 4]) {
         let mut store = new_store();
         insert_ipc_file(&mut store, path)?;
-        return Ok(NativeStore::loaded(store, None));
+        return Ok(NativeStore::loaded(store, None, Some(path)));
     }
     Err(CorruptFileError::new_err(format!(
         "{}: neither an .rrd file nor Arrow IPC (it starts with {:?})",
@@ -59,16 +79,27 @@ fn file_head(path: &Path) -> PyResult<Vec<u8>> {
     Ok(head)
 }
 
-/// Every chunk of an `.rrd` file, streamed into a store, and its first store info.
-fn load_rrd(path: &Path) -> PyResult<(ChunkStore, Option<StoreInfo>)> {
+/// Every chunk of one recording of an `.rrd` file, streamed into a store, and the
+/// recording's store info.
+fn load_rrd(path: &Path, recording: Option<&str>) -> PyResult<(ChunkStore, Option<StoreInfo>)> {
     let file = std::fs::File::open(path).map_err(|e| os_error(path, e))?;
     let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
         .map_err(|e| rrd_error(path, e))?;
     let mut store = new_store();
-    let mut info = None;
+    let mut selector = RecordingSelector::new(recording);
     for item in reader {
         match item.map_err(|e| rrd_error(path, e))? {
-            RrdItem::Chunk { chunk, offset, .. } => {
+            RrdItem::Chunk {
+                chunk,
+                offset,
+                store_id,
+            } => {
+                if !selector
+                    .wants(&store_id)
+                    .map_err(|kind| recording_error(path, kind))?
+                {
+                    continue;
+                }
                 store.insert(chunk).map_err(|e| {
                     CorruptFileError::new_err(format!(
                         "{}: the chunk at byte {offset}: {e}",
@@ -76,12 +107,13 @@ fn load_rrd(path: &Path) -> PyResult<(ChunkStore, Option<StoreInfo>)> {
                     ))
                 })?;
             }
-            RrdItem::StoreInfo(found) => {
-                info.get_or_insert(found);
-            }
+            RrdItem::StoreInfo(found) => selector.observe(&found),
             _ => {}
         }
     }
+    let info = selector
+        .finish()
+        .map_err(|kind| recording_error(path, kind))?;
     Ok((store, info))
 }
 

@@ -48,14 +48,18 @@ pub struct NativeStore {
     state: Mutex<State>,
     /// The recording's store info, written back by `write_rrd`.
     store_info: Mutex<Option<StoreInfo>>,
+    /// The file or directory the store was opened from, which no write may replace (a
+    /// lazy store still reads it; a loaded one would lose its only copy).
+    source: Option<PathBuf>,
 }
 
 impl NativeStore {
-    /// A store over a store in memory.
-    pub fn loaded(store: ChunkStore, store_info: Option<StoreInfo>) -> Self {
+    /// A store over a store in memory, opened from `source` (if it was).
+    pub fn loaded(store: ChunkStore, store_info: Option<StoreInfo>, source: Option<&Path>) -> Self {
         Self {
             state: Mutex::new(State::Loaded(SharedStore::new(store))),
             store_info: Mutex::new(store_info),
+            source: source.map(Path::to_owned),
         }
     }
 
@@ -65,10 +69,29 @@ impl NativeStore {
         Self {
             state: Mutex::new(State::Lazy {
                 recording: Box::new(recording),
-                path,
+                path: path.clone(),
             }),
             store_info: Mutex::new(store_info),
+            source: Some(path),
         }
+    }
+
+    /// Refuses an output that is the store's own source (the file, or a file inside the
+    /// directory, it was opened from), as the CLI does.
+    fn refuse_overwriting_source(&self, out: &Path) -> PyResult<()> {
+        let Some(source) = &self.source else {
+            return Ok(());
+        };
+        let (Ok(source), Ok(out)) = (source.canonicalize(), out.canonicalize()) else {
+            return Ok(()); // the output does not exist yet: nothing to overwrite
+        };
+        if out == source || (source.is_dir() && out.starts_with(&source)) {
+            return Err(invalid(format!(
+                "{}: the output would overwrite the store's source",
+                out.display()
+            )));
+        }
+        Ok(())
     }
 
     /// The shared store, decoding the rest of a lazy recording first. GIL released.
@@ -299,7 +322,7 @@ impl NativeStore {
             StoreConfig::COMPACTION_OFF
         };
         let store = ChunkStore::with_config(config).map_err(|e| invalid(e.to_string()))?;
-        Ok(Self::loaded(store, None))
+        Ok(Self::loaded(store, None, None))
     }
 
     /// Is the store still reading its recording lazily?
@@ -597,19 +620,31 @@ impl NativeStore {
         })
     }
 
-    /// Writes every chunk to an `.rrd` file (atomically); returns the bytes written.
-    #[pyo3(signature = (path, application_id = "chunkstore"))]
-    fn write_rrd(&self, py: Python<'_>, path: PathBuf, application_id: &str) -> PyResult<u64> {
+    /// Writes every chunk to an `.rrd` file (atomically); returns the bytes written. The
+    /// recording keeps the store info it was read with; `recording_id` renames it (and
+    /// names one that had none, as `application_id` does).
+    #[pyo3(signature = (path, application_id = "chunkstore", recording_id = None))]
+    fn write_rrd(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        application_id: &str,
+        recording_id: Option<String>,
+    ) -> PyResult<u64> {
         py.detach(|| {
             no_panic(|| {
+                self.refuse_overwriting_source(&path)?;
                 let snapshot = self.snapshot()?;
-                let info = self.store_info.lock().clone().unwrap_or_else(|| {
+                let mut info = self.store_info.lock().clone().unwrap_or_else(|| {
                     let recording = path.file_stem().map_or_else(
                         || "recording".to_owned(),
                         |s| s.to_string_lossy().into_owned(),
                     );
                     StoreInfo::new(StoreId::recording(application_id, recording))
                 });
+                if let Some(recording_id) = recording_id {
+                    info.store_id.recording_id = recording_id;
+                }
                 chunkstore::rrd::write_rrd_file(&path, &info, snapshot.export_chunks(), |_| {})
                     .map_err(|e| rrd_error(&path, e))
             })
@@ -643,6 +678,7 @@ impl NativeStore {
             }
             options = options.with_row_group_rows(rows);
         }
+        py.detach(|| self.refuse_overwriting_source(&path))?;
         self.with_snapshot(py, move |view| {
             let stream = view.dataframe(&query).map_err(dataframe_error)?;
             let summary = write_parquet_file(&path, stream, &options).map_err(|e| match e {

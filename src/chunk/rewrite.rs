@@ -23,6 +23,31 @@ impl Chunk {
     /// # Errors
     /// Only if Arrow fails to copy, which would be a bug in this crate.
     pub(crate) fn gather(chunks: &[&Self], rows: &[RowSource]) -> Result<Self, ChunkError> {
+        Self::gather_as(ChunkId::new(), chunks, rows)
+    }
+
+    /// This chunk with its rows in row-id order, under the same id, or `None` if they are
+    /// in that order already. Rerun loads no chunk whose row ids are out of order ("Chunks
+    /// must be sorted before insertion"), and compaction sorts rows by time, which differs
+    /// from row-id order wherever data was logged out of time order: every writer of
+    /// files ([`crate::rrd::RrdWriter`], [`crate::io::write_chunk_ipc_file`]) sorts on the
+    /// way out. The id stays: the rows, and so the chunk, are the same (Rerun sorts in
+    /// place too).
+    ///
+    /// # Errors
+    /// Only if Arrow fails to copy, which would be a bug in this crate.
+    pub fn sorted_by_row_id(&self) -> Result<Option<Self>, ChunkError> {
+        if self.is_sorted_by_row_id {
+            return Ok(None);
+        }
+        let mut rows: Vec<RowSource> = (0..self.num_rows()).map(|row| (0, row)).collect();
+        // Stable, so rows under one row id (which only hand-built chunks have) keep their
+        // order.
+        rows.sort_by_key(|&(_, row)| self.row_ids[row]);
+        Self::gather_as(self.id, &[self], &rows).map(Some)
+    }
+
+    fn gather_as(id: ChunkId, chunks: &[&Self], rows: &[RowSource]) -> Result<Self, ChunkError> {
         let Some(first) = chunks.first() else {
             return Err(ChunkError::NoRows);
         };
@@ -57,7 +82,7 @@ impl Chunk {
             })
             .collect::<Result<Vec<_>, ChunkError>>()?;
         Self::from_raw(
-            ChunkId::new(),
+            id,
             first.entity_path.clone(),
             row_ids,
             times,

@@ -96,6 +96,19 @@ pub enum RrdErrorKind {
         /// The id.
         chunk_id: crate::ChunkId,
     },
+    /// The input holds data of more than one recording and none was chosen: a store holds
+    /// one recording (see [`super::RecordingSelector`]).
+    SeveralRecordings {
+        /// The recording ids found, in stream order.
+        recording_ids: Vec<String>,
+    },
+    /// The recording asked for is not in the input.
+    NoSuchRecording {
+        /// The recording id asked for.
+        wanted: String,
+        /// The recording ids the input holds, in stream order.
+        recording_ids: Vec<String>,
+    },
 }
 
 impl RrdError {
@@ -120,7 +133,13 @@ impl RrdError {
 
 impl fmt::Display for RrdError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "at byte {}: ", self.offset)?;
+        // Which recordings a file holds is no fault at a place in it.
+        if !matches!(
+            self.kind,
+            RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
+        ) {
+            write!(f, "at byte {}: ", self.offset)?;
+        }
         match &self.kind {
             RrdErrorKind::Io(e) => write!(f, "{e}"),
             RrdErrorKind::NotAnRrd { found } => write!(
@@ -169,8 +188,33 @@ impl fmt::Display for RrdError {
                 f,
                 "{chunk_id} was written already: a recording holds each chunk id once"
             ),
+            RrdErrorKind::SeveralRecordings { recording_ids } => write!(
+                f,
+                "data of more than one recording ({}): choose one by its recording id",
+                quoted(recording_ids)
+            ),
+            RrdErrorKind::NoSuchRecording {
+                wanted,
+                recording_ids,
+            } => write!(
+                f,
+                "no recording {wanted:?} (the recordings: {})",
+                if recording_ids.is_empty() {
+                    "none".to_owned()
+                } else {
+                    quoted(recording_ids)
+                }
+            ),
         }
     }
+}
+
+/// `"a", "b"`.
+fn quoted(ids: &[String]) -> String {
+    ids.iter()
+        .map(|id| format!("{id:?}"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 impl std::error::Error for RrdError {

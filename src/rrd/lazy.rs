@@ -31,7 +31,7 @@ use super::frames::{
     StreamHeader,
 };
 use super::manifest::{self, Manifest, ManifestEntry};
-use super::messages::{ArrowMsg, StoreInfo, StoreKind};
+use super::messages::{ArrowMsg, StoreId, StoreInfo};
 use super::payload;
 use crate::query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult};
 use crate::{
@@ -80,10 +80,25 @@ impl LazyRecording<std::fs::File> {
     /// [`super::read_rrd`] instead).
     ///
     /// # Errors
-    /// If the file cannot be read, is not an `.rrd`, or its footer is corrupt.
+    /// If the file cannot be read, is not an `.rrd`, its footer is corrupt, or it holds
+    /// more than one recording ([`RrdErrorKind::SeveralRecordings`]: choose one with
+    /// [`LazyRecording::open_recording`]).
     pub fn open(path: &Path) -> Result<Option<Self>, RrdError> {
+        Self::open_recording(path, None)
+    }
+
+    /// Opens the recording `recording_id` of a file lazily (or, given `None`, the only
+    /// one); `Ok(None)` if the file has no footer.
+    ///
+    /// # Errors
+    /// As [`LazyRecording::open`], and [`RrdErrorKind::NoSuchRecording`] if the file does
+    /// not hold that recording.
+    pub fn open_recording(
+        path: &Path,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
         let file = std::fs::File::open(path).map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
-        Self::from_reader(file)
+        Self::from_reader_recording(file, recording_id)
     }
 }
 
@@ -91,75 +106,59 @@ impl<R: Read + Seek> LazyRecording<R> {
     /// Opens a seekable input lazily; `Ok(None)` if it has no footer.
     ///
     /// # Errors
-    /// If the input cannot be read, is not an `.rrd`, or its footer is corrupt.
-    pub fn from_reader(mut input: R) -> Result<Option<Self>, RrdError> {
+    /// As [`LazyRecording::open`].
+    pub fn from_reader(input: R) -> Result<Option<Self>, RrdError> {
+        Self::from_reader_recording(input, None)
+    }
+
+    /// Opens the recording `recording_id` (or the only one) of a seekable input lazily;
+    /// `Ok(None)` if it has no footer.
+    ///
+    /// The input may be several streams one after the other (`cat a.rrd b.rrd`): each
+    /// stream's footer is found from the end backwards (its stream footer says where its
+    /// `End` message is, counted from the stream's start), and the manifests of one
+    /// recording in several streams are merged, their offsets counted from the start of
+    /// the input. If any stream has no footer, `Ok(None)`: only a full read sees it all.
+    ///
+    /// # Errors
+    /// As [`LazyRecording::open_recording`].
+    pub fn from_reader_recording(
+        mut input: R,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
         let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
         let file_bytes = input.seek(SeekFrom::End(0)).map_err(io(0))?;
         let mut stats = LazyStats {
             file_bytes,
             ..LazyStats::default()
         };
-        let mut header = [0u8; STREAM_HEADER_LEN];
-        read_at(
-            &mut input,
-            0,
-            &mut header,
-            file_bytes,
-            "stream header",
-            &mut stats,
-        )?;
-        let header = StreamHeader::parse(&header).map_err(|kind| RrdError::new(0, kind))?;
-        if file_bytes < (STREAM_HEADER_LEN + STREAM_FOOTER_LEN) as u64 {
-            return Ok(None);
-        }
-        let tail_at = file_bytes - STREAM_FOOTER_LEN as u64;
-        let mut tail = [0u8; STREAM_FOOTER_LEN];
-        read_at(
-            &mut input,
-            tail_at,
-            &mut tail,
-            file_bytes,
-            "stream footer",
-            &mut stats,
-        )?;
-        let Some(footer) = StreamFooter::parse(&tail) else {
+        let header = read_stream_header(&mut input, 0, &mut stats)?;
+        let Some(streams) = read_footers(&mut input, &mut stats)? else {
             return Ok(None);
         };
-        let footer_bad = |reason: String| RrdError::new(tail_at, RrdErrorKind::Footer { reason });
-        let fits = footer
-            .footer_start
-            .checked_add(footer.footer_len)
-            .is_some_and(|end| end <= tail_at && footer.footer_start >= MESSAGE_HEADER_LEN as u64);
-        if !fits {
-            return Err(footer_bad(format!(
-                "the footer claims {} bytes at {}, outside the {file_bytes}-byte file",
-                footer.footer_len, footer.footer_start
-            )));
+        // Each recording's manifest, merged across streams, in file order.
+        let mut manifests: Vec<Manifest> = Vec::new();
+        for stream in &streams {
+            for manifest in &stream.manifests {
+                match manifests
+                    .iter_mut()
+                    .find(|m| m.store_id == manifest.store_id)
+                {
+                    Some(merged) => merged.entries.extend(manifest.entries.iter().cloned()),
+                    None => manifests.push(manifest.clone()),
+                }
+            }
         }
-        let body = read_vec(
-            &mut input,
-            footer.footer_start,
-            footer.footer_len,
-            file_bytes,
-            &mut stats,
-        )?;
-        if frames::crc(&body) != footer.crc {
-            return Err(footer_bad(format!(
-                "checksum {:#x} of the footer at {} is not the {:#x} the stream footer says",
-                frames::crc(&body),
-                footer.footer_start,
-                footer.crc
-            )));
-        }
-        let manifests = manifest::decode_footer(&body)
-            .map_err(|(at, kind)| RrdError::new(footer.footer_start + at as u64, kind))?;
-        let Some(manifest) = manifests
-            .into_iter()
-            .find(|m| m.store_id.kind == StoreKind::Recording)
-        else {
+        let chosen = super::recordings::pick(manifests.iter().map(|m| &m.store_id), recording_id)
+            .map_err(|kind| RrdError::new(0, kind))?
+            .cloned();
+        let Some(chosen) = chosen else {
             return Ok(None);
         };
-        let store_info = read_store_info(&mut input, file_bytes, &mut stats);
+        let Some(manifest) = manifests.into_iter().find(|m| m.store_id == chosen) else {
+            return Ok(None);
+        };
+        let store_info = find_store_info(&mut input, &streams, &chosen, &mut stats);
         let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
         for (i, entry) in manifest.entries.iter().enumerate() {
             by_entity
@@ -168,8 +167,14 @@ impl<R: Read + Seek> LazyRecording<R> {
                 .push(i);
         }
         stats.chunks_in_file = manifest.entries.len();
-        let store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF)
-            .map_err(|e| footer_bad(e.to_string()))?;
+        let store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).map_err(|e| {
+            RrdError::new(
+                0,
+                RrdErrorKind::Footer {
+                    reason: e.to_string(),
+                },
+            )
+        })?;
         Ok(Some(Self {
             input,
             header,
@@ -187,12 +192,14 @@ impl<R: Read + Seek> LazyRecording<R> {
         self.header
     }
 
-    /// The recording's store info (the first `SetStoreInfo` of the file), if it has one.
+    /// The recording's store info (the first `SetStoreInfo` of its store in the file), if
+    /// the file has one.
     pub fn store_info(&self) -> Option<&StoreInfo> {
         self.store_info.as_ref()
     }
 
-    /// The footer's manifest of the recording.
+    /// The footer's manifest of the recording (merged across the file's streams), its
+    /// offsets counted from the start of the file.
     pub fn manifest(&self) -> &Manifest {
         &self.manifest
     }
@@ -466,27 +473,146 @@ fn read_vec<R: Read + Seek>(
     Ok(out)
 }
 
-/// The first message, if it is a store info (best effort: a file without one still opens).
-fn read_store_info<R: Read + Seek>(
+/// One stream of the input, found through its footer.
+struct Stream {
+    /// Where it starts in the input.
+    start: u64,
+    /// Where its `End` message's body starts (the first message not to look at).
+    end_at: u64,
+    /// Its manifests, offsets counted from the start of the input.
+    manifests: Vec<Manifest>,
+}
+
+fn read_stream_header<R: Read + Seek>(
     input: &mut R,
-    file_bytes: u64,
+    at: u64,
     stats: &mut LazyStats,
-) -> Option<StoreInfo> {
-    let mut header = [0u8; MESSAGE_HEADER_LEN];
+) -> Result<StreamHeader, RrdError> {
+    let mut header = [0u8; STREAM_HEADER_LEN];
     read_at(
         input,
-        STREAM_HEADER_LEN as u64,
+        at,
         &mut header,
-        file_bytes,
-        "message header",
+        stats.file_bytes,
+        "stream header",
         stats,
-    )
-    .ok()?;
-    let (kind, len) = frames::parse_message_header(&header);
-    if MessageKind::from_u64(kind) != Some(MessageKind::SetStoreInfo) {
-        return None;
+    )?;
+    StreamHeader::parse(&header).map_err(|kind| RrdError::new(at, kind))
+}
+
+/// Every stream's footer, from the last stream back to the first, returned in file
+/// order; `None` if a stream has no footer.
+fn read_footers<R: Read + Seek>(
+    input: &mut R,
+    stats: &mut LazyStats,
+) -> Result<Option<Vec<Stream>>, RrdError> {
+    let file_bytes = stats.file_bytes;
+    let mut streams = Vec::new();
+    let mut end = file_bytes;
+    while end > 0 {
+        if end < (STREAM_HEADER_LEN + STREAM_FOOTER_LEN) as u64 {
+            return Ok(None);
+        }
+        let tail_at = end - STREAM_FOOTER_LEN as u64;
+        let mut tail = [0u8; STREAM_FOOTER_LEN];
+        read_at(
+            input,
+            tail_at,
+            &mut tail,
+            file_bytes,
+            "stream footer",
+            stats,
+        )?;
+        let Some(footer) = StreamFooter::parse(&tail) else {
+            return Ok(None);
+        };
+        let footer_bad = |reason: String| RrdError::new(tail_at, RrdErrorKind::Footer { reason });
+        // The `End` message's body ends where the stream footer starts; the stream starts
+        // `footer_start` bytes before that body.
+        let body_at = tail_at.checked_sub(footer.footer_len);
+        let start = body_at.and_then(|at| at.checked_sub(footer.footer_start));
+        let (Some(body_at), Some(start)) = (body_at, start) else {
+            return Err(footer_bad(format!(
+                "the footer claims {} bytes at {} of a stream ending at byte {end}: more than \
+                 the input holds before it",
+                footer.footer_len, footer.footer_start
+            )));
+        };
+        if footer.footer_start < (STREAM_HEADER_LEN + MESSAGE_HEADER_LEN) as u64 {
+            return Err(footer_bad(format!(
+                "the footer claims to start at byte {} of its stream, inside the headers",
+                footer.footer_start
+            )));
+        }
+        read_stream_header(input, start, stats)?;
+        let body = read_vec(input, body_at, footer.footer_len, file_bytes, stats)?;
+        if frames::crc(&body) != footer.crc {
+            return Err(footer_bad(format!(
+                "checksum {:#x} of the footer at {body_at} is not the {:#x} the stream footer \
+                 says",
+                frames::crc(&body),
+                footer.crc
+            )));
+        }
+        let mut manifests = manifest::decode_footer(&body)
+            .map_err(|(at, kind)| RrdError::new(body_at + at as u64, kind))?;
+        for manifest in &mut manifests {
+            for entry in &mut manifest.entries {
+                entry.byte_offset = entry.byte_offset.checked_add(start).ok_or_else(|| {
+                    footer_bad(format!(
+                        "chunk {} at byte {} of a stream at {start}: past any file",
+                        entry.chunk_id, entry.byte_offset
+                    ))
+                })?;
+            }
+        }
+        streams.push(Stream {
+            start,
+            end_at: body_at,
+            manifests,
+        });
+        end = start;
     }
-    let at = (STREAM_HEADER_LEN + MESSAGE_HEADER_LEN) as u64;
-    let body = read_vec(input, at, len, file_bytes, stats).ok()?;
-    StoreInfo::decode_set_store_info(&body).ok()
+    streams.reverse();
+    Ok(Some(streams))
+}
+
+/// The first store info of `store` in the file: the message headers of the streams that
+/// hold it are walked from the start until its first chunk (a store info comes before its
+/// store's chunks). Best effort: a file without one still opens.
+fn find_store_info<R: Read + Seek>(
+    input: &mut R,
+    streams: &[Stream],
+    store: &StoreId,
+    stats: &mut LazyStats,
+) -> Option<StoreInfo> {
+    let file_bytes = stats.file_bytes;
+    for stream in streams {
+        let Some(manifest) = stream.manifests.iter().find(|m| &m.store_id == store) else {
+            continue;
+        };
+        let first_chunk = manifest
+            .entries
+            .iter()
+            .map(|e| e.byte_offset)
+            .min()
+            .unwrap_or(stream.end_at);
+        let mut at = stream.start + STREAM_HEADER_LEN as u64;
+        while at < first_chunk.min(stream.end_at) {
+            let mut header = [0u8; MESSAGE_HEADER_LEN];
+            read_at(input, at, &mut header, file_bytes, "message header", stats).ok()?;
+            let (kind, len) = frames::parse_message_header(&header);
+            let body_at = at + MESSAGE_HEADER_LEN as u64;
+            if MessageKind::from_u64(kind) == Some(MessageKind::SetStoreInfo) {
+                let body = read_vec(input, body_at, len, file_bytes, stats).ok()?;
+                if let Ok(info) = StoreInfo::decode_set_store_info(&body)
+                    && &info.store_id == store
+                {
+                    return Some(info);
+                }
+            }
+            at = body_at.checked_add(len)?;
+        }
+    }
+    None
 }

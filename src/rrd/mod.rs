@@ -8,6 +8,7 @@
 //! the `RRF2` framing (Rerun < 0.23) are refused. Blueprint stores are skipped, never mixed
 //! into the data.
 
+mod directory;
 mod error;
 mod frames;
 mod lazy;
@@ -16,14 +17,17 @@ mod messages;
 mod payload;
 mod protobuf;
 mod reader;
+mod recordings;
 mod writer;
 
+pub use directory::{STORE_INFO_FILE, read_directory_store_info, write_directory_store_info};
 pub use error::{RrdError, RrdErrorKind};
 pub use frames::StreamHeader;
 pub use lazy::{LazyRecording, LazyStats};
 pub use manifest::{Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange};
 pub use messages::{StoreId, StoreInfo, StoreKind};
 pub use reader::{RrdContents, RrdItem, RrdReader, read_rrd, read_rrd_from};
+pub use recordings::RecordingSelector;
 pub use writer::{RrdWriter, write_rrd_file};
 
 /// Does `bytes` (a file's first bytes) look like an `.rrd` stream of any framing?

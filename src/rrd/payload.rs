@@ -103,7 +103,7 @@ pub(crate) fn ipc_stream(
 /// Encodes a chunk as a payload: the IPC stream and, if compressing, its LZ4 block.
 /// Returns the payload and the IPC stream's size.
 pub(crate) fn encode_chunk(chunk: &Chunk, compress: bool) -> Result<(Vec<u8>, u64), IoError> {
-    let batch = chunk.to_record_batch().map_err(IoError::Ipc)?;
+    let batch = crate::io::export_batch(chunk)?;
     let ipc = ipc_stream(&batch.schema(), Some(&batch)).map_err(IoError::Ipc)?;
     let size = ipc.len() as u64;
     if compress {

@@ -198,3 +198,23 @@ impl Drop for ScratchDir {
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
+
+/// What Rerun 0.41 checks of a chunk before it loads it (`ChunkStore::insert_chunk`:
+/// "Chunks must be sorted before insertion"): its row ids in ascending order. Every chunk
+/// of every file we write must pass, or Rerun's SDK and viewer refuse the file.
+pub fn assert_rerun_loads(chunk: &Chunk) {
+    assert!(
+        chunk.row_ids().is_sorted(),
+        "chunk {} has its row ids out of order: Rerun refuses it",
+        chunk.id()
+    );
+}
+
+/// Every chunk of an `.rrd` file's bytes (recordings only), each checked with
+/// [`assert_rerun_loads`].
+pub fn rrd_chunks_rerun_loads(bytes: Vec<u8>) -> Vec<Chunk> {
+    let contents = chunkstore::rrd::read_rrd(arrow_buffer::Buffer::from_vec(bytes), false).unwrap();
+    let chunks: Vec<Chunk> = contents.chunks.into_iter().map(|(_, c)| c).collect();
+    chunks.iter().for_each(assert_rerun_loads);
+    chunks
+}

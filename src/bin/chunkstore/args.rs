@@ -57,6 +57,11 @@ pub struct LoadArgs {
     /// each, and load the rest (without it, the first one is an error).
     #[arg(long, global = true)]
     pub skip_bad: bool,
+    /// The recording to read, by its recording id, where the source holds several (streams
+    /// concatenated, or one stream with several recordings); without it, such a source is
+    /// an error naming them.
+    #[arg(long, global = true, value_name = "ID")]
+    pub recording: Option<String>,
     /// Decode a whole `.rrd` before answering, even where its footer would let a query
     /// decode only the chunks it needs.
     #[arg(long, global = true)]
@@ -131,12 +136,12 @@ pub enum Command {
     Convert {
         /// Where to write.
         out: PathBuf,
-        /// The application id of an `.rrd` written from chunk files (from an `.rrd`, its
-        /// own store info is kept).
+        /// The application id of what is written from chunk files that name no recording
+        /// (an `.rrd`, or a directory `convert` wrote, keeps its own store info).
         #[arg(long, default_value = "chunkstore")]
         application_id: String,
-        /// The recording id of an `.rrd` written from chunk files (default: the source's
-        /// name).
+        /// The recording id of what is written from chunk files that name no recording
+        /// (default: the source's name).
         #[arg(long)]
         recording_id: Option<String>,
     },

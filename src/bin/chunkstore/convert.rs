@@ -31,6 +31,7 @@ pub fn convert(
         },
         compact: options.compact,
         skip_bad: options.skip_bad,
+        recording: options.recording.clone(),
     };
     let loaded = load::load_in_order(source, &load_options)?;
     let chunks: Vec<Arc<Chunk>> = if options.compact {
@@ -45,35 +46,45 @@ pub fn convert(
     } else {
         loaded.in_order
     };
+    if loaded.skipped_blueprint_messages > 0 {
+        eprintln!(
+            "warning: {}: left out its blueprint ({} messages): chunkstore keeps recordings only",
+            source.display(),
+            loaded.skipped_blueprint_messages
+        );
+    }
     let is_rrd = out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("rrd"));
+    // The recording keeps its own identity (its store info, not a blueprint's); a source
+    // without one (chunk files) is named by the options or the file name.
+    let info = loaded.store_info.unwrap_or_else(|| {
+        let recording = recording_id.map_or_else(
+            || {
+                source.file_stem().map_or_else(
+                    || "recording".to_owned(),
+                    |s| s.to_string_lossy().into_owned(),
+                )
+            },
+            str::to_owned,
+        );
+        StoreInfo::new(StoreId::recording(application_id, recording))
+    });
     if is_rrd {
-        let info = loaded.store_info.unwrap_or_else(|| {
-            let recording = recording_id.map_or_else(
-                || {
-                    source.file_stem().map_or_else(
-                        || "recording".to_owned(),
-                        |s| s.to_string_lossy().into_owned(),
-                    )
-                },
-                str::to_owned,
-            );
-            StoreInfo::new(StoreId::recording(application_id, recording))
-        });
         let bar = load::progress(chunks.len() as u64, "writing", false);
         let result = chunkstore::rrd::write_rrd_file(out, &info, chunks, |_| bar.inc(1));
         bar.finish_and_clear();
         result.map_err(|e| format!("{}: {e}", out.display()))?;
     } else {
-        write_directory(out, &chunks)?;
+        write_directory(out, &info, &chunks)?;
     }
     Ok(())
 }
 
-/// Writes one IPC file per chunk into a temporary directory beside `out`, then renames it
-/// to `out` (which must not exist, or be an empty directory).
-fn write_directory(out: &Path, chunks: &[Arc<Chunk>]) -> Result<(), String> {
+/// Writes one IPC file per chunk, and the recording's store info, into a temporary
+/// directory beside `out`, then renames it to `out` (which must not exist, or be an empty
+/// directory).
+fn write_directory(out: &Path, info: &StoreInfo, chunks: &[Arc<Chunk>]) -> Result<(), String> {
     let name = out.display();
     if let Ok(mut entries) = std::fs::read_dir(out)
         && entries.next().is_some()
@@ -108,6 +119,8 @@ fn write_directory(out: &Path, chunks: &[Arc<Chunk>]) -> Result<(), String> {
             bar.inc(1);
         }
         bar.finish_and_clear();
+        chunkstore::rrd::write_directory_store_info(&temp, info)
+            .map_err(|e| format!("{}: {e}", temp.display()))?;
         if out.is_dir() {
             std::fs::remove_dir(out).map_err(|e| format!("{name}: {e}"))?;
         }

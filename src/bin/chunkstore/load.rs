@@ -6,7 +6,9 @@ use std::io::{IsTerminal as _, Read as _};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, StoreInfo};
+use chunkstore::rrd::{
+    LazyRecording, RecordingSelector, RrdErrorKind, RrdItem, RrdReader, StoreInfo,
+};
 use chunkstore::{
     ChunkId, ChunkStore, ComponentName, EntityPath, LatestAtQuery, QueryCell, RangeQuery,
     RangeResult, RowId, StoreConfig,
@@ -20,6 +22,8 @@ pub struct Options {
     pub config: StoreConfig,
     pub compact: bool,
     pub skip_bad: bool,
+    /// `--recording ID`: the recording to read where the source holds several.
+    pub recording: Option<String>,
 }
 
 /// What a source is, by its contents.
@@ -95,8 +99,11 @@ pub struct Loaded {
     /// Kept only for the commands that print chunk ids (a map entry per row).
     pub source_chunk: ahash::HashMap<RowId, ChunkId>,
     track_sources: bool,
-    /// The first store info of an `.rrd` source.
+    /// The loaded recording's store info (of an `.rrd` source, or a directory written by
+    /// `convert`).
     pub store_info: Option<StoreInfo>,
+    /// Blueprint messages the source held, which were not loaded.
+    pub skipped_blueprint_messages: usize,
     /// The chunks in source order, when asked for (for `convert`), each id once: a chunk
     /// the source holds twice (which the store takes once) is written once.
     pub in_order: Vec<Arc<chunkstore::Chunk>>,
@@ -115,6 +122,7 @@ impl Loaded {
             source_chunk: ahash::HashMap::default(),
             track_sources,
             store_info: None,
+            skipped_blueprint_messages: 0,
             in_order: Vec::new(),
             in_order_ids: ahash::HashSet::default(),
         })
@@ -158,7 +166,10 @@ fn load_with(
     let mut loaded = Loaded::new(options.config, track_sources)?;
     match source_kind(source)? {
         SourceKind::Rrd => load_rrd(source, options, keep_order, &mut loaded)?,
-        SourceKind::IpcDirectory => load_directory(source, options, keep_order, &mut loaded)?,
+        SourceKind::IpcDirectory => {
+            loaded.store_info = directory_store_info(source, options.recording.as_deref())?;
+            load_directory(source, options, keep_order, &mut loaded)?;
+        }
         SourceKind::IpcFile => {
             let chunks = chunkstore::io::read_chunks_from_path(source)
                 .map_err(|e| format!("{}: {e}", source.display()))?;
@@ -236,13 +247,24 @@ fn insert_items(
     name: &str,
 ) -> Result<(), String> {
     let mut num_chunks = 0usize;
+    let mut selector = RecordingSelector::new(options.recording.as_deref());
     for (item, position) in received {
         bar.set_position(position);
         match item {
-            Ok(RrdItem::StoreInfo(info)) => {
-                loaded.store_info.get_or_insert(info);
-            }
-            Ok(RrdItem::Chunk { chunk, offset, .. }) => {
+            Ok(RrdItem::StoreInfo(info)) => selector.observe(&info),
+            Ok(RrdItem::SkippedBlueprint { .. }) => loaded.skipped_blueprint_messages += 1,
+            Ok(RrdItem::Chunk {
+                chunk,
+                offset,
+                store_id,
+            }) => {
+                // Another recording's chunk is not data of this one (nor bad data).
+                if !selector
+                    .wants(&store_id)
+                    .map_err(|kind| recording_error(name, kind))?
+                {
+                    continue;
+                }
                 let id = chunk.id();
                 if let Err(error) = loaded.insert(chunk, keep_order) {
                     if !options.skip_bad {
@@ -275,10 +297,40 @@ fn insert_items(
             }
         }
     }
+    loaded.store_info = selector
+        .finish()
+        .map_err(|kind| recording_error(name, kind))?;
     if num_chunks == 0 && loaded.store.num_chunks() == 0 && options.skip_bad {
         eprintln!("warning: {name} holds no chunk that could be loaded");
     }
     Ok(())
+}
+
+/// A source holding several recordings, or not the one asked for: named, with the option
+/// that chooses.
+fn recording_error(name: &str, kind: RrdErrorKind) -> String {
+    let error = chunkstore::rrd::RrdError { offset: 0, kind };
+    format!("{name}: {error} (--recording ID chooses)")
+}
+
+/// The recording a directory of chunk files names (`convert` writes it), checked against
+/// `--recording`.
+fn directory_store_info(dir: &Path, wanted: Option<&str>) -> Result<Option<StoreInfo>, String> {
+    let name = dir.display().to_string();
+    let info = chunkstore::rrd::read_directory_store_info(dir).map_err(|e| {
+        format!(
+            "{}: {e}",
+            dir.join(chunkstore::rrd::STORE_INFO_FILE).display()
+        )
+    })?;
+    let mut selector = RecordingSelector::new(wanted);
+    if let Some(info) = &info {
+        selector.observe(info);
+    }
+    selector
+        .finish()
+        .map_err(|kind| recording_error(&name, kind))?;
+    Ok(info)
 }
 
 fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
@@ -352,13 +404,19 @@ pub enum Answers {
 /// footer (unless `eager` or `--skip-bad`, which needs to see every message), else loaded.
 pub fn open_for_queries(source: &Path, options: &Options, eager: bool) -> Result<Answers, String> {
     if !eager && !options.skip_bad && matches!(source_kind(source)?, SourceKind::Rrd) {
-        match LazyRecording::open(source) {
+        match LazyRecording::open_recording(source, options.recording.as_deref()) {
             Ok(Some(lazy)) => {
                 warn_if_newer(lazy.header(), source);
                 return Ok(Answers::Lazy(Box::new(lazy)));
             }
             Ok(None) => {}
             Err(error) => {
+                if matches!(
+                    error.kind,
+                    RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
+                ) {
+                    return Err(recording_error(&source.display().to_string(), error.kind));
+                }
                 return Err(format!(
                     "{}: {error} (--eager reads it without the footer)",
                     source.display()

@@ -268,6 +268,7 @@ pub fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
                 config: chunkstore::StoreConfig::COMPACTION_OFF,
                 compact: false,
                 skip_bad,
+                recording: None,
             };
             let loaded = load::load_in_order(source, &options)?;
             for chunk in &loaded.in_order {
