@@ -112,13 +112,27 @@ pub fn write_hive_dataset(
             ),
         ));
     }
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty())
+        && !parent.is_dir()
+    {
+        return Err(io(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("the directory {} does not exist", parent.display()),
+            ),
+        ));
+    }
     let name = dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let partial = dir.with_file_name(format!(".{name}.partial-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&partial);
-    std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
+    // `create_dir`, not `create_dir_all`: a missing parent is an error, as it is for
+    // every other output (a typo in the path should not make directories).
+    let (_unfinished, ()) = crate::UnfinishedOutput::create(&partial, |p| std::fs::create_dir(p))
+        .map_err(|e| io(&partial, e))?;
     let written = match layout {
         HiveLayout::ByEntity { timeline } => by_entity(view, &partial, timeline.as_deref()),
         HiveLayout::ByTimeBucket {

@@ -153,6 +153,8 @@ mod stats;
 mod store;
 mod time;
 
+#[cfg(any(feature = "ipc", feature = "parquet"))]
+pub use atomic::{UnfinishedOutput, remove_unfinished_outputs};
 pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};

@@ -1136,3 +1136,155 @@ fn a_file_of_two_recordings_is_never_merged() {
         cli_on(&b, &[], &["range", "frame", "0", "9"])
     );
 }
+
+/// Issue 32, item 6: outputs never replace what they should write through: a symbolic
+/// link stays a link (its target gets the file), `/dev/stdout` (a pipe here) gets the
+/// bytes, a device node stays a device node.
+#[cfg(unix)]
+#[test]
+fn outputs_write_through_links_and_devices() {
+    use std::os::unix::fs::FileTypeExt as _;
+    let dir = scratch_dir("write-through");
+    let rrd = recording_rrd();
+    for (command, file) in [
+        (&["dataframe", "frame_id", "--out"][..], "table.parquet"),
+        (&["dataframe", "frame_id", "--out"], "table.arrow"),
+        (&["convert"], "copy.rrd"),
+    ] {
+        let target = dir.join(format!("target-{file}"));
+        let link = dir.join(file);
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let mut args: Vec<&OsStr> = vec![rrd.as_os_str()];
+        args.extend(command.iter().map(OsStr::new));
+        args.push(link.as_os_str());
+        ok(&args);
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink(),
+            "{file}: the link was replaced"
+        );
+        assert!(std::fs::metadata(&target).unwrap().len() > 0, "{file}");
+    }
+    // `--out /dev/stdout`: the Arrow IPC file on the pipe the test reads.
+    let output = run(&[
+        rrd.as_os_str(),
+        OsStr::new("dataframe"),
+        OsStr::new("frame_id"),
+        OsStr::new("--out"),
+        OsStr::new("/dev/stdout"),
+    ]);
+    assert!(output.status.success(), "{output:?}");
+    assert!(
+        output.stdout.starts_with(b"ARROW1"),
+        "{:?}",
+        &output.stdout[..8]
+    );
+    assert_eq!(
+        chunkstore::io::read_batches(&output.stdout)
+            .unwrap()
+            .iter()
+            .map(arrow_array::RecordBatch::num_rows)
+            .sum::<usize>(),
+        60
+    );
+    let dataframe_to = |out: &'static str| {
+        [
+            rrd.as_os_str(),
+            OsStr::new("dataframe"),
+            OsStr::new("frame_id"),
+            OsStr::new("--out"),
+            OsStr::new(out),
+        ]
+    };
+    ok(&dataframe_to("/dev/null"));
+    assert!(
+        std::fs::metadata("/dev/null")
+            .unwrap()
+            .file_type()
+            .is_char_device()
+    );
+    if Path::new("/dev/full").exists() {
+        let line = fails(&dataframe_to("/dev/full"));
+        assert!(line.contains("/dev/full"), "{line}");
+        assert!(
+            std::fs::metadata("/dev/full")
+                .unwrap()
+                .file_type()
+                .is_char_device()
+        );
+    }
+}
+
+/// Issue 32, item 8: SIGTERM (and SIGINT) in the middle of a write leaves no temporary
+/// file or directory behind, and no output; `hive` refuses a missing parent directory as
+/// every other output does.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_write_leaves_no_debris() {
+    let dir = scratch_dir("interrupted");
+    // 20,000 one-row chunks: `convert` to a directory writes and syncs a file each, long
+    // enough to be interrupted.
+    let source = dir.join("many.rrd");
+    let info = chunkstore::rrd::StoreInfo::new(chunkstore::rrd::StoreId::recording("app", "many"));
+    let chunks = (0u16..20_000).map(|i| {
+        std::sync::Arc::new(common::scalar(
+            "/e",
+            "x",
+            i64::from(i),
+            1 + u128::from(i),
+            0.5,
+        ))
+    });
+    chunkstore::rrd::write_rrd_file(&source, &info, chunks, |_| {}).unwrap();
+    let outputs = dir.join("outputs");
+    std::fs::create_dir(&outputs).unwrap();
+    for signal in ["-TERM", "-INT"] {
+        let out = outputs.join("chunks");
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+            .args([source.as_os_str(), OsStr::new("convert"), out.as_os_str()])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait until the temporary directory holds a file, then interrupt.
+        let started = std::time::Instant::now();
+        loop {
+            let busy = std::fs::read_dir(&outputs).unwrap().any(|e| {
+                let path = e.unwrap().path();
+                path.is_dir() && std::fs::read_dir(&path).unwrap().next().is_some()
+            });
+            if busy {
+                break;
+            }
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "finished before it could be interrupted"
+            );
+            assert!(
+                started.elapsed().as_secs() < 60,
+                "no temporary directory appeared"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        let status = std::process::Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let output = child.wait_with_output().unwrap();
+        assert_eq!(output.status.code(), Some(130), "{signal}: {output:?}");
+        let left: Vec<_> = std::fs::read_dir(&outputs)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        assert!(left.is_empty(), "{signal}: debris {left:?}");
+    }
+    let line = fails(&[
+        recording_rrd().as_os_str(),
+        OsStr::new("hive"),
+        dir.join("missing/parent/h").as_os_str(),
+    ]);
+    assert!(line.contains("does not exist"), "{line}");
+    assert!(!dir.join("missing").exists());
+}

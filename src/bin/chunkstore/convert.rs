@@ -86,12 +86,21 @@ pub fn convert(
 /// directory).
 fn write_directory(out: &Path, info: &StoreInfo, chunks: &[Arc<Chunk>]) -> Result<(), String> {
     let name = out.display();
+    // A link to an empty directory is written through: the directory it names is
+    // replaced, the link kept.
+    let resolved;
+    let out = if std::fs::symlink_metadata(out).is_ok_and(|m| m.file_type().is_symlink()) {
+        resolved = out.canonicalize().map_err(|e| format!("{name}: {e}"))?;
+        resolved.as_path()
+    } else {
+        out
+    };
     if let Ok(mut entries) = std::fs::read_dir(out)
         && entries.next().is_some()
     {
         return Err(format!("{name}: the directory exists and is not empty"));
     }
-    if out.is_file() {
+    if out.exists() && !out.is_dir() {
         return Err(format!(
             "{name}: a file exists there (an .rrd output needs a name ending .rrd)"
         ));
@@ -100,8 +109,10 @@ fn write_directory(out: &Path, info: &StoreInfo, chunks: &[Arc<Chunk>]) -> Resul
         .file_name()
         .map_or_else(|| "out".to_owned(), |n| n.to_string_lossy().into_owned());
     let temp: PathBuf = out.with_file_name(format!(".{file_name}.{}.tmp", std::process::id()));
+    // Registered, so that an interrupt (SIGINT, SIGTERM) removes it.
+    let (_unfinished, ()) = chunkstore::UnfinishedOutput::create(&temp, |p| std::fs::create_dir(p))
+        .map_err(|e| format!("{name}: {e}"))?;
     let result = (|| -> Result<(), String> {
-        std::fs::create_dir(&temp).map_err(|e| format!("{}: {e}", temp.display()))?;
         let width = chunks.len().to_string().len().max(4);
         let bar = load::progress(chunks.len() as u64, "writing", false);
         for (i, chunk) in chunks.iter().enumerate() {

@@ -73,6 +73,15 @@ fn main() -> ExitCode {
             .unwrap_or_default();
         LAST_PANIC.with(|last| *last.borrow_mut() = Some(format!("{message}{place}")));
     }));
+    // Ctrl-C or SIGTERM: the temporary files and directories of outputs being written
+    // are removed (the outputs themselves are untouched: they only ever appear whole),
+    // then the tool exits as an interrupted program does. A SIGKILL leaves them: see
+    // `chunkstore::remove_unfinished_outputs`.
+    let _ = ctrlc::set_handler(|| {
+        chunkstore::remove_unfinished_outputs();
+        eprintln!("error: interrupted");
+        std::process::exit(130);
+    });
     let args: Vec<OsString> = std::env::args_os().collect();
     let cli = match args::parse(&args) {
         Ok(cli) => cli,
@@ -121,6 +130,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         config,
         compact: cli.load.compact,
         skip_bad: cli.load.skip_bad,
+        recording: cli.load.recording.clone(),
     };
     let source = &cli.source;
     match &cli.command {
