@@ -1,7 +1,7 @@
 //! The `chunkstore` tool from outside, as a user meets it: answers that do not depend on
 //! how a source is chunked, duplicated or encoded (`.rrd` or chunk files, lazy or not), one
-//! line on stderr per error and exit code 2, never a panic, warnings for queries that can
-//! only find static data, `--skip-bad` to load what can be loaded, `print`, `convert`
+//! line on stderr per error and exit code 2, never a panic, errors for unknown timelines,
+//! reversed ranges and empty selections, `--skip-bad` to load what can be loaded, `print`, `convert`
 //! (atomic, checked by reading back), and `--help` with an example on every command.
 #![allow(
     clippy::unwrap_used,
@@ -197,38 +197,55 @@ fn skip_bad_reports_each_bad_file_and_loads_the_rest() {
     assert!(line.contains("could be read"), "{line}");
 }
 
-/// Issue 12, item 10: a timeline the data never uses, and a range whose start is after its
-/// end, answer with static data only (SEMANTICS.md section 3) and exit 0, as before, but
-/// now with one warning line naming the known timelines or the empty range.
+/// Issue 32, item 13 (which replaces issue 12's warnings): one rule everywhere. A
+/// timeline the source does not have, a range whose start is after its end, and a
+/// `--contents` filter that selects nothing are errors (exit 2, one line naming what the
+/// source has), as `dataframe`, SQL and Python already said, never an answer of static
+/// data only that a script takes for success.
 #[test]
-fn queries_that_can_only_find_static_data_warn_once() {
+fn unknown_timelines_reversed_ranges_and_empty_selections_are_errors() {
     let chunks = recording_chunks();
     let chunks = chunks.to_str().unwrap();
-    let (typo, warning) = ok(&[chunks, "latest-at", "frame_idd", "30"]);
-    let static_only: Vec<&str> = typo.lines().collect();
-    assert!(!static_only.is_empty());
-    assert!(
-        static_only.iter().all(|l| l.contains("\"time\":null")),
-        "{typo}"
-    );
-    assert_eq!(warning.lines().count(), 1, "{warning}");
-    assert!(
-        warning.starts_with("warning: ")
-            && warning.contains("\"frame_idd\"")
-            && warning.contains("\"frame_id\", \"log_time\", \"sim_time\""),
-        "{warning}"
-    );
-
-    let (reversed, warning) = ok(&[chunks, "range", "frame_id", "40", "30"]);
-    assert_eq!(reversed.lines().count(), static_only.len(), "{reversed}");
-    assert_eq!(warning.lines().count(), 1, "{warning}");
-    assert!(warning.contains("[40, 30] is empty"), "{warning}");
-
-    let (_, quiet) = ok(&[chunks, "range", "frame_id", "30", "40"]);
-    assert!(
-        quiet.is_empty(),
-        "a sensible query warns of nothing: {quiet}"
-    );
+    let rrd = recording_rrd();
+    let rrd = rrd.to_str().unwrap();
+    for source in [chunks, rrd] {
+        for command in [
+            &["latest-at", "FRAME_ID", "30"][..],
+            &["range", "FRAME_ID", "30", "40"],
+            &["dataframe", "FRAME_ID"],
+        ] {
+            let mut args = vec![source];
+            args.extend(command);
+            let line = fails(&args);
+            assert!(
+                line.contains("unknown timeline \"FRAME_ID\"")
+                    && line.contains("frame_id, log_time, sim_time"),
+                "{command:?}: {line}"
+            );
+        }
+        for command in [
+            &["range", "frame_id", "40", "30"][..],
+            &["dataframe", "frame_id", "--range", "40", "30"],
+        ] {
+            let mut args = vec![source];
+            args.extend(command);
+            let line = fails(&args);
+            assert!(
+                line.contains("MIN is greater than MAX"),
+                "{command:?}: {line}"
+            );
+        }
+        let line = fails(&[source, "dataframe", "frame_id", "--contents", "/wrold/**"]);
+        assert!(
+            line.contains("matches no entity") && line.contains("/world/robot"),
+            "{line}"
+        );
+        let (_, quiet) = ok(&[source, "range", "frame_id", "30", "40"]);
+        assert!(
+            quiet.is_empty(),
+            "a sensible query warns of nothing: {quiet}"
+        );
+    }
 }
 
 /// Issue 12, item 10: `stats` lists what there is to query: each timeline with its type and

@@ -34,9 +34,11 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
         }
         query = query.with_index_values(values.iter().copied());
     }
+    let mut filter = None;
     if !args.contents.is_empty() {
-        let filter = EntityPathFilter::parse(&args.contents).map_err(|e| e.to_string())?;
-        query = query.with_contents(filter);
+        let parsed = EntityPathFilter::parse(&args.contents).map_err(|e| e.to_string())?;
+        query = query.with_contents(parsed.clone());
+        filter = Some(parsed);
     }
     if let Some(out) = &args.out
         && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
@@ -48,6 +50,24 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     let loaded = load::load(source, options)?;
     let store = &loaded.store;
     let stream = store.dataframe(&query).map_err(|e| e.to_string())?;
+    // A filter that selects nothing is a mistake (a typo'd path), not an empty table.
+    if let Some(filter) = &filter {
+        let entities = store.entity_paths();
+        if !entities.iter().any(|entity| filter.matches(entity)) {
+            let names: Vec<String> = entities.iter().map(ToString::to_string).collect();
+            return Err(format!(
+                "--contents {}: matches no entity of {} (its entities: {})",
+                args.contents.join(" "),
+                source.display(),
+                if names.is_empty() {
+                    "none".to_owned()
+                } else {
+                    names.join(", ")
+                }
+            )
+            .into());
+        }
+    }
     let index_position = stream.schema().index_of(&args.index).ok();
     let bar = match (&args.index_values, store.time_range(&args.index)) {
         (Some(values), _) => Progress::new(values.len() as u64, None),

@@ -478,46 +478,30 @@ impl Answers {
         }
     }
 
-    /// One warning line if no data of the source is on `timeline`: the query still
-    /// answers (with static data only), but a misspelt name should not pass unnoticed.
-    pub fn warn_if_unknown(&self, timeline: &str, source: &Path) {
-        let names: Vec<String> = match self {
-            Self::Eager(loaded) => {
-                if loaded.store.time_type(timeline).is_some() {
-                    return;
-                }
-                loaded
-                    .store
-                    .timelines()
-                    .iter()
-                    .map(|t| t.name().to_owned())
-                    .collect()
-            }
-            Self::Lazy(lazy) => {
-                let names: Vec<String> = lazy
-                    .timelines()
-                    .iter()
-                    .map(|t| t.0.name().to_owned())
-                    .collect();
-                if names.iter().any(|n| n == timeline) {
-                    return;
-                }
-                names
-            }
-        };
-        let known = if names.is_empty() {
-            "none".to_owned()
-        } else {
-            names
+    /// An error if no data of the source is on `timeline`, naming the timelines it has:
+    /// the rule of `dataframe`, SQL and Python too (a misspelt name must not pass for an
+    /// answer of static data only).
+    pub fn check_timeline(&self, timeline: &str, source: &Path) -> Result<(), String> {
+        let known: Vec<String> = match self {
+            Self::Eager(loaded) => loaded
+                .store
+                .timelines()
                 .iter()
-                .map(|n| format!("{n:?}"))
-                .collect::<Vec<_>>()
-                .join(", ")
+                .map(|t| t.name().to_owned())
+                .collect(),
+            Self::Lazy(lazy) => lazy
+                .timelines()
+                .iter()
+                .map(|t| t.0.name().to_owned())
+                .collect(),
         };
-        eprintln!(
-            "warning: no data of {} is on timeline {timeline:?} (its timelines: {known}): only \
-             static data answers",
-            source.display()
-        );
+        if known.iter().any(|name| name == timeline) {
+            return Ok(());
+        }
+        let error = chunkstore::DataframeError::UnknownIndex {
+            timeline: timeline.to_owned(),
+            known,
+        };
+        Err(format!("{}: {error}", source.display()))
     }
 }

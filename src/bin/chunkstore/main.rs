@@ -136,18 +136,17 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     match &cli.command {
         Command::LatestAt { timeline, time } => {
             let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            answers.warn_if_unknown(timeline, source);
+            answers.check_timeline(timeline, source)?;
             output::latest_at(&mut answers, timeline, *time)
         }
         Command::Range { timeline, min, max } => {
-            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            answers.warn_if_unknown(timeline, source);
+            // The same rule as `dataframe --range`, SQL and Python: a reversed range is a
+            // mistake to name, not an empty answer that looks like success.
             if min > max {
-                eprintln!(
-                    "warning: the range [{min}, {max}] is empty (its start is after its end): \
-                     only static data answers"
-                );
+                return Err(format!("range {min} {max}: MIN is greater than MAX").into());
             }
+            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
+            answers.check_timeline(timeline, source)?;
             output::range(&mut answers, timeline, *min, *max)
         }
         Command::Stats => {
