@@ -328,6 +328,44 @@ impl ClearIndex {
         out
     }
 
+    /// The temporal recursive Clears of `entity`'s strict ancestors on `timeline` inside
+    /// `range`, ascending, without repeats: where the `Clear:is_recursive` column of
+    /// `entity` shows an ancestor's Clear in a dataframe (no Clear hides that column).
+    pub fn ancestor_recursive_clears(
+        &self,
+        entity: &EntityPath,
+        timeline: &str,
+        range: TimeRange,
+    ) -> Vec<(TimeInt, RowId)> {
+        let mut out = Vec::new();
+        if range.is_empty() {
+            return out;
+        }
+        let parts = entity.part_arcs();
+        let mut node = self;
+        for part in parts {
+            if let Some(set) = node
+                .clears
+                .as_ref()
+                .and_then(|clears| clears.recursive_per_timeline.get(timeline))
+            {
+                let start = (range.min(), RowId::ZERO, ChunkId::ZERO);
+                let end = (range.max(), RowId::MAX, ChunkId::MAX);
+                out.extend(
+                    set.range(start..=end)
+                        .map(|(&(time, row_id, _), _)| (time, row_id)),
+                );
+            }
+            match node.children.get(part) {
+                Some(child) => node = child,
+                None => break,
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
     pub fn sanity_check(&self) -> Result<(), SanityError> {
         let Self { clears, children } = self;
         if let Some(clears) = clears {

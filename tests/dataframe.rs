@@ -303,6 +303,9 @@ fn one_batch(store: &ChunkStore, query: &DataframeQuery) -> RecordBatch {
     arrow_select::concat::concat_batches(&schema, &batches).unwrap()
 }
 
+/// SEMANTICS.md section 9 (settled by issue 32, item 9): an empty list marks a Clear at
+/// its own time; everything a Clear hides elsewhere (a filled or sampled cell, before any
+/// data too) is null, the answer latest-at gives: none.
 #[test]
 fn a_flat_clear_shows_as_an_empty_list_and_is_not_filled_back() {
     let store = store_of([
@@ -328,21 +331,40 @@ fn a_flat_clear_shows_as_an_empty_list_and_is_not_filled_back() {
         lines(&[
             "1 | null | [1] | null",
             "3 | [false] | [] | null",
-            "4 | [false] | [] | [4]",
+            "4 | [false] | null | [4]",
             "5 | [false] | [5] | [4]"
         ])
     );
-    // Sampling agrees with latest-at: hidden from the Clear on, visible again after.
+    // Sampling agrees with latest-at: hidden (null) from the Clear on, visible again after.
     let sampled = render(&store, &frame().with_index_values([t(2), t(3), t(4), t(5)])).1;
     assert_eq!(
         sampled,
         lines(&[
             "2 | null | [1] | null",
-            "3 | [false] | [] | null",
-            "4 | [false] | [] | [4]",
+            "3 | [false] | null | null",
+            "4 | [false] | null | [4]",
             "5 | [false] | [5] | [4]"
         ])
     );
+    for at in [3, 4] {
+        let query = chunkstore::LatestAtQuery::new("frame", t(at));
+        assert!(store.latest_at(&query, &path("/a"), "x").is_none());
+    }
+    // Before any data: null, not an empty list, when a Clear came first.
+    let early = store_of([clear("/a", Some(1), 1, false), scalar("/a", "x", 3, 2, 3.0)]);
+    assert_eq!(
+        render(&early, &frame().with_index_values([t(0), t(1), t(2), t(3)])).1,
+        lines(&[
+            "0 | null | null",
+            "1 | [false] | null",
+            "2 | [false] | null",
+            "3 | [false] | [3]"
+        ])
+    );
+    // A logged empty list is a row of the column; a Clear's mark is told from it by the
+    // Clear's own column (here `/a:Clear:is_recursive`), non-null in the same row.
+    let logged = store_of([scalars("/a", "x", &[(1, 1, Some(vec![]))])]);
+    assert_eq!(render(&logged, &frame()).1, lines(&["1 | []"]));
 }
 
 #[test]
@@ -367,6 +389,23 @@ fn a_recursive_clear_empties_descendants_at_its_time_and_a_later_row_id_survives
     assert_eq!(
         filled,
         lines(&["1 | [3] | [1] | [2]", "2 | [3] | [22] | []"])
+    );
+    // The Clear component is hidden by no Clear, but its column marks an ancestor's
+    // recursive Clear at its time as every column of the subtree does (issue 32, item 10:
+    // Rerun 0.41 shows `[]` there too); filling brings the entity's own Clear back.
+    let nested = store_of([
+        clear("/r/a", Some(1), 1, false),
+        clear("/r", Some(2), 2, true),
+        scalar("/r/a", "x", 3, 3, 3.0),
+    ]);
+    let query = frame().with_contents(EntityPathFilter::parse(["/r/a"]).unwrap());
+    assert_eq!(
+        render(&nested, &query).1,
+        lines(&["1 | [false] | []", "2 | [] | []", "3 | null | [3]"])
+    );
+    assert_eq!(
+        render(&nested, &query.clone().with_fill_latest_at(true)).1,
+        lines(&["1 | [false] | []", "2 | [] | []", "3 | [false] | [3]"])
     );
     // A flat Clear at an ancestor hides nothing below it.
     let flat = store_of([
@@ -402,28 +441,33 @@ fn a_static_clear_hides_older_static_data_and_all_temporal_data_when_filling() {
             "/b:x"
         ]
     );
-    // Sparse rows are the history: the temporal row at 1 shows; static cells are cleared.
+    // A static Clear hides at every time, so the sparse view agrees with latest-at at
+    // each row (issue 32, item 9: the temporal row at 1 used to show): the hidden static
+    // cell and the hidden temporal row are null.
     assert_eq!(
         rows,
         lines(&[
-            "1 | [false] | [] | [6] | [1] | null",
-            "2 | [false] | [] | [6] | null | [2]"
+            "1 | [false] | null | [6] | null | null",
+            "2 | [false] | null | [6] | null | [2]"
         ])
     );
+    let at_one = chunkstore::LatestAtQuery::new("frame", t(1));
+    assert!(store.latest_at(&at_one, &path("/a"), "x").is_none());
+    assert!(store.latest_at(&at_one, &path("/a"), "s").is_none());
     let filled = render(&store, &query.clone().with_fill_latest_at(true)).1;
     assert_eq!(
         filled,
         lines(&[
-            "1 | [false] | [] | [6] | [1] | null",
-            "2 | [false] | [] | [6] | [] | [2]"
+            "1 | [false] | null | [6] | null | null",
+            "2 | [false] | null | [6] | null | [2]"
         ])
     );
     let sampled = render(&store, &query.with_index_values([t(0), t(1)])).1;
     assert_eq!(
         sampled,
         lines(&[
-            "0 | [false] | [] | [6] | [] | null",
-            "1 | [false] | [] | [6] | [] | null"
+            "0 | [false] | null | [6] | null | null",
+            "1 | [false] | null | [6] | null | null"
         ])
     );
 }

@@ -2037,8 +2037,32 @@ impl Model {
         events
     }
 
-    /// The temporal Clears that can hide a column's cells on `timeline`: `(time, row id)`.
+    /// The temporal Clears a column shows as an empty list at their own time on
+    /// `timeline`, `(time, row id)`: for a data component, the Clears that apply to it
+    /// (which also hide its values); for the Clear component, which no Clear hides, its
+    /// strict ancestors' recursive Clears.
     fn column_clear_events(
+        &self,
+        entity: usize,
+        component: usize,
+        timeline: usize,
+    ) -> Vec<(i64, u128)> {
+        if component == CLEAR_COMPONENT {
+            return self
+                .clears
+                .iter()
+                .filter(|&&(at, _, _, recursive)| recursive && is_strict_ancestor(at, entity))
+                .filter_map(|&(_, row_id, times, _)| Some((times?[timeline]?, row_id)))
+                .collect();
+        }
+        self.clears_of(entity)
+            .filter_map(|&(_, row_id, times, _)| Some((times?[timeline]?, row_id)))
+            .collect()
+    }
+
+    /// The Clears that hide a column's values at or before a time: none for the Clear
+    /// component.
+    fn column_hiding_clears(
         &self,
         entity: usize,
         component: usize,
@@ -2047,9 +2071,7 @@ impl Model {
         if component == CLEAR_COMPONENT {
             return Vec::new();
         }
-        self.clears_of(entity)
-            .filter_map(|&(_, row_id, times, _)| Some((times?[timeline]?, row_id)))
-            .collect()
+        self.column_clear_events(entity, component, timeline)
     }
 
     fn has_static_clear(&self, entity: usize, component: usize) -> Option<u128> {
@@ -2069,7 +2091,8 @@ impl Model {
                 .any(|timeline| !self.column_events(entity, component, timeline).is_empty())
     }
 
-    /// A static column's cell: the static winner, or an empty list if a static Clear hides it.
+    /// A static column's cell: the static winner, or null (no answer) if a static Clear
+    /// hides it.
     fn static_column_cell(&self, entity: usize, component: usize) -> Option<DataframeCell> {
         let (position, (_, row_id, mut cell)) = self.static_winner(entity, component)?;
         if component == CLEAR_COMPONENT {
@@ -2088,10 +2111,11 @@ impl Model {
         let hidden = self
             .has_static_clear(entity, component)
             .is_some_and(|c| row_id <= c);
-        Some(vec![Some(if hidden { vec![] } else { cell })])
+        Some(vec![if hidden { None } else { Some(cell) }])
     }
 
-    /// The cell of a temporal column at `at` as filling and sampling see it.
+    /// The cell of a temporal column at `at` as filling and sampling see it: the
+    /// latest-at answer, null where there is none or a Clear hides it.
     fn column_cell_at(
         &self,
         entity: usize,
@@ -2100,7 +2124,7 @@ impl Model {
         at: i64,
     ) -> DataframeCell {
         if self.has_static_clear(entity, component).is_some() {
-            return vec![Some(vec![])];
+            return vec![None];
         }
         let events: Vec<_> = self
             .column_events(entity, component, timeline)
@@ -2112,23 +2136,24 @@ impl Model {
             .map(|(time, row_id, _)| (*time, *row_id))
             .max();
         let clear = self
-            .column_clear_events(entity, component, timeline)
+            .column_hiding_clears(entity, component, timeline)
             .into_iter()
             .filter(|(time, _)| *time <= at)
             .max();
         match (best, clear) {
-            (Some(best), Some(clear)) if best <= clear => vec![Some(vec![])],
+            (Some(best), Some(clear)) if best <= clear => vec![None],
             (Some(best), _) => events
                 .into_iter()
                 .filter(|(time, row_id, _)| (*time, *row_id) == best)
                 .map(|(_, _, cell)| Some(cell))
                 .collect(),
-            (None, Some(_)) => vec![Some(vec![])],
-            (None, None) => vec![None],
+            (None, _) => vec![None],
         }
     }
 
-    /// The sparse cell of a temporal column at `time`, `None` if it has no event there.
+    /// The sparse cell of a temporal column at `time`, `None` if it has no event there:
+    /// the row of greatest row id; an empty list where a Clear at that time came later
+    /// (its mark); null where a static Clear hides the row.
     fn column_cell_exactly_at(
         &self,
         entity: usize,
@@ -2148,8 +2173,12 @@ impl Model {
             .filter(|(t, _)| *t == time)
             .map(|(_, row_id)| row_id)
             .max();
+        let hidden_by_static = self.has_static_clear(entity, component).is_some();
         match (best, clear) {
-            (Some(best), Some(clear)) if best <= clear => Some(vec![Some(vec![])]),
+            (Some(best), Some(clear)) if best <= clear || hidden_by_static => {
+                Some(vec![Some(vec![])])
+            }
+            (Some(_), None) if hidden_by_static => Some(vec![None]),
             (Some(best), _) => Some(
                 events
                     .into_iter()

@@ -78,7 +78,9 @@ impl Rule {
 /// path, the exact rule beats the subtree rule; of equal rules, the last given wins). A
 /// path no rule matches is excluded, except that a filter of exclusions only starts from
 /// the default selection (everything but `/__properties`), so `-/world/**` alone means
-/// "all but `/world`".
+/// "all but `/world`". `/__properties` (Rerun's recording properties, not data) is
+/// selected only by a rule that names it (`/__properties/**`): `/**` leaves it out, as
+/// Rerun's own filters do.
 ///
 /// ```
 /// use chunkstore::{EntityPath, EntityPathFilter};
@@ -103,13 +105,21 @@ impl Default for EntityPathFilter {
                     path: EntityPath::root(),
                     subtree: true,
                 },
-                Rule {
-                    include: false,
-                    path: EntityPath::from_parts(vec!["__properties".into()]),
-                    subtree: true,
-                },
+                properties_excluded(),
             ],
         }
+    }
+}
+
+/// The first part of Rerun's recording-properties entity.
+const PROPERTIES: &str = "__properties";
+
+/// `-/__properties/**`: what every filter holds unless one of its rules names the entity.
+fn properties_excluded() -> Rule {
+    Rule {
+        include: false,
+        path: EntityPath::from_parts(vec![PROPERTIES.into()]),
+        subtree: true,
     }
 }
 
@@ -136,6 +146,12 @@ impl EntityPathFilter {
             let mut with_default = Self::default().rules;
             with_default.extend(rules);
             rules = with_default;
+        } else if !rules
+            .iter()
+            .any(|rule| rule.path.parts().next() == Some(PROPERTIES))
+        {
+            // First, so that of equal rules a user's (given later) would win.
+            rules.insert(0, properties_excluded());
         }
         Ok(Self { rules })
     }
@@ -244,7 +260,13 @@ mod tests {
     #[test]
     fn several_rules_on_lines_and_the_root_subtree() {
         let filter = EntityPathFilter::parse(["+ /**\n\n- /x/**\n"]).unwrap();
-        assert!(filter.matches(&path("/__properties")));
+        // Issue 32, item 11: as Rerun, `/**` leaves the properties out unless named.
+        assert!(!filter.matches(&path("/__properties")));
+        assert!(filter.matches(&path("/world")));
+        let named = EntityPathFilter::parse(["/**", "/__properties/**"]).unwrap();
+        assert!(named.matches(&path("/__properties")) && named.matches(&path("/world")));
+        let exact = EntityPathFilter::parse(["/__properties"]).unwrap();
+        assert!(exact.matches(&path("/__properties")));
         assert!(!filter.matches(&path("/x")));
         assert!(EntityPathFilter::parse(["**"]).unwrap().matches(&path("q")));
     }

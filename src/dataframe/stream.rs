@@ -103,9 +103,9 @@ struct ColumnState {
 }
 
 enum Kind {
-    /// The entity holds static data for the component: every row shows this cell (or an
-    /// empty list, when a static Clear hides it).
-    Static(Cell),
+    /// The entity holds static data for the component: every row shows this cell (null,
+    /// when a static Clear hides it: no answer, as latest-at gives none).
+    Static(Option<Cell>),
     Temporal(TemporalColumn),
 }
 
@@ -120,6 +120,10 @@ struct TemporalColumn {
     next_clear: usize,
     /// A static Clear applies: every temporal value is hidden, whenever it was logged.
     hidden_by_static_clear: bool,
+    /// Do the `clears` hide the column's values (a data component), or only mark where
+    /// an ancestor's recursive Clear happened (the `Clear:is_recursive` component, which
+    /// no Clear hides: SEMANTICS.md section 5)?
+    hides: bool,
     /// The latest-at answer at the last row merged (fill mode).
     fill: Option<Cell>,
 }
@@ -140,7 +144,8 @@ impl TemporalColumn {
     }
 
     /// Consumes every event at `time` and returns the cell the row shows: the row of
-    /// greatest row id, or an empty list where a Clear came later.
+    /// greatest row id, an empty list where a Clear came later (the Clear's mark), or null
+    /// where a static Clear hides the row.
     fn take_events_at(&mut self, time: TimeInt) -> Option<Cell> {
         let mut row = None;
         let mut clear = None;
@@ -159,6 +164,9 @@ impl TemporalColumn {
                 row = None; // the Clear came later: an empty list below
             }
         }
+        if self.hidden_by_static_clear {
+            row = None; // hidden whenever it was logged: null, or the mark of a Clear here
+        }
         match (row, clear) {
             (Some(row), _) => Some(Cell::Row {
                 source: row.source,
@@ -172,20 +180,19 @@ impl TemporalColumn {
 
 /// The cell of latest-at semantics given the unfiltered answer's index and the latest
 /// Clear that applies (SEMANTICS.md sections 3 and 5): a Clear at or after the answer
-/// hides it, and shows as an empty list.
+/// hides it, and a hidden answer is no answer (null), as latest-at gives none.
 fn visible_cell(
     answer: Option<((TimeInt, RowId), Cell)>,
     latest_clear: Option<(TimeInt, RowId)>,
     hidden_by_static_clear: bool,
 ) -> Option<Cell> {
     if hidden_by_static_clear {
-        return Some(Cell::Empty);
+        return None;
     }
     match (answer, latest_clear) {
-        (Some((index, _)), Some(clear)) if index <= clear => Some(Cell::Empty),
+        (Some((index, _)), Some(clear)) if index <= clear => None,
         (Some((_, cell)), _) => Some(cell),
-        (None, Some(_)) => Some(Cell::Empty),
-        (None, None) => None,
+        (None, _) => None,
     }
 }
 
@@ -301,8 +308,14 @@ impl<'a> DataframeStream<'a> {
                 cells.pad(if *fill { column.fill } else { None }, num_rows);
                 cells.push(cell);
             }
-            if *fill && !column.hidden_by_static_clear && cell.is_some() {
-                column.fill = cell;
+            if *fill && !column.hidden_by_static_clear {
+                match cell {
+                    // A Clear's mark: what came before is hidden (a data component), or
+                    // still answers (the Clear component, which no Clear hides).
+                    Some(Cell::Empty) if column.hides => column.fill = None,
+                    Some(Cell::Empty) | None => {}
+                    Some(row) => column.fill = Some(row),
+                }
             }
             if let Some(time) = column.next_time() {
                 next.push(time, number);
@@ -332,7 +345,7 @@ impl<'a> DataframeStream<'a> {
             .zip(&self.selection.data)
         {
             let cell = match &mut state.kind {
-                Kind::Static(cell) => Some(*cell),
+                Kind::Static(cell) => *cell,
                 Kind::Temporal(column) => {
                     let answer = self
                         .store
@@ -351,9 +364,13 @@ impl<'a> DataframeStream<'a> {
                             let row = u32::try_from(answer.row()).ok()?;
                             Some((index, Cell::Row { source, row }))
                         });
-                    let visible = column.clears.partition_point(|&(t, _)| t <= at);
-                    let latest_clear = visible.checked_sub(1).map(|i| column.clears[i]);
-                    let cell = visible_cell(answer, latest_clear, column.hidden_by_static_clear);
+                    let cell = if column.hides {
+                        let visible = column.clears.partition_point(|&(t, _)| t <= at);
+                        let latest_clear = visible.checked_sub(1).map(|i| column.clears[i]);
+                        visible_cell(answer, latest_clear, column.hidden_by_static_clear)
+                    } else {
+                        answer.map(|(_, cell)| cell)
+                    };
                     if let Some(cell) = cell {
                         state.sources.raise_times(cell, &mut self.maxima);
                     }
@@ -408,7 +425,7 @@ impl<'a> DataframeStream<'a> {
                 continue;
             }
             let pad = match &state.kind {
-                Kind::Static(cell) => Some(*cell),
+                Kind::Static(cell) => *cell,
                 Kind::Temporal(column) if fill => column.fill,
                 Kind::Temporal(_) => None,
             };
@@ -434,19 +451,26 @@ fn column_state(
 ) -> Result<ColumnState, ArrowError> {
     let mut sources = Sources::new(Arc::clone(&column.item_field));
     let timeline = plan.index.name();
-    // A Clear hides every component but the Clear component itself (SEMANTICS.md section 5).
-    let clears = if column.component.is_clear() {
-        ColumnClears::default()
-    } else {
+    // A Clear hides every component but the Clear component itself (SEMANTICS.md section
+    // 5); that column only shows the marks of its ancestors' recursive Clears (section 9).
+    let hides = !column.component.is_clear();
+    let clears = if hides {
         store.clears.column_clears(&column.entity, timeline, range)
+    } else {
+        ColumnClears {
+            in_range: store
+                .clears
+                .ancestor_recursive_clears(&column.entity, timeline, range),
+            ..ColumnClears::default()
+        }
     };
     let entity_index = store.entities.get(&column.entity);
     if let Some(winner) = entity_index.and_then(|e| e.static_winners.get(&column.component)) {
         let hidden = clears.latest_static.is_some_and(|c| winner.row_id <= c);
         let cell = if hidden {
-            Cell::Empty
+            None
         } else {
-            Cell::Row {
+            Some(Cell::Row {
                 source: sources.push(
                     &winner.chunk,
                     winner.component_column,
@@ -454,7 +478,7 @@ fn column_state(
                     Some(plan.index_position),
                 )?,
                 row: winner.row,
-            }
+            })
         };
         return Ok(ColumnState {
             sources,
@@ -467,6 +491,7 @@ fn column_state(
         clears: clears.in_range,
         next_clear: 0,
         hidden_by_static_clear,
+        hides,
         fill: None,
     };
     if merge {
