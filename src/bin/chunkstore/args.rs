@@ -206,6 +206,10 @@ pub struct SqlArgs {
     /// One JSON object per result row instead of a table.
     #[arg(long, conflicts_with = "out")]
     pub json: bool,
+    /// On a terminal, print every row and whole cells (by default a terminal gets the
+    /// first 40 rows, each cell cut to 40 characters; a pipe or file always gets all).
+    #[arg(long, conflicts_with_all = ["out", "json"])]
+    pub full: bool,
     /// Write the result as an Arrow IPC file (or Parquet, for a name ending `.parquet`)
     /// instead of printing it.
     #[arg(long, value_name = "FILE")]

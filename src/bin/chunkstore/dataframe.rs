@@ -1,6 +1,7 @@
 //! `dataframe`: a dataframe view of the source as an Arrow IPC stream on stdout, or as an
 //! Arrow IPC file or a Parquet file (atomically) with `--out`.
 
+use std::io::{IsTerminal as _, Write as _};
 use std::path::Path;
 
 use arrow_array::cast::AsArray;
@@ -102,6 +103,10 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
                 .map(drop)
                 .map_err(|e| format!("{}: {e}", out.display()).into())
         }
+    } else if std::io::stdout().is_terminal() {
+        // Binary Arrow IPC is of no use on a terminal: a person gets the first rows as
+        // text, and the rest counted.
+        terminal_table(reader, &bar.0)
     } else {
         let stdout = std::io::BufWriter::new(std::io::stdout().lock());
         chunkstore::io::write_ipc_stream(stdout, reader)
@@ -110,6 +115,42 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     };
     bar.0.finish_and_clear();
     result
+}
+
+/// The first rows of the table as text on the terminal, the rest counted on stderr.
+fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(), Failure> {
+    let limits = crate::table::Limits::TERMINAL;
+    let schema = reader.schema();
+    let mut shown: Vec<RecordBatch> = Vec::new();
+    let mut kept = 0;
+    let mut beyond = 0;
+    for batch in reader {
+        let batch = batch.map_err(|e| e.to_string())?;
+        if kept < limits.rows {
+            kept += batch.num_rows();
+            shown.push(batch);
+        } else {
+            beyond += batch.num_rows();
+        }
+    }
+    bar.finish_and_clear();
+    let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
+    let omitted = crate::table::write(&mut stdout, &schema, &shown, limits)
+        .and_then(|omitted| {
+            stdout
+                .flush()
+                .map_err(|e| ArrowError::IoError(e.to_string(), e))?;
+            Ok(omitted)
+        })
+        .map_err(|e| stream_failure(&chunkstore::IoError::Ipc(e)))?;
+    if omitted + beyond > 0 {
+        eprintln!(
+            "({} more rows: --out FILE writes the whole table, and a pipe gets it as an Arrow \
+             IPC stream)",
+            omitted + beyond
+        );
+    }
+    Ok(())
 }
 
 /// `hive`: a Hive-partitioned Parquet dataset of the source.

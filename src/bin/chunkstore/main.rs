@@ -23,6 +23,7 @@ mod dataframe;
 mod load;
 mod output;
 mod sql;
+mod table;
 
 use std::cell::RefCell;
 use std::ffi::OsString;

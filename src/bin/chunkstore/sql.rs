@@ -17,7 +17,7 @@ pub fn sql(_source: &Path, _args: &SqlArgs, _options: &Options) -> Result<(), Fa
 
 #[cfg(feature = "datafusion")]
 pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failure> {
-    use std::io::Write;
+    use std::io::{IsTerminal as _, Write};
 
     use arrow_array::RecordBatch;
     use datafusion::prelude::{SessionConfig, SessionContext};
@@ -75,6 +75,23 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
             }
         }
         result.and_then(|()| writer.finish())
+    } else if std::io::stdout().is_terminal() && !args.full {
+        // A person reading: the first rows, each cell cut to a width (a wide result took
+        // seconds to print whole); the rest is counted.
+        crate::table::write(
+            &mut stdout,
+            &schema,
+            &batches,
+            crate::table::Limits::TERMINAL,
+        )
+        .map(|omitted| {
+            if omitted > 0 {
+                eprintln!(
+                    "({omitted} more rows: --full prints every row and cell, --json or \
+                         --out FILE gives them to a program)"
+                );
+            }
+        })
     } else {
         datafusion::arrow::util::pretty::pretty_format_batches_with_schema(schema, &batches)
             .and_then(|table| {
