@@ -179,20 +179,25 @@ pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64
         path: path.to_owned(),
         source,
     };
+    // Arrow reports the file system's errors as its own: a full disk is not bad Arrow.
+    let written = |error: ArrowError| match error {
+        ArrowError::IoError(_, source) => io(source),
+        other => IoError::Ipc(other),
+    };
     crate::atomic::atomic_write(path, io, |file| {
         let schema = reader.schema();
         let mut writer =
-            FileWriter::try_new(std::io::BufWriter::new(file), &schema).map_err(IoError::Ipc)?;
+            FileWriter::try_new(std::io::BufWriter::new(file), &schema).map_err(written)?;
         let mut rows = 0;
         for batch in reader {
             let batch = batch.map_err(IoError::Ipc)?;
             rows += batch.num_rows() as u64;
-            writer.write(&batch).map_err(IoError::Ipc)?;
+            writer.write(&batch).map_err(written)?;
         }
-        writer.finish().map_err(IoError::Ipc)?;
+        writer.finish().map_err(written)?;
         let file = writer
             .into_inner()
-            .map_err(IoError::Ipc)?
+            .map_err(written)?
             .into_inner()
             .map_err(|e| io(e.into_error()))?;
         Ok((file, rows))

@@ -1305,3 +1305,42 @@ fn an_interrupted_write_leaves_no_debris() {
     assert!(line.contains("does not exist"), "{line}");
     assert!(!dir.join("missing").exists());
 }
+
+/// Issue 32, item 16: errors that read well: no about-line for a missing SOURCE, no "at
+/// byte 0" and no path named twice for an output that cannot be created, no "not Arrow
+/// IPC" for a full disk, a negative count named as one, and global options under their
+/// own heading in every command's help.
+#[test]
+fn errors_read_well() {
+    let line = fails::<&str>(&[]);
+    assert!(line.contains("a SOURCE and a COMMAND are needed"), "{line}");
+    let rrd = recording_rrd();
+    let rrd = rrd.to_str().unwrap();
+    for command in [
+        &["convert", "/nonexistent/x.rrd"][..],
+        &["dataframe", "frame_id", "--out", "/nonexistent/x.parquet"],
+        &["dataframe", "frame_id", "--out", "/nonexistent/x.arrow"],
+        &["sql", "SELECT 1", "--out", "/nonexistent/x.parquet"],
+        &["hive", "/nonexistent/x"],
+    ] {
+        let mut args = vec![rrd];
+        args.extend(command);
+        let line = fails(&args);
+        assert!(!line.contains("at byte"), "{line}");
+        assert_eq!(line.matches("/nonexistent/x").count(), 1, "{line}");
+    }
+    if Path::new("/dev/full").exists() {
+        let line = fails(&[rrd, "dataframe", "frame_id", "--out", "/dev/full"]);
+        assert!(
+            !line.contains("not Arrow IPC") && line.contains("No space left"),
+            "{line}"
+        );
+    }
+    let line = fails(&["--max-rows", "-1", rrd, "stats"]);
+    assert!(line.contains("-1 is negative"), "{line}");
+    let (help, _) = ok(&[rrd, "latest-at", "--help"]);
+    let global = help
+        .find("Global options")
+        .expect("a heading for global options");
+    assert!(help[global..].contains("--max-rows") && !help[..global].contains("--max-rows"));
+}

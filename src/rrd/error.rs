@@ -133,11 +133,14 @@ impl RrdError {
 
 impl fmt::Display for RrdError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        // Which recordings a file holds is no fault at a place in it.
-        if !matches!(
-            self.kind,
-            RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
-        ) {
+        // Which recordings a file holds is no fault at a place in it, and an I/O error
+        // before the first byte (a file that cannot be opened or created) is at none.
+        let placeless = match &self.kind {
+            RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. } => true,
+            RrdErrorKind::Io(_) => self.offset == 0,
+            _ => false,
+        };
+        if !placeless {
             write!(f, "at byte {}: ", self.offset)?;
         }
         match &self.kind {

@@ -39,15 +39,16 @@ pub struct Cli {
 /// How to load the source. The compaction options change how the store chunks the data,
 /// never an answer (only `stats` shows the difference); defaults are `StoreConfig::DEFAULT`.
 #[derive(Args, Debug)]
+#[command(next_help_heading = "Global options (before or after the command)")]
 pub struct LoadArgs {
     /// Most rows of a time-sorted chunk.
-    #[arg(long, global = true, value_name = "N")]
+    #[arg(long, global = true, value_name = "N", allow_hyphen_values = true, value_parser = parse_count::<usize>)]
     pub max_rows: Option<usize>,
     /// Most rows of an unsorted chunk.
-    #[arg(long, global = true, value_name = "N")]
+    #[arg(long, global = true, value_name = "N", allow_hyphen_values = true, value_parser = parse_count::<usize>)]
     pub max_rows_unsorted: Option<usize>,
     /// Most payload bytes of a chunk.
-    #[arg(long, global = true, value_name = "N")]
+    #[arg(long, global = true, value_name = "N", allow_hyphen_values = true, value_parser = parse_count::<u64>)]
     pub max_bytes: Option<u64>,
     /// Run on-demand compaction once everything is loaded (`convert`: what `rerun rrd
     /// optimize` does).
@@ -249,6 +250,15 @@ pub struct DataframeArgs {
     /// IPC stream on stdout.
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
+}
+
+/// A count (rows, bytes): a whole number, not negative, said so when it is.
+fn parse_count<T: std::str::FromStr>(text: &str) -> Result<T, String> {
+    if text.starts_with('-') {
+        return Err(format!("{text} is negative: a count is 0 or more"));
+    }
+    text.parse()
+        .map_err(|_| format!("{text:?} is not a whole number"))
 }
 
 fn parse_time(text: &str) -> Result<TimeInt, String> {

@@ -74,7 +74,7 @@ pub fn convert(
         let bar = load::progress(chunks.len() as u64, "writing", false);
         let result = chunkstore::rrd::write_rrd_file(out, &info, chunks, |_| bar.inc(1));
         bar.finish_and_clear();
-        result.map_err(|e| format!("{}: {e}", out.display()))?;
+        result.map_err(|e| crate::about_path(out, e))?;
     } else {
         write_directory(out, &info, &chunks)?;
     }

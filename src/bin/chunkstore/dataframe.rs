@@ -97,11 +97,11 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
             };
             write_parquet_file(out, reader, &options)
                 .map(drop)
-                .map_err(|e| format!("{}: {e}", out.display()).into())
+                .map_err(|e| crate::about_path(out, e).into())
         } else {
             chunkstore::io::write_ipc_file(out, reader)
                 .map(drop)
-                .map_err(|e| format!("{}: {e}", out.display()).into())
+                .map_err(|e| crate::about_path(out, e).into())
         }
     } else if std::io::stdout().is_terminal() {
         // Binary Arrow IPC is of no use on a terminal: a person gets the first rows as
@@ -195,7 +195,7 @@ pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Fai
         },
     };
     let summary = write_hive_dataset(store, &args.dir, &layout)
-        .map_err(|e| format!("{}: {e}", args.dir.display()))?;
+        .map_err(|e| crate::about_path(&args.dir, e))?;
     eprintln!(
         "wrote {} rows in {} files under {}",
         summary.rows(),

@@ -50,6 +50,18 @@ impl From<String> for Failure {
     }
 }
 
+/// `error` about the file at `path`, naming it once: the library's I/O errors name their
+/// path already.
+fn about_path(path: &std::path::Path, error: impl std::fmt::Display) -> String {
+    let name = path.display().to_string();
+    let text = error.to_string();
+    if text.starts_with(&name) {
+        text
+    } else {
+        format!("{name}: {text}")
+    }
+}
+
 /// `text` on one line: a message quoting a file's bytes or Arrow's multi-line errors must
 /// not spread over several.
 fn one_line(text: &str) -> String {
@@ -117,6 +129,15 @@ fn usage_error(error: &clap::Error) -> ExitCode {
     ) {
         let _ = error.print();
         return ExitCode::SUCCESS;
+    }
+    if error.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        // clap would print the whole help, whose first line (the about text) reads as the
+        // error: say what is missing instead.
+        eprintln!(
+            "error: a SOURCE and a COMMAND are needed: chunkstore [OPTIONS] <SOURCE> <COMMAND> \
+             (see --help)"
+        );
+        return ExitCode::from(2);
     }
     let text = error.render().to_string();
     let first = text.lines().next().unwrap_or("bad arguments");

@@ -62,7 +62,7 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
                 .map(drop)
                 .map_err(|e| e.to_string())
         };
-        return written.map_err(|e| format!("{}: {e}", out.display()).into());
+        return written.map_err(|e| crate::about_path(out, e).into());
     }
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
     let written = if args.json {
