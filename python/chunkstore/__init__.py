@@ -26,7 +26,10 @@ import os
 from typing import TYPE_CHECKING, Any, Iterable, NamedTuple, Optional, Sequence, Union
 
 from . import _chunkstore
-from ._chunkstore import CorruptFileError, Error, InvalidInputError, UnknownTimelineError
+from ._errors import CorruptFileError, Error, InvalidInputError, UnknownTimelineError
+
+__version__: str = _chunkstore.__version__
+"""The package's version (the native crate's)."""
 
 if TYPE_CHECKING:
     import pyarrow
@@ -38,6 +41,7 @@ __all__ = [
     "Store",
     "Timeline",
     "UnknownTimelineError",
+    "__version__",
     "open",
 ]
 
@@ -62,12 +66,31 @@ def _timedelta_ns(value: _dt.timedelta) -> int:
     return (value.days * 86_400 + value.seconds) * 1_000_000_000 + value.microseconds * 1_000
 
 
+_I64_MIN, _I64_MAX = -(2**63), 2**63 - 1
+
+
+def _in_range(value: int, what: str) -> int:
+    """``value``, if an ``i64`` holds it."""
+    if not _I64_MIN <= value <= _I64_MAX:
+        raise InvalidInputError(f"{what}: {value} is outside the 64-bit range of times")
+    return value
+
+
 def _to_time(value: Time, time_type: str, what: str) -> int:
     """``value`` as an integer on a timeline of ``time_type``."""
     if isinstance(value, bool):
         raise InvalidInputError(f"{what}: a bool is not a time")
     if isinstance(value, int):
-        return value
+        return _in_range(value, what)
+    if type(value).__module__.startswith("pyarrow") and hasattr(value, "as_py"):
+        # A pyarrow scalar (an item of a pyarrow array, too): its Python value, whose
+        # type says the unit. A null is no time.
+        if not getattr(value, "is_valid", True):
+            raise InvalidInputError(f"{what}: a null is not a time")
+        unit_ns = _pyarrow_ns(value)
+        if unit_ns is not None:
+            return _in_range(unit_ns, what)
+        return _to_time(value.as_py(), time_type, what)
     type_name = type(value).__module__ + "." + type(value).__name__
     if type_name == "numpy.datetime64":
         if time_type != "timestamp":
@@ -92,6 +115,29 @@ def _to_time(value: Time, time_type: str, what: str) -> int:
     raise InvalidInputError(
         f"{what}: expected an int, datetime or timedelta, got {type(value).__name__}"
     )
+
+
+def _pyarrow_ns(value: Any) -> Optional[int]:
+    """A pyarrow timestamp or duration scalar in nanoseconds, exactly (``as_py`` would
+    round to microseconds); ``None`` for other scalars."""
+    import pyarrow as pa
+
+    kind = value.type
+    if pa.types.is_timestamp(kind) or pa.types.is_duration(kind):
+        per_unit = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}[kind.unit]
+        return value.cast(pa.int64()).as_py() * per_unit
+    return None
+
+
+def _positive(value: Optional[int], what: str) -> Optional[int]:
+    """``value`` (a count of rows), if it is at least 1."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InvalidInputError(f"{what}: expected a positive int, got {type(value).__name__}")
+    if not 1 <= value <= _I64_MAX:
+        raise InvalidInputError(f"{what}: {value} is not a positive number of rows")
+    return value
 
 
 def _contents(contents: Union[None, str, Iterable[str]]) -> Optional[list]:
@@ -288,7 +334,7 @@ class Store:
         """
         range, index_values = self._view_times(index, range, index_values)
         return self._native.dataframe(
-            index, _contents(contents), range, index_values, fill_latest_at, batch_rows
+            index, _contents(contents), range, index_values, fill_latest_at, _positive(batch_rows, "batch_rows")
         )
 
     def _view_times(self, index: str, range: Optional[tuple], index_values: Optional[Iterable[Time]]) -> tuple:
@@ -338,7 +384,13 @@ class Store:
         statistics engines prune by. Returns the rows written."""
         range, index_values = self._view_times(index, range, index_values)
         return self._native.to_parquet(
-            os.fspath(path), index, _contents(contents), range, index_values, fill_latest_at, row_group_rows
+            os.fspath(path),
+            index,
+            _contents(contents),
+            range,
+            index_values,
+            fill_latest_at,
+            _positive(row_group_rows, "row_group_rows"),
         )
 
 

@@ -3,34 +3,15 @@
 use chunkstore::rrd::{RrdError, RrdErrorKind};
 use chunkstore::{ChunkError, DataframeError, InsertError, IoError};
 use pyo3::PyErr;
-use pyo3::create_exception;
-use pyo3::exceptions::PyException;
+use pyo3::import_exception;
 
-create_exception!(
-    chunkstore,
-    Error,
-    PyException,
-    "Every error chunkstore raises (besides OSError from the file system)."
-);
-create_exception!(
-    chunkstore,
-    InvalidInputError,
-    Error,
-    "Input the store refuses: a record batch that is not a chunk, a bad entity path or \
-     filter, an argument out of range."
-);
-create_exception!(
-    chunkstore,
-    CorruptFileError,
-    Error,
-    "A file that is not what it claims: not an .rrd or Arrow IPC, truncated, or corrupt."
-);
-create_exception!(
-    chunkstore,
-    UnknownTimelineError,
-    Error,
-    "A timeline the store has never seen."
-);
+// Defined in Python (`chunkstore/_errors.py`), so that each also subclasses the built-in
+// exception a caller expects (`ValueError`, `KeyError`), which an exception type created
+// here could not: it has one base.
+import_exception!(chunkstore._errors, Error);
+import_exception!(chunkstore._errors, InvalidInputError);
+import_exception!(chunkstore._errors, CorruptFileError);
+import_exception!(chunkstore._errors, UnknownTimelineError);
 
 /// `chunkstore.InvalidInputError` with `message`.
 pub fn invalid(message: impl Into<String>) -> PyErr {

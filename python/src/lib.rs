@@ -10,7 +10,8 @@
 //! Errors: every failure is a Python exception, never a panic. User input the store
 //! refuses raises `chunkstore.InvalidInputError`, a file that does not parse
 //! `chunkstore.CorruptFileError`, an unknown timeline `chunkstore.UnknownTimelineError`
-//! (all three subclasses of `chunkstore.Error`), and a failing file system Python's own
+//! (all three subclasses of `chunkstore.Error`, and of `ValueError`, `ValueError` and
+//! `KeyError`: they are defined in `chunkstore/_errors.py`), and a failing file system Python's own
 //! `OSError` subclass. A panic inside the store (a bug) is caught at the boundary and
 //! raised as `chunkstore.Error` naming it as one.
 
@@ -24,20 +25,7 @@ use pyo3::prelude::*;
 /// The native module.
 #[pymodule]
 fn _chunkstore(module: &Bound<'_, PyModule>) -> PyResult<()> {
-    let py = module.py();
-    module.add("Error", py.get_type::<errors::Error>())?;
-    module.add(
-        "InvalidInputError",
-        py.get_type::<errors::InvalidInputError>(),
-    )?;
-    module.add(
-        "CorruptFileError",
-        py.get_type::<errors::CorruptFileError>(),
-    )?;
-    module.add(
-        "UnknownTimelineError",
-        py.get_type::<errors::UnknownTimelineError>(),
-    )?;
+    module.add("__version__", env!("CARGO_PKG_VERSION"))?;
     module.add_class::<store::NativeStore>()?;
     module.add_function(wrap_pyfunction!(open::open, module)?)?;
     Ok(())

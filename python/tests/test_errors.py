@@ -14,6 +14,48 @@ def test_exception_hierarchy():
     for error in (chunkstore.InvalidInputError, chunkstore.CorruptFileError, chunkstore.UnknownTimelineError):
         assert issubclass(error, chunkstore.Error)
     assert issubclass(chunkstore.Error, Exception)
+    # Issue 32, item 17: the built-in exceptions callers catch, as pyarrow's errors do.
+    assert issubclass(chunkstore.InvalidInputError, ValueError)
+    assert issubclass(chunkstore.CorruptFileError, ValueError)
+    assert issubclass(chunkstore.UnknownTimelineError, KeyError)
+    assert issubclass(chunkstore.UnknownTimelineError, LookupError)
+
+
+def test_errors_raised_by_the_native_module_are_the_package_s(robot):
+    with pytest.raises(KeyError) as raised:
+        robot.latest_at("FRAME_ID", 3, "/world/robot")
+    assert isinstance(raised.value, chunkstore.UnknownTimelineError)
+    # A sentence, not KeyError's quoted repr.
+    assert str(raised.value).startswith("unknown timeline"), str(raised.value)
+    with pytest.raises(ValueError):
+        robot.latest_at("frame_id", 3, "no/such//path")
+
+
+def test_version():
+    assert isinstance(chunkstore.__version__, str) and chunkstore.__version__.count(".") == 2
+
+
+def test_pyarrow_and_out_of_range_values(robot):
+    ints = robot.range("frame_id", 3, 5, entity="/world/robot", component="Transform3D:translation")
+    scalars = robot.range(
+        "frame_id", pa.scalar(3), pa.scalar(5, pa.int32()), entity="/world/robot", component="Transform3D:translation"
+    )
+    assert scalars.equals(ints)
+    values = robot.dataframe("frame_id", index_values=pa.array([1, 2, 3])).read_all()
+    assert values.equals(robot.dataframe("frame_id", index_values=[1, 2, 3]).read_all())
+    # A pyarrow timestamp keeps its nanoseconds (as_py would round to microseconds).
+    log = [t for t in robot.timelines() if t.name == "log_time"][0]
+    at_ns = robot.latest_at("log_time", log.max, "/world/robot")
+    at_scalar = robot.latest_at("log_time", pa.scalar(log.max, pa.timestamp("ns")), "/world/robot")
+    assert at_scalar.equals(at_ns)
+    with pytest.raises(chunkstore.InvalidInputError, match="null"):
+        robot.latest_at("frame_id", pa.scalar(None, pa.int64()), "/world/robot")
+    for bad in (2**63, -(2**63) - 1, 10**30):
+        with pytest.raises(chunkstore.InvalidInputError, match="64-bit"):
+            robot.latest_at("frame_id", bad, "/world/robot")
+    for bad in (-1, 0, 2**64):
+        with pytest.raises(chunkstore.InvalidInputError, match="batch_rows"):
+            robot.dataframe("frame_id", batch_rows=bad)
 
 
 def test_files_that_are_not_there_or_not_recordings(tmp_path):
@@ -88,7 +130,8 @@ def test_wrong_types_and_values(robot):
         robot.range("frame_id", 5, 1, entity=COST, component="Scalars:scalars")
     with pytest.raises(chunkstore.InvalidInputError, match="out of range"):
         robot.latest_at("frame_id", -(2**63), COST)
-    with pytest.raises(OverflowError):
+    # Issue 32, item 17: the package's own error, not OverflowError.
+    with pytest.raises(chunkstore.InvalidInputError, match="64-bit"):
         robot.latest_at("frame_id", 2**64, COST)
     with pytest.raises(chunkstore.InvalidInputError, match="entity path"):
         robot.latest_at("frame_id", 0, "/a//b")
