@@ -159,8 +159,8 @@ pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
 pub use dataframe::{
-    ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_CELLS, DataframeError, DataframeQuery,
-    DataframeStream, EntityPathFilter, EntityPathFilterError,
+    ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeError,
+    DataframeQuery, DataframeStream, EntityPathFilter, EntityPathFilterError,
 };
 pub use entity_path::{EntityPath, natural_part_order};
 #[cfg(feature = "ipc")]

@@ -37,11 +37,17 @@ use parquet::file::properties::{EnabledStatistics, WriterProperties};
 /// row groups (at least 1,024 rows, at most 1,048,576).
 pub const DEFAULT_ROW_GROUP_CELLS: usize = 8 << 20;
 
+/// Encoded bytes a row group buffers, about, before it is written, when
+/// [`ParquetOptions::with_row_group_rows`] is not given (see
+/// [`ParquetOptions::with_row_group_bytes`]).
+pub const DEFAULT_ROW_GROUP_BYTES: usize = 128 << 20;
+
 /// How to write a Parquet file.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct ParquetOptions {
     row_group_rows: Option<usize>,
+    row_group_bytes: Option<usize>,
     sorted_by: Option<Arc<str>>,
 }
 
@@ -51,6 +57,15 @@ impl ParquetOptions {
     #[must_use]
     pub fn with_row_group_rows(mut self, rows: usize) -> Self {
         self.row_group_rows = Some(rows);
+        self
+    }
+
+    /// Without [`Self::with_row_group_rows`], a row group is also written once its
+    /// encoded pages, buffered in memory until then, reach about `bytes` (default
+    /// [`DEFAULT_ROW_GROUP_BYTES`]): large cells make fewer rows per row group.
+    #[must_use]
+    pub fn with_row_group_bytes(mut self, bytes: usize) -> Self {
+        self.row_group_bytes = Some(bytes.max(1));
         self
     }
 
@@ -184,6 +199,15 @@ pub fn write_parquet_file(
             let batch = batch.map_err(ParquetExportError::Arrow)?;
             rows += batch.num_rows() as u64;
             writer.write(&batch).map_err(ParquetExportError::Parquet)?;
+            // A row group is buffered whole until it is written: bound it by bytes as
+            // well as rows (large cells, or a static one repeated on every row, made a
+            // row group of gigabytes).
+            if options.row_group_rows.is_none()
+                && writer.in_progress_size()
+                    >= options.row_group_bytes.unwrap_or(DEFAULT_ROW_GROUP_BYTES)
+            {
+                writer.flush().map_err(ParquetExportError::Parquet)?;
+            }
         }
         // `into_inner` writes the footer: `finish` before it would write a second one.
         writer.flush().map_err(ParquetExportError::Parquet)?;

@@ -550,9 +550,16 @@ fn the_default_contents_leave_out_properties_and_filters_select() {
         render(&store, &frame().with_contents(filter)).0,
         ["frame", "/world/a:x", "/world/roads/main:x"]
     );
+    // Issue 32, item 11: as in Rerun, `/**` leaves the properties out unless named.
     let everything = EntityPathFilter::parse(["/**"]).unwrap();
     assert!(
-        render(&store, &frame().with_contents(everything))
+        !render(&store, &frame().with_contents(everything))
+            .0
+            .contains(&"/__properties:start".to_owned())
+    );
+    let with_properties = EntityPathFilter::parse(["/**", "/__properties/**"]).unwrap();
+    assert!(
+        render(&store, &frame().with_contents(with_properties))
             .0
             .contains(&"/__properties:start".to_owned())
     );

@@ -104,6 +104,36 @@ impl Sources {
         self.arrays.len()
     }
 
+    /// Bytes one cell of `source` takes in an output batch, about: that one cell's values
+    /// (with its offset) for a `row`, else the source's average cell.
+    pub fn cell_bytes(&self, source: u32, row: Option<u32>) -> usize {
+        let Some(source) = self.arrays.get(source as usize) else {
+            return 0;
+        };
+        let list = &source.list;
+        let values = list.values().to_data().get_slice_memory_size().unwrap_or(0);
+        let cells = list.len().max(1);
+        let (start, end) = match row {
+            Some(row) if (row as usize) < list.len() => {
+                let offsets = list.value_offsets();
+                (offsets[row as usize], offsets[row as usize + 1])
+            }
+            _ => return values / cells + 4,
+        };
+        let items = list.values().len().max(1);
+        let cell_items = usize::try_from(end - start).unwrap_or(0);
+        values / items * cell_items + 4
+    }
+
+    /// The average bytes of a cell over the registered sources (at most the first 64: an
+    /// estimate need not read a column of 100,000 chunks), 0 if none.
+    pub fn average_cell_bytes(&self) -> usize {
+        let sampled = self.arrays.len().min(64);
+        let numbers = 0..u32::try_from(sampled).unwrap_or(u32::MAX);
+        let total: usize = numbers.map(|n| self.cell_bytes(n, None)).sum();
+        total / sampled.max(1)
+    }
+
     /// The ids of the chunks registered (repeats included).
     pub fn chunk_ids(&self) -> impl Iterator<Item = ChunkId> + '_ {
         self.arrays.iter().map(|source| source.chunk.id())

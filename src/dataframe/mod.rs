@@ -28,6 +28,12 @@ pub use stream::DataframeStream;
 /// about this many cells, whatever the number of columns (at least one row, at most 65,536).
 pub const DEFAULT_BATCH_CELLS: usize = 1 << 20;
 
+/// Bytes per batch, about, when [`DataframeQuery::with_batch_rows`] is not given: a batch
+/// of large cells (images, a static map repeated on every row) holds fewer rows than
+/// [`DEFAULT_BATCH_CELLS`] allows, so that a table streams in bounded memory whatever
+/// its cells hold.
+pub const DEFAULT_BATCH_BYTES: usize = 32 << 20;
+
 /// A dataframe view of the store (SEMANTICS.md section 9): rows on one index timeline,
 /// one column per selected (entity, component).
 ///

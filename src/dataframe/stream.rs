@@ -8,7 +8,7 @@ use arrow_schema::{ArrowError, SchemaRef};
 
 use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
 use super::schema::{ColumnPlan, Selection, TablePlan};
-use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
+use super::{DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::clear::ColumnClears;
 use crate::query::{RangeCursor, RangeQuery};
 use crate::{LatestAtQuery, RowId, Snapshot, StoreView, TimeInt, TimeRange};
@@ -196,6 +196,33 @@ fn visible_cell(
     }
 }
 
+/// About how many bytes a row of the selected columns takes in a batch: a static column's
+/// cell (copied into every row), a temporal column's average cell in its source chunks
+/// where that is large, else its offset.
+fn row_bytes(columns: &[ColumnState], selected: &[bool]) -> usize {
+    columns
+        .iter()
+        .zip(selected)
+        .filter(|(_, selected)| **selected)
+        .map(|(column, _)| match &column.kind {
+            Kind::Static(Some(Cell::Row { source, row })) => {
+                column.sources.cell_bytes(*source, Some(*row))
+            }
+            Kind::Static(_) => 4,
+            // Most temporal cells of a wide table are null in any one row: a small cell
+            // costs its offset; a large one (an image) its bytes, as if in every row.
+            Kind::Temporal(_) => match column.sources.average_cell_bytes() {
+                large if large >= LARGE_CELL_BYTES => large,
+                _ => 4,
+            },
+        })
+        .sum()
+}
+
+/// A temporal column whose cells average this many bytes or more counts them in every
+/// row of a batch's byte estimate.
+const LARGE_CELL_BYTES: usize = 256;
+
 impl<'a> DataframeStream<'a> {
     pub(super) fn new(
         store: ViewRef<'a>,
@@ -229,7 +256,17 @@ impl<'a> DataframeStream<'a> {
         };
         let batch_rows = query.batch_rows.unwrap_or_else(|| {
             let least = query.min_batch_rows;
-            (DEFAULT_BATCH_CELLS / plan.columns.len().max(1)).clamp(least, least.max(65_536))
+            let by_cells = DEFAULT_BATCH_CELLS / plan.columns.len().max(1);
+            // Bytes bound a batch too: a static cell (a 5,000-point map) is copied into
+            // every row, and an image column's cells are large; counting cells alone once
+            // made batches of gigabytes.
+            let by_bytes = DEFAULT_BATCH_BYTES / row_bytes(&columns, &selection.data).max(1);
+            // The bytes bound wins over the least rows asked for (which only amortizes a
+            // fixed cost per batch).
+            by_cells
+                .max(least)
+                .min(by_bytes)
+                .clamp(1, least.max(65_536))
         });
         Ok(Self {
             store,
