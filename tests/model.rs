@@ -2047,15 +2047,15 @@ impl Model {
         component: usize,
         timeline: usize,
     ) -> Vec<(i64, u128)> {
-        if component == CLEAR_COMPONENT {
-            return self
-                .clears
-                .iter()
-                .filter(|&&(at, _, _, recursive)| recursive && is_strict_ancestor(at, entity))
-                .filter_map(|&(_, row_id, times, _)| Some((times?[timeline]?, row_id)))
-                .collect();
-        }
-        self.clears_of(entity)
+        let marking: Box<dyn Iterator<Item = &ModelClear>> =
+            if component == CLEAR_COMPONENT {
+                Box::new(self.clears.iter().filter(move |&&(at, _, _, recursive)| {
+                    recursive && is_strict_ancestor(at, entity)
+                }))
+            } else {
+                Box::new(self.clears_of(entity))
+            };
+        marking
             .filter_map(|&(_, row_id, times, _)| Some((times?[timeline]?, row_id)))
             .collect()
     }

@@ -93,6 +93,29 @@ pub fn rrd_decode(bytes: &[u8]) {
         let _ = error.to_string();
     }
 
+    // A file of several recordings: each opens when chosen, and a selector fed the
+    // stream's items in order never panics.
+    if let Err(error) = LazyRecording::from_reader(std::io::Cursor::new(bytes))
+        && let rrd::RrdErrorKind::SeveralRecordings { recording_ids } = &error.kind
+    {
+        assert!(recording_ids.len() >= 2, "{error}");
+        for id in recording_ids.iter().take(4) {
+            let chosen =
+                LazyRecording::from_reader_recording(std::io::Cursor::new(bytes), Some(id));
+            if let Ok(Some(chosen)) = chosen {
+                assert_eq!(chosen.manifest().store_id.recording_id, *id);
+            }
+        }
+    }
+    let mut selector = rrd::RecordingSelector::new(None);
+    for info in &from_memory.store_infos {
+        selector.observe(info);
+    }
+    for (store, _) in &from_memory.chunks {
+        let _ = selector.wants(store);
+    }
+    let _ = selector.finish();
+
     if let Ok(Some(mut lazy)) = LazyRecording::from_reader(std::io::Cursor::new(bytes)) {
         // Where the whole stream decoded cleanly and its manifest tells the truth about
         // every chunk, lazy answers must be the eager store's.
