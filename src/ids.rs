@@ -220,11 +220,9 @@ mod tests {
         let low = |id: u128| u64::try_from(id & u128::from(u64::MAX)).unwrap();
         assert!(ids.iter().all(|&id| low(id) != 0), "{:x}", ids[0]);
         for pair in ids.windows(2) {
-            assert_eq!(
-                low(pair[1]),
-                low(pair[0]).wrapping_add(1),
-                "one step per id"
-            );
+            // One step per id the process mints (other tests' threads mint some too).
+            let step = low(pair[1]).wrapping_sub(low(pair[0]));
+            assert!((1..1 << 40).contains(&step), "{step}");
         }
         // Two draws of the per-process start differ (2^-64 odds of a false failure).
         assert_ne!(random_u64(), random_u64());

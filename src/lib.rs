@@ -152,6 +152,7 @@ pub mod sql;
 mod stats;
 mod store;
 mod time;
+mod time_text;
 
 #[cfg(any(feature = "ipc", feature = "parquet"))]
 pub use atomic::{UnfinishedOutput, remove_unfinished_outputs};
@@ -174,6 +175,7 @@ pub use snapshot::{SharedStore, Snapshot};
 pub use stats::{EntityStats, StoreStats};
 pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent, StoreView};
 pub use time::{TimeInt, TimeRange, TimeType, Timeline};
+pub use time_text::TimeParseError;
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.
 #[cfg(doctest)]

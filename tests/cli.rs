@@ -746,7 +746,7 @@ fn dataframe_names_every_bad_argument_and_input_on_one_line() {
         ),
         (
             vec![RRD, "dataframe", "frame_id", "--range", "a", "3"],
-            "is not an i64",
+            "is not a time",
         ),
         (
             vec![RRD, "dataframe", "frame_id", "--range", "1"],
@@ -754,7 +754,7 @@ fn dataframe_names_every_bad_argument_and_input_on_one_line() {
         ),
         (
             vec![RRD, "dataframe", "frame_id", "--index-values", "1,x"],
-            "\"x\" is not an i64",
+            "\"x\" is not a time",
         ),
         (
             vec![
@@ -1343,4 +1343,89 @@ fn errors_read_well() {
         .find("Global options")
         .expect("a heading for global options");
     assert!(help[global..].contains("--max-rows") && !help[..global].contains("--max-rows"));
+}
+
+/// Issue 32, item 14: times as a person writes them: an RFC 3339 timestamp on a timestamp
+/// timeline, a number with a unit on a duration timeline, in `latest-at`, `range`,
+/// `dataframe` and SQL's `latest_at`, each answering as the same time in nanoseconds; a
+/// form the timeline's type does not take is named with that type.
+#[test]
+fn human_times_answer_as_their_nanoseconds() {
+    let rrd = recording_rrd();
+    let rrd = rrd.to_str().unwrap();
+    let chunks = recording_chunks();
+    let chunks = chunks.to_str().unwrap();
+    // The robot's log_time at frame 30 is 2026-11-21T12:55:49.5...Z; sim_time is 0.1 s a frame.
+    for source in [rrd, chunks] {
+        let same = |human: &[&str], integer: &[&str]| {
+            let answer = cli_on(Path::new(source), &[], human);
+            assert!(!answer.is_empty(), "{human:?}");
+            assert_eq!(answer, cli_on(Path::new(source), &[], integer), "{human:?}");
+        };
+        same(
+            &["latest-at", "log_time", "2026-11-21T12:55:49.5Z"],
+            &["latest-at", "log_time", "1795265749500000000"],
+        );
+        same(
+            &["latest-at", "log_time", "2026-11-21 13:55:49.5+01:00"],
+            &["latest-at", "log_time", "1795265749500000000"],
+        );
+        same(
+            &["latest-at", "sim_time", "1.5s"],
+            &["latest-at", "sim_time", "1500000000"],
+        );
+        same(
+            &["range", "sim_time", "1s", "2500ms"],
+            &["range", "sim_time", "1000000000", "2500000000"],
+        );
+        let line = fails(&[source, "latest-at", "frame_id", "1.5s"]);
+        assert!(line.contains("not a time of a sequence timeline"), "{line}");
+        let line = fails(&[source, "range", "sim_time", "2s", "1s"]);
+        assert!(line.contains("MIN is greater than MAX"), "{line}");
+        let line = fails(&[source, "latest-at", "log_time", "2026-02-30T00:00:00Z"]);
+        assert!(line.contains("is not a time"), "{line}");
+    }
+    let table = |args: &[&str]| {
+        let output = run(args);
+        assert!(output.status.success(), "{args:?}");
+        output.stdout
+    };
+    assert_eq!(
+        table(&[rrd, "dataframe", "sim_time", "--range", "1s", "2s"]),
+        table(&[
+            rrd,
+            "dataframe",
+            "sim_time",
+            "--range",
+            "1000000000",
+            "2000000000"
+        ])
+    );
+    assert_eq!(
+        table(&[
+            rrd,
+            "dataframe",
+            "log_time",
+            "--index-values",
+            "2026-11-21T12:55:49Z,2026-11-21T12:55:50Z"
+        ]),
+        table(&[
+            rrd,
+            "dataframe",
+            "log_time",
+            "--index-values",
+            "1795265749000000000,1795265750000000000"
+        ])
+    );
+    #[cfg(feature = "datafusion")]
+    {
+        let count = |time: &str| {
+            let query = format!(
+                "SELECT \"/world/robot:Transform3D:translation\" AS t FROM latest_at('sim_time', {time})"
+            );
+            cli_on(Path::new(rrd), &[], &["sql", &query, "--json"])
+        };
+        assert_eq!(count("'1.5s'"), count("1500000000"));
+        assert!(count("'1.5s'").contains("\"t\""));
+    }
 }

@@ -177,7 +177,8 @@ fn static_columns_equal_rerun_static_table() {
         // `/__properties` included: Rerun's static table has the recording's properties
         // (which it names `property:<component>`; we name every column
         // `<entity>:<component>`, so columns are matched by their metadata).
-        let everything = EntityPathFilter::parse(["/**"]).unwrap();
+        // `/**` leaves `/__properties` out unless named (issue 32, item 11).
+        let everything = EntityPathFilter::parse(["/**", "/__properties/**"]).unwrap();
         let query = DataframeQuery::new("frame_id")
             .with_contents(everything)
             .with_index_values([time(0)]);

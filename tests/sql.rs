@@ -661,3 +661,56 @@ proptest! {
         assert_same_table(&by_time.batch, &by_time_whole.batch, "chunks by time");
     }
 }
+
+/// Issue 32, item 14: a duration timeline compares with integer nanoseconds, as it is
+/// written everywhere else (the CLI, Python, `latest_at`), and with `INTERVAL`s; the
+/// comparison is still pushed down to the store. Text times work in `latest_at`.
+#[test]
+fn durations_compare_with_integers_and_text_times_work() {
+    let snapshot = common::robot().snapshot();
+    let ctx = context(&snapshot);
+    let count = |sql: &str| int64s(&run(&ctx, sql).unwrap(), 0)[0];
+    // sim_time is 0.1 s per frame, frames 0 to 59.
+    let by_integer = count("SELECT count(*) FROM sim_time WHERE sim_time > 1000000000");
+    assert_eq!(by_integer, 49);
+    assert_eq!(
+        count("SELECT count(*) FROM sim_time WHERE 1000000000 < sim_time"),
+        by_integer
+    );
+    assert_eq!(
+        count("SELECT count(*) FROM sim_time WHERE sim_time > INTERVAL '1 second'"),
+        by_integer
+    );
+    let answer = run(
+        &ctx,
+        "SELECT count(*) FROM sim_time WHERE sim_time > 1000000000",
+    )
+    .unwrap();
+    assert!(
+        answer.chunks_read < total_chunks_of(&snapshot),
+        "pushed down: {}",
+        answer.plan
+    );
+    // Registering again adds no second planner (the answer is the same).
+    chunkstore::sql::register(&ctx, &snapshot).unwrap();
+    assert_eq!(
+        count("SELECT count(*) FROM sim_time WHERE sim_time >= 1000000000"),
+        50
+    );
+    assert_eq!(
+        count("SELECT count(*) FROM latest_at('sim_time', '1.5s')"),
+        count("SELECT count(*) FROM latest_at('sim_time', 1500000000)")
+    );
+    assert_eq!(
+        count("SELECT count(*) FROM log_time WHERE log_time >= '2026-11-21T12:55:49Z'"),
+        count("SELECT count(*) FROM log_time WHERE log_time >= 1795265749000000000")
+    );
+    let Err(error) = run(&ctx, "SELECT * FROM latest_at('frame_id', '1.5s')") else {
+        panic!("'1.5s' is no time of a sequence");
+    };
+    assert!(error.to_string().contains("sequence"), "{error}");
+}
+
+fn total_chunks_of(snapshot: &Snapshot) -> usize {
+    usize::try_from(snapshot.stats().num_chunks()).unwrap()
+}

@@ -23,6 +23,29 @@ pub fn cli_args(bytes: &[u8]) {
     match args::parse(&argv) {
         Ok(cli) => {
             let _ = cli.load.config();
+            // What the tool does with the times once the timeline's type is known.
+            let times: Vec<&args::TimeArg> = match &cli.command {
+                args::Command::LatestAt { time, .. } => vec![time],
+                args::Command::Range { min, max, .. } => vec![min, max],
+                args::Command::Dataframe(dataframe) => dataframe
+                    .range
+                    .iter()
+                    .chain(&dataframe.index_values)
+                    .flatten()
+                    .collect(),
+                _ => Vec::new(),
+            };
+            for time in times {
+                for kind in [
+                    chunkstore::TimeType::Sequence,
+                    chunkstore::TimeType::DurationNs,
+                    chunkstore::TimeType::TimestampNs,
+                ] {
+                    if let Err(error) = time.on(kind) {
+                        assert!(!error.is_empty());
+                    }
+                }
+            }
             if let args::Command::Dataframe(dataframe) = &cli.command {
                 // What the tool does with the contents before loading anything.
                 if let Err(error) = chunkstore::EntityPathFilter::parse(&dataframe.contents) {

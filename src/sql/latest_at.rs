@@ -113,6 +113,15 @@ fn times_of(value: &ScalarValue, time_type: TimeType) -> Result<Vec<TimeInt>> {
 }
 
 fn time_of(value: &ScalarValue, time_type: TimeType) -> Result<TimeInt> {
+    // Text as a person writes it: '2026-11-21T12:55:49Z', '1.5s' (the CLI's parser).
+    if let ScalarValue::Utf8(Some(text))
+    | ScalarValue::Utf8View(Some(text))
+    | ScalarValue::LargeUtf8(Some(text)) = value
+    {
+        return time_type
+            .parse_time(text)
+            .map_err(|e| plan_error(&e.to_string()));
+    }
     let raw = match (time_type, value) {
         (TimeType::Sequence, ScalarValue::Int32(Some(v))) => Some(i64::from(*v)),
         (TimeType::Sequence, ScalarValue::UInt64(Some(v))) => i64::try_from(*v).ok(),
@@ -124,7 +133,7 @@ fn time_of(value: &ScalarValue, time_type: TimeType) -> Result<TimeInt> {
     raw.and_then(TimeInt::new).ok_or_else(|| {
         plan_error(&format!(
             "{value:?} is not a time of a {time_type:?} timeline (integers, in nanoseconds for \
-             timestamps and durations)"
+             timestamps and durations, or text such as '2026-11-21T12:55:49Z' or '1.5s')"
         ))
     })
 }

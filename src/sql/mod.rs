@@ -41,6 +41,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod integer_times;
 mod latest_at;
 mod pushdown;
 mod scan;
@@ -92,6 +93,19 @@ pub fn register(ctx: &SessionContext, snapshot: &Snapshot) -> Result<Vec<String>
         "latest_at",
         Arc::new(LatestAtFunction::new(snapshot.clone())),
     );
+    {
+        use datafusion::execution::FunctionRegistry as _;
+        let state = ctx.state_ref();
+        let mut state = state.write();
+        // Once per context, however often a snapshot is registered again.
+        let registered = state
+            .expr_planners()
+            .iter()
+            .any(|planner| format!("{planner:?}") == "IntegerTimes");
+        if !registered {
+            state.register_expr_planner(Arc::new(integer_times::IntegerTimes))?;
+        }
+    }
     Ok(names)
 }
 

@@ -7,12 +7,13 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
 
-use chunkstore::{StoreConfig, TimeInt};
+use chunkstore::{StoreConfig, TimeInt, TimeType};
 
 const EXAMPLES: &str = "\
 Examples:
   chunkstore recording.rrd latest-at frame_id 30
-  chunkstore recording.rrd range sim_time 0 1000000000
+  chunkstore recording.rrd range sim_time 0s 1.5s
+  chunkstore recording.rrd latest-at log_time 2026-11-21T12:55:49Z
   chunkstore chunks/ stats
   chunkstore recording.rrd print --json
   chunkstore --compact recording.rrd convert optimized.rrd
@@ -96,9 +97,10 @@ pub enum Command {
     LatestAt {
         /// The timeline.
         timeline: String,
-        /// The time (an integer: nanoseconds on duration and timestamp timelines).
+        /// The time: an integer (nanoseconds on duration and timestamp timelines), a
+        /// duration such as `1.5s`, or a timestamp such as `2026-11-21T12:55:49Z`.
         #[arg(value_parser = parse_time)]
-        time: TimeInt,
+        time: TimeArg,
     },
     /// Every value of every entity and component in `[MIN, MAX]`, one JSON line each.
     #[command(
@@ -108,12 +110,12 @@ pub enum Command {
     Range {
         /// The timeline.
         timeline: String,
-        /// The range's start (included).
+        /// The range's start (included), written as `latest-at`'s TIME.
         #[arg(value_parser = parse_time)]
-        min: TimeInt,
+        min: TimeArg,
         /// The range's end (included).
         #[arg(value_parser = parse_time)]
-        max: TimeInt,
+        max: TimeArg,
     },
     /// The store's statistics, timelines and entities, as one JSON line.
     #[command(after_help = "Example:\n  chunkstore recording.rrd stats")]
@@ -238,11 +240,11 @@ pub struct DataframeArgs {
     /// Only rows whose index lies in `[MIN, MAX]` (both included).
     #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], value_parser = parse_time,
           allow_hyphen_values = true)]
-    pub range: Option<Vec<TimeInt>>,
+    pub range: Option<Vec<TimeArg>>,
     /// One row per value, in the order given, each cell the latest-at value there.
     #[arg(long, value_name = "V[,V...]", value_delimiter = ',', value_parser = parse_time,
           allow_hyphen_values = true)]
-    pub index_values: Option<Vec<TimeInt>>,
+    pub index_values: Option<Vec<TimeArg>>,
     /// Fill each empty cell with the latest value at or before its row's time.
     #[arg(long)]
     pub fill_latest_at: bool,
@@ -261,12 +263,48 @@ fn parse_count<T: std::str::FromStr>(text: &str) -> Result<T, String> {
         .map_err(|_| format!("{text:?} is not a whole number"))
 }
 
-fn parse_time(text: &str) -> Result<TimeInt, String> {
-    let value: i64 = text
-        .parse()
-        .map_err(|_| format!("{text:?} is not an i64"))?;
-    TimeInt::new(value)
-        .ok_or_else(|| format!("{value} is reserved (i64::MIN is never a valid time)"))
+/// A time as written on the command line: checked now to be a time of some timeline, and
+/// read on the timeline's own type once the source is open (`1.5s` only on a duration
+/// timeline, a date only on a timestamp one).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TimeArg(pub String);
+
+impl TimeArg {
+    /// The time on a timeline of `time_type`.
+    pub fn on(&self, time_type: TimeType) -> Result<TimeInt, String> {
+        time_type.parse_time(&self.0).map_err(|e| e.to_string())
+    }
+
+    /// The time, where it is an integer (which means the same on every timeline).
+    pub fn integer(&self) -> Option<TimeInt> {
+        TimeType::Sequence.parse_time(&self.0).ok()
+    }
+}
+
+impl std::fmt::Display for TimeArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+fn parse_time(text: &str) -> Result<TimeArg, String> {
+    if text.trim().parse::<i64>() == Ok(i64::MIN) {
+        return Err(format!(
+            "{text} is reserved (i64::MIN is never a valid time)"
+        ));
+    }
+    let kinds = [
+        TimeType::Sequence,
+        TimeType::DurationNs,
+        TimeType::TimestampNs,
+    ];
+    if kinds.iter().any(|kind| kind.parse_time(text).is_ok()) {
+        return Ok(TimeArg(text.to_owned()));
+    }
+    Err(format!(
+        "{text:?} is not a time: an integer, a duration such as 1.5s, or a timestamp such as \
+         2026-11-21T12:55:49Z"
+    ))
 }
 
 /// Parses the arguments (the first is the program's name).

@@ -9,31 +9,32 @@ use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondT
 use arrow_array::{Array, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, SchemaRef};
 use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
-use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange};
+use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange, TimeType};
 use indicatif::ProgressBar;
 
 use crate::Failure;
-use crate::args::{DataframeArgs, HiveArgs};
+use crate::args::{DataframeArgs, HiveArgs, TimeArg};
 use crate::load::{self, Options};
 
 pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
-    // Arguments first: a bad one is named before a long load.
+    // Arguments first: a bad one is named before a long load (times that are integers
+    // are checked now; the others once the index's type is known).
     let mut query =
         DataframeQuery::new(args.index.as_str()).with_fill_latest_at(args.fill_latest_at);
-    if let Some(range) = &args.range {
-        let &[min, max] = range.as_slice() else {
-            return Err("--range takes two values, MIN and MAX".to_owned().into());
-        };
-        if min > max {
-            return Err(format!("--range {min} {max}: MIN is greater than MAX").into());
+    let range = match args.range.as_deref() {
+        None => None,
+        Some([min, max]) => {
+            if let (Some(a), Some(b)) = (min.integer(), max.integer())
+                && a > b
+            {
+                return Err(reversed(min, max));
+            }
+            Some((min, max))
         }
-        query = query.with_range(TimeRange::new(min, max));
-    }
-    if let Some(values) = &args.index_values {
-        if args.range.is_some() {
-            eprintln!("warning: --range plays no part with --index-values (one row per value)");
-        }
-        query = query.with_index_values(values.iter().copied());
+        Some(_) => return Err("--range takes two values, MIN and MAX".to_owned().into()),
+    };
+    if args.index_values.is_some() && args.range.is_some() {
+        eprintln!("warning: --range plays no part with --index-values (one row per value)");
     }
     let mut filter = None;
     if !args.contents.is_empty() {
@@ -50,24 +51,13 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
 
     let loaded = load::load(source, options)?;
     let store = &loaded.store;
+    // The times, on the index's own type (an unknown index is named by the query below).
+    if let Some(time_type) = store.time_type(&args.index) {
+        query = with_times(query, time_type, range, args.index_values.as_deref())?;
+    }
     let stream = store.dataframe(&query).map_err(|e| e.to_string())?;
-    // A filter that selects nothing is a mistake (a typo'd path), not an empty table.
     if let Some(filter) = &filter {
-        let entities = store.entity_paths();
-        if !entities.iter().any(|entity| filter.matches(entity)) {
-            let names: Vec<String> = entities.iter().map(ToString::to_string).collect();
-            return Err(format!(
-                "--contents {}: matches no entity of {} (its entities: {})",
-                args.contents.join(" "),
-                source.display(),
-                if names.is_empty() {
-                    "none".to_owned()
-                } else {
-                    names.join(", ")
-                }
-            )
-            .into());
-        }
+        selects_something(filter, store, &args.contents, source)?;
     }
     let index_position = stream.schema().index_of(&args.index).ok();
     let bar = match (&args.index_values, store.time_range(&args.index)) {
@@ -115,6 +105,60 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     };
     bar.0.finish_and_clear();
     result
+}
+
+/// `--range MIN MAX` the wrong way round.
+fn reversed(min: &TimeArg, max: &TimeArg) -> Failure {
+    format!("--range {min} {max}: MIN is greater than MAX").into()
+}
+
+/// The query with its range and sampled values, read on the index's type.
+fn with_times(
+    mut query: DataframeQuery,
+    time_type: TimeType,
+    range: Option<(&TimeArg, &TimeArg)>,
+    values: Option<&[TimeArg]>,
+) -> Result<DataframeQuery, Failure> {
+    if let Some((min, max)) = range {
+        let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
+        if lo > hi {
+            return Err(reversed(min, max));
+        }
+        query = query.with_range(TimeRange::new(lo, hi));
+    }
+    if let Some(values) = values {
+        let values = values
+            .iter()
+            .map(|v| v.on(time_type))
+            .collect::<Result<Vec<_>, _>>()?;
+        query = query.with_index_values(values);
+    }
+    Ok(query)
+}
+
+/// A filter that selects nothing is a mistake (a typo'd path), not an empty table.
+fn selects_something(
+    filter: &EntityPathFilter,
+    store: &chunkstore::ChunkStore,
+    contents: &[String],
+    source: &Path,
+) -> Result<(), Failure> {
+    let entities = store.entity_paths();
+    if entities.iter().any(|entity| filter.matches(entity)) {
+        return Ok(());
+    }
+    let names: Vec<String> = entities.iter().map(ToString::to_string).collect();
+    Err(format!(
+        "--contents {}: matches no entity of {} (its entities: {})",
+        contents.join(" "),
+        source.display(),
+        if names.is_empty() {
+            "none".to_owned()
+        } else {
+            names.join(", ")
+        }
+    )
+    .into())
 }
 
 /// The first rows of the table as text on the terminal, the rest counted on stderr.

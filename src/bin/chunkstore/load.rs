@@ -11,7 +11,7 @@ use chunkstore::rrd::{
 };
 use chunkstore::{
     ChunkId, ChunkStore, ComponentName, EntityPath, LatestAtQuery, QueryCell, RangeQuery,
-    RangeResult, RowId, StoreConfig,
+    RangeResult, RowId, StoreConfig, TimeType,
 };
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -478,10 +478,21 @@ impl Answers {
         }
     }
 
-    /// An error if no data of the source is on `timeline`, naming the timelines it has:
-    /// the rule of `dataframe`, SQL and Python too (a misspelt name must not pass for an
-    /// answer of static data only).
-    pub fn check_timeline(&self, timeline: &str, source: &Path) -> Result<(), String> {
+    /// The type of `timeline`, or an error if no data of the source is on it, naming the
+    /// timelines it has: the rule of `dataframe`, SQL and Python too (a misspelt name must
+    /// not pass for an answer of static data only).
+    pub fn timeline_type(&self, timeline: &str, source: &Path) -> Result<TimeType, String> {
+        let found = match self {
+            Self::Eager(loaded) => loaded.store.time_type(timeline),
+            Self::Lazy(lazy) => lazy
+                .timelines()
+                .iter()
+                .find(|t| t.0.name() == timeline)
+                .map(|t| t.0.time_type()),
+        };
+        if let Some(time_type) = found {
+            return Ok(time_type);
+        }
         let known: Vec<String> = match self {
             Self::Eager(loaded) => loaded
                 .store
@@ -495,9 +506,6 @@ impl Answers {
                 .map(|t| t.0.name().to_owned())
                 .collect(),
         };
-        if known.iter().any(|name| name == timeline) {
-            return Ok(());
-        }
         let error = chunkstore::DataframeError::UnknownIndex {
             timeline: timeline.to_owned(),
             known,

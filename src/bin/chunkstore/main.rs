@@ -158,18 +158,26 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     match &cli.command {
         Command::LatestAt { timeline, time } => {
             let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            answers.check_timeline(timeline, source)?;
-            output::latest_at(&mut answers, timeline, *time)
+            let time = time.on(answers.timeline_type(timeline, source)?)?;
+            output::latest_at(&mut answers, timeline, time)
         }
         Command::Range { timeline, min, max } => {
             // The same rule as `dataframe --range`, SQL and Python: a reversed range is a
-            // mistake to name, not an empty answer that looks like success.
-            if min > max {
-                return Err(format!("range {min} {max}: MIN is greater than MAX").into());
+            // mistake to name, not an empty answer that looks like success (named before
+            // loading where the times are integers).
+            let reversed = || format!("range {min} {max}: MIN is greater than MAX");
+            if let (Some(a), Some(b)) = (min.integer(), max.integer())
+                && a > b
+            {
+                return Err(reversed().into());
             }
             let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            answers.check_timeline(timeline, source)?;
-            output::range(&mut answers, timeline, *min, *max)
+            let time_type = answers.timeline_type(timeline, source)?;
+            let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
+            if lo > hi {
+                return Err(reversed().into());
+            }
+            output::range(&mut answers, timeline, lo, hi)
         }
         Command::Stats => {
             let loaded = load::load(source, &options)?;
