@@ -1429,3 +1429,65 @@ fn human_times_answer_as_their_nanoseconds() {
         assert!(count("'1.5s'").contains("\"t\""));
     }
 }
+
+/// Issue 32, item 15: quick looks. `--contents` and `--component` narrow `latest-at` and
+/// `range` to the lines the whole answer has for them (a selection of nothing is an
+/// error), and `-` reads the source from standard input.
+#[test]
+fn selections_and_standard_input() {
+    let rrd = recording_rrd();
+    let rrd = rrd.to_str().unwrap();
+    let all = cli_on(Path::new(rrd), &[], &["latest-at", "frame_id", "30"]);
+    let only = cli_on(
+        Path::new(rrd),
+        &[],
+        &[
+            "latest-at",
+            "frame_id",
+            "30",
+            "--contents",
+            "/world/**",
+            "--contents",
+            "-/world/map/**",
+            "--component",
+            "Transform3D:translation",
+            "--component",
+            "Image:buffer",
+        ],
+    );
+    let expected: Vec<&str> = all
+        .lines()
+        .filter(|l| l.contains("\"entity\":\"/world") && !l.contains("\"entity\":\"/world/map"))
+        .filter(|l| {
+            l.contains("\"component\":\"Transform3D:translation\"")
+                || l.contains("\"component\":\"Image:buffer\"")
+        })
+        .collect();
+    assert!(!expected.is_empty());
+    assert_eq!(only.lines().collect::<Vec<_>>(), expected);
+    let ranged = cli_on(
+        Path::new(rrd),
+        &[],
+        &["range", "frame_id", "0", "9", "--contents", "/metrics/**"],
+    );
+    assert_eq!(ranged.lines().count(), 10, "{ranged}");
+    let line = fails(&[rrd, "range", "frame_id", "0", "9", "--component", "Nope"]);
+    assert!(line.contains("selects no"), "{line}");
+
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args(["-", "latest-at", "frame_id", "30"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let bytes = std::fs::read(rrd).unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let writer = std::thread::spawn(move || {
+        use std::io::Write as _;
+        stdin.write_all(&bytes).unwrap();
+    });
+    let output = child.wait_with_output().unwrap();
+    writer.join().unwrap();
+    assert!(output.status.success());
+    assert_eq!(String::from_utf8(output.stdout).unwrap(), all);
+}

@@ -30,7 +30,8 @@ pub struct Cli {
     pub load: LoadArgs,
 
     /// An `.rrd` file, a directory of Arrow IPC chunk files, or one such file (told apart
-    /// by their contents, not their names).
+    /// by their contents, not their names); `-` reads either kind of file from standard
+    /// input.
     pub source: PathBuf,
 
     #[command(subcommand)]
@@ -101,6 +102,8 @@ pub enum Command {
         /// duration such as `1.5s`, or a timestamp such as `2026-11-21T12:55:49Z`.
         #[arg(value_parser = parse_time)]
         time: TimeArg,
+        #[command(flatten)]
+        select: Select,
     },
     /// Every value of every entity and component in `[MIN, MAX]`, one JSON line each.
     #[command(
@@ -116,6 +119,8 @@ pub enum Command {
         /// The range's end (included).
         #[arg(value_parser = parse_time)]
         max: TimeArg,
+        #[command(flatten)]
+        select: Select,
     },
     /// The store's statistics, timelines and entities, as one JSON line.
     #[command(after_help = "Example:\n  chunkstore recording.rrd stats")]
@@ -226,6 +231,19 @@ Examples:
       --range 0 2000000000 --fill-latest-at --out table.parquet
   chunkstore recording.rrd dataframe frame_id --index-values 0,10,20 | python3 -c \\
       'import pyarrow.ipc, sys; print(pyarrow.ipc.open_stream(sys.stdin.buffer).read_all())'";
+
+/// Which (entity, component) pairs `latest-at` and `range` answer for (by default every
+/// one the source has).
+#[derive(Args, Debug, Clone, Default)]
+pub struct Select {
+    /// Only these entities: `/a/b` (exactly), `/a/**` (and its subtree), `-/a/**`
+    /// (exclude), as `dataframe --contents`; repeat it for several rules.
+    #[arg(long, value_name = "EXPR", allow_hyphen_values = true)]
+    pub contents: Vec<String>,
+    /// Only this component (e.g. `Transform3D:translation`); repeat it for several.
+    #[arg(long, value_name = "NAME")]
+    pub component: Vec<String>,
+}
 
 /// The arguments of `dataframe`.
 #[derive(Args, Debug)]

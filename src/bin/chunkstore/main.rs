@@ -2,14 +2,14 @@
 //! Arrow IPC chunk files.
 //!
 //! ```text
-//! chunkstore [OPTIONS] <SOURCE> latest-at <TIMELINE> <TIME>
-//! chunkstore [OPTIONS] <SOURCE> range <TIMELINE> <MIN> <MAX>
+//! chunkstore [OPTIONS] <SOURCE> latest-at <TIMELINE> <TIME> [--contents EXPR]... [--component NAME]...
+//! chunkstore [OPTIONS] <SOURCE> range <TIMELINE> <MIN> <MAX> [--contents EXPR]... [--component NAME]...
 //! chunkstore [OPTIONS] <SOURCE> stats
 //! chunkstore [OPTIONS] <SOURCE> print [--json]
 //! chunkstore [OPTIONS] <SOURCE> convert <OUT>
 //! chunkstore [OPTIONS] <SOURCE> dataframe <INDEX> [--contents EXPR]... [--range MIN MAX]
 //!            [--index-values V[,V...]] [--fill-latest-at] [--out FILE]
-//! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE]
+//! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE | --full]
 //! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]]
 //! ```
 //!
@@ -47,6 +47,43 @@ enum Failure {
 impl From<String> for Failure {
     fn from(message: String) -> Self {
         Self::Message(message)
+    }
+}
+
+/// Standard input copied to a temporary file, removed when dropped (and on SIGINT or
+/// SIGTERM, as every unfinished output is).
+struct StdinCopy {
+    file: chunkstore::UnfinishedOutput,
+}
+
+impl StdinCopy {
+    fn new() -> Result<Self, String> {
+        let path = std::env::temp_dir().join(format!(
+            "chunkstore-stdin-{}-{:x}",
+            std::process::id(),
+            chunkstore::RowId::new().as_u128()
+        ));
+        let (file, mut out) = chunkstore::UnfinishedOutput::create(&path, |path| {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(path)
+        })
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+        let copy = Self { file };
+        std::io::copy(&mut std::io::stdin().lock(), &mut out)
+            .map_err(|e| format!("reading standard input: {e}"))?;
+        Ok(copy)
+    }
+
+    fn path(&self) -> &std::path::Path {
+        self.file.path()
+    }
+}
+
+impl Drop for StdinCopy {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(self.file.path());
     }
 }
 
@@ -154,14 +191,32 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         skip_bad: cli.load.skip_bad,
         recording: cli.load.recording.clone(),
     };
-    let source = &cli.source;
+    // `-`: standard input, copied to a temporary file first (lazy reading seeks, and
+    // sources are told apart by their first bytes); removed when the command ends.
+    let stdin_copy = if cli.source.as_os_str() == "-" {
+        Some(StdinCopy::new()?)
+    } else {
+        None
+    };
+    let source = stdin_copy
+        .as_ref()
+        .map_or(cli.source.as_path(), StdinCopy::path);
     match &cli.command {
-        Command::LatestAt { timeline, time } => {
+        Command::LatestAt {
+            timeline,
+            time,
+            select,
+        } => {
             let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
             let time = time.on(answers.timeline_type(timeline, source)?)?;
-            output::latest_at(&mut answers, timeline, time)
+            output::latest_at(&mut answers, timeline, time, select)
         }
-        Command::Range { timeline, min, max } => {
+        Command::Range {
+            timeline,
+            min,
+            max,
+            select,
+        } => {
             // The same rule as `dataframe --range`, SQL and Python: a reversed range is a
             // mistake to name, not an empty answer that looks like success (named before
             // loading where the times are integers).
@@ -177,7 +232,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             if lo > hi {
                 return Err(reversed().into());
             }
-            output::range(&mut answers, timeline, lo, hi)
+            output::range(&mut answers, timeline, (lo, hi), select)
         }
         Command::Stats => {
             let loaded = load::load(source, &options)?;

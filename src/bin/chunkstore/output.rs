@@ -9,10 +9,11 @@ use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
 use chunkstore::rrd::{RrdItem, RrdReader};
 use chunkstore::{
-    Chunk, ChunkStore, ComponentColumn, LatestAtQuery, RangeQuery, RowId, TimeInt, TimeRange,
-    TimeType,
+    Chunk, ChunkStore, ComponentColumn, ComponentName, EntityPath, EntityPathFilter, LatestAtQuery,
+    RangeQuery, RowId, TimeInt, TimeRange, TimeType,
 };
 
+use crate::args::Select;
 use crate::load::{self, Answers, SourceKind};
 use crate::{Failure, one_line};
 
@@ -77,13 +78,60 @@ fn render_cell(column: &ComponentColumn, row: usize) -> Result<String, String> {
         .ok_or_else(|| format!("unexpected JSON rendering {text:?}"))
 }
 
-pub fn latest_at(answers: &mut Answers, timeline: &str, at: TimeInt) -> Result<(), Failure> {
+/// The (entity, component) pairs `select` keeps, in answer order (entity path, then
+/// component name); an error where a selection was given and keeps nothing (a typo must
+/// not pass for an empty answer).
+pub fn selected_pairs(
+    answers: &Answers,
+    select: &Select,
+) -> Result<Vec<(EntityPath, ComponentName)>, Failure> {
+    let filter = if select.contents.is_empty() {
+        None
+    } else {
+        Some(EntityPathFilter::parse(&select.contents).map_err(|e| e.to_string())?)
+    };
+    let mut pairs = Vec::new();
+    for entity in answers.entity_paths() {
+        if filter.as_ref().is_some_and(|f| !f.matches(&entity)) {
+            continue;
+        }
+        for component in answers.component_names(&entity) {
+            if select.component.is_empty()
+                || select.component.iter().any(|c| c == component.as_str())
+            {
+                pairs.push((entity.clone(), component));
+            }
+        }
+    }
+    if pairs.is_empty() && (filter.is_some() || !select.component.is_empty()) {
+        let what: Vec<String> = select
+            .contents
+            .iter()
+            .map(|c| format!("--contents {c}"))
+            .chain(select.component.iter().map(|c| format!("--component {c}")))
+            .collect();
+        return Err(format!(
+            "{}: selects no (entity, component) of the source (`stats` lists its entities)",
+            what.join(" ")
+        )
+        .into());
+    }
+    Ok(pairs)
+}
+
+pub fn latest_at(
+    answers: &mut Answers,
+    timeline: &str,
+    at: TimeInt,
+    select: &Select,
+) -> Result<(), Failure> {
     let query = LatestAtQuery::new(timeline, at);
     let mut out = stdout();
-    for entity in answers.entity_paths() {
+    let pairs = selected_pairs(answers, select)?;
+    for (entity, components) in group_by_entity(&pairs) {
         let entity_text = entity.to_string();
-        for component in answers.component_names(&entity) {
-            let Some(answer) = answers.latest_at(&query, &entity, component.as_str())? else {
+        for component in components {
+            let Some(answer) = answers.latest_at(&query, entity, component.as_str())? else {
                 continue;
             };
             let value = render_cell(answer.component(), answer.row())?;
@@ -101,18 +149,33 @@ pub fn latest_at(answers: &mut Answers, timeline: &str, at: TimeInt) -> Result<(
     flush(&mut out)
 }
 
+/// `pairs` (sorted by entity) as runs of one entity and its components.
+fn group_by_entity(
+    pairs: &[(EntityPath, ComponentName)],
+) -> Vec<(&EntityPath, Vec<&ComponentName>)> {
+    let mut groups: Vec<(&EntityPath, Vec<&ComponentName>)> = Vec::new();
+    for (entity, component) in pairs {
+        match groups.last_mut() {
+            Some((last, components)) if *last == entity => components.push(component),
+            _ => groups.push((entity, vec![component])),
+        }
+    }
+    groups
+}
+
 pub fn range(
     answers: &mut Answers,
     timeline: &str,
-    min: TimeInt,
-    max: TimeInt,
+    (min, max): (TimeInt, TimeInt),
+    select: &Select,
 ) -> Result<(), Failure> {
     let query = RangeQuery::new(timeline, TimeRange::new(min, max));
     let mut out = stdout();
-    for entity in answers.entity_paths() {
+    let pairs = selected_pairs(answers, select)?;
+    for (entity, components) in group_by_entity(&pairs) {
         let entity_text = entity.to_string();
-        for component in answers.component_names(&entity) {
-            let rows = answers.range(&query, &entity, component.as_str())?;
+        for component in components {
+            let rows = answers.range(&query, entity, component.as_str())?;
             for row in rows.iter() {
                 let value = render_cell(row.column(), row.row())?;
                 let line = answer_line(
