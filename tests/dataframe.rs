@@ -701,3 +701,46 @@ fn a_chunk_table_with_columns_equals_the_whole_table_projected() {
         );
     }
 }
+
+/// Issue 32, item 11: Rerun's reader leaves out tombstone (`Clear:is_recursive`) and
+/// semantically empty columns by default; both are offered. Left out, a column is not in
+/// the view (its rows make no rows), while a Clear still marks and hides the others.
+#[test]
+fn tombstone_and_empty_columns_can_be_left_out() {
+    let store = store_of([
+        scalar("/a", "x", 1, 1, 1.0),
+        clear("/a", Some(3), 2, false),
+        scalars("/a", "empty", &[(2, 3, Some(vec![])), (4, 4, None)]),
+        clear("/b", Some(5), 5, true),
+        scalar("/c", "y", 6, 6, 6.0),
+    ]);
+    let (names, rows) = render(&store, &frame());
+    assert_eq!(
+        names,
+        [
+            "frame",
+            "/a:Clear:is_recursive",
+            "/a:empty",
+            "/a:x",
+            "/b:Clear:is_recursive",
+            "/c:y"
+        ]
+    );
+    assert_eq!(rows.len(), 5, "{rows:?}"); // frame 4's null cell is no row
+    let rerun_like = frame()
+        .with_tombstone_columns(false)
+        .with_semantically_empty_columns(false);
+    let (names, rows) = render(&store, &rerun_like);
+    assert_eq!(names, ["frame", "/a:x", "/c:y"]);
+    // Frames 1, 3 (the Clear's mark in /a:x) and 6; /b's Clear and /a:empty's rows make
+    // no rows now.
+    assert_eq!(
+        rows,
+        lines(&["1 | [1] | null", "3 | [] | null", "6 | null | [6]"])
+    );
+    let only_tombstones_out = render(&store, &frame().with_tombstone_columns(false)).0;
+    assert_eq!(only_tombstones_out, ["frame", "/a:empty", "/a:x", "/c:y"]);
+    let only_empty_out = render(&store, &frame().with_semantically_empty_columns(false)).0;
+    assert!(!only_empty_out.contains(&"/a:empty".to_owned()));
+    assert!(only_empty_out.contains(&"/b:Clear:is_recursive".to_owned()));
+}

@@ -1947,6 +1947,9 @@ struct DataframeOp {
     /// set (`DataframeQuery::with_columns`; the index columns stay); the rows stay the
     /// full view's.
     columns: Option<u64>,
+    /// `DataframeQuery::with_tombstone_columns` and `with_semantically_empty_columns`.
+    tombstones: bool,
+    empty_columns: bool,
 }
 
 impl DataframeOp {
@@ -1967,9 +1970,20 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
         prop::option::weighted(0.4, (0..ENTITIES.len(), any::<bool>())),
         1..5usize,
         prop::option::weighted(0.3, any::<u64>()),
+        (prop::bool::weighted(0.8), prop::bool::weighted(0.8)),
     )
         .prop_map(
-            |(timeline, min, len, fill, sample, contents, batch_rows, columns)| DataframeOp {
+            |(
+                timeline,
+                min,
+                len,
+                fill,
+                sample,
+                contents,
+                batch_rows,
+                columns,
+                (tombstones, empty_columns),
+            )| DataframeOp {
                 timeline,
                 min,
                 max: if len == 5 {
@@ -1982,6 +1996,8 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
                 contents,
                 batch_rows,
                 columns,
+                tombstones,
+                empty_columns,
             },
         )
 }
@@ -2089,6 +2105,23 @@ impl Model {
         self.static_winner(entity, component).is_some()
             || (0..TIMELINES.len())
                 .any(|timeline| !self.column_events(entity, component, timeline).is_empty())
+    }
+
+    /// Does the column hold a cell that is neither null nor empty (its static winner's,
+    /// where it has static data; else any temporal one)? The Clear component's cells are
+    /// its one-flag lists.
+    fn column_holds_data(&self, entity: usize, component: usize) -> bool {
+        if component == CLEAR_COMPONENT {
+            return self.column_has_data(entity, component);
+        }
+        if let Some((_, (_, _, cell))) = self.static_winner(entity, component) {
+            return !cell.is_empty();
+        }
+        (0..TIMELINES.len()).any(|timeline| {
+            self.column_events(entity, component, timeline)
+                .iter()
+                .any(|(_, _, cell)| !cell.is_empty())
+        })
     }
 
     /// A static column's cell: the static winner, or null (no answer) if a static Clear
@@ -2202,7 +2235,10 @@ impl Model {
         let mut columns: Vec<(chunkstore::EntityPath, &str, usize, usize)> = Vec::new();
         for entity in (0..ENTITIES.len()).filter(|&e| selected(e)) {
             for component in 0..=COMPONENTS.len() {
-                if self.column_has_data(entity, component) {
+                if self.column_has_data(entity, component)
+                    && (op.tombstones || component != CLEAR_COMPONENT)
+                    && (op.empty_columns || self.column_holds_data(entity, component))
+                {
                     columns.push((
                         path(ENTITIES[entity]),
                         component_name(component),
@@ -2270,7 +2306,9 @@ fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<Table<Cell>>
     let mut query = DataframeQuery::new(TIMELINES[op.timeline].0)
         .with_range(TimeRange::new(t(op.min), t(op.max)))
         .with_fill_latest_at(op.fill)
-        .with_batch_rows(op.batch_rows);
+        .with_batch_rows(op.batch_rows)
+        .with_tombstone_columns(op.tombstones)
+        .with_semantically_empty_columns(op.empty_columns);
     if let Some(values) = &op.sample {
         query = query.with_index_values(values.iter().map(|&v| t(v)));
     }

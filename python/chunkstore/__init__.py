@@ -318,9 +318,16 @@ class Store:
         index_values: Optional[Iterable[Time]] = None,
         fill_latest_at: bool = False,
         batch_rows: Optional[int] = None,
+        *,
+        include_tombstone_columns: bool = True,
+        include_semantically_empty_columns: bool = True,
     ) -> "pyarrow.RecordBatchReader":
         """The store as a table on timeline ``index`` (SEMANTICS.md section 9), streamed
         from one snapshot as a ``pyarrow.RecordBatchReader``.
+
+        ``include_tombstone_columns`` and ``include_semantically_empty_columns``: keep the
+        ``Clear:is_recursive`` columns and the columns whose every cell is null or empty
+        (both kept by default; Rerun's reader leaves them out by default).
 
         ``contents``: entity path rules (``"/world/**"``, ``"-/world/noise"``); by default
         every entity but ``/__properties``. ``range=(lo, hi)``: only rows in it.
@@ -334,7 +341,14 @@ class Store:
         """
         range, index_values = self._view_times(index, range, index_values)
         return self._native.dataframe(
-            index, _contents(contents), range, index_values, fill_latest_at, _positive(batch_rows, "batch_rows")
+            index,
+            _contents(contents),
+            range,
+            index_values,
+            fill_latest_at,
+            _positive(batch_rows, "batch_rows"),
+            include_tombstone_columns,
+            include_semantically_empty_columns,
         )
 
     def _view_times(self, index: str, range: Optional[tuple], index_values: Optional[Iterable[Time]]) -> tuple:

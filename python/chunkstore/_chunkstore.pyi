@@ -31,6 +31,8 @@ class NativeStore:
         index_values: Optional[list[int]] = None,
         fill_latest_at: bool = False,
         batch_rows: Optional[int] = None,
+        include_tombstone_columns: bool = True,
+        include_semantically_empty_columns: bool = True,
     ) -> pyarrow.RecordBatchReader: ...
     def gc(
         self, fraction: Optional[float] = None, bytes: Optional[int] = None, protect_latest: int = 0

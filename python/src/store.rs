@@ -548,7 +548,7 @@ impl NativeStore {
     }
 
     /// A dataframe view (SEMANTICS.md section 9), streamed from one snapshot.
-    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None))]
+    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None, include_tombstone_columns = true, include_semantically_empty_columns = true))]
     #[allow(clippy::too_many_arguments)]
     fn dataframe(
         &self,
@@ -559,6 +559,8 @@ impl NativeStore {
         index_values: Option<Vec<i64>>,
         fill_latest_at: bool,
         batch_rows: Option<usize>,
+        include_tombstone_columns: bool,
+        include_semantically_empty_columns: bool,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
         let mut query = dataframe_query(
             index,
@@ -567,7 +569,9 @@ impl NativeStore {
             index_values,
             fill_latest_at,
             batch_rows,
-        )?;
+        )?
+        .with_tombstone_columns(include_tombstone_columns)
+        .with_semantically_empty_columns(include_semantically_empty_columns);
         if batch_rows.is_none() {
             // The batches cross into pyarrow (to_parquet's never leave Rust).
             query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);

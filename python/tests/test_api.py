@@ -269,3 +269,13 @@ def test_to_parquet_takes_the_dataframe_arguments(tmp_path, robot):
     with pytest.raises(chunkstore.InvalidInputError, match="range"):
         robot.to_parquet(tmp_path / "bad.parquet", "frame_id", range=3)
     assert not (tmp_path / "bad.parquet").exists()
+
+
+def test_tombstone_and_empty_columns_can_be_left_out(robot):
+    """Issue 32, item 11: Rerun's reader defaults, offered as switches (the robot has no
+    Clear and no empty column: the switches change nothing there)."""
+    full = robot.dataframe("frame_id").read_all()
+    rerun_like = robot.dataframe(
+        "frame_id", include_tombstone_columns=False, include_semantically_empty_columns=False
+    ).read_all()
+    assert rerun_like.equals(full)

@@ -71,6 +71,8 @@ pub struct DataframeQuery {
     batch_rows: Option<usize>,
     min_batch_rows: usize,
     columns: Option<Arc<[String]>>,
+    tombstone_columns: bool,
+    semantically_empty_columns: bool,
 }
 
 impl DataframeQuery {
@@ -86,7 +88,30 @@ impl DataframeQuery {
             batch_rows: None,
             min_batch_rows: 1,
             columns: None,
+            tombstone_columns: true,
+            semantically_empty_columns: true,
         }
+    }
+
+    /// Keep (`true`, the default) or leave out the `Clear:is_recursive` columns (Rerun's
+    /// *tombstone* columns, which its `reader` leaves out unless
+    /// `include_tombstone_columns=True`). Left out, a column is not in the view at all:
+    /// its rows make no rows of the table (a Clear still hides what it hides, and marks
+    /// the other columns of its entities).
+    #[must_use]
+    pub fn with_tombstone_columns(mut self, include: bool) -> Self {
+        self.tombstone_columns = include;
+        self
+    }
+
+    /// Keep (`true`, the default) or leave out the columns whose every stored cell is null
+    /// or an empty list (Rerun's *semantically empty* columns, which its `reader` leaves
+    /// out unless `include_semantically_empty_columns=True`). Leaving them out reads every
+    /// chunk of each column's cells' validity and lengths when the query is planned.
+    #[must_use]
+    pub fn with_semantically_empty_columns(mut self, include: bool) -> Self {
+        self.semantically_empty_columns = include;
+        self
     }
 
     /// Only the entities `contents` selects.

@@ -49,8 +49,10 @@ impl TablePlan {
             let Some(entity_index) = store.entities.get(&entity) else {
                 continue;
             };
-            // Components with data: a static winner, or a temporal index on some timeline.
+            // Components with data: a static winner, or a temporal index on some timeline;
+            // and the timelines each is on.
             let mut with_data: BTreeMap<ComponentName, (Arc<Chunk>, u32, bool)> = BTreeMap::new();
+            let mut on_timelines: BTreeMap<ComponentName, BTreeSet<Timeline>> = BTreeMap::new();
             for (component, winner) in entity_index.static_winners.iter() {
                 with_data.insert(
                     component.clone(),
@@ -64,7 +66,10 @@ impl TablePlan {
                         continue;
                     };
                     if let Some(time_type) = store.time_type(timeline) {
-                        timelines.insert(Timeline::new(Arc::clone(timeline), time_type));
+                        on_timelines
+                            .entry(component.clone())
+                            .or_default()
+                            .insert(Timeline::new(Arc::clone(timeline), time_type));
                     }
                     with_data.entry(component.clone()).or_insert_with(|| {
                         (Arc::clone(&entry.chunk), entry.component_column, false)
@@ -82,7 +87,10 @@ impl TablePlan {
                         if column.bounds(time_position).is_none() {
                             continue;
                         }
-                        timelines.insert(timeline.clone());
+                        on_timelines
+                            .entry(column.name().clone())
+                            .or_default()
+                            .insert(timeline.clone());
                         with_data
                             .entry(column.name().clone())
                             .or_insert_with(|| (Arc::clone(chunk), position, false));
@@ -90,6 +98,17 @@ impl TablePlan {
                 }
             }
             for (component, (chunk, column, is_static)) in with_data {
+                if !query.tombstone_columns && component.is_clear() {
+                    continue;
+                }
+                if !query.semantically_empty_columns
+                    && !holds_data(store, &entity, &component, is_static)
+                {
+                    continue;
+                }
+                if let Some(on) = on_timelines.remove(&component) {
+                    timelines.extend(on);
+                }
                 let column = &chunk.components()[column as usize];
                 let DataType::List(item_field) = column.list_array().data_type() else {
                     continue; // component columns are lists (checked at construction)
@@ -117,6 +136,48 @@ impl TablePlan {
             schema,
         }
     }
+}
+
+/// Does the column of `component` at `entity` hold a cell that is neither null nor an
+/// empty list: its static cell, where it has static data (which the column shows on every
+/// row), else any temporal cell (indexed or in the write buffer)?
+fn holds_data(
+    store: &StoreView,
+    entity: &EntityPath,
+    component: &ComponentName,
+    is_static: bool,
+) -> bool {
+    let Some(entity_index) = store.entities.get(entity) else {
+        return false;
+    };
+    let has_cell = |list: &arrow_array::ListArray, rows: std::ops::Range<usize>| {
+        rows.into_iter()
+            .any(|row| list.is_valid(row) && list.value_length(row) > 0)
+    };
+    if is_static {
+        return entity_index
+            .static_winners
+            .get(component)
+            .is_some_and(|winner| {
+                let list = winner.chunk.components()[winner.component_column as usize].list_array();
+                has_cell(list, winner.row as usize..winner.row as usize + 1)
+            });
+    }
+    let indexed = entity_index
+        .temporal_per_timeline_per_component
+        .iter()
+        .filter_map(|(_, per_component)| per_component.get(component))
+        .flat_map(|index| index.chunks())
+        .any(|entry| {
+            let list = entry.chunk.components()[entry.component_column as usize].list_array();
+            has_cell(list, 0..list.len())
+        });
+    indexed
+        || entity_index.buffered.chunks().any(|chunk| {
+            chunk
+                .component(component.as_str())
+                .is_some_and(|column| has_cell(column.list_array(), 0..column.list_array().len()))
+        })
 }
 
 /// Which of a plan's columns a stream builds ([`DataframeQuery::with_columns`]).

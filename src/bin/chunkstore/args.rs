@@ -266,6 +266,14 @@ pub struct DataframeArgs {
     /// Fill each empty cell with the latest value at or before its row's time.
     #[arg(long)]
     pub fill_latest_at: bool,
+    /// Leave out the `Clear:is_recursive` (tombstone) columns, as Rerun's reader does by
+    /// default.
+    #[arg(long)]
+    pub without_tombstones: bool,
+    /// Leave out the columns whose every cell is null or empty, as Rerun's reader does by
+    /// default.
+    #[arg(long)]
+    pub without_empty_columns: bool,
     /// Write an Arrow IPC file (or Parquet, for a name ending `.parquet`) instead of an
     /// IPC stream on stdout.
     #[arg(long, value_name = "FILE")]

@@ -19,8 +19,10 @@ use crate::load::{self, Options};
 pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
     // Arguments first: a bad one is named before a long load (times that are integers
     // are checked now; the others once the index's type is known).
-    let mut query =
-        DataframeQuery::new(args.index.as_str()).with_fill_latest_at(args.fill_latest_at);
+    let mut query = DataframeQuery::new(args.index.as_str())
+        .with_fill_latest_at(args.fill_latest_at)
+        .with_tombstone_columns(!args.without_tombstones)
+        .with_semantically_empty_columns(!args.without_empty_columns);
     let range = match args.range.as_deref() {
         None => None,
         Some([min, max]) => {
