@@ -61,6 +61,24 @@ class Timeline(NamedTuple):
     min: Optional[int]
     max: Optional[int]
 
+    def span(self) -> Optional[tuple]:
+        """``(min, max)`` as Python times: ``datetime`` (UTC) on a timestamp timeline,
+        ``timedelta`` on a duration one, ``int`` on a sequence; ``None`` without data.
+        Python's times hold microseconds: ``min``/``max`` keep the exact nanoseconds."""
+        if self.min is None or self.max is None:
+            return None
+        return (_from_ns(self.min, self.type), _from_ns(self.max, self.type))
+
+
+def _from_ns(value: int, time_type: str) -> Any:
+    """A time in nanoseconds as the Python time of its timeline's type (microseconds,
+    rounded towards the past)."""
+    if time_type == "timestamp":
+        return _EPOCH + _dt.timedelta(microseconds=value // 1_000)
+    if time_type == "duration":
+        return _dt.timedelta(microseconds=value // 1_000)
+    return value
+
 
 def _timedelta_ns(value: _dt.timedelta) -> int:
     return (value.days * 86_400 + value.seconds) * 1_000_000_000 + value.microseconds * 1_000

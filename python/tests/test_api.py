@@ -279,3 +279,18 @@ def test_tombstone_and_empty_columns_can_be_left_out(robot):
         "frame_id", include_tombstone_columns=False, include_semantically_empty_columns=False
     ).read_all()
     assert rerun_like.equals(full)
+
+
+def test_a_timeline_span_in_python_times(robot):
+    """Issue 32, item 17: timestamps as ``datetime`` where the timeline is a timestamp."""
+    import datetime
+
+    spans = {t.name: t.span() for t in robot.timelines()}
+    start, end = spans["log_time"]
+    assert start == datetime.datetime(2026, 11, 21, 12, 55, 48, 902914, tzinfo=datetime.timezone.utc)
+    assert end > start
+    assert spans["sim_time"] == (datetime.timedelta(0), datetime.timedelta(seconds=5.9))
+    assert spans["frame_id"] == (0, 59)
+    # Back in, a datetime is the same time to the microsecond (rounded towards the past,
+    # so the last one is after the data before the last row).
+    assert robot.latest_at("log_time", end, "/world/robot").num_rows == 1
