@@ -744,3 +744,53 @@ fn tombstone_and_empty_columns_can_be_left_out() {
     assert!(!only_empty_out.contains(&"/a:empty".to_owned()));
     assert!(only_empty_out.contains(&"/b:Clear:is_recursive".to_owned()));
 }
+
+/// Issue 32, item 11: sampling with exact hits, as Rerun's reader samples without
+/// `fill_latest_at`: a sampled row shows what the sparse view has at exactly that time.
+#[test]
+fn exact_samples_show_only_what_was_logged_at_each_value() {
+    let store = store_of([
+        scalar("/a", "x", 1, 1, 1.0),
+        scalar("/a", "x", 4, 2, 4.0),
+        clear("/a", Some(3), 3, false),
+        static_scalar("/s", "y", 4, 9.0),
+    ]);
+    let values = [t(0), t(1), t(2), t(3), t(4)];
+    let latest = render(&store, &frame().with_index_values(values)).1;
+    assert_eq!(
+        latest,
+        lines(&[
+            "0 | null | null | [9]",
+            "1 | null | [1] | [9]",
+            "2 | null | [1] | [9]",
+            "3 | [false] | null | [9]",
+            "4 | [false] | [4] | [9]"
+        ])
+    );
+    let exact = render(
+        &store,
+        &frame()
+            .with_index_values(values)
+            .with_exact_index_values(true),
+    )
+    .1;
+    assert_eq!(
+        exact,
+        lines(&[
+            "0 | null | null | [9]",
+            "1 | null | [1] | [9]",
+            "2 | null | null | [9]",
+            "3 | [false] | [] | [9]",
+            "4 | null | [4] | [9]"
+        ])
+    );
+    // Each exact row is the sparse view's row at that time, where it has one.
+    let sparse = render(&store, &frame()).1;
+    for row in [
+        "1 | null | [1] | [9]",
+        "3 | [false] | [] | [9]",
+        "4 | null | [4] | [9]",
+    ] {
+        assert!(sparse.contains(&row.to_owned()), "{row} in {sparse:?}");
+    }
+}

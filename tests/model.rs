@@ -1933,6 +1933,10 @@ fn wide_and_narrow_chunks_answer_like_the_model() {
 /// `sample`, filled or not, over the entities `contents` picks, in batches of
 /// `batch_rows`.
 #[derive(Clone, Debug)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "each is a switch of the query, drawn on its own"
+)]
 struct DataframeOp {
     timeline: usize,
     min: i64,
@@ -1950,6 +1954,8 @@ struct DataframeOp {
     /// `DataframeQuery::with_tombstone_columns` and `with_semantically_empty_columns`.
     tombstones: bool,
     empty_columns: bool,
+    /// `DataframeQuery::with_exact_index_values`.
+    exact: bool,
 }
 
 impl DataframeOp {
@@ -1970,7 +1976,11 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
         prop::option::weighted(0.4, (0..ENTITIES.len(), any::<bool>())),
         1..5usize,
         prop::option::weighted(0.3, any::<u64>()),
-        (prop::bool::weighted(0.8), prop::bool::weighted(0.8)),
+        (
+            prop::bool::weighted(0.8),
+            prop::bool::weighted(0.8),
+            any::<bool>(),
+        ),
     )
         .prop_map(
             |(
@@ -1982,7 +1992,7 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
                 contents,
                 batch_rows,
                 columns,
-                (tombstones, empty_columns),
+                (tombstones, empty_columns, exact),
             )| DataframeOp {
                 timeline,
                 min,
@@ -1998,6 +2008,7 @@ fn dataframe_op() -> impl Strategy<Value = DataframeOp> {
                 columns,
                 tombstones,
                 empty_columns,
+                exact,
             },
         )
 }
@@ -2283,6 +2294,11 @@ impl Model {
                         if let Some(cell) = self.static_column_cell(entity, component) {
                             return cell;
                         }
+                        if op.sample.is_some() && op.exact {
+                            return self
+                                .column_cell_exactly_at(entity, component, timeline, time)
+                                .unwrap_or_else(|| vec![None]);
+                        }
                         if op.sample.is_some() {
                             return self.column_cell_at(entity, component, timeline, time);
                         }
@@ -2308,7 +2324,8 @@ fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<Table<Cell>>
         .with_fill_latest_at(op.fill)
         .with_batch_rows(op.batch_rows)
         .with_tombstone_columns(op.tombstones)
-        .with_semantically_empty_columns(op.empty_columns);
+        .with_semantically_empty_columns(op.empty_columns)
+        .with_exact_index_values(op.exact);
     if let Some(values) = &op.sample {
         query = query.with_index_values(values.iter().map(|&v| t(v)));
     }

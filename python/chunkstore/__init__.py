@@ -339,6 +339,7 @@ class Store:
         *,
         include_tombstone_columns: bool = True,
         include_semantically_empty_columns: bool = True,
+        exact_index_values: bool = False,
     ) -> "pyarrow.RecordBatchReader":
         """The store as a table on timeline ``index`` (SEMANTICS.md section 9), streamed
         from one snapshot as a ``pyarrow.RecordBatchReader``.
@@ -346,6 +347,8 @@ class Store:
         ``include_tombstone_columns`` and ``include_semantically_empty_columns``: keep the
         ``Clear:is_recursive`` columns and the columns whose every cell is null or empty
         (both kept by default; Rerun's reader leaves them out by default).
+        ``exact_index_values``: with ``index_values``, each row shows only what was logged
+        at exactly that value (Rerun's sampling without ``fill_latest_at``).
 
         ``contents``: entity path rules (``"/world/**"``, ``"-/world/noise"``); by default
         every entity but ``/__properties``. ``range=(lo, hi)``: only rows in it.
@@ -367,6 +370,7 @@ class Store:
             _positive(batch_rows, "batch_rows"),
             include_tombstone_columns,
             include_semantically_empty_columns,
+            exact_index_values,
         )
 
     def _view_times(self, index: str, range: Optional[tuple], index_values: Optional[Iterable[Time]]) -> tuple:

@@ -33,6 +33,7 @@ class NativeStore:
         batch_rows: Optional[int] = None,
         include_tombstone_columns: bool = True,
         include_semantically_empty_columns: bool = True,
+        exact_index_values: bool = False,
     ) -> pyarrow.RecordBatchReader: ...
     def gc(
         self, fraction: Optional[float] = None, bytes: Optional[int] = None, protect_latest: int = 0

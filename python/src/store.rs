@@ -548,8 +548,12 @@ impl NativeStore {
     }
 
     /// A dataframe view (SEMANTICS.md section 9), streamed from one snapshot.
-    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None, include_tombstone_columns = true, include_semantically_empty_columns = true))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None, include_tombstone_columns = true, include_semantically_empty_columns = true, exact_index_values = false))]
+    #[allow(
+        clippy::too_many_arguments,
+        clippy::fn_params_excessive_bools,
+        reason = "Python's keyword arguments, one each"
+    )]
     fn dataframe(
         &self,
         py: Python<'_>,
@@ -561,6 +565,7 @@ impl NativeStore {
         batch_rows: Option<usize>,
         include_tombstone_columns: bool,
         include_semantically_empty_columns: bool,
+        exact_index_values: bool,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
         let mut query = dataframe_query(
             index,
@@ -571,7 +576,8 @@ impl NativeStore {
             batch_rows,
         )?
         .with_tombstone_columns(include_tombstone_columns)
-        .with_semantically_empty_columns(include_semantically_empty_columns);
+        .with_semantically_empty_columns(include_semantically_empty_columns)
+        .with_exact_index_values(exact_index_values);
         if batch_rows.is_none() {
             // The batches cross into pyarrow (to_parquet's never leave Rust).
             query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);

@@ -294,3 +294,18 @@ def test_a_timeline_span_in_python_times(robot):
     # Back in, a datetime is the same time to the microsecond (rounded towards the past,
     # so the last one is after the data before the last row).
     assert robot.latest_at("log_time", end, "/world/robot").num_rows == 1
+
+
+def test_exact_index_values_show_only_what_was_logged_there(robot):
+    """Issue 32, item 11: Rerun's sampling without fill, as a switch."""
+    latest = robot.dataframe("frame_id", index_values=[5]).read_all()
+    exact = robot.dataframe("frame_id", index_values=[5], exact_index_values=True).read_all()
+    grid = [n for n in latest.column_names if n.startswith("/world/map/occupancy")]
+    assert grid, latest.column_names
+    # The grid is logged every 10th frame: frame 5 has the latest-at answer, not a hit.
+    assert latest.column(grid[0]).null_count == 0
+    assert exact.column(grid[0]).null_count == 1
+    sparse = robot.dataframe("frame_id", range=(5, 5)).read_all()
+    assert exact.column("/world/robot:Transform3D:translation").equals(
+        sparse.column("/world/robot:Transform3D:translation")
+    )

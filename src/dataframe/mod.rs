@@ -71,8 +71,17 @@ pub struct DataframeQuery {
     batch_rows: Option<usize>,
     min_batch_rows: usize,
     columns: Option<Arc<[String]>>,
-    tombstone_columns: bool,
-    semantically_empty_columns: bool,
+    kept: KeptColumns,
+    exact_index_values: bool,
+}
+
+/// Which kinds of column a view keeps that Rerun's reader leaves out by default.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct KeptColumns {
+    /// `Clear:is_recursive` columns.
+    pub tombstones: bool,
+    /// Columns whose every cell is null or empty.
+    pub semantically_empty: bool,
 }
 
 impl DataframeQuery {
@@ -88,9 +97,22 @@ impl DataframeQuery {
             batch_rows: None,
             min_batch_rows: 1,
             columns: None,
-            tombstone_columns: true,
-            semantically_empty_columns: true,
+            kept: KeptColumns {
+                tombstones: true,
+                semantically_empty: true,
+            },
+            exact_index_values: false,
         }
+    }
+
+    /// With [`Self::with_index_values`]: each sampled row shows what the sparse view has at
+    /// exactly that time (a row logged then, a Clear's mark, static data), null elsewhere,
+    /// as Rerun's reader does with `using_index_values` and no `fill_latest_at`; by default
+    /// (`false`) each cell is the latest-at answer there.
+    #[must_use]
+    pub fn with_exact_index_values(mut self, exact: bool) -> Self {
+        self.exact_index_values = exact;
+        self
     }
 
     /// Keep (`true`, the default) or leave out the `Clear:is_recursive` columns (Rerun's
@@ -100,7 +122,7 @@ impl DataframeQuery {
     /// the other columns of its entities).
     #[must_use]
     pub fn with_tombstone_columns(mut self, include: bool) -> Self {
-        self.tombstone_columns = include;
+        self.kept.tombstones = include;
         self
     }
 
@@ -110,7 +132,7 @@ impl DataframeQuery {
     /// chunk of each column's cells' validity and lengths when the query is planned.
     #[must_use]
     pub fn with_semantically_empty_columns(mut self, include: bool) -> Self {
-        self.semantically_empty_columns = include;
+        self.kept.semantically_empty = include;
         self
     }
 

@@ -98,10 +98,10 @@ impl TablePlan {
                 }
             }
             for (component, (chunk, column, is_static)) in with_data {
-                if !query.tombstone_columns && component.is_clear() {
+                if !query.kept.tombstones && component.is_clear() {
                     continue;
                 }
-                if !query.semantically_empty_columns
+                if !query.kept.semantically_empty
                     && !holds_data(store, &entity, &component, is_static)
                 {
                     continue;

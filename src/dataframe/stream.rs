@@ -67,8 +67,12 @@ impl std::fmt::Debug for DataframeStream<'_> {
 enum Rows {
     /// A row per distinct index value any column has an event at.
     Merge { next: NextEvents, fill: bool },
-    /// A row per sampled value.
-    Sample { values: Arc<[TimeInt]>, next: usize },
+    /// A row per sampled value; `exact`: only what the sparse view has at that time.
+    Sample {
+        values: Arc<[TimeInt]>,
+        next: usize,
+        exact: bool,
+    },
 }
 
 /// Each temporal column's next event time, the columns grouped by it: columns logged at
@@ -178,6 +182,34 @@ impl TemporalColumn {
     }
 }
 
+/// The sparse view's cell at exactly `at` (as [`TemporalColumn::take_events_at`] gives
+/// it), from the unfiltered latest-at answer there and the column's Clears: the answer if
+/// it was logged at `at` (and no Clear there came later, and no static Clear hides it);
+/// an empty list where a Clear at `at` marks the column; else null.
+fn exact_cell(
+    answer: Option<((TimeInt, RowId), Cell)>,
+    clears: &[(TimeInt, RowId)],
+    at: TimeInt,
+    hidden_by_static_clear: bool,
+) -> Option<Cell> {
+    let end = clears.partition_point(|&(t, _)| t <= at);
+    let mark = end
+        .checked_sub(1)
+        .map(|i| clears[i])
+        .filter(|&(t, _)| t == at)
+        .map(|(_, row_id)| row_id);
+    let row = answer
+        .filter(|&((time, row_id), _)| {
+            time == at && !hidden_by_static_clear && mark.is_none_or(|m| m < row_id)
+        })
+        .map(|(_, cell)| cell);
+    match (row, mark) {
+        (Some(cell), _) => Some(cell),
+        (None, Some(_)) => Some(Cell::Empty),
+        (None, None) => None,
+    }
+}
+
 /// The cell of latest-at semantics given the unfiltered answer's index and the latest
 /// Clear that applies (SEMANTICS.md sections 3 and 5): a Clear at or after the answer
 /// hides it, and a hidden answer is no answer (null), as latest-at gives none.
@@ -248,7 +280,11 @@ impl<'a> DataframeStream<'a> {
             columns.push(state);
         }
         let rows = match sampling {
-            Some(values) => Rows::Sample { values, next: 0 },
+            Some(values) => Rows::Sample {
+                values,
+                next: 0,
+                exact: query.exact_index_values,
+            },
             None => Rows::Merge {
                 next,
                 fill: query.fill_latest_at,
@@ -365,7 +401,12 @@ impl<'a> DataframeStream<'a> {
 
     /// Appends the row sampled at the next value; `false` when there is none left.
     fn sample_row(&mut self) -> bool {
-        let Rows::Sample { values, next } = &mut self.rows else {
+        let Rows::Sample {
+            values,
+            next,
+            exact,
+        } = &mut self.rows
+        else {
             return false;
         };
         let Some(&at) = values.get(*next) else {
@@ -401,7 +442,9 @@ impl<'a> DataframeStream<'a> {
                             let row = u32::try_from(answer.row()).ok()?;
                             Some((index, Cell::Row { source, row }))
                         });
-                    let cell = if column.hides {
+                    let cell = if *exact {
+                        exact_cell(answer, &column.clears, at, column.hidden_by_static_clear)
+                    } else if column.hides {
                         let visible = column.clears.partition_point(|&(t, _)| t <= at);
                         let latest_clear = visible.checked_sub(1).map(|i| column.clears[i]);
                         visible_cell(answer, latest_clear, column.hidden_by_static_clear)

@@ -247,6 +247,10 @@ pub struct Select {
 
 /// The arguments of `dataframe`.
 #[derive(Args, Debug)]
+#[allow(
+    clippy::struct_excessive_bools,
+    reason = "each is a command-line flag of its own"
+)]
 pub struct DataframeArgs {
     /// The index timeline: one row per distinct time on it.
     pub index: String,
@@ -266,6 +270,10 @@ pub struct DataframeArgs {
     /// Fill each empty cell with the latest value at or before its row's time.
     #[arg(long)]
     pub fill_latest_at: bool,
+    /// With --index-values: each row shows only what was logged (or cleared) at exactly
+    /// that value, as Rerun's reader does without fill, instead of the latest-at answer.
+    #[arg(long, requires = "index_values")]
+    pub exact: bool,
     /// Leave out the `Clear:is_recursive` (tombstone) columns, as Rerun's reader does by
     /// default.
     #[arg(long)]

@@ -22,7 +22,8 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     let mut query = DataframeQuery::new(args.index.as_str())
         .with_fill_latest_at(args.fill_latest_at)
         .with_tombstone_columns(!args.without_tombstones)
-        .with_semantically_empty_columns(!args.without_empty_columns);
+        .with_semantically_empty_columns(!args.without_empty_columns)
+        .with_exact_index_values(args.exact);
     let range = match args.range.as_deref() {
         None => None,
         Some([min, max]) => {

@@ -8,7 +8,8 @@
 //! chunkstore [OPTIONS] <SOURCE> print [--json]
 //! chunkstore [OPTIONS] <SOURCE> convert <OUT>
 //! chunkstore [OPTIONS] <SOURCE> dataframe <INDEX> [--contents EXPR]... [--range MIN MAX]
-//!            [--index-values V[,V...]] [--fill-latest-at] [--out FILE]
+//!            [--index-values V[,V...] [--exact]] [--fill-latest-at]
+//!            [--without-tombstones] [--without-empty-columns] [--out FILE]
 //! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE | --full]
 //! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]]
 //! ```
