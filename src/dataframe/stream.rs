@@ -531,8 +531,9 @@ fn column_state(
 ) -> Result<ColumnState, ArrowError> {
     let mut sources = Sources::new(Arc::clone(&column.item_field));
     let timeline = plan.index.name();
-    // A Clear hides every component but the Clear component itself (SEMANTICS.md section
-    // 5); that column only shows the marks of its ancestors' recursive Clears (section 9).
+    // A Clear hides every component but the Clear component itself (SEMANTICS.md
+    // section 5); that column only shows the marks of its ancestors' recursive Clears
+    // (section 9).
     let hides = !column.component.is_clear();
     let clears = if hides {
         store.clears.column_clears(&column.entity, timeline, range)
