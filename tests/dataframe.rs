@@ -794,3 +794,29 @@ fn exact_samples_show_only_what_was_logged_at_each_value() {
         assert!(sparse.contains(&row.to_owned()), "{row} in {sparse:?}");
     }
 }
+
+/// The model test's find: where an ancestor's recursive Clear and the entity's own Clear
+/// share a time and the ancestor's came later, the entity's `Clear:is_recursive` column
+/// shows the mark there, and filling goes on with the entity's own Clear (no Clear hides
+/// that column), as latest-at answers.
+#[test]
+fn a_clear_column_fills_with_its_own_clear_after_an_ancestor_s_mark() {
+    let store = store_of([
+        clear("/r/a", Some(6), 1, false),
+        clear("/r", Some(6), 2, true),
+        scalar("/other", "x", 7, 3, 7.0),
+    ]);
+    let query = frame()
+        .with_contents(EntityPathFilter::parse(["/r/a", "/other"]).unwrap())
+        .with_fill_latest_at(true);
+    assert_eq!(
+        render(&store, &query).1,
+        lines(&["6 | null | []", "7 | [7] | [false]"])
+    );
+    let at_seven = chunkstore::LatestAtQuery::new("frame", t(7));
+    assert!(
+        store
+            .latest_at(&at_seven, &path("/r/a"), "Clear:is_recursive")
+            .is_some()
+    );
+}

@@ -147,21 +147,27 @@ impl TemporalColumn {
         }
     }
 
-    /// Consumes every event at `time` and returns the cell the row shows: the row of
+    /// Consumes every event at `time` and returns the cell the row shows (the row of
     /// greatest row id, an empty list where a Clear came later (the Clear's mark), or null
-    /// where a static Clear hides the row.
-    fn take_events_at(&mut self, time: TimeInt) -> Option<Cell> {
+    /// where a static Clear hides the row), and that row of greatest row id itself, shown
+    /// or not: what filling goes on with in a column no Clear hides.
+    fn take_events_at(&mut self, time: TimeInt) -> (Option<Cell>, Option<Cell>) {
         let mut row = None;
         let mut clear = None;
         while let Some(&(_, row_id)) = self.clears.get(self.next_clear).filter(|c| c.0 == time) {
             clear = Some(row_id);
             self.next_clear += 1;
         }
+        let mut latest = None;
         if let Some(cursor) = &mut self.cursor {
             while let Some(next) = cursor.peek().filter(|r| r.time == time) {
                 row = Some(next);
                 cursor.advance();
             }
+            latest = row.map(|row| Cell::Row {
+                source: row.source,
+                row: row.row,
+            });
             if let (Some(found), Some(clear)) = (row, clear)
                 && clear >= cursor.row_id(found)
             {
@@ -171,14 +177,15 @@ impl TemporalColumn {
         if self.hidden_by_static_clear {
             row = None; // hidden whenever it was logged: null, or the mark of a Clear here
         }
-        match (row, clear) {
+        let shown = match (row, clear) {
             (Some(row), _) => Some(Cell::Row {
                 source: row.source,
                 row: row.row,
             }),
             (None, Some(_)) => Some(Cell::Empty),
             (None, None) => None,
-        }
+        };
+        (shown, latest)
     }
 }
 
@@ -372,7 +379,7 @@ impl<'a> DataframeStream<'a> {
             let Kind::Temporal(column) = &mut state.kind else {
                 continue;
             };
-            let cell = column.take_events_at(time);
+            let (cell, latest) = column.take_events_at(time);
             if let Some(cell) = cell {
                 state.sources.raise_times(cell, &mut self.maxima);
             }
@@ -384,9 +391,14 @@ impl<'a> DataframeStream<'a> {
             if *fill && !column.hidden_by_static_clear {
                 match cell {
                     // A Clear's mark: what came before is hidden (a data component), or
-                    // still answers (the Clear component, which no Clear hides).
+                    // still answers (the Clear component, which no Clear hides), the
+                    // entity's own Clear at this time included.
                     Some(Cell::Empty) if column.hides => column.fill = None,
-                    Some(Cell::Empty) | None => {}
+                    Some(Cell::Empty) | None => {
+                        if !column.hides && latest.is_some() {
+                            column.fill = latest;
+                        }
+                    }
                     Some(row) => column.fill = Some(row),
                 }
             }
