@@ -46,10 +46,7 @@ pub fn recording_error(path: &std::path::Path, kind: RrdErrorKind) -> PyErr {
 
 /// [`recording_error`] where the error is about recordings, else [`rrd_error`].
 pub fn recording_or_rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
-    if matches!(
-        error.kind,
-        RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
-    ) {
+    if error.is_recording_choice() {
         recording_error(path, error.kind)
     } else {
         rrd_error(path, error)

@@ -30,15 +30,13 @@ pub fn open(
 fn open_path(path: &Path, lazy: bool, recording: Option<&str>) -> PyResult<NativeStore> {
     let metadata = std::fs::metadata(path).map_err(|e| os_error(path, e))?;
     if metadata.is_dir() {
-        let info = chunkstore::rrd::read_directory_store_info(path)
-            .map_err(|e| rrd_error(&path.join(chunkstore::rrd::STORE_INFO_FILE), e))?;
-        let mut selector = RecordingSelector::new(recording);
-        if let Some(info) = &info {
-            selector.observe(info);
-        }
-        selector
-            .finish()
-            .map_err(|kind| recording_error(path, kind))?;
+        let info = chunkstore::rrd::read_directory_recording(path, recording).map_err(|error| {
+            if error.is_recording_choice() {
+                recording_error(path, error.kind)
+            } else {
+                rrd_error(&path.join(chunkstore::rrd::STORE_INFO_FILE), error)
+            }
+        })?;
         return load_directory(path).map(|store| NativeStore::loaded(store, info, Some(path)));
     }
     let head = file_head(path)?;

@@ -27,6 +27,24 @@ pub fn read_directory_store_info(dir: &Path) -> Result<Option<StoreInfo>, RrdErr
         .map_err(|(at, kind)| RrdError::new(at as u64, kind))
 }
 
+/// The recording of a directory of chunk files ([`read_directory_store_info`]), checked
+/// against the one asked for: a directory holds one recording, so asking for another is
+/// an error naming the one it holds (a directory without a store info names none).
+///
+/// # Errors
+/// As [`read_directory_store_info`], and [`RrdErrorKind::NoSuchRecording`].
+pub fn read_directory_recording(
+    dir: &Path,
+    recording_id: Option<&str>,
+) -> Result<Option<StoreInfo>, RrdError> {
+    let info = read_directory_store_info(dir)?;
+    let mut selector = super::RecordingSelector::new(recording_id);
+    if let Some(info) = &info {
+        selector.observe(info);
+    }
+    selector.finish().map_err(|kind| RrdError::new(0, kind))
+}
+
 /// Writes `info` into a directory of chunk files (see the module docs).
 ///
 /// # Errors

@@ -116,6 +116,16 @@ impl RrdError {
         Self { offset, kind }
     }
 
+    /// Is the error about which recording to read ([`RrdErrorKind::SeveralRecordings`],
+    /// [`RrdErrorKind::NoSuchRecording`]) rather than a fault of the input? A caller
+    /// answers it by naming a recording, not by repairing a file.
+    pub fn is_recording_choice(&self) -> bool {
+        matches!(
+            self.kind,
+            RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
+        )
+    }
+
     /// Does the error end the stream (the framing is lost), or only spoil one message
     /// (its payload), so that a reader told to keep going can go on with the next one?
     pub fn is_fatal(&self) -> bool {
@@ -135,11 +145,8 @@ impl fmt::Display for RrdError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Which recordings a file holds is no fault at a place in it, and an I/O error
         // before the first byte (a file that cannot be opened or created) is at none.
-        let placeless = match &self.kind {
-            RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. } => true,
-            RrdErrorKind::Io(_) => self.offset == 0,
-            _ => false,
-        };
+        let placeless = self.is_recording_choice()
+            || (matches!(self.kind, RrdErrorKind::Io(_)) && self.offset == 0);
         if !placeless {
             write!(f, "at byte {}: ", self.offset)?;
         }

@@ -20,7 +20,10 @@ mod reader;
 mod recordings;
 mod writer;
 
-pub use directory::{STORE_INFO_FILE, read_directory_store_info, write_directory_store_info};
+pub use directory::{
+    STORE_INFO_FILE, read_directory_recording, read_directory_store_info,
+    write_directory_store_info,
+};
 pub use error::{RrdError, RrdErrorKind};
 pub use frames::StreamHeader;
 pub use lazy::{LazyRecording, LazyStats};

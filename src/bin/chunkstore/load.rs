@@ -316,21 +316,16 @@ fn recording_error(name: &str, kind: RrdErrorKind) -> String {
 /// The recording a directory of chunk files names (`convert` writes it), checked against
 /// `--recording`.
 fn directory_store_info(dir: &Path, wanted: Option<&str>) -> Result<Option<StoreInfo>, String> {
-    let name = dir.display().to_string();
-    let info = chunkstore::rrd::read_directory_store_info(dir).map_err(|e| {
-        format!(
-            "{}: {e}",
-            dir.join(chunkstore::rrd::STORE_INFO_FILE).display()
-        )
-    })?;
-    let mut selector = RecordingSelector::new(wanted);
-    if let Some(info) = &info {
-        selector.observe(info);
-    }
-    selector
-        .finish()
-        .map_err(|kind| recording_error(&name, kind))?;
-    Ok(info)
+    chunkstore::rrd::read_directory_recording(dir, wanted).map_err(|error| {
+        if error.is_recording_choice() {
+            recording_error(&dir.display().to_string(), error.kind)
+        } else {
+            format!(
+                "{}: {error}",
+                dir.join(chunkstore::rrd::STORE_INFO_FILE).display()
+            )
+        }
+    })
 }
 
 fn chunk_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
@@ -411,10 +406,7 @@ pub fn open_for_queries(source: &Path, options: &Options, eager: bool) -> Result
             }
             Ok(None) => {}
             Err(error) => {
-                if matches!(
-                    error.kind,
-                    RrdErrorKind::SeveralRecordings { .. } | RrdErrorKind::NoSuchRecording { .. }
-                ) {
+                if error.is_recording_choice() {
                     return Err(recording_error(&source.display().to_string(), error.kind));
                 }
                 return Err(format!(
