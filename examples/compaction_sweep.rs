@@ -1,6 +1,6 @@
 //! Measures compaction thresholds on the two streaming shapes of
 //! `../shared/bench/WORKLOADS.md` that use the default configuration, and prints one
-//! Markdown table row per setting (the table in `docs/PERFORMANCE.md`):
+//! Markdown table row per setting (the table in `docs/performance-log.md`):
 //!
 //! ```text
 //! cargo run --release --example compaction_sweep

@@ -141,11 +141,10 @@ fn lazy(path: &str) -> Result<(), Box<dyn std::error::Error>> {
     let opened = started.elapsed();
     let after_open = recording.stats();
     let rss_open = peak_rss();
-    let (_, _, last) = recording
-        .timelines()
-        .into_iter()
-        .find(|t| t.0.name() == "frame")
-        .ok_or("no frame timeline")?;
+    let last = recording
+        .time_range("frame")
+        .ok_or("no frame timeline")?
+        .max();
     let target = entity(ENTITIES / 2);
     let started = Instant::now();
     let query = LatestAtQuery::new("frame", last);

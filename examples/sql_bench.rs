@@ -154,8 +154,8 @@ fn main() {
         .iter()
         .filter(|c| {
             c.time_column("frame").is_some_and(|t| {
-                let (min, max) = t.time_range();
-                min.as_i64() <= hi as i64 && lo as i64 <= max.as_i64()
+                let range = t.time_range();
+                range.min().as_i64() <= hi as i64 && lo as i64 <= range.max().as_i64()
             })
         })
         .count();

@@ -98,7 +98,7 @@ fn latest_at_batch() {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = &answers[black_box(t) as usize] {
-                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
+                sum = sum.wrapping_add(sum_of_xy(points(cell.column(), cell.row())));
             }
         }
         (queries.len() as u64, sum)
@@ -107,7 +107,7 @@ fn latest_at_batch() {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = latest(t) {
-                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
+                sum = sum.wrapping_add(sum_of_xy(points(cell.column(), cell.row())));
             }
         }
         (queries.len() as u64, sum)

@@ -395,7 +395,7 @@ fn insert_batched() -> bool {
     let (store, ns_per_op) = time_inserts(OFF, &chunks);
     let frame: Arc<str> = FRAME.into();
     let x = latest_at(&store, &frame, 5_000_500, &entity, POSITION3D)
-        .and_then(|cell| points(cell.component(), cell.row()).first().copied())
+        .and_then(|cell| points(cell.column(), cell.row()).first().copied())
         .map_or(0, |p| p[0] as u64);
     Report {
         workload: "insert_batched",
@@ -475,7 +475,7 @@ fn latest_at_mono() -> bool {
         let mut sum = 0u64;
         for &(i, t) in &queries {
             if let Some(cell) = latest_at(&store, &frame, t, &entities[i], POSITION3D)
-                && let Some(p) = points(cell.component(), cell.row()).first()
+                && let Some(p) = points(cell.column(), cell.row()).first()
             {
                 sum = sum.wrapping_add(p[0] as u64 + p[1] as u64);
             }
@@ -506,7 +506,7 @@ fn latest_at_batch() -> bool {
         let mut sum = 0u64;
         for &t in &queries {
             if let Some(cell) = latest_at(&store, &frame, t, &entity, POSITION3D) {
-                sum = sum.wrapping_add(sum_of_xy(points(cell.component(), cell.row())));
+                sum = sum.wrapping_add(sum_of_xy(points(cell.column(), cell.row())));
             }
         }
         (queries.len() as u64, sum)
@@ -723,7 +723,7 @@ fn static_shadow_queries(
     let mut sum = 0u64;
     for &(i, t) in queries {
         if let Some(cell) = latest_at(store, frame, t, &entities[i], TEXT)
-            && let Some(len) = first_text_len(cell.component().list_array(), cell.row())
+            && let Some(len) = first_text_len(cell.column().list_array(), cell.row())
         {
             sum = sum.wrapping_add(len as u64);
         }

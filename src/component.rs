@@ -9,10 +9,10 @@ use std::sync::Arc;
 pub struct ComponentName(Arc<str>);
 
 // Equal names are usually one shared allocation (see `ComponentName::new`): equality and
-// order compare the pointers first (`crate::shared::same_name`); the hash is the text's.
+// order compare the pointers first (`crate::interner::same_name`); the hash is the text's.
 impl PartialEq for ComponentName {
     fn eq(&self, other: &Self) -> bool {
-        crate::shared::same_name(&self.0, &other.0)
+        crate::interner::same_name(&self.0, &other.0)
     }
 }
 
@@ -30,7 +30,7 @@ impl PartialOrd for ComponentName {
 
 impl Ord for ComponentName {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        crate::shared::cmp_names(&self.0, &other.0)
+        crate::interner::cmp_names(&self.0, &other.0)
     }
 }
 
@@ -41,7 +41,7 @@ impl ComponentName {
     /// A component name. Equal names share one allocation, process-wide (up to a cap), so
     /// that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>) -> Self {
-        Self(crate::shared::share_name(name.into()))
+        Self(crate::interner::share_name(name.into()))
     }
 
     /// The name as text.

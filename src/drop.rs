@@ -35,7 +35,8 @@ impl ChunkStore {
                     .get(id)
                     .and_then(|s| s.chunk.time_column(timeline))
                     .is_some_and(|c| {
-                        let (lo, hi) = c.time_range();
+                        let bounds = c.time_range();
+                        let (lo, hi) = (bounds.min(), bounds.max());
                         range.intersects(TimeRange::new(lo, hi))
                     })
             })

@@ -163,8 +163,10 @@ impl EntityPath {
     }
 
     /// Rerun's display order, which its dataframe columns follow: part by part (a parent
-    /// right before its subtree), parts in natural order ([`natural_part_order`]). `Ord`
-    /// stays plain part-by-part text order, which is cheaper and what indexes key on.
+    /// right before its subtree), parts in natural order: parts starting with `__` last,
+    /// digit runs as numbers (`cam2` < `cam10`), case ignored but as a last tie-break
+    /// (upper case first). `Ord` stays plain part-by-part text order, which is cheaper and
+    /// what indexes key on.
     ///
     /// ```
     /// # use chunkstore::EntityPath;
@@ -329,7 +331,7 @@ impl Hash for EntityPath {
 /// differing only in case decides, upper case first (`Cam20` < `cam2`).
 /// Distinct parts never compare equal. This is the order Rerun 0.41 gives its dataframe
 /// columns (checked with its SDK on the parts of `tests` below).
-pub fn natural_part_order(a: &str, b: &str) -> Ordering {
+pub(crate) fn natural_part_order(a: &str, b: &str) -> Ordering {
     let reserved = |part: &str| part.starts_with("__");
     reserved(a)
         .cmp(&reserved(b))

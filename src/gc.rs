@@ -1,6 +1,5 @@
-//! Removing data (SEMANTICS.md section 7): garbage collection, which drops whole temporal
-//! chunks until a memory target is met, and the explicit drops of a time range or an
-//! entity.
+//! Garbage collection (SEMANTICS.md section 7): whole temporal chunks dropped until a
+//! memory target is met. (The explicit drops of a time range or an entity are `drop.rs`.)
 //!
 //! Garbage collection plans first ([`ChunkStore::plan_gc`], `&self`) and applies second
 //! ([`ChunkStore::apply_gc`]), so a plan can be inspected and tested on its own. Planning
@@ -11,9 +10,9 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::error::GcOptionsError;
 use crate::store::{DeletionReason, Holding, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
+use std::fmt;
 
 /// How much garbage collection should free.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -319,12 +318,12 @@ impl ChunkStore {
             |c: &&Arc<Chunk>| c.time_column(timeline).map(|t| (t.time_range(), c.id()));
         let mut outside_by_max: Vec<_> = outside
             .iter()
-            .filter_map(|c| on_timeline(c).map(|((_, max), id)| (max, id)))
+            .filter_map(|c| on_timeline(c).map(|(range, id)| (range.max(), id)))
             .collect();
         outside_by_max.sort_unstable();
         let mut outside_by_min_desc: Vec<_> = outside
             .iter()
-            .filter_map(|c| on_timeline(c).map(|((min, _), id)| (min, id)))
+            .filter_map(|c| on_timeline(c).map(|(range, id)| (range.min(), id)))
             .collect();
         outside_by_min_desc.sort_unstable_by(|a, b| b.cmp(a));
         let (by_max_time, by_min_time_desc) = match self.temporal_per_timeline.get(&**timeline) {
@@ -342,7 +341,7 @@ impl ChunkStore {
             self.chunks
                 .get(id)
                 .and_then(|s| s.chunk.time_column(timeline))
-                .map(|c| i128::from(c.time_range().0.as_i64()))
+                .map(|c| i128::from(c.time_range().min().as_i64()))
         };
         // Ending furthest before the cursor first, from one end; starting furthest after
         // it, from the other. A chunk starting after the cursor belongs to the second.
@@ -393,7 +392,8 @@ impl ChunkStore {
         }
         let in_protected_range = options.protected_time_ranges.iter().any(|(name, range)| {
             chunk.time_column(name).is_some_and(|column| {
-                let (lo, hi) = column.time_range();
+                let bounds = column.time_range();
+                let (lo, hi) = (bounds.min(), bounds.max());
                 range.intersects(TimeRange::new(lo, hi))
             })
         });
@@ -462,3 +462,27 @@ fn merge_sorted<T>(
         (None, _) => extra.next(),
     })
 }
+
+/// Garbage collection options that cannot mean what they say.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum GcOptionsError {
+    /// A fraction of the heap to free must be in `(0, 1]`.
+    FractionOutOfRange {
+        /// The fraction given.
+        fraction: f64,
+    },
+}
+
+impl fmt::Display for GcOptionsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::FractionOutOfRange { fraction } => write!(
+                f,
+                "gc options: a fraction of the heap must be in (0, 1], not {fraction}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for GcOptionsError {}

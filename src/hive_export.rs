@@ -29,7 +29,121 @@ use arrow_schema::{ArrowError, DataType, SchemaRef};
 use crate::parquet_export::{
     ParquetExportError, ParquetOptions, ParquetSummary, write_parquet_file,
 };
-use crate::{ChunkTableQuery, DataframeQuery, StoreView};
+use crate::{ChunkTableQuery, DataframeError, DataframeQuery, StoreView};
+
+/// Why a dataset could not be written. Nothing is left under its directory.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum HiveExportError {
+    /// The dataset's directory exists already (a dataset is always a new directory).
+    Exists {
+        /// The directory.
+        dir: PathBuf,
+    },
+    /// The directory's parent does not exist (a typo in the path makes no directories).
+    NoParent {
+        /// The directory asked for.
+        dir: PathBuf,
+        /// Its missing parent.
+        parent: PathBuf,
+    },
+    /// A time bucket narrower than one index value.
+    BucketWidth {
+        /// The width asked for.
+        width: i64,
+    },
+    /// A [`HiveLayout::ByTimeBucket`] query whose index is not the bucketed timeline.
+    QueryIndex {
+        /// The query's index.
+        index: String,
+        /// The bucketed timeline.
+        timeline: String,
+    },
+    /// The store cannot answer the table (an unknown timeline, say).
+    Table(DataframeError),
+    /// The file system refused (creating a partition, renaming the finished dataset).
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A partition's file could not be written.
+    Write(ParquetExportError),
+}
+
+impl std::fmt::Display for HiveExportError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Exists { dir } => write!(f, "{}: the dataset directory exists", dir.display()),
+            Self::NoParent { dir, parent } => write!(
+                f,
+                "{}: the directory {} does not exist",
+                dir.display(),
+                parent.display()
+            ),
+            Self::BucketWidth { width } => {
+                write!(f, "a time bucket is at least 1 wide, not {width}")
+            }
+            Self::QueryIndex { index, timeline } => write!(
+                f,
+                "the query's index {index:?} is not the bucketed timeline {timeline:?}"
+            ),
+            Self::Table(error) => write!(f, "{error}"),
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Write(error) => write!(f, "{error}"),
+        }
+    }
+}
+
+impl std::error::Error for HiveExportError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Table(error) => Some(error),
+            Self::Io { source, .. } => Some(source),
+            Self::Write(error) => Some(error),
+            Self::Exists { .. }
+            | Self::NoParent { .. }
+            | Self::BucketWidth { .. }
+            | Self::QueryIndex { .. } => None,
+        }
+    }
+}
+
+impl From<ParquetExportError> for HiveExportError {
+    fn from(error: ParquetExportError) -> Self {
+        Self::Write(error)
+    }
+}
+
+/// What [`write_hive_dataset`] checks before it reads anything: `dir` must be new, with an
+/// existing parent, and a time bucket at least 1 wide. A caller with a costly source to
+/// load checks first.
+///
+/// # Errors
+/// [`HiveExportError::Exists`], [`HiveExportError::NoParent`],
+/// [`HiveExportError::BucketWidth`].
+pub fn check_new_dataset(dir: &Path, layout: &HiveLayout) -> Result<(), HiveExportError> {
+    if dir.exists() {
+        return Err(HiveExportError::Exists {
+            dir: dir.to_owned(),
+        });
+    }
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty())
+        && !parent.is_dir()
+    {
+        return Err(HiveExportError::NoParent {
+            dir: dir.to_owned(),
+            parent: parent.to_owned(),
+        });
+    }
+    if let HiveLayout::ByTimeBucket { width, .. } = layout
+        && *width < 1
+    {
+        return Err(HiveExportError::BucketWidth { width: *width });
+    }
+    Ok(())
+}
 
 /// How a dataset is partitioned: see the module docs.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -92,37 +206,18 @@ pub fn escape(value: &str) -> String {
 /// must not exist), laid out as `layout` says. An empty store writes an empty directory.
 ///
 /// # Errors
-/// An existing `dir`, the file system's errors, a bucket width below 1, an unknown
-/// timeline, and the Parquet writer's errors; nothing is left under `dir` on error.
+/// What [`check_new_dataset`] checks, an unknown timeline ([`HiveExportError::Table`]),
+/// the file system's errors and the Parquet writer's; nothing is left under `dir` on error.
 pub fn write_hive_dataset(
     view: &StoreView,
     dir: &Path,
     layout: &HiveLayout,
-) -> Result<HiveSummary, ParquetExportError> {
-    let io = |path: &Path, source| ParquetExportError::Io {
+) -> Result<HiveSummary, HiveExportError> {
+    let io = |path: &Path, source| HiveExportError::Io {
         path: path.to_owned(),
         source,
     };
-    if dir.exists() {
-        return Err(io(
-            dir,
-            std::io::Error::new(
-                std::io::ErrorKind::AlreadyExists,
-                "the dataset directory exists",
-            ),
-        ));
-    }
-    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty())
-        && !parent.is_dir()
-    {
-        return Err(io(
-            dir,
-            std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                format!("the directory {} does not exist", parent.display()),
-            ),
-        ));
-    }
+    check_new_dataset(dir, layout)?;
     let name = dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -160,13 +255,9 @@ pub fn write_hive_dataset(
     Ok(summary)
 }
 
-fn arrow_error(message: String) -> ParquetExportError {
-    ParquetExportError::Arrow(ArrowError::InvalidArgumentError(message))
-}
-
-fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, ParquetExportError> {
+fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, HiveExportError> {
     let partition = dir.join(format!("{key}={}", escape(value)));
-    std::fs::create_dir_all(&partition).map_err(|source| ParquetExportError::Io {
+    std::fs::create_dir_all(&partition).map_err(|source| HiveExportError::Io {
         path: partition.clone(),
         source,
     })?;
@@ -177,7 +268,7 @@ fn by_entity(
     view: &StoreView,
     dir: &Path,
     timeline: Option<&str>,
-) -> Result<HiveSummary, ParquetExportError> {
+) -> Result<HiveSummary, HiveExportError> {
     let mut summary = HiveSummary::default();
     let mut entities = view.entity_paths();
     entities.sort();
@@ -186,9 +277,7 @@ fn by_entity(
         if let Some(timeline) = timeline {
             query = query.with_index(timeline);
         }
-        let table = view
-            .chunk_table(&query)
-            .map_err(|e| arrow_error(e.to_string()))?;
+        let table = view.chunk_table(&query).map_err(HiveExportError::Table)?;
         let path = partition_file(dir, "entity", &entity.to_string())?;
         let written = write_parquet_file(&path, table, &ParquetOptions::default())?;
         summary.files.push((path, written));
@@ -202,29 +291,22 @@ fn by_time_bucket(
     timeline: &Arc<str>,
     width: i64,
     query: Option<&DataframeQuery>,
-) -> Result<HiveSummary, ParquetExportError> {
-    if width < 1 {
-        return Err(arrow_error(format!(
-            "a time bucket is at least 1 wide, not {width}"
-        )));
-    }
+) -> Result<HiveSummary, HiveExportError> {
     let query = match query {
         Some(query) if query.index() == &**timeline => query.clone(),
         Some(query) => {
-            return Err(arrow_error(format!(
-                "the query's index {:?} is not the bucketed timeline {timeline:?}",
-                query.index()
-            )));
+            return Err(HiveExportError::QueryIndex {
+                index: query.index().to_owned(),
+                timeline: timeline.to_string(),
+            });
         }
         None => DataframeQuery::new(Arc::clone(timeline)),
     };
-    let stream = view
-        .dataframe(&query)
-        .map_err(|e| arrow_error(e.to_string()))?;
+    let stream = view.dataframe(&query).map_err(HiveExportError::Table)?;
     let schema = stream.schema();
     let index = schema
         .index_of(timeline)
-        .map_err(ParquetExportError::Arrow)?;
+        .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?;
     let key = format!("{timeline}_bucket");
     let options = ParquetOptions::default().with_sorted_by(Arc::clone(timeline));
     let mut pieces = Buckets {
@@ -234,7 +316,10 @@ fn by_time_bucket(
         pending: None,
     };
     let mut summary = HiveSummary::default();
-    while let Some(bucket) = pieces.next_bucket()? {
+    while let Some(bucket) = pieces
+        .next_bucket()
+        .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?
+    {
         let path = partition_file(dir, &key, &bucket.to_string())?;
         let reader = BucketReader {
             buckets: &mut pieces,
@@ -260,7 +345,7 @@ struct Buckets<'a> {
 impl Buckets<'_> {
     /// The bucket of the next row (reading a batch if none is pending), or `None` at the
     /// end.
-    fn next_bucket(&mut self) -> Result<Option<i64>, ParquetExportError> {
+    fn next_bucket(&mut self) -> Result<Option<i64>, ArrowError> {
         loop {
             if let Some((_, times, start)) = &self.pending {
                 return Ok(Some(times[*start].div_euclid(self.width)));
@@ -268,7 +353,7 @@ impl Buckets<'_> {
             let Some(batch) = self.batches.next() else {
                 return Ok(None);
             };
-            let batch = batch.map_err(ParquetExportError::Arrow)?;
+            let batch = batch?;
             if batch.num_rows() > 0 {
                 let times = index_values(batch.column(self.index).as_ref())?;
                 self.pending = Some((batch, times, 0));
@@ -278,7 +363,7 @@ impl Buckets<'_> {
 
     /// The pending rows of `bucket` (index values ascend, so they come first); the rows
     /// after them stay pending.
-    fn take(&mut self, bucket: i64) -> Result<Option<RecordBatch>, ParquetExportError> {
+    fn take(&mut self, bucket: i64) -> Result<Option<RecordBatch>, ArrowError> {
         if self.next_bucket()? != Some(bucket) {
             return Ok(None);
         }
@@ -296,19 +381,18 @@ impl Buckets<'_> {
 
 /// The index column's values as `i64` (sequence, duration and timestamp timelines all
 /// hold 64-bit integers).
-fn index_values(column: &dyn arrow_array::Array) -> Result<Vec<i64>, ParquetExportError> {
+fn index_values(column: &dyn arrow_array::Array) -> Result<Vec<i64>, ArrowError> {
     let data = column.to_data();
     match column.data_type() {
         DataType::Int64 | DataType::Duration(_) | DataType::Timestamp(..) => {
             let ints = arrow_array::Int64Array::from(
-                data.into_builder()
-                    .data_type(DataType::Int64)
-                    .build()
-                    .map_err(ParquetExportError::Arrow)?,
+                data.into_builder().data_type(DataType::Int64).build()?,
             );
             Ok(ints.values().to_vec())
         }
-        other => Err(arrow_error(format!("an index column of type {other}"))),
+        other => Err(ArrowError::InvalidArgumentError(format!(
+            "an index column of type {other}"
+        ))),
     }
 }
 
@@ -323,11 +407,7 @@ impl Iterator for BucketReader<'_, '_> {
     type Item = Result<RecordBatch, ArrowError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        match self.buckets.take(self.bucket) {
-            Ok(piece) => piece.map(Ok),
-            Err(ParquetExportError::Arrow(error)) => Some(Err(error)),
-            Err(other) => Some(Err(ArrowError::ExternalError(Box::new(other)))),
-        }
+        self.buckets.take(self.bucket).transpose()
     }
 }
 

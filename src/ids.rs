@@ -4,7 +4,14 @@
 use std::fmt;
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use arrow_schema::DataType;
 use parking_lot::Mutex;
+
+/// The Arrow type of a row id or chunk id column: 16 big-endian bytes, as Rerun writes them.
+pub(crate) const ID_DATA_TYPE: DataType = DataType::FixedSizeBinary(ID_BYTES);
+
+/// The bytes of a row id or chunk id.
+pub(crate) const ID_BYTES: i32 = 16;
 
 /// The state of the process-wide id generator, shared by [`RowId`] and [`ChunkId`].
 ///

@@ -1,6 +1,6 @@
 //! Insertion (SEMANTICS.md sections 2, 5 and 6): [`ChunkStore::insert`] validates the whole
 //! chunk against the store first and only then mutates, so a rejected chunk leaves no
-//! trace; rows the store already holds are left out ([`crate::held`]); a temporal chunk
+//! trace; rows the store already holds are left out ([`crate::dedup`]); a temporal chunk
 //! goes through compaction on insert ([`crate::compaction`]) unless it is off.
 
 use std::sync::Arc;
@@ -9,15 +9,17 @@ use arrow_array::Array;
 use arrow_schema::DataType;
 
 use crate::chunk::RowSource;
-use crate::error::InsertError;
-use crate::held::NewRows;
+use std::fmt;
+
+use crate::dedup::NewRows;
 use crate::{Chunk, ChunkStore, StoreEvent};
+use crate::{ChunkId, EntityPath, TimeType};
 
 /// What [`ChunkStore::validate`] learned of a valid chunk.
 struct Validated {
     /// Does the store already know every timeline of the chunk?
     timelines_known: bool,
-    /// Could the store hold one of its rows already (see [`crate::held`])? Not when none
+    /// Could the store hold one of its rows already (see [`crate::dedup`])? Not when none
     /// of its row ids is within those of its entity.
     may_hold_rows: bool,
 }
@@ -191,3 +193,139 @@ fn check_clear_cells(chunk: &Chunk, column: &crate::ComponentColumn) -> Result<(
     }
     Ok(())
 }
+
+/// A valid chunk could not be inserted because it conflicts with the store's contents.
+/// The store is left unchanged.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub enum InsertError {
+    /// The chunk uses a timeline name with another type than the store knows it by.
+    TimelineTypeConflict {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The timeline.
+        timeline: String,
+        /// The type the store knows.
+        existing: TimeType,
+        /// The type in the chunk.
+        incoming: TimeType,
+    },
+    /// The chunk's data for a component has another Arrow type than that entity's earlier
+    /// data for it.
+    ComponentTypeConflict {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The entity.
+        entity_path: EntityPath,
+        /// The component.
+        component: String,
+        /// The element type the store knows.
+        existing: DataType,
+        /// The element type in the chunk.
+        incoming: DataType,
+    },
+    /// A `Clear:is_recursive` column whose elements are not booleans.
+    ClearNotBoolean {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// The element type found.
+        data_type: DataType,
+    },
+    /// A `Clear:is_recursive` cell that is not exactly one boolean: a Clear says once
+    /// whether it is recursive (a null cell, meaning "no Clear in this row", is fine).
+    MalformedClear {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// Its entity.
+        entity_path: EntityPath,
+        /// The row (0-based).
+        row: usize,
+        /// How many instances the cell holds (not 1).
+        instances: usize,
+    },
+    /// A `Clear:is_recursive` cell whose one boolean is null: neither flat nor recursive.
+    NullClearFlag {
+        /// The chunk.
+        chunk_id: ChunkId,
+        /// Its entity.
+        entity_path: EntityPath,
+        /// The row (0-based).
+        row: usize,
+    },
+    /// The store holds a chunk with this id and other contents. Chunk ids name one chunk:
+    /// the same chunk inserted again changes nothing, another one under its id is refused.
+    ChunkIdConflict {
+        /// The id both chunks carry.
+        chunk_id: ChunkId,
+        /// The entity of the chunk the store holds.
+        held_entity: EntityPath,
+        /// The entity of the chunk refused.
+        incoming_entity: EntityPath,
+    },
+}
+
+impl fmt::Display for InsertError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::TimelineTypeConflict {
+                chunk_id,
+                timeline,
+                existing,
+                incoming,
+            } => write!(
+                f,
+                "{chunk_id}: timeline {timeline:?} is {incoming:?} here but {existing:?} in the store"
+            ),
+            Self::ComponentTypeConflict {
+                chunk_id,
+                entity_path,
+                component,
+                existing,
+                incoming,
+            } => {
+                write!(
+                    f,
+                    "{chunk_id}: component {component:?} of {entity_path} has element type \
+                     {incoming} here but {existing} in the store"
+                )
+            }
+            Self::ClearNotBoolean {
+                chunk_id,
+                data_type,
+            } => write!(
+                f,
+                "{chunk_id}: `Clear:is_recursive` must hold booleans, found {data_type}"
+            ),
+            Self::MalformedClear {
+                chunk_id,
+                entity_path,
+                row,
+                instances,
+            } => write!(
+                f,
+                "{chunk_id} ({entity_path}): the `Clear:is_recursive` cell of row {row} holds \
+                 {instances} booleans, not one"
+            ),
+            Self::NullClearFlag {
+                chunk_id,
+                entity_path,
+                row,
+            } => write!(
+                f,
+                "{chunk_id} ({entity_path}): the `Clear:is_recursive` cell of row {row} holds a \
+                 null boolean"
+            ),
+            Self::ChunkIdConflict {
+                chunk_id,
+                held_entity,
+                incoming_entity,
+            } => write!(
+                f,
+                "{chunk_id}: the store holds another chunk with this id (of {held_entity}); \
+                 refused the one of {incoming_entity}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for InsertError {}

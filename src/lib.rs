@@ -84,7 +84,7 @@
 //!         for frame in 0..1_000 {
 //!             shared.insert(row(frame)).unwrap();
 //!         }
-//!         shared.gc(&GcOptions::drop_at_least_fraction(0.5).unwrap());
+//!         shared.write(|store| store.gc(&GcOptions::drop_at_least_fraction(0.5).unwrap()));
 //!     })
 //! };
 //! let reader = std::thread::spawn(move || {
@@ -104,9 +104,10 @@
 //! ```
 //!
 //! ## Crate features
-//! - `ipc` (default): [`io`], reading chunks from Arrow IPC files and streams and writing
+//! - `ipc` (default): [`ipc`], reading chunks from Arrow IPC files and streams and writing
 //!   them. Needs `arrow-ipc`.
-//! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening. Needs
+//! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening; and
+//!   [`recording`], the one door to a recording of any source. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
 //! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files, and
 //!   `hive_export`, Hive-partitioned datasets of them. Needs `parquet` (Snappy only).
@@ -124,27 +125,28 @@ mod clear;
 mod compaction;
 mod component;
 mod dataframe;
+mod dedup;
 mod drop;
 mod entity_path;
-mod error;
 mod export;
 mod gc;
-mod held;
 #[cfg(feature = "parquet")]
 pub mod hive_export;
 mod ids;
 mod index;
 mod insert;
+mod interner;
 #[cfg(feature = "ipc")]
-pub mod io;
+pub mod ipc;
 mod ordered;
 #[cfg(feature = "parquet")]
 pub mod parquet_export;
 mod query;
 #[cfg(feature = "rrd")]
+pub mod recording;
+#[cfg(feature = "rrd")]
 pub mod rrd;
 mod sanity;
-mod shared;
 mod small_map;
 mod snapshot;
 #[cfg(feature = "datafusion")]
@@ -156,25 +158,23 @@ mod time_text;
 
 #[cfg(any(feature = "ipc", feature = "parquet"))]
 pub use atomic::{UnfinishedOutput, remove_unfinished_outputs};
-pub use chunk::{Chunk, ChunkBuilder, ComponentColumn, TimeColumn};
+pub use chunk::{Chunk, ChunkBuilder, ChunkError, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
 pub use dataframe::{
     ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeError,
     DataframeQuery, DataframeStream, EntityPathFilter, EntityPathFilterError,
 };
-pub use entity_path::{EntityPath, natural_part_order};
-#[cfg(feature = "ipc")]
-pub use error::IoError;
-pub use error::{ChunkError, ConfigError, EntityPathError, GcOptionsError, InsertError};
-pub use gc::{GcFraction, GcOptions, GcOrder, GcPlan, GcTarget};
+pub use entity_path::{EntityPath, EntityPathError};
+pub use gc::{GcFraction, GcOptions, GcOptionsError, GcOrder, GcPlan, GcTarget};
 pub use ids::{ChunkId, ParseChunkIdError, RowId};
+pub use insert::InsertError;
 pub use query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 pub use sanity::{SanityError, Structure};
 pub use snapshot::{SharedStore, Snapshot};
 pub use stats::{EntityStats, StoreStats};
-pub use store::{ChunkStore, DeletionReason, EventSubscriber, StoreConfig, StoreEvent, StoreView};
-pub use time::{TimeInt, TimeRange, TimeType, Timeline};
+pub use store::{ChunkStore, ConfigError, DeletionReason, StoreConfig, StoreEvent, StoreView};
+pub use time::{TimeInt, TimeRange, TimeType, Timeline, UnknownTimeline};
 pub use time_text::TimeParseError;
 
 /// The README's example, compiled and run as a doctest so it cannot go stale.

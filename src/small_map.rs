@@ -28,7 +28,7 @@ pub(crate) enum SmallMap<K, V> {
 }
 
 /// Key equality with a shortcut: names are usually one shared allocation (see
-/// [`crate::shared`]), and `Arc<str>`'s own equality compares the bytes even then.
+/// [`crate::interner`]), and `Arc<str>`'s own equality compares the bytes even then.
 pub(crate) trait SmallMapKey: Eq + Hash {
     fn same_key(&self, other: &Self) -> bool {
         self == other
@@ -37,7 +37,7 @@ pub(crate) trait SmallMapKey: Eq + Hash {
 
 impl SmallMapKey for std::sync::Arc<str> {
     fn same_key(&self, other: &Self) -> bool {
-        crate::shared::same_name(self, other)
+        crate::interner::same_name(self, other)
     }
 }
 

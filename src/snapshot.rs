@@ -11,7 +11,7 @@
 //! back to the writer through a `std::sync::mpsc` channel, to be freed there (see
 //! [`Snapshot`]'s `Drop`). There is no other synchronization: `Arc` reference counts,
 //! `arc-swap` and the standard channel, each a well-kept primitive, so no model checker
-//! (loom) is run on this protocol; `tests/snapshot.rs` stress-tests what it promises.
+//! (loom) is run on this protocol; `tests/core/snapshot.rs` stress-tests what it promises.
 
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::{Arc, LazyLock};
@@ -19,10 +19,8 @@ use std::sync::{Arc, LazyLock};
 use arc_swap::ArcSwap;
 use parking_lot::Mutex;
 
-use crate::compaction::CompactionPlan;
-use crate::gc::{GcOptions, GcPlan};
 use crate::store::StoreView;
-use crate::{Chunk, ChunkStore, EntityPath, InsertError, StoreEvent, TimeRange};
+use crate::{Chunk, ChunkStore, InsertError, StoreEvent};
 
 /// What a snapshot holds: the view, the version it was taken at, and, for a shared
 /// store's snapshot, where its last holder hands it back to the writer.
@@ -138,7 +136,7 @@ impl ChunkStore {
 /// reader's thread freeing memory the writer's thread allocated would also contend with the
 /// writer inside the allocator. Measured with the `concurrent` workload: reader p99 under
 /// ingest 1.3–1.9× its idle p99 this way, 3–18× when readers freed what they dropped last
-/// (`docs/PERFORMANCE.md`). (Two holders dropping at once may both see another holder;
+/// (`docs/performance-log.md`). (Two holders dropping at once may both see another holder;
 /// then the last frees it where it is, as any `Arc` would.)
 impl Drop for Snapshot {
     fn drop(&mut self) {
@@ -315,45 +313,6 @@ impl SharedStore {
             }
             Ok(events)
         })
-    }
-
-    /// [`ChunkStore::gc`], then publishes. Snapshots taken before keep answering from the
-    /// chunks it drops, which are freed with the last of them.
-    pub fn gc(&self, options: &GcOptions) -> Vec<StoreEvent> {
-        self.write(|store| store.gc(options))
-    }
-
-    /// [`ChunkStore::plan_gc`] then [`ChunkStore::apply_gc`] in one write.
-    pub fn plan_and_apply_gc(&self, options: &GcOptions) -> (GcPlan, Vec<StoreEvent>) {
-        self.write(|store| {
-            let plan = store.plan_gc(options);
-            let events = store.apply_gc(&plan);
-            (plan, events)
-        })
-    }
-
-    /// [`ChunkStore::compact`], then publishes.
-    pub fn compact(&self) -> Vec<StoreEvent> {
-        self.write(ChunkStore::compact)
-    }
-
-    /// [`ChunkStore::plan_compaction`] then [`ChunkStore::apply_compaction`] in one write.
-    pub fn plan_and_apply_compaction(&self) -> (CompactionPlan, Vec<StoreEvent>) {
-        self.write(|store| {
-            let plan = store.plan_compaction();
-            let events = store.apply_compaction(&plan);
-            (plan, events)
-        })
-    }
-
-    /// [`ChunkStore::drop_time_range`], then publishes.
-    pub fn drop_time_range(&self, timeline: &str, range: TimeRange) -> Vec<StoreEvent> {
-        self.write(|store| store.drop_time_range(timeline, range))
-    }
-
-    /// [`ChunkStore::drop_entity`], then publishes.
-    pub fn drop_entity(&self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {
-        self.write(|store| store.drop_entity(entity, recursive))
     }
 
     /// Frees now what readers handed back to the writer: the versions the store has moved

@@ -108,6 +108,15 @@ impl TimeRange {
         self.min <= t && t <= self.max
     }
 
+    /// The least range holding both (of non-empty ranges).
+    #[must_use]
+    pub fn union(self, other: Self) -> Self {
+        Self {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
     /// Do the ranges share a time?
     pub fn intersects(self, other: Self) -> bool {
         !self.is_empty() && !other.is_empty() && self.min <= other.max && other.min <= self.max
@@ -173,11 +182,11 @@ pub struct Timeline {
     time_type: TimeType,
 }
 
-// As for `ComponentName`: names compare their pointers first (`crate::shared::same_name`),
+// As for `ComponentName`: names compare their pointers first (`crate::interner::same_name`),
 // the hash is the text's, and the order is by name, then type.
 impl PartialEq for Timeline {
     fn eq(&self, other: &Self) -> bool {
-        crate::shared::same_name(&self.name, &other.name) && self.time_type == other.time_type
+        crate::interner::same_name(&self.name, &other.name) && self.time_type == other.time_type
     }
 }
 
@@ -196,7 +205,7 @@ impl PartialOrd for Timeline {
 
 impl Ord for Timeline {
     fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        crate::shared::cmp_names(&self.name, &other.name)
+        crate::interner::cmp_names(&self.name, &other.name)
             .then_with(|| self.time_type.cmp(&other.time_type))
     }
 }
@@ -206,7 +215,7 @@ impl Timeline {
     /// process-wide (up to a cap), so that chunks do not each carry a copy.
     pub fn new(name: impl Into<Arc<str>>, time_type: TimeType) -> Self {
         Self {
-            name: crate::shared::share_name(name.into()),
+            name: crate::interner::share_name(name.into()),
             time_type,
         }
     }
@@ -237,6 +246,49 @@ impl fmt::Debug for Timeline {
         write!(f, "{}({:?})", self.name, self.time_type)
     }
 }
+
+/// A timeline the store (or recording) has no data on: the error of every read that names
+/// one (dataframes, SQL's `latest_at`, the recording reader, the CLI and Python), naming the
+/// timelines there are, so that a misspelt name is never taken for an answer of static data
+/// only.
+///
+/// ```
+/// use chunkstore::{Timeline, UnknownTimeline};
+/// let error = UnknownTimeline::new("frame", &[Timeline::sequence("frame_id")]);
+/// assert_eq!(error.to_string(), "unknown timeline \"frame\" (the store has: frame_id)");
+/// ```
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownTimeline {
+    /// The name asked for.
+    pub name: String,
+    /// The timelines there are, sorted by name.
+    pub known: Vec<String>,
+}
+
+impl UnknownTimeline {
+    /// `name` is none of `timelines`.
+    pub fn new(name: &str, timelines: &[Timeline]) -> Self {
+        let mut known: Vec<String> = timelines.iter().map(|t| t.name().to_owned()).collect();
+        known.sort();
+        Self {
+            name: name.to_owned(),
+            known,
+        }
+    }
+}
+
+impl fmt::Display for UnknownTimeline {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "unknown timeline {:?} (the store has: ", self.name)?;
+        if self.known.is_empty() {
+            write!(f, "none)")
+        } else {
+            write!(f, "{})", self.known.join(", "))
+        }
+    }
+}
+
+impl std::error::Error for UnknownTimeline {}
 
 #[cfg(test)]
 mod tests {

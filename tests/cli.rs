@@ -645,7 +645,7 @@ fn every_command_has_help_with_an_example() {
 fn library_table(query: &chunkstore::DataframeQuery) -> arrow_array::RecordBatch {
     let mut store = chunkstore::ChunkStore::new();
     for file in chunk_files() {
-        for chunk in chunkstore::io::read_chunks_from_path(&file).unwrap() {
+        for chunk in chunkstore::ipc::read_chunks_from_path(&file).unwrap() {
             store.insert(chunk).unwrap();
         }
     }
@@ -701,7 +701,7 @@ fn dataframe_writes_what_the_library_answers_as_ipc_and_parquet() {
             let bytes = std::fs::read(&arrow).unwrap();
             assert!(bytes.starts_with(b"ARROW1"), "an IPC file");
             assert_eq!(
-                concat(&chunkstore::io::read_batches(&bytes).unwrap()),
+                concat(&chunkstore::ipc::read_batches(&bytes).unwrap()),
                 expected
             );
             // Parquet.
@@ -723,7 +723,7 @@ fn dataframe_writes_what_the_library_answers_as_ipc_and_parquet() {
                 "a stream, not a file"
             );
             assert_eq!(
-                concat(&chunkstore::io::read_batches(&output.stdout).unwrap()),
+                concat(&chunkstore::ipc::read_batches(&output.stdout).unwrap()),
                 expected
             );
         }
@@ -1049,8 +1049,8 @@ fn compacted_output_of_out_of_order_rows_loads_in_rerun() {
         OsStr::new("convert"),
         as_dir.as_os_str(),
     ]);
-    for file in chunkstore::io::chunk_files(&as_dir).unwrap() {
-        for chunk in chunkstore::io::read_chunks_from_path(&file).unwrap() {
+    for file in chunkstore::ipc::chunk_files(&as_dir).unwrap() {
+        for chunk in chunkstore::ipc::read_chunks_from_path(&file).unwrap() {
             common::assert_rerun_loads(&chunk);
         }
     }
@@ -1199,7 +1199,7 @@ fn outputs_write_through_links_and_devices() {
         &output.stdout[..8]
     );
     assert_eq!(
-        chunkstore::io::read_batches(&output.stdout)
+        chunkstore::ipc::read_batches(&output.stdout)
             .unwrap()
             .iter()
             .map(arrow_array::RecordBatch::num_rows)

@@ -157,7 +157,7 @@ fn the_chunk_table_holds_every_row_once_with_its_cells() {
     seen.dedup();
     assert_eq!(seen.len() as u64, store.stats().num_rows());
     // Every cell of every chunk is in the component column of its name.
-    for chunk in store.chunks() {
+    for chunk in store.chunks_unordered() {
         for (row, row_id) in chunk.row_ids().iter().enumerate() {
             let at = (0..table.num_rows())
                 .find(|&r| row_ids.value(r) == row_id.to_be_bytes())
@@ -276,14 +276,21 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
             vec![entity.to_string()]
         );
         let expected = store
-            .chunks()
+            .chunks_unordered()
             .filter(|c| c.entity_path() == entity)
             .map(|c| c.num_rows())
             .sum::<usize>();
         assert_eq!(batch.num_rows(), expected, "{entity}");
     }
     // A second write to the same directory is refused, and leaves it as it was.
-    assert!(write_hive_dataset(&store, &dir, &layout).is_err());
+    let again = write_hive_dataset(&store, &dir, &layout).unwrap_err();
+    assert!(
+        matches!(
+            again,
+            chunkstore::hive_export::HiveExportError::Exists { .. }
+        ),
+        "{again:?}"
+    );
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), entities.len());
 }
 
@@ -291,7 +298,9 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
 /// at multiples of the width, and every file's index lies in its bucket.
 #[test]
 fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
-    use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
+    use chunkstore::hive_export::{
+        HiveExportError, HiveLayout, check_new_dataset, write_hive_dataset,
+    };
     let store = common::robot();
     let view = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
     let scratch = ScratchDir::new("parquet-hive-by-bucket");
@@ -347,7 +356,38 @@ fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
     };
     let scratch = ScratchDir::new("parquet-hive-zero");
     let dir = scratch.join("dataset");
-    assert!(write_hive_dataset(&store, &dir, &zero).is_err());
+    let error = write_hive_dataset(&store, &dir, &zero).unwrap_err();
+    assert!(
+        matches!(error, HiveExportError::BucketWidth { width: 0 }),
+        "{error:?}"
+    );
+    assert!(!dir.exists(), "nothing is left behind");
+    // The same checks before anything is read, for a caller with a source still to load;
+    // a missing parent, and an unknown timeline (once the store is there), typed too.
+    assert!(matches!(
+        check_new_dataset(&dir, &zero),
+        Err(HiveExportError::BucketWidth { width: 0 })
+    ));
+    let orphan = scratch.join("missing/dataset");
+    let by_entity = HiveLayout::ByEntity { timeline: None };
+    assert!(matches!(
+        check_new_dataset(&orphan, &by_entity),
+        Err(HiveExportError::NoParent { .. })
+    ));
+    assert!(check_new_dataset(&dir, &by_entity).is_ok());
+    let unknown = HiveLayout::ByTimeBucket {
+        timeline: "tick".into(),
+        width: 10,
+        query: None,
+    };
+    let error = write_hive_dataset(&store, &dir, &unknown).unwrap_err();
+    assert!(
+        matches!(
+            &error,
+            HiveExportError::Table(chunkstore::DataframeError::UnknownIndex(u)) if u.name == "tick"
+        ),
+        "{error:?}"
+    );
     assert!(!dir.exists(), "nothing is left behind");
 }
 

@@ -400,7 +400,7 @@ pub fn latest_scalar(
 ) -> Option<f64> {
     let query = LatestAtQuery::new(Arc::clone(timeline), TimeInt::new(t)?);
     let cell = store.latest_at(&query, entity, SCALAR)?;
-    first_f64(cell.component(), cell.row())
+    first_f64(cell.column(), cell.row())
 }
 
 /// The dataframe workload's data: `entities` entities (`/fleet/g{e / 100}/r{e}`), each

@@ -1,4 +1,4 @@
-//! The `concurrent` workload (this crate's own; `docs/PERFORMANCE.md` describes it): a
+//! The `concurrent` workload (this crate's own; `docs/performance-log.md` describes it): a
 //! writer thread streams the `insert_streaming` data into a [`SharedStore`] while a reader
 //! thread answers `latest_at_mono`-style queries, each on a fresh snapshot.
 //!
@@ -234,8 +234,9 @@ pub fn concurrent() -> bool {
 
     // Garbage collection and compaction while the reader runs; `last` stays held.
     let (_, mut maintenance) = with_reader(&shared, &entities, || {
-        drop(shared.gc(&GcOptions::drop_at_least_fraction(0.5).expect("a valid fraction")));
-        drop(shared.compact());
+        let half = GcOptions::drop_at_least_fraction(0.5).expect("a valid fraction");
+        drop(shared.write(|store| store.gc(&half)));
+        drop(shared.write(ChunkStore::compact));
     });
     let kept_by_snapshot = last.stats().heap_bytes - shared.snapshot().stats().heap_bytes;
     drop(last);

@@ -3,7 +3,7 @@
 //! go through everything a store does ([`super::lifecycle::exercise`]).
 
 pub fn ipc_insert(bytes: &[u8]) {
-    let Ok(chunks) = chunkstore::io::read_chunks_from_bytes(bytes) else {
+    let Ok(chunks) = chunkstore::ipc::read_chunks_from_bytes(bytes) else {
         return;
     };
     super::lifecycle::exercise(chunks);

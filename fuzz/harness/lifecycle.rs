@@ -139,7 +139,7 @@ fn query_everything(store: &ChunkStore, timelines: &[String]) {
                     let query = LatestAtQuery::new(timeline.as_str(), TimeInt::saturating(at));
                     if let Some(answer) = store.latest_at(&query, &entity, component.as_str()) {
                         let _ = answer.cell();
-                        typed_reads_agree(answer.component(), answer.row());
+                        typed_reads_agree(answer.column(), answer.row());
                     }
                 }
                 let range = store.range(

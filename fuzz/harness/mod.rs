@@ -1,5 +1,5 @@
 //! The bodies of the fuzz targets, one module each, shared with the corpus replay test
-//! (`tests/fuzz_corpus.rs`) so that every corpus file and every crash ever found is
+//! (`tests/core/fuzz_corpus.rs`) so that every corpus file and every crash ever found is
 //! replayed by `cargo test` through exactly the code the fuzzer ran.
 #![allow(dead_code, reason = "each fuzz target uses one of the bodies")]
 

@@ -1,7 +1,9 @@
 //! The package's exceptions, and how each crate error maps to one.
 
+use chunkstore::ipc::IpcError;
+use chunkstore::recording::{LoadFault, OpenError};
 use chunkstore::rrd::{RrdError, RrdErrorKind};
-use chunkstore::{ChunkError, DataframeError, InsertError, IoError};
+use chunkstore::{ChunkError, DataframeError, InsertError, UnknownTimeline};
 use pyo3::PyErr;
 use pyo3::import_exception;
 
@@ -44,19 +46,30 @@ pub fn recording_error(path: &std::path::Path, kind: RrdErrorKind) -> PyErr {
     ))
 }
 
-/// [`recording_error`] where the error is about recordings, else [`rrd_error`].
-pub fn recording_or_rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
-    if error.is_recording_choice() {
-        recording_error(path, error.kind)
-    } else {
-        rrd_error(path, error)
+/// A source that could not be opened: the file system's own error as `OSError`, a
+/// recording choice as `InvalidInputError`, the file's fault as `CorruptFileError`.
+pub fn open_error(error: OpenError) -> PyErr {
+    match error {
+        OpenError::Io { path, source } => os_error(&path, source),
+        OpenError::Recording { path, error } => recording_error(&path, error.kind),
+        OpenError::Rrd { path, error }
+        | OpenError::Footer { path, error }
+        | OpenError::StoreInfo { path, error } => rrd_error(&path, error),
+        OpenError::Ipc { error, .. } => ipc_error(error),
+        OpenError::Fault(fault) => match *fault {
+            LoadFault::Message { path, error } => rrd_error(&path, error),
+            LoadFault::File { error, .. } => ipc_error(error),
+            other => CorruptFileError::new_err(OpenError::Fault(Box::new(other)).to_string()),
+        },
+        OpenError::Config(error) => invalid(error.to_string()),
+        other => CorruptFileError::new_err(other.to_string()),
     }
 }
 
 /// An Arrow IPC error: the file system's own, or the file's fault.
-pub fn ipc_error(error: IoError) -> PyErr {
+pub fn ipc_error(error: IpcError) -> PyErr {
     match error {
-        IoError::Io { path, source } => os_error(&path, source),
+        IpcError::Io { path, source } => os_error(&path, source),
         other => CorruptFileError::new_err(other.to_string()),
     }
 }
@@ -74,7 +87,7 @@ pub fn insert_error(error: InsertError) -> PyErr {
 /// A dataframe query the store cannot answer.
 pub fn dataframe_error(error: DataframeError) -> PyErr {
     match error {
-        DataframeError::UnknownIndex { .. } => UnknownTimelineError::new_err(error.to_string()),
+        DataframeError::UnknownIndex(unknown) => unknown_timeline(&unknown),
         other => invalid(other.to_string()),
     }
 }
@@ -89,11 +102,8 @@ pub fn listing(known: &[String], none: &str) -> String {
 }
 
 /// An unknown timeline, the known ones named.
-pub fn unknown_timeline(name: &str, known: &[String]) -> PyErr {
-    UnknownTimelineError::new_err(format!(
-        "unknown timeline {name:?} (the store has: {})",
-        listing(known, "none")
-    ))
+pub fn unknown_timeline(error: &UnknownTimeline) -> PyErr {
+    UnknownTimelineError::new_err(error.to_string())
 }
 
 /// Runs `work`, turning a panic (a bug in the store: user data never panics it) into

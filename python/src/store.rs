@@ -18,7 +18,8 @@ use arrow_array::{Array, RecordBatch, RecordBatchReader};
 use arrow_pyarrow::{PyArrowType, Table};
 use arrow_schema::{DataType, Field, Schema};
 use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
-use chunkstore::rrd::{LazyRecording, StoreId, StoreInfo};
+use chunkstore::recording::{Recording, RecordingReader};
+use chunkstore::rrd::{StoreId, StoreInfo};
 use chunkstore::{
     Chunk, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, GcOptions, GcTarget,
     LatestAtQuery, RangeQuery, SharedStore, Snapshot, StoreConfig, StoreEvent, StoreView, TimeInt,
@@ -28,17 +29,14 @@ use parking_lot::Mutex;
 use pyo3::prelude::*;
 
 use crate::errors::{
-    Error, chunk_error, dataframe_error, insert_error, invalid, listing, no_panic, os_error,
-    rrd_error, unknown_timeline,
+    Error, chunk_error, dataframe_error, insert_error, invalid, listing, no_panic, open_error,
+    os_error, rrd_error, unknown_timeline,
 };
 use crate::tables::{Answer, latest_at_batch, range_batches};
 
 /// What a store is: a recording still read lazily, or a store in memory.
 enum State {
-    Lazy {
-        recording: Box<LazyRecording>,
-        path: PathBuf,
-    },
+    Lazy(Box<Recording>),
     Loaded(SharedStore),
 }
 
@@ -63,17 +61,22 @@ impl NativeStore {
         }
     }
 
-    /// A store over a recording read lazily through its footer.
-    pub fn lazy(recording: LazyRecording, path: PathBuf) -> Self {
+    /// A store over an opened recording: still lazy, or loaded (then shared).
+    pub fn open(recording: Recording) -> PyResult<Self> {
         let store_info = recording.store_info().cloned();
-        Self {
-            state: Mutex::new(State::Lazy {
-                recording: Box::new(recording),
-                path: path.clone(),
-            }),
+        let source = recording.source().to_owned();
+        let state = if recording.is_lazy() {
+            State::Lazy(Box::new(recording))
+        } else {
+            State::Loaded(SharedStore::new(
+                recording.into_store().map_err(open_error)?,
+            ))
+        };
+        Ok(Self {
+            state: Mutex::new(state),
             store_info: Mutex::new(store_info),
-            source: Some(path),
-        }
+            source: Some(source),
+        })
     }
 
     /// Refuses an output that is the store's own source (the file, or a file inside the
@@ -97,13 +100,13 @@ impl NativeStore {
     /// The shared store, decoding the rest of a lazy recording first. GIL released.
     fn shared(&self) -> PyResult<SharedStore> {
         let mut state = self.state.lock();
-        if let State::Lazy { recording, path } = &mut *state {
+        if let State::Lazy(recording) = &mut *state {
             // Decoded in place first: a chunk that fails leaves the recording lazy (and
             // usable), where `into_store` would have consumed it; then it decodes nothing.
-            recording.load_all().map_err(|e| rrd_error(path, e))?;
+            recording.load_all().map_err(open_error)?;
             let loaded = State::Loaded(SharedStore::new(ChunkStore::new()));
-            if let State::Lazy { recording, path } = std::mem::replace(&mut *state, loaded) {
-                let store = recording.into_store().map_err(|e| rrd_error(&path, e))?;
+            if let State::Lazy(recording) = std::mem::replace(&mut *state, loaded) {
+                let store = recording.into_store().map_err(open_error)?;
                 *state = State::Loaded(SharedStore::new(store));
             }
         }
@@ -119,21 +122,30 @@ impl NativeStore {
     }
 
     /// Runs `read` with the GIL released: on the lazy recording if the store is still
-    /// lazy, else on a snapshot.
+    /// lazy, else on a snapshot. A lazy read's fault names the recording's file.
     fn read<T: Send>(
         &self,
         py: Python<'_>,
-        read: impl FnOnce(Source<'_>) -> PyResult<T> + Send,
+        read: impl FnOnce(Reader<'_>) -> PyResult<T> + Send,
     ) -> PyResult<T> {
         py.detach(|| {
             no_panic(|| {
                 let mut state = self.state.lock();
                 match &mut *state {
-                    State::Lazy { recording, path } => read(Source::Lazy(recording, path)),
+                    State::Lazy(recording) => {
+                        let path = recording.source().to_owned();
+                        read(Reader {
+                            reads: recording.reader(),
+                            path: &path,
+                        })
+                    }
                     State::Loaded(shared) => {
                         let snapshot = shared.snapshot();
                         drop(state);
-                        read(Source::Snapshot(&snapshot))
+                        read(Reader {
+                            reads: RecordingReader::view(&snapshot),
+                            path: Path::new(""),
+                        })
                     }
                 }
             })
@@ -159,53 +171,32 @@ impl NativeStore {
     }
 }
 
-/// What a read runs on.
-enum Source<'a> {
-    Lazy(&'a mut LazyRecording, &'a Path),
-    Snapshot(&'a StoreView),
+/// What a read runs on: the recording's reads, and the file a lazy read's fault names.
+struct Reader<'a> {
+    reads: RecordingReader<'a>,
+    path: &'a Path,
 }
 
-impl Source<'_> {
+impl Reader<'_> {
     fn time_type(&self, timeline: &str) -> PyResult<TimeType> {
-        let found = match self {
-            Source::Lazy(recording, _) => recording
-                .timelines()
-                .into_iter()
-                .find(|(t, _, _)| t.name() == timeline)
-                .map(|(t, _, _)| t.time_type()),
-            Source::Snapshot(view) => view.time_type(timeline),
-        };
-        found.ok_or_else(|| unknown_timeline(timeline, &self.timeline_names()))
-    }
-
-    /// Every timeline's name, sorted.
-    fn timeline_names(&self) -> Vec<String> {
-        match self {
-            Source::Lazy(recording, _) => recording
-                .timelines()
-                .into_iter()
-                .map(|(t, _, _)| t.name().to_owned())
-                .collect(),
-            Source::Snapshot(view) => view
-                .timelines()
-                .iter()
-                .map(|t| t.name().to_owned())
-                .collect(),
-        }
-    }
-
-    fn entity_paths(&self) -> Vec<EntityPath> {
-        match self {
-            Source::Lazy(recording, _) => recording.entity_paths(),
-            Source::Snapshot(view) => view.entity_paths(),
-        }
+        self.reads
+            .time_type(timeline)
+            .map_err(|e| unknown_timeline(&e))
     }
 
     fn component_names(&self, entity: &EntityPath) -> Vec<chunkstore::ComponentName> {
-        match self {
-            Source::Lazy(recording, _) => recording.component_names(entity),
-            Source::Snapshot(view) => view.component_names(entity),
-        }
+        self.reads.component_names(entity)
+    }
+
+    fn latest_at(
+        &mut self,
+        query: &LatestAtQuery,
+        entity: &EntityPath,
+        component: &str,
+    ) -> PyResult<Option<chunkstore::QueryCell>> {
+        self.reads
+            .latest_at(query, entity, component)
+            .map_err(|e| rrd_error(self.path, e))
     }
 
     /// The entity, which must hold data.
@@ -213,6 +204,7 @@ impl Source<'_> {
         let entity = parse_entity(text)?;
         if self.component_names(&entity).is_empty() {
             let known: Vec<String> = self
+                .reads
                 .entity_paths()
                 .iter()
                 .map(ToString::to_string)
@@ -257,7 +249,7 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
 /// pyarrow array by array, a fixed cost per (batch, column), so a wide table's short
 /// default batches (349 rows at 3,000 columns) cost Python more than they cost Rust:
 /// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
-/// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/PERFORMANCE.md`). Narrower
+/// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/performance-log.md`). Narrower
 /// tables already have batches this long.
 const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
 
@@ -327,7 +319,7 @@ impl NativeStore {
 
     /// Is the store still reading its recording lazily?
     fn is_lazy(&self, py: Python<'_>) -> bool {
-        py.detach(|| matches!(&*self.state.lock(), State::Lazy { .. }))
+        py.detach(|| matches!(&*self.state.lock(), State::Lazy(_)))
     }
 
     /// Inserts one record batch in Rerun's chunk layout; returns its rows.
@@ -345,6 +337,7 @@ impl NativeStore {
     fn entities(&self, py: Python<'_>) -> PyResult<Vec<String>> {
         self.read(py, |source| {
             Ok(source
+                .reads
                 .entity_paths()
                 .iter()
                 .map(ToString::to_string)
@@ -372,33 +365,20 @@ impl NativeStore {
         py: Python<'_>,
     ) -> PyResult<Vec<(String, &'static str, Option<i64>, Option<i64>)>> {
         self.read(py, |source| {
-            Ok(match source {
-                Source::Lazy(recording, _) => recording
-                    .timelines()
-                    .into_iter()
-                    .map(|(t, min, max)| {
-                        (
-                            t.name().to_owned(),
-                            time_type_name(t.time_type()),
-                            Some(min.as_i64()),
-                            Some(max.as_i64()),
-                        )
-                    })
-                    .collect(),
-                Source::Snapshot(view) => view
-                    .timelines()
-                    .into_iter()
-                    .map(|t| {
-                        let range = view.time_range(t.name());
-                        (
-                            t.name().to_owned(),
-                            time_type_name(t.time_type()),
-                            range.map(|(min, _)| min.as_i64()),
-                            range.map(|(_, max)| max.as_i64()),
-                        )
-                    })
-                    .collect(),
-            })
+            Ok(source
+                .reads
+                .timelines()
+                .into_iter()
+                .map(|t| {
+                    let range = source.reads.time_range(t.name());
+                    (
+                        t.name().to_owned(),
+                        time_type_name(t.time_type()),
+                        range.map(|r| r.min().as_i64()),
+                        range.map(|r| r.max().as_i64()),
+                    )
+                })
+                .collect())
         })
     }
 
@@ -409,21 +389,7 @@ impl NativeStore {
 
     /// `(rows, chunks)`: for a lazy recording, as its footer lists them.
     fn counts(&self, py: Python<'_>) -> PyResult<(u64, u64)> {
-        self.read(py, |source| {
-            Ok(match source {
-                Source::Lazy(recording, _) => {
-                    let entries = &recording.manifest().entries;
-                    (
-                        entries.iter().map(|e| e.num_rows).sum(),
-                        entries.len() as u64,
-                    )
-                }
-                Source::Snapshot(view) => {
-                    let stats = view.stats();
-                    (stats.num_rows(), stats.num_chunks())
-                }
-            })
-        })
+        self.read(py, |source| Ok(source.reads.num_rows_and_chunks()))
     }
 
     /// Heap bytes the store holds (decodes a lazy recording).
@@ -471,12 +437,7 @@ impl NativeStore {
             let query = LatestAtQuery::new(timeline, at);
             let mut answers = Vec::with_capacity(wanted.len());
             for component in wanted {
-                let cell = match &mut source {
-                    Source::Lazy(recording, path) => recording
-                        .latest_at(&query, &entity, component.as_str())
-                        .map_err(|e| rrd_error(path, e))?,
-                    Source::Snapshot(view) => view.latest_at(&query, &entity, component.as_str()),
-                };
+                let cell = source.latest_at(&query, &entity, component.as_str())?;
                 let answer = match cell {
                     Some(cell) => Answer::Found(cell),
                     None => Answer::Missing(list_type(&mut source, &entity, component.as_str())),
@@ -513,12 +474,10 @@ impl NativeStore {
                 )));
             }
             let query = RangeQuery::new(timeline, span);
-            let result = match &mut source {
-                Source::Lazy(recording, path) => recording
-                    .range(&query, &entity, component)
-                    .map_err(|e| rrd_error(path, e))?,
-                Source::Snapshot(view) => view.range(&query, &entity, component),
-            };
+            let result = source
+                .reads
+                .range(&query, &entity, component)
+                .map_err(|e| rrd_error(source.path, e))?;
             let list_type = result.runs().next().map_or_else(
                 || list_type(&mut source, &entity, component),
                 |run| run.column().list_array().data_type().clone(),
@@ -618,14 +577,16 @@ impl NativeStore {
         let options = GcOptions::everything()
             .with_target(target)
             .with_protect_latest(protect_latest);
-        self.write(py, move |shared| Ok(count_deleted(&shared.gc(&options))))
+        self.write(py, move |shared| {
+            Ok(count_deleted(&shared.write(|store| store.gc(&options))))
+        })
     }
 
     /// Compaction; returns `(chunks before, chunks after)`.
     fn compact(&self, py: Python<'_>) -> PyResult<(u64, u64)> {
         self.write(py, |shared| {
             let before = shared.snapshot().stats().num_chunks();
-            shared.compact();
+            shared.write(ChunkStore::compact);
             Ok((before, shared.snapshot().stats().num_chunks()))
         })
     }
@@ -706,20 +667,13 @@ impl NativeStore {
 /// newest cell on any timeline (a lookup per timeline; a lazy recording decodes the one
 /// or two chunks that hold it), so that a missing answer has the same type whether the
 /// store is lazy or loaded.
-fn list_type(source: &mut Source<'_>, entity: &EntityPath, component: &str) -> DataType {
-    for timeline in source.timeline_names() {
-        let query = LatestAtQuery::new(timeline, TimeInt::MAX);
-        let newest = match source {
-            // A chunk that cannot be decoded leaves the fallback below; the query that
-            // needs it reports the error.
-            Source::Lazy(recording, _) => recording
-                .latest_at(&query, entity, component)
-                .ok()
-                .flatten(),
-            Source::Snapshot(view) => view.latest_at(&query, entity, component),
-        };
-        if let Some(cell) = newest {
-            return cell.component().list_array().data_type().clone();
+fn list_type(source: &mut Reader<'_>, entity: &EntityPath, component: &str) -> DataType {
+    for timeline in source.reads.timelines() {
+        let query = LatestAtQuery::new(timeline.name(), TimeInt::MAX);
+        // A chunk that cannot be decoded leaves the fallback below; the query that needs
+        // it reports the error.
+        if let Ok(Some(cell)) = source.reads.latest_at(&query, entity, component) {
+            return cell.column().list_array().data_type().clone();
         }
     }
     DataType::List(Arc::new(Field::new_list_field(DataType::Null, true)))

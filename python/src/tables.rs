@@ -63,7 +63,7 @@ pub fn latest_at_batch(
     for (name, answer) in answers {
         let column = match answer {
             Answer::Found(cell) => cell
-                .component()
+                .column()
                 .list_array()
                 .slice(cell.row(), rows)
                 .into_data(),

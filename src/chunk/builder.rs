@@ -8,7 +8,7 @@ use arrow_buffer::{NullBuffer, OffsetBuffer};
 use arrow_schema::{DataType, Field};
 
 use super::Chunk;
-use crate::error::ChunkError;
+use crate::ChunkError;
 use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
 
 /// Builds a [`Chunk`] one row at a time.

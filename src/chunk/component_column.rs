@@ -9,7 +9,7 @@ use arrow_schema::{DataType, FieldRef};
 use smallvec::SmallVec;
 
 use super::time_column::TimeColumn;
-use crate::error::ChunkError;
+use crate::ChunkError;
 use crate::sanity::{SanityError, Structure};
 use crate::{ComponentDescriptor, ComponentName, RowId, TimeInt};
 
@@ -106,12 +106,12 @@ pub(super) fn leaf_shape(list_type: &DataType) -> Option<(&DataType, Option<usiz
 }
 
 /// `list` with its item field replaced by the process-wide shared copy of an equal field
-/// (see [`crate::shared`]): the same data, and a type that compares by pointer.
+/// (see [`crate::interner`]): the same data, and a type that compares by pointer.
 pub(super) fn with_shared_item_field(list: &ListArray) -> ListArray {
     let DataType::List(field) = list.data_type() else {
         return list.clone();
     };
-    let shared = crate::shared::share_field(field);
+    let shared = crate::interner::share_field(field);
     if std::sync::Arc::ptr_eq(&shared, field) {
         return list.clone();
     }

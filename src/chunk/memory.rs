@@ -144,7 +144,7 @@ impl ChunkMemory {
         let mut payload = list.len() as u64 * size_of::<i32>() as u64;
         self.own_bytes += ARRAY_NODE_BYTES;
         if let DataType::List(field) = list.data_type()
-            && !crate::shared::is_shared_field(field)
+            && !crate::interner::is_shared_field(field)
         {
             self.own_bytes += FIELD_BYTES;
         }
@@ -176,9 +176,9 @@ impl ChunkMemory {
         self.own_bytes += ARRAY_NODE_BYTES;
         // A nested type holds its child's field behind an `Arc` of its own, unless that is
         // the process-wide shared copy (a list's item field usually is; see
-        // `crate::shared`), which no chunk owns.
+        // `crate::interner`), which no chunk owns.
         let owns_child_field = match data.data_type() {
-            DataType::List(field) => !crate::shared::is_shared_field(field),
+            DataType::List(field) => !crate::interner::is_shared_field(field),
             DataType::LargeList(_) | DataType::FixedSizeList(..) => true,
             _ => false,
         };

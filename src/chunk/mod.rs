@@ -5,6 +5,7 @@
 mod builder;
 mod component_column;
 mod equality;
+mod error;
 pub(crate) mod memory;
 mod metadata;
 mod rewrite;
@@ -15,7 +16,6 @@ use arrow_array::{Array, ArrayRef};
 use arrow_buffer::Buffer;
 use smallvec::SmallVec;
 
-use crate::error::ChunkError;
 use crate::sanity::{SanityError, Structure};
 use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeInt, Timeline};
 
@@ -23,6 +23,7 @@ pub use builder::ChunkBuilder;
 pub use component_column::ComponentColumn;
 pub(crate) use component_column::ComponentTimeBounds;
 use component_column::RawComponentColumn;
+pub use error::ChunkError;
 use metadata::Metadata;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;

@@ -11,7 +11,7 @@ use arrow_schema::{DataType, FieldRef};
 
 use super::component_column::leaf_shape;
 use super::{Chunk, ComponentColumn, RawComponentColumn, RawTimeColumn, RawTimes};
-use crate::error::ChunkError;
+use crate::ChunkError;
 use crate::{ChunkId, RowId};
 
 /// Rows of several chunks with one layout: `(chunk position, row)`.
@@ -30,7 +30,7 @@ impl Chunk {
     /// in that order already. Rerun loads no chunk whose row ids are out of order ("Chunks
     /// must be sorted before insertion"), and compaction sorts rows by time, which differs
     /// from row-id order wherever data was logged out of time order: every writer of
-    /// files ([`crate::rrd::RrdWriter`], [`crate::io::write_chunk_ipc_file`]) sorts on the
+    /// files ([`crate::rrd::RrdWriter`], [`crate::ipc::write_chunk_ipc_file`]) sorts on the
     /// way out. The id stays: the rows, and so the chunk, are the same (Rerun sorts in
     /// place too).
     ///

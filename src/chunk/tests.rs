@@ -7,7 +7,7 @@ use arrow_schema::DataType;
 
 use super::time_column::guided_partition_point;
 use super::*;
-use crate::error::ChunkError;
+use crate::ChunkError;
 
 /// A chunk of one `frame` row per cell of `list` (times 0, 1, …), component `x`.
 fn try_chunk_of(list: ListArray) -> Result<Chunk, ChunkError> {

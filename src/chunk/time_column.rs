@@ -6,9 +6,9 @@ use arrow_buffer::ScalarBuffer;
 use arrow_schema::DataType;
 
 use super::metadata::Metadata;
-use crate::error::ChunkError;
+use crate::ChunkError;
 use crate::sanity::{SanityError, Structure};
-use crate::{RowId, TimeInt, Timeline};
+use crate::{RowId, TimeInt, TimeRange, Timeline};
 
 /// One timeline's times in a chunk.
 #[derive(Debug)]
@@ -22,7 +22,7 @@ pub struct TimeColumn {
     pub(super) is_sorted: bool,
     /// Row positions in ascending `(time, row id)` order; `None` when the rows already are.
     pub(super) index_order: Option<Box<[u32]>>,
-    pub(super) time_range: (TimeInt, TimeInt),
+    pub(super) time_range: TimeRange,
 }
 
 pub(super) struct RawTimeColumn {
@@ -112,7 +112,7 @@ impl TimeColumn {
             field_metadata,
             is_sorted,
             index_order,
-            time_range: (TimeInt::saturating(min), TimeInt::saturating(max)),
+            time_range: TimeRange::new(TimeInt::saturating(min), TimeInt::saturating(max)),
         })
     }
 
@@ -141,7 +141,11 @@ impl TimeColumn {
             return fail("is_sorted matches the times");
         }
         let (lo, hi) = (times.iter().min(), times.iter().max());
-        if (lo.copied(), hi.copied()) != (Some(time_range.0.as_i64()), Some(time_range.1.as_i64()))
+        if (lo.copied(), hi.copied())
+            != (
+                Some(time_range.min().as_i64()),
+                Some(time_range.max().as_i64()),
+            )
         {
             return fail("the time range spans the times");
         }
@@ -188,7 +192,7 @@ impl TimeColumn {
     }
 
     /// Least and greatest time.
-    pub fn time_range(&self) -> (TimeInt, TimeInt) {
+    pub fn time_range(&self) -> TimeRange {
         self.time_range
     }
 
@@ -219,7 +223,7 @@ impl TimeColumn {
     /// The number of leading positions (in index order) whose time `holds`, where `holds`
     /// is true up to around `t` and false after.
     pub(super) fn partition_point(&self, t: i64, holds: impl Fn(i64) -> bool) -> usize {
-        let (min, max) = self.time_range;
+        let (min, max) = (self.time_range.min(), self.time_range.max());
         match &self.index_order {
             Some(order) => guided_partition_point(
                 order.len(),

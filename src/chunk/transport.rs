@@ -5,10 +5,10 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, FixedSizeBinaryArray, RecordBatch};
-use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema};
+use arrow_schema::{ArrowError, Field, FieldRef, Schema};
 
 use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn, RawTimes};
-use crate::error::ChunkError;
+use crate::ChunkError;
 use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
 
 pub(super) const META_ID: &str = "rerun:id";
@@ -35,7 +35,7 @@ pub(crate) fn row_id_field() -> Field {
             r#"{"namespace":"row"}"#.to_owned(),
         ),
     ]);
-    Field::new(ROW_ID_COLUMN, DataType::FixedSizeBinary(16), false).with_metadata(meta)
+    Field::new(ROW_ID_COLUMN, crate::ids::ID_DATA_TYPE, false).with_metadata(meta)
 }
 
 /// What a transport column holds.

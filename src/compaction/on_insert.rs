@@ -8,7 +8,7 @@
 
 use std::sync::Arc;
 
-use crate::store::{Joining, Run, StoreConfig};
+use crate::store::{Joining, SettledRun, StoreConfig};
 use crate::{Chunk, ChunkStore, StoreEvent};
 
 /// Where compaction on insert puts a temporal chunk.
@@ -47,7 +47,7 @@ impl ChunkStore {
                 for piece in &pieces {
                     self.add_chunk(Arc::clone(piece), events);
                 }
-                self.settle_run(Run::new(pieces), events);
+                self.settle_run(SettledRun::new(pieces), events);
                 return;
             }
         }
@@ -65,7 +65,7 @@ impl ChunkStore {
         if waits {
             self.merge_cascade(chunk, events);
         } else {
-            self.settle_run(Run::new(vec![chunk]), events);
+            self.settle_run(SettledRun::new(vec![chunk]), events);
         }
     }
 
@@ -116,7 +116,7 @@ impl ChunkStore {
                 self.add_chunk_to_orders(piece, joining, events);
             }
             let Some(next) = grown else {
-                self.settle_run(Run::new(settled), events);
+                self.settle_run(SettledRun::new(settled), events);
                 return;
             };
             let Some(entity) = self.entities.get_mut(&path) else {
@@ -132,7 +132,7 @@ impl ChunkStore {
 impl ChunkStore {
     /// Hands a run of settled chunks (the store holds them, in the store-wide orders) to
     /// its entity's runs, and merges every full tier this completes, tier after tier.
-    fn settle_run(&mut self, run: Run, events: &mut Vec<StoreEvent>) {
+    fn settle_run(&mut self, run: SettledRun, events: &mut Vec<StoreEvent>) {
         let config = self.config;
         let mut run = run;
         loop {
@@ -156,14 +156,16 @@ impl ChunkStore {
     /// timeline are kept as they are, and each cluster of overlapping ones is rewritten
     /// into time-sorted pieces (which overlap nothing). Runs of an in-order stream merge
     /// without a copy.
-    fn merge_runs(&mut self, runs: Vec<Run>, events: &mut Vec<StoreEvent>) -> Run {
-        let mut chunks: Vec<Arc<Chunk>> = runs.into_iter().flat_map(Run::into_chunks).collect();
-        chunks.sort_by_key(|c| (c.time_columns()[0].time_range().0, c.id()));
+    fn merge_runs(&mut self, runs: Vec<SettledRun>, events: &mut Vec<StoreEvent>) -> SettledRun {
+        let mut chunks: Vec<Arc<Chunk>> =
+            runs.into_iter().flat_map(SettledRun::into_chunks).collect();
+        chunks.sort_by_key(|c| (c.time_columns()[0].time_range().min(), c.id()));
         let mut merged: Vec<Arc<Chunk>> = Vec::with_capacity(chunks.len());
         let mut cluster: Vec<Arc<Chunk>> = Vec::new();
         let mut cluster_end = crate::TimeInt::MIN;
         for chunk in chunks {
-            let (least, greatest) = chunk.time_columns()[0].time_range();
+            let bounds = chunk.time_columns()[0].time_range();
+            let (least, greatest) = (bounds.min(), bounds.max());
             // Touching at one time is not overlapping: no time lies strictly inside both.
             if !cluster.is_empty() && least >= cluster_end {
                 self.settle_cluster(std::mem::take(&mut cluster), &mut merged, events);
@@ -176,7 +178,7 @@ impl ChunkStore {
             cluster.push(chunk);
         }
         self.settle_cluster(cluster, &mut merged, events);
-        Run::new(merged)
+        SettledRun::new(merged)
     }
 
     /// Puts a cluster of overlapping chunks (or a lone chunk, as it is) into `merged`.
@@ -283,8 +285,8 @@ mod tests {
             .map(|batch| batch.unwrap().num_rows())
             .sum();
         assert_eq!(rows, frames.len());
-        assert_eq!(store.chunks().count(), frames.len());
-        assert_eq!(store.time_range("frame"), Some((t(0), t(9))));
+        assert_eq!(store.chunks_unordered().count(), frames.len());
+        assert_eq!(store.time_range("frame"), Some(TimeRange::new(t(0), t(9))));
 
         // Idempotent ingest: a buffered chunk again, or its row under another id.
         assert!(store.insert(Arc::clone(&chunks[0])).unwrap().is_empty());

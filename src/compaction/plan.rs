@@ -110,11 +110,12 @@ impl ChunkStore {
     fn groups_by_entity_and_layout(&self) -> Vec<Vec<Arc<Chunk>>> {
         let mut groups: Vec<Vec<Arc<Chunk>>> = Vec::new();
         let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
-        let mut temporal: Vec<&Arc<Chunk>> = self.chunks().filter(|c| !c.is_static()).collect();
+        let mut temporal: Vec<&Arc<Chunk>> =
+            self.chunks_unordered().filter(|c| !c.is_static()).collect();
         temporal.sort_by_key(|c| {
             (
                 c.entity_path().clone(),
-                c.time_columns()[0].time_range().0,
+                c.time_columns()[0].time_range().min(),
                 c.id(),
             )
         });
@@ -152,7 +153,8 @@ fn reason_to_rewrite(chunks: &[Arc<Chunk>], config: &StoreConfig) -> Option<Comp
     let in_sequence_on = |t: usize| {
         chunks.iter().all(|c| c.time_columns()[t].is_sorted())
             && chunks.windows(2).all(|w| {
-                w[0].time_columns()[t].time_range().1 <= w[1].time_columns()[t].time_range().0
+                w[0].time_columns()[t].time_range().max()
+                    <= w[1].time_columns()[t].time_range().min()
             })
     };
     if !in_sequence_on(0) {
@@ -314,7 +316,7 @@ mod tests {
         };
         let of = |entity: &str, component: &str| -> Vec<ChunkId> {
             let mut ids: Vec<ChunkId> = store
-                .chunks()
+                .chunks_unordered()
                 .filter(|c| c.entity_path().to_string() == entity)
                 .filter(|c| c.component(component).is_some())
                 .map(|c| c.id())

@@ -4,8 +4,8 @@
 
 use std::sync::Arc;
 
+use crate::ChunkError;
 use crate::chunk::RowSource;
-use crate::error::ChunkError;
 use crate::store::StoreConfig;
 use crate::{Chunk, ChunkStore, StoreStats};
 
@@ -54,8 +54,8 @@ pub(super) fn rewrite(
         .all(|c| c.time_columns()[0].index_order().is_none())
         && inputs.windows(2).all(|w| {
             let (last, first) = (
-                w[0].time_columns()[0].time_range().1,
-                w[1].time_columns()[0].time_range().0,
+                w[0].time_columns()[0].time_range().max(),
+                w[1].time_columns()[0].time_range().min(),
             );
             // Row ids only on a tie, as they live in another allocation.
             last < first

@@ -181,9 +181,9 @@ pub(crate) struct ColumnCells {
     /// The run cells are being added to, kept beside the column's other fields rather
     /// than at the end of `runs`: the merge touches every column of a row, and reading a
     /// run through its vector would be one more cache miss per cell.
-    last: Option<Run>,
+    last: Option<CellRun>,
     /// The finished runs before it.
-    runs: Vec<Run>,
+    runs: Vec<CellRun>,
     len: usize,
 }
 
@@ -201,7 +201,7 @@ pub(crate) struct FinishScratch {
 }
 
 #[derive(Clone, Copy, Debug)]
-enum Run {
+enum CellRun {
     Nulls(u32),
     Empties(u32),
     /// `nulls_before` null cells, then rows `start..start + len` of `source`. A sparse
@@ -233,7 +233,7 @@ impl ColumnCells {
                 self.push(cell);
                 let extra = (missing - 1) as u32;
                 if extra > 0 {
-                    self.open(Run::Repeat {
+                    self.open(CellRun::Repeat {
                         source,
                         row,
                         times: extra,
@@ -243,15 +243,15 @@ impl ColumnCells {
             }
             None => {
                 match &mut self.last {
-                    Some(Run::Nulls(n)) => *n += missing as u32,
-                    _ => self.open(Run::Nulls(missing as u32)),
+                    Some(CellRun::Nulls(n)) => *n += missing as u32,
+                    _ => self.open(CellRun::Nulls(missing as u32)),
                 }
                 self.len = len;
             }
             Some(Cell::Empty) => {
                 match &mut self.last {
-                    Some(Run::Empties(n)) => *n += missing as u32,
-                    _ => self.open(Run::Empties(missing as u32)),
+                    Some(CellRun::Empties(n)) => *n += missing as u32,
+                    _ => self.open(CellRun::Empties(missing as u32)),
                 }
                 self.len = len;
             }
@@ -261,27 +261,29 @@ impl ColumnCells {
     pub fn push(&mut self, cell: Option<Cell>) {
         self.len += 1;
         match (&mut self.last, cell) {
-            (Some(Run::Nulls(n)), None) | (Some(Run::Empties(n)), Some(Cell::Empty)) => *n += 1,
+            (Some(CellRun::Nulls(n)), None) | (Some(CellRun::Empties(n)), Some(Cell::Empty)) => {
+                *n += 1;
+            }
             (
-                Some(Run::Rows {
+                Some(CellRun::Rows {
                     source, start, len, ..
                 }),
                 Some(Cell::Row { source: s, row }),
             ) if *source == s && *start + *len == row => {
                 *len += 1;
             }
-            (Some(Run::Nulls(n)), Some(Cell::Row { source, row })) => {
+            (Some(CellRun::Nulls(n)), Some(Cell::Row { source, row })) => {
                 let nulls_before = *n;
-                self.last = Some(Run::Rows {
+                self.last = Some(CellRun::Rows {
                     nulls_before,
                     source,
                     start: row,
                     len: 1,
                 });
             }
-            (_, None) => self.open(Run::Nulls(1)),
-            (_, Some(Cell::Empty)) => self.open(Run::Empties(1)),
-            (_, Some(Cell::Row { source, row })) => self.open(Run::Rows {
+            (_, None) => self.open(CellRun::Nulls(1)),
+            (_, Some(Cell::Empty)) => self.open(CellRun::Empties(1)),
+            (_, Some(Cell::Row { source, row })) => self.open(CellRun::Rows {
                 nulls_before: 0,
                 source,
                 start: row,
@@ -291,7 +293,7 @@ impl ColumnCells {
     }
 
     /// Starts a new run after the current one.
-    fn open(&mut self, run: Run) {
+    fn open(&mut self, run: CellRun) {
         if let Some(previous) = self.last.replace(run) {
             self.runs.push(previous);
         }
@@ -319,9 +321,9 @@ impl ColumnCells {
         out.offsets.push(0);
         for run in self.runs.drain(..) {
             match run {
-                Run::Nulls(n) => out.repeat_offset(n as usize, false),
-                Run::Empties(n) => out.repeat_offset(n as usize, true),
-                Run::Rows {
+                CellRun::Nulls(n) => out.repeat_offset(n as usize, false),
+                CellRun::Empties(n) => out.repeat_offset(n as usize, true),
+                CellRun::Rows {
                     nulls_before,
                     source,
                     start,
@@ -335,7 +337,7 @@ impl ColumnCells {
                         start + len,
                     )?;
                 }
-                Run::Repeat { source, row, times } => {
+                CellRun::Repeat { source, row, times } => {
                     for _ in 0..times {
                         out.rows(source, &sources.arrays[source as usize].list, row, row + 1)?;
                     }

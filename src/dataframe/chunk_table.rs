@@ -103,7 +103,8 @@ impl ChunkTableQuery {
             .as_ref()
             .is_none_or(|(timeline, range)| {
                 chunk.time_column(timeline).is_some_and(|column| {
-                    let (least, greatest) = column.time_range();
+                    let bounds = column.time_range();
+                    let (least, greatest) = (bounds.min(), bounds.max());
                     range.intersects(TimeRange::new(least, greatest))
                 })
             });
@@ -174,14 +175,10 @@ impl StoreView {
         if let Some(index) = &query.index
             && self.time_type(index).is_none()
         {
-            return Err(DataframeError::UnknownIndex {
-                timeline: index.to_string(),
-                known: self
-                    .timelines()
-                    .iter()
-                    .map(|t| t.name().to_owned())
-                    .collect(),
-            });
+            return Err(DataframeError::UnknownIndex(crate::UnknownTimeline::new(
+                index,
+                &self.timelines(),
+            )));
         }
         // Sorted by entity then chunk id.
         let mut chunks: Vec<Arc<Chunk>> = self.chunks();
@@ -244,9 +241,9 @@ impl ChunkTableStream {
             })
             .collect();
         let num_columns = fields.len().max(1);
-        let batch_rows = query
-            .batch_rows
-            .unwrap_or_else(|| (DEFAULT_BATCH_CELLS / num_columns).clamp(1, 65_536));
+        let batch_rows = query.batch_rows.unwrap_or_else(|| {
+            (DEFAULT_BATCH_CELLS / num_columns).clamp(1, super::MAX_BATCH_ROWS_BY_CELLS)
+        });
         Self {
             schema: Arc::new(Schema::new(fields)),
             ids,
@@ -326,8 +323,8 @@ impl ChunkTableStream {
 
     fn next_batch(&mut self) -> Result<Option<RecordBatch>, ArrowError> {
         let mut entity_paths = StringBuilder::new();
-        let mut chunk_ids = FixedSizeBinaryBuilder::new(16);
-        let mut row_ids = FixedSizeBinaryBuilder::new(16);
+        let mut chunk_ids = FixedSizeBinaryBuilder::new(crate::ids::ID_BYTES);
+        let mut row_ids = FixedSizeBinaryBuilder::new(crate::ids::ID_BYTES);
         let mut times: Vec<Vec<Option<i64>>> = vec![Vec::new(); self.timelines.len()];
         let mut num_rows = 0;
         let mut entity_text: Option<(usize, String)> = None;
@@ -463,8 +460,8 @@ fn table_columns(chunks: &[Arc<Chunk>]) -> TableColumns {
     let timelines: Vec<Timeline> = timelines.into_values().collect();
     let mut fields = vec![
         Field::new("entity_path", DataType::Utf8, false),
-        Field::new("chunk_id", DataType::FixedSizeBinary(16), false),
-        Field::new("row_id", DataType::FixedSizeBinary(16), false),
+        Field::new("chunk_id", crate::ids::ID_DATA_TYPE, false),
+        Field::new("row_id", crate::ids::ID_DATA_TYPE, false),
     ];
     fields.extend(timelines.iter().map(|t| {
         Field::new(t.name(), t.time_type().to_arrow(), true).with_metadata(HashMap::from([

@@ -4,13 +4,16 @@
 //! A query is planned once ([`schema`]: which columns, in which order, with which types),
 //! then streamed ([`stream`]): each selected temporal column walks its own range result
 //! (a [`RangeCursor`](crate::query::RangeCursor), already merged across its chunks in
-//! `(time, row id)` order) beside the Clears that apply to it, and a heap keyed by each
-//! column's next time merges the columns into rows, one pass, no sort. Cells are not
-//! copied one by one: a batch records, per column, runs of consecutive rows of one chunk
-//! ([`cells`]) and copies each run with one `MutableArrayData::extend`.
+//! `(time, row id)` order) beside the Clears that apply to it, and an ordered map keyed by
+//! each column's next time groups the columns due at one time into a row: one pass, no
+//! sort. A batch records, per column, runs of consecutive rows of one chunk ([`cells`]),
+//! then builds each list array directly: offsets and validity per cell, the values as
+//! slices of the chunks' own arrays (usually one zero-copy slice per batch), repeated fill
+//! cells of one chunk with one `take`.
 
 mod cells;
 mod chunk_table;
+mod column;
 mod filter;
 mod schema;
 mod stream;
@@ -18,7 +21,9 @@ mod stream;
 use std::fmt;
 use std::sync::Arc;
 
-use crate::{Snapshot, StoreView, TimeInt, TimeRange};
+use arrow_schema::ArrowError;
+
+use crate::{Snapshot, StoreView, TimeInt, TimeRange, UnknownTimeline};
 
 pub use chunk_table::{ChunkTableQuery, ChunkTableStream};
 pub use filter::{EntityPathFilter, EntityPathFilterError};
@@ -33,6 +38,10 @@ pub const DEFAULT_BATCH_CELLS: usize = 1 << 20;
 /// [`DEFAULT_BATCH_CELLS`] allows, so that a table streams in bounded memory whatever
 /// its cells hold.
 pub const DEFAULT_BATCH_BYTES: usize = 32 << 20;
+
+/// Most rows of a batch sized by cells (unless more are asked for): a narrow table's
+/// batches stay short enough to stream.
+pub(crate) const MAX_BATCH_ROWS_BY_CELLS: usize = 65_536;
 
 /// A dataframe view of the store (SEMANTICS.md section 9): rows on one index timeline,
 /// one column per selected (entity, component).
@@ -240,16 +249,11 @@ impl DataframeQuery {
 }
 
 /// A dataframe query the store cannot answer.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone)]
 #[non_exhaustive]
 pub enum DataframeError {
     /// The index timeline is not one the store has seen.
-    UnknownIndex {
-        /// The name asked for.
-        timeline: String,
-        /// The timelines the store knows, sorted.
-        known: Vec<String>,
-    },
+    UnknownIndex(UnknownTimeline),
     /// A batch of zero rows was asked for.
     ZeroBatchRows,
     /// [`DataframeQuery::with_columns`] or [`ChunkTableQuery::with_columns`] named a
@@ -260,36 +264,57 @@ pub enum DataframeError {
         /// How many columns the table has.
         num_columns: usize,
     },
-    /// A column's chunks could not be read as one list type (an Arrow error).
-    Column {
-        /// Arrow's message.
-        message: String,
-    },
+    /// A column's chunks could not be read as one list type.
+    Column(Arc<ArrowError>),
 }
+
+/// Arrow's errors have no equality: two are equal if they say the same.
+impl PartialEq for DataframeError {
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (Self::UnknownIndex(a), Self::UnknownIndex(b)) => a == b,
+            (Self::ZeroBatchRows, Self::ZeroBatchRows) => true,
+            (
+                Self::UnknownColumn {
+                    name: a,
+                    num_columns: m,
+                },
+                Self::UnknownColumn {
+                    name: b,
+                    num_columns: n,
+                },
+            ) => a == b && m == n,
+            (Self::Column(a), Self::Column(b)) => a.to_string() == b.to_string(),
+            _ => false,
+        }
+    }
+}
+
+impl Eq for DataframeError {}
 
 impl fmt::Display for DataframeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::UnknownIndex { timeline, known } => write!(
-                f,
-                "unknown timeline {timeline:?} (the store has: {})",
-                if known.is_empty() {
-                    "none".to_owned()
-                } else {
-                    known.join(", ")
-                }
-            ),
+            Self::UnknownIndex(unknown) => write!(f, "{unknown}"),
             Self::ZeroBatchRows => write!(f, "a dataframe batch must hold at least one row"),
             Self::UnknownColumn { name, num_columns } => write!(
                 f,
                 "the table has no column {name:?} (it has {num_columns} columns)"
             ),
-            Self::Column { message } => write!(f, "dataframe column: {message}"),
+            Self::Column(error) => write!(f, "dataframe column: {error}"),
         }
     }
 }
 
-impl std::error::Error for DataframeError {}
+impl std::error::Error for DataframeError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::UnknownIndex(unknown) => Some(unknown),
+            Self::Column(error) => Some(&**error),
+            Self::ZeroBatchRows | Self::UnknownColumn { .. } => None,
+        }
+    }
+}
 
 impl StoreView {
     /// The dataframe view `query` asks for: its schema at once
@@ -305,7 +330,7 @@ impl StoreView {
         let plan = self.plan_dataframe(query)?;
         let selection = plan.selection(query)?;
         DataframeStream::new(stream::ViewRef::Borrowed(self), query, plan, selection)
-            .map_err(|e| column_error(&e))
+            .map_err(column_error)
     }
 
     /// The schema [`StoreView::dataframe`] would stream for `query`, without setting up
@@ -326,23 +351,17 @@ impl StoreView {
             return Err(DataframeError::ZeroBatchRows);
         }
         let Some(time_type) = self.time_type(&query.index) else {
-            return Err(DataframeError::UnknownIndex {
-                timeline: query.index.to_string(),
-                known: self
-                    .timelines()
-                    .iter()
-                    .map(|t| t.name().to_owned())
-                    .collect(),
-            });
+            return Err(DataframeError::UnknownIndex(UnknownTimeline::new(
+                &query.index,
+                &self.timelines(),
+            )));
         };
         Ok(schema::TablePlan::new(self, query, time_type))
     }
 }
 
-fn column_error(error: &arrow_schema::ArrowError) -> DataframeError {
-    DataframeError::Column {
-        message: error.to_string(),
-    }
+fn column_error(error: ArrowError) -> DataframeError {
+    DataframeError::Column(Arc::new(error))
 }
 
 impl Snapshot {
@@ -367,6 +386,6 @@ impl Snapshot {
         let plan = self.plan_dataframe(query)?;
         let selection = plan.selection(query)?;
         DataframeStream::new(stream::ViewRef::Owned(self), query, plan, selection)
-            .map_err(|e| column_error(&e))
+            .map_err(column_error)
     }
 }

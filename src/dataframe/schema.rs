@@ -218,11 +218,7 @@ impl TablePlan {
             });
         }
         let kept: Vec<usize> = (0..keep.len()).filter(|&i| keep[i]).collect();
-        let schema = Arc::new(
-            self.schema
-                .project(&kept)
-                .map_err(|e| super::column_error(&e))?,
-        );
+        let schema = Arc::new(self.schema.project(&kept).map_err(super::column_error)?);
         let (index, data) = keep.split_at(self.index_columns.len());
         Ok(Selection {
             index: index.to_vec(),

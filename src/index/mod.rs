@@ -94,7 +94,7 @@ const SEQUENCE_MAX_SHIFT: usize = 64;
 /// A sequence holds at most this many chunks; one more turns it into the three views. A
 /// write to a sequence a snapshot shares copies it whole, where the views copy a path:
 /// without a bound, a `SharedStore` publishing after every insert into one entity of
-/// 40,000 chunks spent 5 ms per row (see `docs/PERFORMANCE.md`, "Snapshots"). The bound
+/// 40,000 chunks spent 5 ms per row (see `docs/performance-log.md`, "Snapshots and the shared store"). The bound
 /// trades that copy (at most 1 MiB of entries and as many reference counts, about a
 /// millisecond when the chunks are cold) against the plain store's inserts, which cost a
 /// sequence a `push_back` and the views two or three B-tree insertions (`insert_batched`'s

@@ -96,7 +96,7 @@ impl StoreView {
     ) -> Option<QueryCell> {
         let answer = self.latest_at_unfiltered(query, entity, component)?;
         let hidden = !self.clears.is_empty()
-            && !answer.component().name().is_clear()
+            && !answer.column().name().is_clear()
             && self.clears.is_hidden(
                 entity,
                 query.timeline(),

@@ -56,7 +56,7 @@ impl QueryCell {
     }
 
     /// The component column the cell belongs to.
-    pub fn component(&self) -> &ComponentColumn {
+    pub fn column(&self) -> &ComponentColumn {
         &self.chunk.components()[self.component_column as usize]
     }
 
@@ -67,6 +67,6 @@ impl QueryCell {
 
     /// The cell's instances: a slice of the chunk's array, sharing its buffers.
     pub fn cell(&self) -> ArrayRef {
-        self.component().list_array().value(self.row as usize)
+        self.column().list_array().value(self.row as usize)
     }
 }

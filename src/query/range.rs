@@ -57,7 +57,7 @@ struct Source {
 
 /// Consecutive positions `start..end` of one source, in its `(time, row id)` order.
 #[derive(Clone, Copy, Debug)]
-struct Run {
+struct PositionRun {
     source: u32,
     start: u32,
     end: u32,
@@ -68,7 +68,7 @@ struct Run {
 #[derive(Debug, Default)]
 pub struct RangeResult {
     sources: Vec<Source>,
-    runs: Vec<Run>,
+    runs: Vec<PositionRun>,
 }
 
 /// One row of a range result.
@@ -268,7 +268,7 @@ impl RangeResult {
 /// A run plus its chunk and the indices of its first and last positions, while building.
 struct PendingRun<'a> {
     entry: &'a IndexedChunk,
-    run: Run,
+    run: PositionRun,
     first: (TimeInt, RowId),
     last: (TimeInt, RowId),
 }
@@ -299,7 +299,7 @@ impl StoreView {
                 time_column: None,
                 component_column: winner.component_column,
             });
-            result.runs.push(Run {
+            result.runs.push(PositionRun {
                 source: 0,
                 start: winner.row,
                 end: winner.row + 1,
@@ -372,7 +372,8 @@ fn run_in_chunk(
     let times = &entry.chunk.time_columns()[entry.time_column as usize];
     // A chunk wholly inside the range needs no search (and its time column is not even
     // read): most chunks of a long range are.
-    let (first_time, last_time) = times.time_range();
+    let bounds = times.time_range();
+    let (first_time, last_time) = (bounds.min(), bounds.max());
     let start = if min <= first_time {
         0
     } else {
@@ -385,7 +386,7 @@ fn run_in_chunk(
     };
     (start < end).then(|| PendingRun {
         entry,
-        run: Run {
+        run: PositionRun {
             source,
             start: start as u32,
             end: end as u32,
@@ -399,7 +400,7 @@ fn run_in_chunk(
 type MergeHead = ((TimeInt, RowId), usize, u32);
 
 /// Appends a cluster's runs in global order: as they are for a lone run, merged otherwise.
-fn emit_cluster(cluster: &[PendingRun<'_>], out: &mut Vec<Run>) {
+fn emit_cluster(cluster: &[PendingRun<'_>], out: &mut Vec<PositionRun>) {
     if let [lone] = cluster {
         out.push(lone.run);
         return;
@@ -414,7 +415,7 @@ fn emit_cluster(cluster: &[PendingRun<'_>], out: &mut Vec<Run>) {
         let run = cluster[i].run;
         match out.last_mut() {
             Some(last) if last.source == run.source && last.end == pos => last.end += 1,
-            _ => out.push(Run {
+            _ => out.push(PositionRun {
                 source: run.source,
                 start: pos,
                 end: pos + 1,

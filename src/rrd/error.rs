@@ -2,8 +2,8 @@
 
 use std::fmt;
 
-use crate::error::ChunkError;
-use crate::error::IoError;
+use crate::ChunkError;
+use crate::ipc::IpcError;
 
 /// A fault in an `.rrd` input: the byte offset from the start of the stream where it was
 /// found, and what it is.
@@ -80,7 +80,7 @@ pub enum RrdErrorKind {
         reason: String,
     },
     /// The Arrow IPC payload is not a valid record batch.
-    Ipc(IoError),
+    Ipc(IpcError),
     /// The record batch is not a valid chunk.
     Chunk(ChunkError),
     /// The footer (stream footer, `RrdFooter` or manifest) is malformed or disagrees with

@@ -10,6 +10,7 @@
 
 mod directory;
 mod error;
+mod footers;
 mod frames;
 mod lazy;
 mod manifest;
@@ -25,8 +26,9 @@ pub use directory::{
     write_directory_store_info,
 };
 pub use error::{RrdError, RrdErrorKind};
+pub use footers::LazyStats;
 pub use frames::StreamHeader;
-pub use lazy::{LazyRecording, LazyStats};
+pub use lazy::LazyRecording;
 pub use manifest::{Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange};
 pub use messages::{StoreId, StoreInfo, StoreKind};
 pub use reader::{RrdContents, RrdItem, RrdReader, read_rrd, read_rrd_from};

@@ -9,7 +9,7 @@ use arrow_schema::{ArrowError, Schema};
 use super::error::{RrdError, RrdErrorKind};
 use super::messages::{ArrowMsg, Compression};
 use crate::Chunk;
-use crate::error::IoError;
+use crate::ipc::IpcError;
 
 /// LZ4 cannot expand more than about 255 times (a match of at most 255 × 255 + … bytes per
 /// few bytes of input): a claimed size beyond this is a lie, refused before allocating it.
@@ -45,7 +45,7 @@ pub(crate) fn decode_chunk(
             Buffer::from_vec(decompress(payload.as_slice(), uncompressed_size)?)
         }
     };
-    let mut batches = crate::io::read_stream_batches_zero_copy(ipc).map_err(RrdErrorKind::Ipc)?;
+    let mut batches = crate::ipc::read_stream_batches_zero_copy(ipc).map_err(RrdErrorKind::Ipc)?;
     if batches.len() != 1 {
         return Err(RrdErrorKind::Payload {
             reason: format!(
@@ -102,9 +102,9 @@ pub(crate) fn ipc_stream(
 
 /// Encodes a chunk as a payload: the IPC stream and, if compressing, its LZ4 block.
 /// Returns the payload and the IPC stream's size.
-pub(crate) fn encode_chunk(chunk: &Chunk, compress: bool) -> Result<(Vec<u8>, u64), IoError> {
-    let batch = crate::io::export_batch(chunk)?;
-    let ipc = ipc_stream(&batch.schema(), Some(&batch)).map_err(IoError::Ipc)?;
+pub(crate) fn encode_chunk(chunk: &Chunk, compress: bool) -> Result<(Vec<u8>, u64), IpcError> {
+    let batch = crate::ipc::export_batch(chunk)?;
+    let ipc = ipc_stream(&batch.schema(), Some(&batch)).map_err(IpcError::Ipc)?;
     let size = ipc.len() as u64;
     if compress {
         Ok((lz4_flex::block::compress(&ipc), size))

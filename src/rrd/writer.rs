@@ -132,7 +132,7 @@ impl<W: Write> RrdWriter<W> {
         let footer = manifest::encode_footer(&self.store_id, &self.written).map_err(|e| {
             RrdError::new(
                 self.position,
-                RrdErrorKind::Ipc(crate::error::IoError::Ipc(e)),
+                RrdErrorKind::Ipc(crate::ipc::IpcError::Ipc(e)),
             )
         })?;
         let at = self.write_message(MessageKind::End, &footer)?;

@@ -52,16 +52,8 @@ impl TableFunctionImpl for LatestAtFunction {
             )));
         };
         let Some(time_type) = self.snapshot.time_type(timeline) else {
-            let known: Vec<String> = self
-                .snapshot
-                .timelines()
-                .iter()
-                .map(|t| t.name().to_owned())
-                .collect();
-            return Err(plan_error(&format!(
-                "unknown timeline {timeline:?} (the store has: {})",
-                known.join(", ")
-            )));
+            let unknown = crate::UnknownTimeline::new(timeline, &self.snapshot.timelines());
+            return Err(plan_error(&unknown.to_string()));
         };
         let Some(Expr::Literal(value, _)) = exprs.get(1) else {
             return Err(plan_error(&format!(

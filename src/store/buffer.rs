@@ -95,7 +95,8 @@ impl BufferGroup {
         let chunk = Arc::clone(&self.chunks[position]);
         let num_components = self.num_components();
         for (t, column) in chunk.time_columns().iter().enumerate() {
-            let (least, greatest) = column.time_range();
+            let bounds = column.time_range();
+            let (least, greatest) = (bounds.min(), bounds.max());
             match self.time_ranges.get_mut(t) {
                 Some((min, max)) => {
                     *min = (*min).min(least);

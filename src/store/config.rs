@@ -1,7 +1,8 @@
 //! [`StoreConfig`]: how a store sizes its chunks, and the size tests compaction decides by.
 
+use std::fmt;
+
 use crate::Chunk;
-use crate::error::ConfigError;
 
 /// How a store sizes its chunks. Thresholds bound every chunk compaction writes; chunks
 /// inserted whole are split when they exceed them (unless compaction on insert is off).
@@ -155,3 +156,37 @@ impl StoreConfig {
         num_rows.max(1).ilog(self.merge_fanout.max(2)) as usize
     }
 }
+
+/// A [`crate::StoreConfig`] that cannot work.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// A threshold is zero: no chunk could hold a row.
+    ZeroThreshold {
+        /// The field.
+        field: &'static str,
+    },
+    /// Compaction must merge at least two chunks at once.
+    FanoutBelowTwo {
+        /// The fanout given.
+        merge_fanout: usize,
+    },
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::ZeroThreshold { field } => {
+                write!(f, "store config: {field} must be at least 1")
+            }
+            Self::FanoutBelowTwo { merge_fanout } => {
+                write!(
+                    f,
+                    "store config: merge_fanout must be at least 2, not {merge_fanout}"
+                )
+            }
+        }
+    }
+}
+
+impl std::error::Error for ConfigError {}

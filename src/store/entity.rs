@@ -35,7 +35,7 @@ pub(crate) struct EntityIndex {
     pub chunk_ids: ahash::HashSet<ChunkId>,
     /// At least the greatest row id of any chunk the entity holds (it never decreases while
     /// the entity exists): a chunk whose row ids are all greater holds no row the entity
-    /// holds, which spares most inserts the search of [`crate::held`].
+    /// holds, which spares most inserts the search of [`crate::dedup`].
     pub max_row_id: RowId,
     /// Temporal chunks still small enough for compaction on insert to grow.
     pub pending: PendingGroups,

@@ -45,7 +45,7 @@ impl StoreEvent {
 }
 
 /// A callback that sees every batch of events a store's mutations return.
-pub type EventSubscriber = Arc<dyn Fn(&[StoreEvent]) + Send + Sync>;
+pub(super) type EventSubscriber = Arc<dyn Fn(&[StoreEvent]) + Send + Sync>;
 
 /// The store's subscribers. A clone of a store starts without any: a subscriber watches
 /// the store it subscribed to.

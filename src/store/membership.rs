@@ -111,7 +111,8 @@ impl ChunkStore {
         let id = chunk.id();
         self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
         for column in chunk.time_columns() {
-            let (min, max) = column.time_range();
+            let bounds = column.time_range();
+            let (min, max) = (bounds.min(), bounds.max());
             let per_timeline = self
                 .temporal_per_timeline
                 .entry(Arc::clone(column.timeline().name_arc()))
@@ -317,7 +318,8 @@ fn remove_from_global_orders(
     let id = chunk.id();
     by_row_id.remove(&(chunk.row_id_range().0, id));
     for column in chunk.time_columns() {
-        let (min, max) = column.time_range();
+        let bounds = column.time_range();
+        let (min, max) = (bounds.min(), bounds.max());
         let name = column.timeline().name();
         if let Some(chunks) = per_timeline.get_mut(name) {
             chunks.by_min_time.remove(&(min, id));

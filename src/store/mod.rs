@@ -18,17 +18,16 @@ mod view;
 use std::fmt;
 use std::sync::Arc;
 
-use crate::error::ConfigError;
 use crate::ordered::OrderedSet;
 use crate::stats::StoreLedgers;
-use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt};
+use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt, TimeRange};
 
-pub use config::StoreConfig;
+pub use config::{ConfigError, StoreConfig};
 pub(crate) use entity::{EntityIndex, EntityMut};
 use events::Subscribers;
-pub use events::{DeletionReason, EventSubscriber, StoreEvent};
+pub use events::{DeletionReason, StoreEvent};
 pub(crate) use membership::{Holding, Joining};
-pub(crate) use pending::{RewriteMark, Run};
+pub(crate) use pending::{RewriteMark, SettledRun};
 pub(crate) use view::EntityView;
 pub use view::StoreView;
 
@@ -135,8 +134,10 @@ impl ChunkStore {
         self.chunks.get(&id).map(|stored| &stored.chunk)
     }
 
-    /// Every chunk, in no particular order.
-    pub fn chunks(&self) -> impl Iterator<Item = &Arc<Chunk>> {
+    /// Every chunk, in no particular order: the writer's chunk map, O(1) per chunk.
+    /// ([`StoreView::chunks`], which a store also answers, lists them sorted, as a
+    /// snapshot does.)
+    pub fn chunks_unordered(&self) -> impl Iterator<Item = &Arc<Chunk>> {
         self.chunks.values().map(|stored| &stored.chunk)
     }
 
@@ -151,18 +152,18 @@ impl ChunkStore {
     /// Cost: O(1) from the store-wide time orders, plus a look at the small chunks
     /// compaction keeps waiting (O(entities) when there are any). (A snapshot's
     /// [`StoreView::time_range`] has no such orders and walks its indices.)
-    pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
+    pub fn time_range(&self, timeline: &str) -> Option<TimeRange> {
         let ordered = self.temporal_per_timeline.get(timeline).and_then(|chunks| {
             let (min, _) = chunks.by_min_time.iter().next()?;
             let (max, _) = chunks.by_max_time.iter().next_back()?;
-            Some((*min, *max))
+            Some(TimeRange::new(*min, *max))
         });
         self.chunks_outside_global_orders()
             .into_iter()
             .filter_map(|chunk| chunk.time_column(timeline))
             .map(crate::TimeColumn::time_range)
             .chain(ordered)
-            .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
+            .reduce(TimeRange::union)
     }
 
     /// Forgets an entity, writer part and view.
@@ -210,7 +211,7 @@ impl std::ops::Deref for ChunkStore {
 /// changes to what a store holds are reviewable as text.
 impl fmt::Display for ChunkStore {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut chunks: Vec<&Arc<Chunk>> = self.chunks().collect();
+        let mut chunks: Vec<&Arc<Chunk>> = self.chunks_unordered().collect();
         chunks.sort_by(|a, b| (a.entity_path(), a.id()).cmp(&(b.entity_path(), b.id())));
         writeln!(f, "ChunkStore: {} chunks", chunks.len())?;
         for chunk in chunks {
@@ -222,7 +223,8 @@ impl fmt::Display for ChunkStore {
                 chunk.num_rows()
             )?;
             for column in chunk.time_columns() {
-                let (lo, hi) = column.time_range();
+                let bounds = column.time_range();
+                let (lo, hi) = (bounds.min(), bounds.max());
                 write!(f, " {}=[{lo}, {hi}]", column.timeline().name())?;
             }
             let names: Vec<&str> = chunk

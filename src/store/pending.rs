@@ -39,7 +39,7 @@ struct PendingGroup {
     levels: Vec<Vec<Arc<Chunk>>>,
     /// `tiers[t]`: runs of tier `t` (the level of their row count when they formed),
     /// oldest first; fewer than the fanout between merges.
-    tiers: Vec<Vec<Run>>,
+    tiers: Vec<Vec<SettledRun>>,
 }
 
 /// Settled chunks of one layout that overlap none of each other on the first timeline:
@@ -53,7 +53,7 @@ struct PendingGroup {
 /// (an in-order stream's runs are joined without a copy), so at most `fanout - 1` runs per
 /// tier, and `log_fanout(rows)` tiers, cover any time.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct Run {
+pub(crate) struct SettledRun {
     chunks: Vec<Arc<Chunk>>,
 }
 
@@ -62,16 +62,14 @@ pub(crate) struct Run {
 /// in sequence in this order, even where several begin at one time (all but the last of
 /// them hold that time alone).
 fn run_key(chunk: &Chunk) -> (crate::TimeInt, crate::TimeInt, ChunkId) {
-    let (least, greatest) = chunk
-        .time_columns()
-        .first()
-        .map_or((crate::TimeInt::MAX, crate::TimeInt::MAX), |c| {
-            c.time_range()
-        });
-    (least, greatest, chunk.id())
+    let range = chunk.time_columns().first().map_or(
+        crate::TimeRange::at(crate::TimeInt::MAX),
+        crate::TimeColumn::time_range,
+    );
+    (range.min(), range.max(), chunk.id())
 }
 
-impl Run {
+impl SettledRun {
     /// A run of `chunks`, which must not overlap on the first timeline (any order).
     pub(crate) fn new(mut chunks: Vec<Arc<Chunk>>) -> Self {
         chunks.sort_by_key(|c| run_key(c));
@@ -146,7 +144,11 @@ impl PendingGroups {
 
     /// Adds a run to its layout's group at the tier of its rows; returns the group's
     /// position and the tier, which [`PendingGroups::take_full_tier`] takes back.
-    pub(crate) fn push_run(&mut self, run: Run, config: &StoreConfig) -> Option<(usize, usize)> {
+    pub(crate) fn push_run(
+        &mut self,
+        run: SettledRun,
+        config: &StoreConfig,
+    ) -> Option<(usize, usize)> {
         let position = self.group_of(run.chunks.first()?);
         let tier = config.level(run.num_rows());
         push_at(&mut self.groups[position].tiers, tier, run);
@@ -159,7 +161,7 @@ impl PendingGroups {
         position: usize,
         tier: usize,
         config: &StoreConfig,
-    ) -> Option<Vec<Run>> {
+    ) -> Option<Vec<SettledRun>> {
         self.take_full(position, tier, config, |group| &mut group.tiers)
     }
 
@@ -301,7 +303,7 @@ fn push_at<T>(buckets: &mut Vec<Vec<T>>, at: usize, item: T) {
 /// A run is not empty, no larger than its tier, and holds settled temporal chunks of the
 /// store in its group's layout, each once, in order, none overlapping the next.
 fn check_run(
-    run: &Run,
+    run: &SettledRun,
     tier: usize,
     first: &Chunk,
     path: &EntityPath,
@@ -336,7 +338,8 @@ fn check_run(
     }
     let in_order = run.chunks.windows(2).all(|w| {
         run_key(&w[0]) < run_key(&w[1])
-            && w[0].time_columns()[0].time_range().1 <= w[1].time_columns()[0].time_range().0
+            && w[0].time_columns()[0].time_range().max()
+                <= w[1].time_columns()[0].time_range().min()
     });
     if !in_order {
         return fail(

@@ -228,7 +228,8 @@ impl ChunkStore {
                     .at(format_args!("{id}: {timeline:?}")));
                 }
                 if *in_global_orders {
-                    let (min, max) = column.time_range();
+                    let bounds = column.time_range();
+                    let (min, max) = (bounds.min(), bounds.max());
                     let per_timeline = expected_per_timeline.entry(timeline.name()).or_default();
                     per_timeline.by_min_time.insert((min, id));
                     per_timeline.by_max_time.insert((max, id));

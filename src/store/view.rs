@@ -23,7 +23,7 @@ use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::sanity::{SanityError, Structure};
 use crate::small_map::SmallMap;
 use crate::stats::{EntityStats, StoreStats};
-use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, TimeType, Timeline};
+use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeRange, TimeType, Timeline};
 
 /// The entity map: a persistent hash trie, so that a snapshot shares it and a write
 /// copies only the path to the entity it changes.
@@ -132,7 +132,7 @@ impl StoreView {
     ///
     /// Cost: O(n) over the indices' entries. A [`ChunkStore`](crate::ChunkStore) answers
     /// in O(1) from its writer's time orders.
-    pub fn time_range(&self, timeline: &str) -> Option<(TimeInt, TimeInt)> {
+    pub fn time_range(&self, timeline: &str) -> Option<TimeRange> {
         self.entities
             .values()
             .filter_map(|entity| entity.temporal_per_timeline_per_component.get(timeline))
@@ -148,7 +148,7 @@ impl StoreView {
                     .filter_map(|chunk| chunk.time_column(timeline))
                     .map(crate::TimeColumn::time_range)
             }))
-            .reduce(|(min, max), (lo, hi)| (min.min(lo), max.max(hi)))
+            .reduce(TimeRange::union)
     }
 
     /// Every entity that holds data, sorted.
@@ -177,7 +177,7 @@ impl StoreView {
     ///
     /// Cost: O(n log n), gathered from the indices (a chunk indexed under several
     /// timelines and components is listed once). A [`ChunkStore`](crate::ChunkStore)'s
-    /// own `chunks()` walks its chunk map instead, in no particular order.
+    /// `chunks_unordered()` walks its chunk map instead, in no particular order.
     pub fn chunks(&self) -> Vec<Arc<Chunk>> {
         let mut out = Vec::with_capacity(usize::try_from(self.stats.num_chunks()).unwrap_or(0));
         // Entities in path order, each one's chunks sorted by id: the list comes out

@@ -150,7 +150,7 @@ pub fn robot_chunk_files() -> Vec<std::path::PathBuf> {
 pub fn robot_chunks() -> Vec<Chunk> {
     robot_chunk_files()
         .iter()
-        .flat_map(|f| chunkstore::io::read_chunks_from_path(f).unwrap())
+        .flat_map(|f| chunkstore::ipc::read_chunks_from_path(f).unwrap())
         .collect()
 }
 

@@ -29,9 +29,7 @@ pub fn convert(
         } else {
             StoreConfig::COMPACTION_OFF
         },
-        compact: options.compact,
-        skip_bad: options.skip_bad,
-        recording: options.recording.clone(),
+        ..options.clone()
     };
     let loaded = load::load_in_order(source, &load_options)?;
     let chunks: Vec<Arc<Chunk>> = if options.compact {
@@ -39,12 +37,12 @@ pub fn convert(
         // by entity, each in time order: what a reader scans best.
         let mut chunks = loaded.store.export_chunks();
         chunks.sort_by_cached_key(|c| {
-            let start = c.time_columns().first().map(|t| t.time_range().0);
+            let start = c.time_columns().first().map(|t| t.time_range().min());
             (c.entity_path().clone(), start, c.id())
         });
         chunks
     } else {
-        loaded.in_order
+        loaded.in_source_order
     };
     if loaded.skipped_blueprint_messages > 0 {
         eprintln!(
@@ -120,7 +118,7 @@ fn write_directory(out: &Path, info: &StoreInfo, chunks: &[Arc<Chunk>]) -> Resul
             let file =
                 std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
             let mut writer = std::io::BufWriter::new(file);
-            chunkstore::io::write_chunk_ipc_file(chunk, &mut writer)
+            chunkstore::ipc::write_chunk_ipc_file(chunk, &mut writer)
                 .map_err(|e| format!("{}: {e}", path.display()))?;
             let file = writer
                 .into_inner()

@@ -65,8 +65,11 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     let index_position = stream.schema().index_of(&args.index).ok();
     let bar = match (&args.index_values, store.time_range(&args.index)) {
         (Some(values), _) => Progress::new(values.len() as u64, None),
-        (None, Some((min, max))) => {
-            let (min, max) = (min.max(query.range().min()), max.min(query.range().max()));
+        (None, Some(range)) => {
+            let (min, max) = (
+                range.min().max(query.range().min()),
+                range.max().min(query.range().max()),
+            );
             let span = max.as_i64().abs_diff(min.as_i64()).saturating_add(1);
             Progress::new(span, Some(min.as_i64()))
         }
@@ -92,7 +95,7 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
                 .map(drop)
                 .map_err(|e| crate::about_path(out, e).into())
         } else {
-            chunkstore::io::write_ipc_file(out, reader)
+            chunkstore::ipc::write_ipc_file(out, reader)
                 .map(drop)
                 .map_err(|e| crate::about_path(out, e).into())
         }
@@ -102,7 +105,7 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
         terminal_table(reader, &bar.0)
     } else {
         let stdout = std::io::BufWriter::new(std::io::stdout().lock());
-        chunkstore::io::write_ipc_stream(stdout, reader)
+        chunkstore::ipc::write_ipc_stream(stdout, reader)
             .map(drop)
             .map_err(|e| stream_failure(&e))
     };
@@ -189,7 +192,7 @@ fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(
                 .map_err(|e| ArrowError::IoError(e.to_string(), e))?;
             Ok(omitted)
         })
-        .map_err(|e| stream_failure(&chunkstore::IoError::Ipc(e)))?;
+        .map_err(|e| stream_failure(&chunkstore::ipc::IpcError::Ipc(e)))?;
     if omitted + beyond > 0 {
         eprintln!(
             "({} more rows: --out FILE writes the whole table, and a pipe gets it as an Arrow \
@@ -200,37 +203,10 @@ fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(
     Ok(())
 }
 
-/// `hive`: a Hive-partitioned Parquet dataset of the source.
+/// `hive`: a Hive-partitioned Parquet dataset of the source. The output is checked before
+/// the source is loaded.
 pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Failure> {
-    use chunkstore::hive_export::{HiveLayout, write_hive_dataset};
-    if args.dir.exists() {
-        return Err(format!(
-            "{}: already exists (hive writes a new directory)",
-            args.dir.display()
-        )
-        .into());
-    }
-    if let Some(width) = args.bucket
-        && width < 1
-    {
-        return Err(format!("--bucket {width}: a bucket is at least 1 wide").into());
-    }
-    let loaded = load::load(source, options)?;
-    let store = &loaded.store;
-    if let Some(index) = &args.index
-        && store.time_type(index).is_none()
-    {
-        let known: Vec<String> = store
-            .timelines()
-            .iter()
-            .map(|t| t.name().to_owned())
-            .collect();
-        return Err(format!(
-            "unknown timeline {index:?} (the source has: {})",
-            known.join(", ")
-        )
-        .into());
-    }
+    use chunkstore::hive_export::{HiveLayout, check_new_dataset, write_hive_dataset};
     let layout = match (&args.index, args.bucket) {
         (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
             timeline: index.as_str().into(),
@@ -241,8 +217,10 @@ pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Fai
             timeline: index.as_deref().map(Into::into),
         },
     };
-    let summary = write_hive_dataset(store, &args.dir, &layout)
-        .map_err(|e| crate::about_path(&args.dir, e))?;
+    let failure = |error| hive_failure(&args.dir, error);
+    check_new_dataset(&args.dir, &layout).map_err(failure)?;
+    let loaded = load::load(source, options)?;
+    let summary = write_hive_dataset(&loaded.store, &args.dir, &layout).map_err(failure)?;
     eprintln!(
         "wrote {} rows in {} files under {}",
         summary.rows(),
@@ -252,10 +230,31 @@ pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Fai
     Ok(())
 }
 
-/// A failed stream to stdout: a reader that went away (`| head -c`) is no error of ours.
-fn stream_failure(error: &chunkstore::IoError) -> Failure {
+/// A dataset that could not be written, as the tool words it.
+fn hive_failure(dir: &Path, error: chunkstore::hive_export::HiveExportError) -> Failure {
+    use chunkstore::hive_export::HiveExportError;
     match error {
-        chunkstore::IoError::Ipc(ArrowError::IoError(_, e))
+        HiveExportError::Exists { .. } => format!(
+            "{}: already exists (hive writes a new directory)",
+            dir.display()
+        ),
+        HiveExportError::BucketWidth { width } => {
+            format!("--bucket {width}: a bucket is at least 1 wide")
+        }
+        HiveExportError::Table(chunkstore::DataframeError::UnknownIndex(unknown)) => format!(
+            "unknown timeline {:?} (the source has: {})",
+            unknown.name,
+            unknown.known.join(", ")
+        ),
+        other => crate::about_path(dir, other),
+    }
+    .into()
+}
+
+/// A failed stream to stdout: a reader that went away (`| head -c`) is no error of ours.
+fn stream_failure(error: &chunkstore::ipc::IpcError) -> Failure {
+    match error {
+        chunkstore::ipc::IpcError::Ipc(ArrowError::IoError(_, e))
             if e.kind() == std::io::ErrorKind::BrokenPipe =>
         {
             Failure::BrokenPipe

@@ -31,6 +31,7 @@ use std::ffi::OsString;
 use std::process::ExitCode;
 
 use args::{Cli, Command};
+use chunkstore::TimeRange;
 
 thread_local! {
     /// The last panic's message and place, for the one line printed if a panic escapes.
@@ -108,7 +109,7 @@ fn one_line(text: &str) -> String {
 
 fn main() -> ExitCode {
     // The default panic hook prints every panic, even one the library contains and turns
-    // into an error (arrow-ipc panics on some malformed files; see `chunkstore::io`): the
+    // into an error (arrow-ipc panics on some malformed files; see `chunkstore::ipc`): the
     // user would see two messages for one bad file. This hook prints nothing and keeps the
     // message; a panic that escapes (a bug) is reported below, on one line.
     std::panic::set_hook(Box::new(|info| {
@@ -191,6 +192,7 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         compact: cli.load.compact,
         skip_bad: cli.load.skip_bad,
         recording: cli.load.recording.clone(),
+        ..load::Options::default()
     };
     // `-`: standard input, copied to a temporary file first (lazy reading seeks, and
     // sources are told apart by their first bytes); removed when the command ends.
@@ -208,9 +210,9 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             time,
             select,
         } => {
-            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            let time = time.on(answers.timeline_type(timeline, source)?)?;
-            output::latest_at(&mut answers, timeline, time, select)
+            let mut recording = load::open_for_queries(source, &options, cli.load.eager)?;
+            let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
+            output::latest_at(&mut recording, timeline, time.on(time_type)?, select)
         }
         Command::Range {
             timeline,
@@ -227,13 +229,13 @@ fn run(cli: &Cli) -> Result<(), Failure> {
             {
                 return Err(reversed().into());
             }
-            let mut answers = load::open_for_queries(source, &options, cli.load.eager)?;
-            let time_type = answers.timeline_type(timeline, source)?;
+            let mut recording = load::open_for_queries(source, &options, cli.load.eager)?;
+            let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
             let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
             if lo > hi {
                 return Err(reversed().into());
             }
-            output::range(&mut answers, timeline, (lo, hi), select)
+            output::range(&mut recording, timeline, TimeRange::new(lo, hi), select)
         }
         Command::Stats => {
             let loaded = load::load(source, &options)?;

@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ListArray, RecordBatch};
 use arrow_schema::{Field, Schema};
+use chunkstore::recording::{Recording, RecordingReader, SourceKind};
 use chunkstore::rrd::{RrdItem, RrdReader};
 use chunkstore::{
     Chunk, ChunkStore, ComponentColumn, ComponentName, EntityPath, EntityPathFilter, LatestAtQuery,
@@ -14,7 +15,7 @@ use chunkstore::{
 };
 
 use crate::args::Select;
-use crate::load::{self, Answers, SourceKind};
+use crate::load;
 use crate::{Failure, one_line};
 
 type Out<'a> = std::io::BufWriter<std::io::StdoutLock<'a>>;
@@ -82,7 +83,7 @@ fn render_cell(column: &ComponentColumn, row: usize) -> Result<String, String> {
 /// component name); an error where a selection was given and keeps nothing (a typo must
 /// not pass for an empty answer).
 pub fn selected_pairs(
-    answers: &Answers,
+    answers: &RecordingReader<'_>,
     select: &Select,
 ) -> Result<Vec<(EntityPath, ComponentName)>, Failure> {
     let filter = if select.contents.is_empty() {
@@ -120,27 +121,31 @@ pub fn selected_pairs(
 }
 
 pub fn latest_at(
-    answers: &mut Answers,
+    recording: &mut Recording,
     timeline: &str,
     at: TimeInt,
     select: &Select,
 ) -> Result<(), Failure> {
     let query = LatestAtQuery::new(timeline, at);
     let mut out = stdout();
-    let pairs = selected_pairs(answers, select)?;
+    let pairs = selected_pairs(&recording.reader(), select)?;
     for (entity, components) in group_by_entity(&pairs) {
         let entity_text = entity.to_string();
         for component in components {
-            let Some(answer) = answers.latest_at(&query, entity, component.as_str())? else {
+            let answer = recording
+                .reader()
+                .latest_at(&query, entity, component.as_str())
+                .map_err(|e| e.to_string())?;
+            let Some(answer) = answer else {
                 continue;
             };
-            let value = render_cell(answer.component(), answer.row())?;
+            let value = render_cell(answer.column(), answer.row())?;
             let line = answer_line(
                 &entity_text,
                 component.as_str(),
                 answer.time(),
                 answer.row_id(),
-                answers.source_chunk(answer.row_id(), answer.chunk_id()),
+                recording.row_source(answer.row_id(), answer.chunk_id()),
                 &value,
             );
             write_line(&mut out, &line)?;
@@ -164,18 +169,21 @@ fn group_by_entity(
 }
 
 pub fn range(
-    answers: &mut Answers,
+    recording: &mut Recording,
     timeline: &str,
-    (min, max): (TimeInt, TimeInt),
+    range: TimeRange,
     select: &Select,
 ) -> Result<(), Failure> {
-    let query = RangeQuery::new(timeline, TimeRange::new(min, max));
+    let query = RangeQuery::new(timeline, range);
     let mut out = stdout();
-    let pairs = selected_pairs(answers, select)?;
+    let pairs = selected_pairs(&recording.reader(), select)?;
     for (entity, components) in group_by_entity(&pairs) {
         let entity_text = entity.to_string();
         for component in components {
-            let rows = answers.range(&query, entity, component.as_str())?;
+            let rows = recording
+                .reader()
+                .range(&query, entity, component.as_str())
+                .map_err(|e| e.to_string())?;
             for row in rows.iter() {
                 let value = render_cell(row.column(), row.row())?;
                 let line = answer_line(
@@ -183,7 +191,7 @@ pub fn range(
                     component.as_str(),
                     row.time(),
                     row.row_id(),
-                    answers.source_chunk(row.row_id(), row.chunk().id()),
+                    recording.row_source(row.row_id(), row.chunk().id()),
                     &value,
                 );
                 write_line(&mut out, &line)?;
@@ -212,8 +220,8 @@ pub fn stats(store: &ChunkStore) -> Result<(), Failure> {
             serde_json::json!({
                 "name": timeline.name(),
                 "type": type_name(timeline.time_type()),
-                "min": range.map(|(min, _)| min.as_i64()),
-                "max": range.map(|(_, max)| max.as_i64()),
+                "min": range.map(|r| r.min().as_i64()),
+                "max": range.map(|r| r.max().as_i64()),
             })
         })
         .collect();
@@ -253,7 +261,8 @@ fn chunk_line(chunk: &Chunk, json: bool) -> String {
             .time_columns()
             .iter()
             .map(|c| {
-                let (min, max) = c.time_range();
+                let bounds = c.time_range();
+                let (min, max) = (bounds.min(), bounds.max());
                 serde_json::json!({
                     "name": c.timeline().name(),
                     "type": type_name(c.timeline().time_type()),
@@ -276,7 +285,8 @@ fn chunk_line(chunk: &Chunk, json: bool) -> String {
         .time_columns()
         .iter()
         .map(|c| {
-            let (min, max) = c.time_range();
+            let bounds = c.time_range();
+            let (min, max) = (bounds.min(), bounds.max());
             format!(
                 "{}=[{}, {}]",
                 c.timeline().name(),
@@ -303,7 +313,7 @@ fn chunk_line(chunk: &Chunk, json: bool) -> String {
 pub fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
     let mut out = stdout();
     let name = source.display();
-    match load::source_kind(source)? {
+    match SourceKind::detect(source).map_err(|e| e.to_string())? {
         SourceKind::Rrd => {
             let file = std::fs::File::open(source).map_err(|e| format!("{name}: {e}"))?;
             let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
@@ -326,15 +336,14 @@ pub fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
                 }
             }
         }
-        SourceKind::IpcDirectory | SourceKind::IpcFile => {
+        SourceKind::ChunkDirectory | SourceKind::IpcFile => {
             let options = load::Options {
                 config: chunkstore::StoreConfig::COMPACTION_OFF,
-                compact: false,
                 skip_bad,
-                recording: None,
+                ..load::Options::default()
             };
             let loaded = load::load_in_order(source, &options)?;
-            for chunk in &loaded.in_order {
+            for chunk in &loaded.in_source_order {
                 write_line(&mut out, &chunk_line(chunk, json))?;
             }
         }

@@ -58,7 +58,7 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
             .map(drop)
             .map_err(|e| e.to_string())
         } else {
-            chunkstore::io::write_ipc_file(out, reader)
+            chunkstore::ipc::write_ipc_file(out, reader)
                 .map(drop)
                 .map_err(|e| e.to_string())
         };

@@ -88,7 +88,7 @@ fn decode_dataframe_part(bytes: &[u8]) -> Result<RecordBatch, WireError> {
     } else {
         payload.to_vec()
     };
-    let mut batches = crate::io::read_stream_batches_zero_copy(Buffer::from_vec(ipc))
+    let mut batches = crate::ipc::read_stream_batches_zero_copy(Buffer::from_vec(ipc))
         .map_err(|e| (0, RrdErrorKind::Ipc(e)))?;
     match (batches.pop(), batches.is_empty()) {
         (Some(batch), true) => Ok(batch),
@@ -128,18 +128,22 @@ fn times(array: &ArrayRef) -> Option<Vec<Option<i64>>> {
     }
 }
 
-/// The time columns of a manifest batch, by timeline and (for per-component ones)
-/// component: `(start, end, num_rows)`.
-type RangeColumns =
-    BTreeMap<(String, Option<String>), (Option<usize>, Option<usize>, Option<usize>)>;
+/// A timeline's (and, for per-component ones, a component's) range columns of a manifest
+/// batch, by position.
+#[derive(Default)]
+struct RangeColumns {
+    start: Option<usize>,
+    end: Option<usize>,
+    num_rows: Option<usize>,
+}
 
-/// A decoded family of range columns: the timeline, starts, ends and row counts.
-type DecodedRanges<'a> = (
-    Timeline,
-    Vec<Option<i64>>,
-    Vec<Option<i64>>,
-    Option<&'a UInt64Array>,
-);
+/// A decoded family of range columns.
+struct DecodedRanges<'a> {
+    timeline: Timeline,
+    starts: Vec<Option<i64>>,
+    ends: Vec<Option<i64>>,
+    num_rows: Option<&'a UInt64Array>,
+}
 
 #[expect(
     clippy::too_many_lines,
@@ -148,7 +152,7 @@ type DecodedRanges<'a> = (
 fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String> {
     let paths = column::<StringArray>(batch, "chunk_entity_path")?;
     let ids = column::<FixedSizeBinaryArray>(batch, "chunk_id")?;
-    if ids.value_length() != 16 {
+    if ids.value_length() != crate::ids::ID_BYTES {
         return Err("manifest chunk ids are not 16 bytes".to_owned());
     }
     let statics = column::<BooleanArray>(batch, "chunk_is_static")?;
@@ -159,7 +163,7 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
 
     let schema = batch.schema();
     let mut static_columns: Vec<(ComponentName, usize)> = Vec::new();
-    let mut range_columns: RangeColumns = BTreeMap::new();
+    let mut range_columns: BTreeMap<(String, Option<String>), RangeColumns> = BTreeMap::new();
     for (i, field) in schema.fields().iter().enumerate() {
         let Some(index) = field.metadata().get(INDEX_KEY) else {
             continue;
@@ -175,18 +179,18 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
         let slot = range_columns.entry((index.clone(), component)).or_default();
         let name = field.name();
         if name.ends_with(":start") {
-            slot.0 = Some(i);
+            slot.start = Some(i);
         } else if name.ends_with(":end") {
-            slot.1 = Some(i);
+            slot.end = Some(i);
         } else if name.ends_with(":num_rows") {
-            slot.2 = Some(i);
+            slot.num_rows = Some(i);
         }
     }
 
     // Decode every range column once.
     let mut decoded: BTreeMap<(String, Option<String>), DecodedRanges<'_>> = BTreeMap::new();
-    for (key, (start, end, rows)) in range_columns {
-        let (Some(start), Some(end)) = (start, end) else {
+    for (key, columns) in range_columns {
+        let (Some(start), Some(end)) = (columns.start, columns.end) else {
             continue;
         };
         let start_array = batch.column(start);
@@ -198,10 +202,18 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
         })?;
         let starts = times(start_array).ok_or("manifest start column has a bad type")?;
         let ends = times(batch.column(end)).ok_or("manifest end column has a bad type")?;
-        let rows = rows.and_then(|i| batch.column(i).as_any().downcast_ref::<UInt64Array>());
+        let num_rows = columns
+            .num_rows
+            .and_then(|i| batch.column(i).as_any().downcast_ref::<UInt64Array>());
+        let timeline = Timeline::new(key.0.as_str(), time_type);
         decoded.insert(
-            key.clone(),
-            (Timeline::new(key.0.as_str(), time_type), starts, ends, rows),
+            key,
+            DecodedRanges {
+                timeline,
+                starts,
+                ends,
+                num_rows,
+            },
         );
     }
 
@@ -213,18 +225,23 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
             EntityPath::parse(paths.value(row)).map_err(|e| format!("manifest row {row}: {e}"))?;
         let mut ranges = Vec::new();
         let mut components: BTreeMap<ComponentName, Vec<ManifestTimeRange>> = BTreeMap::new();
-        for ((_, component), (timeline, starts, ends, rows)) in &decoded {
-            let (Some(Some(min)), Some(Some(max))) = (starts.get(row), ends.get(row)) else {
+        for ((_, component), ranges_of) in &decoded {
+            let (Some(Some(min)), Some(Some(max))) =
+                (ranges_of.starts.get(row), ranges_of.ends.get(row))
+            else {
                 continue;
             };
-            if rows.is_some_and(|r| r.is_valid(row) && r.value(row) == 0) {
+            if ranges_of
+                .num_rows
+                .is_some_and(|r| r.is_valid(row) && r.value(row) == 0)
+            {
                 continue;
             }
             let (Some(min), Some(max)) = (TimeInt::new(*min), TimeInt::new(*max)) else {
                 return Err(format!("manifest row {row}: time i64::MIN is reserved"));
             };
             let range = ManifestTimeRange {
-                timeline: timeline.clone(),
+                timeline: ranges_of.timeline.clone(),
                 min,
                 max,
             };

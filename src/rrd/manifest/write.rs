@@ -28,9 +28,24 @@ pub(crate) struct WrittenChunk {
     byte_offset: u64,
     byte_size: u64,
     uncompressed_size: u64,
-    /// Per timeline: the timeline, its Arrow type, and the chunk's time range.
-    timelines: Vec<(Timeline, DataType, i64, i64)>,
+    timelines: Vec<WrittenTimeline>,
     components: Vec<WrittenComponent>,
+}
+
+/// A timeline of a written chunk: its Arrow type, and the chunk's time range on it.
+struct WrittenTimeline {
+    timeline: Timeline,
+    data_type: DataType,
+    min: i64,
+    max: i64,
+}
+
+/// A component's non-null cells on one timeline: their time range and how many there are.
+#[derive(Clone, Copy)]
+struct CellStats {
+    start: i64,
+    end: i64,
+    num_rows: u64,
 }
 
 struct WrittenComponent {
@@ -59,14 +74,11 @@ impl WrittenChunk {
             timelines: chunk
                 .time_columns()
                 .iter()
-                .map(|c| {
-                    let (min, max) = c.time_range();
-                    (
-                        c.timeline().clone(),
-                        c.data_type().clone(),
-                        min.as_i64(),
-                        max.as_i64(),
-                    )
+                .map(|c| WrittenTimeline {
+                    timeline: c.timeline().clone(),
+                    data_type: c.data_type().clone(),
+                    min: c.time_range().min().as_i64(),
+                    max: c.time_range().max().as_i64(),
                 })
                 .collect(),
             components: chunk
@@ -92,7 +104,9 @@ impl WrittenChunk {
     }
 
     fn timeline_position(&self, name: &str) -> Option<usize> {
-        self.timelines.iter().position(|t| t.0.name() == name)
+        self.timelines
+            .iter()
+            .position(|t| t.timeline.name() == name)
     }
 }
 
@@ -158,7 +172,12 @@ fn sorbet_schema(chunks: &[WrittenChunk]) -> Schema {
     let mut timelines: BTreeMap<String, DataType> = BTreeMap::new();
     let mut columns: BTreeMap<(EntityPath, ComponentName), (Field, bool)> = BTreeMap::new();
     for chunk in chunks {
-        for (timeline, data_type, _, _) in &chunk.timelines {
+        for WrittenTimeline {
+            timeline,
+            data_type,
+            ..
+        } in &chunk.timelines
+        {
             timelines
                 .entry(timeline.name().to_owned())
                 .or_insert_with(|| data_type.clone());
@@ -228,7 +247,7 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
                 .entry(component.descriptor.name.clone())
                 .or_insert_with(|| component.descriptor.clone());
         }
-        for (timeline, _, _, _) in &chunk.timelines {
+        for WrittenTimeline { timeline, .. } in &chunk.timelines {
             timelines
                 .entry(timeline.name().to_owned())
                 .or_insert(timeline.time_type());
@@ -252,9 +271,9 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
     );
     let id_bytes: Vec<u8> = chunks.iter().flat_map(|w| w.id.to_be_bytes()).collect();
     push(
-        Field::new("chunk_id", DataType::FixedSizeBinary(16), false),
+        Field::new("chunk_id", crate::ids::ID_DATA_TYPE, false),
         Arc::new(FixedSizeBinaryArray::new(
-            16,
+            crate::ids::ID_BYTES,
             Buffer::from_vec(id_bytes),
             None,
         )),
@@ -325,7 +344,7 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
     for (timeline, &time_type) in &timelines {
         let range = |w: &WrittenChunk| {
             w.timeline_position(timeline)
-                .map(|i| (w.timelines[i].2, w.timelines[i].3))
+                .map(|i| (w.timelines[i].min, w.timelines[i].max))
         };
         for (suffix, pick) in [("start", true), ("end", false)] {
             let values = chunks
@@ -344,14 +363,17 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
     }
     for (timeline, &time_type) in &timelines {
         for (name, descriptor) in &components {
-            // Per chunk: (start, end, num_rows) of the component's non-null cells.
-            let stats: Vec<Option<(i64, i64, u64)>> = chunks
+            let stats: Vec<Option<CellStats>> = chunks
                 .iter()
                 .map(|w| {
                     let position = w.timeline_position(timeline)?;
                     let column = w.component(name)?;
-                    let (min, max) = (*column.bounds.get(position)?)?;
-                    Some((min, max, column.non_null_rows))
+                    let (start, end) = (*column.bounds.get(position)?)?;
+                    Some(CellStats {
+                        start,
+                        end,
+                        num_rows: column.non_null_rows,
+                    })
                 })
                 .collect();
             for (suffix, data_type) in [
@@ -369,12 +391,15 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
                     Some(descriptor),
                 );
                 let column: ArrayRef = match suffix {
-                    "start" => {
-                        time_array(time_type, stats.iter().map(|s| s.map(|s| s.0)).collect())
+                    "start" => time_array(
+                        time_type,
+                        stats.iter().map(|s| s.map(|s| s.start)).collect(),
+                    ),
+                    "end" => {
+                        time_array(time_type, stats.iter().map(|s| s.map(|s| s.end)).collect())
                     }
-                    "end" => time_array(time_type, stats.iter().map(|s| s.map(|s| s.1)).collect()),
                     _ => Arc::new(UInt64Array::from_iter_values(
-                        stats.iter().map(|s| s.map_or(0, |s| s.2)),
+                        stats.iter().map(|s| s.map_or(0, |s| s.num_rows)),
                     )),
                 };
                 push(field, column);

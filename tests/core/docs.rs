@@ -32,7 +32,7 @@ fn files() -> Vec<PathBuf> {
             if path.is_dir() {
                 stack.push(path);
             } else if path.extension().is_some_and(|e| e == "rs" || e == "md")
-                && !path.ends_with("tests/docs.rs")
+                && !path.ends_with("tests/core/docs.rs")
             {
                 files.push(path);
             }

@@ -8,7 +8,7 @@
 //! - within each directory, its files, leaving out edges to the directory's own `mod.rs`
 //!   (a parent owns its children: their items and `impl` blocks are its parts).
 //!
-//! `cargo test --test module_graph -- --nocapture` prints the layers of the top-level
+//! `cargo test --test core module_graph -- --nocapture` prints the layers of the top-level
 //! graph, which `docs/ARCHITECTURE.md` draws.
 #![allow(
     clippy::unwrap_used,

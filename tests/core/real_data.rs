@@ -13,13 +13,13 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use arrow_array::{Array, ArrayRef, ListArray, RecordBatch};
 use chunkstore::{
-    Chunk, ChunkStore, EntityPath, LatestAtQuery, RangeQuery, TimeInt, TimeRange, io,
+    Chunk, ChunkStore, EntityPath, LatestAtQuery, RangeQuery, TimeInt, TimeRange, ipc,
 };
 
 const TIMELINES: [&str; 3] = ["frame_id", "sim_time", "log_time"];
 const PROPERTIES: &str = "/__properties";
 
-mod common;
+use crate::common;
 use common::robot_recording as recording;
 
 fn load_chunks() -> Vec<Chunk> {
@@ -54,7 +54,7 @@ fn stores() -> [ChunkStore; 2] {
 
 fn oracle(name: &str) -> Vec<RecordBatch> {
     let bytes = std::fs::read(recording().join("oracle").join(name)).unwrap();
-    io::read_batches(&bytes).unwrap()
+    ipc::read_batches(&bytes).unwrap()
 }
 
 /// A data column of an oracle table: its entity and component, from the field metadata.

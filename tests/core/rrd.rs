@@ -13,7 +13,7 @@ use arrow_buffer::Buffer;
 use chunkstore::Chunk;
 use chunkstore::rrd::{self, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreId, StoreKind};
 
-mod common;
+use crate::common;
 
 use common::robot_recording as recording;
 
@@ -68,7 +68,10 @@ fn the_robot_recording_decodes_to_its_chunk_files() {
                 .iter()
                 .find(|r| r.timeline.name() == time.timeline().name())
                 .unwrap();
-            assert_eq!((range.min, range.max), time.time_range());
+            assert_eq!(
+                chunkstore::TimeRange::new(range.min, range.max),
+                time.time_range()
+            );
             assert_eq!(range.timeline, *time.timeline());
         }
         let mut names: Vec<&str> = chunk
@@ -147,8 +150,8 @@ fn compacted_out_of_order_rows_are_written_in_row_id_order() {
     // Chunk files too.
     let mut file = Vec::new();
     let unsorted = chunks.iter().find(|c| !c.is_sorted_by_row_id()).unwrap();
-    chunkstore::io::write_chunk_ipc_file(unsorted, &mut file).unwrap();
-    let back = chunkstore::io::read_chunks_from_bytes(&file).unwrap();
+    chunkstore::ipc::write_chunk_ipc_file(unsorted, &mut file).unwrap();
+    let back = chunkstore::ipc::read_chunks_from_bytes(&file).unwrap();
     back.iter().for_each(common::assert_rerun_loads);
     assert_eq!(back[0].id(), unsorted.id());
 }

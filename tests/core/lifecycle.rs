@@ -11,7 +11,7 @@
     reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
 )]
 
-mod common;
+use crate::common;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -102,7 +102,7 @@ fn streaming_rows_merge_into_sorted_chunks_copying_each_row_a_few_times() {
         "{} chunks",
         store.num_chunks()
     );
-    for chunk in store.chunks() {
+    for chunk in store.chunks_unordered() {
         assert!(chunk.time_column("frame").unwrap().is_sorted());
         assert!(chunk.num_rows() <= StoreConfig::DEFAULT.max_rows);
     }
@@ -123,7 +123,7 @@ fn out_of_order_rows_merge_into_time_sorted_chunks() {
     assert!(store.num_chunks() < 50, "{} chunks", store.num_chunks());
     assert!(
         store
-            .chunks()
+            .chunks_unordered()
             .all(|c| c.time_column("frame").unwrap().is_sorted())
     );
     for at in [0, 1, 499, 999] {
@@ -135,11 +135,11 @@ fn out_of_order_rows_merge_into_time_sorted_chunks() {
 /// a latest-at there must search.
 fn most_straddling(store: &ChunkStore, entity: &str, times: impl Iterator<Item = i64>) -> usize {
     let spans: Vec<(i64, i64)> = store
-        .chunks()
+        .chunks_unordered()
         .filter(|c| c.entity_path() == &path(entity))
         .map(|c| {
-            let (least, greatest) = c.time_column("frame").unwrap().time_range();
-            (least.as_i64(), greatest.as_i64())
+            let range = c.time_column("frame").unwrap().time_range();
+            (range.min().as_i64(), range.max().as_i64())
         })
         .collect();
     times
@@ -221,7 +221,7 @@ fn merged_rows_of_one_time_are_ordered_by_row_id() {
             .unwrap();
     }
     assert_eq!(store.num_chunks(), 1);
-    let chunk = store.chunks().next().unwrap();
+    let chunk = store.chunks_unordered().next().unwrap();
     let expected: Vec<u128> = (100..116).collect();
     let row_ids: Vec<u128> = chunk.row_ids().iter().map(|r| r.as_u128()).collect();
     assert_eq!(row_ids, expected);
@@ -235,10 +235,10 @@ fn an_oversized_sorted_chunk_is_split_into_slices_without_copying() {
         .collect();
     let events = store.insert(scalars("big", "x", &rows)).unwrap();
     assert_eq!(events.len(), 3, "three additions of ≤ 4096 rows");
-    assert!(store.chunks().all(|c| c.num_rows() <= 4096));
+    assert!(store.chunks_unordered().all(|c| c.num_rows() <= 4096));
     assert_eq!(store.stats().rows_copied_by_compaction, 0);
     // The slices share the input's buffers, which the store counts once.
-    let per_chunk: u64 = store.chunks().map(|c| c.heap_size_bytes()).sum();
+    let per_chunk: u64 = store.chunks_unordered().map(|c| c.heap_size_bytes()).sum();
     assert!(store.stats().heap_bytes < per_chunk);
     assert_eq!(range_values(&store, "big").len(), 10_000);
 }
@@ -254,7 +254,7 @@ fn an_oversized_unsorted_chunk_is_sorted_then_sized_as_sorted() {
     assert_eq!(store.num_chunks(), 1);
     assert!(
         store
-            .chunks()
+            .chunks_unordered()
             .all(|c| c.time_column("frame").unwrap().is_sorted())
     );
 }
@@ -700,10 +700,18 @@ fn time_range_spans_the_data_held_and_follows_removals() {
                 .unwrap();
         }
         store.insert(static_scalar("s", "x", 1, 1.0)).unwrap();
-        assert_eq!(store.time_range("frame"), Some((t(5), t(20))), "{config:?}");
+        assert_eq!(
+            store.time_range("frame"),
+            Some(TimeRange::new(t(5), t(20))),
+            "{config:?}"
+        );
         assert_eq!(store.time_range("other"), None);
         store.drop_time_range("frame", TimeRange::new(t(15), t(30)));
-        assert_eq!(store.time_range("frame"), Some((t(5), t(14))), "{config:?}");
+        assert_eq!(
+            store.time_range("frame"),
+            Some(TimeRange::new(t(5), t(14))),
+            "{config:?}"
+        );
         store.drop_time_range("frame", TimeRange::new(t(0), t(100)));
         assert_eq!(store.time_range("frame"), None, "{config:?}");
         let names: Vec<String> = store

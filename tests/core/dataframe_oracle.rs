@@ -11,11 +11,11 @@
 
 use arrow_array::{Array, RecordBatch};
 use arrow_select::concat::concat_batches;
-use chunkstore::{ChunkStore, DataframeQuery, EntityPathFilter, TimeInt, TimeRange, io};
+use chunkstore::{ChunkStore, DataframeQuery, EntityPathFilter, TimeInt, TimeRange, ipc};
 
 const TIMELINES: [&str; 3] = ["frame_id", "sim_time", "log_time"];
 
-mod common;
+use crate::common;
 use common::robot_recording as recording;
 
 fn stores() -> Vec<ChunkStore> {
@@ -33,7 +33,7 @@ fn stores() -> Vec<ChunkStore> {
 
 fn oracle(name: &str) -> Vec<RecordBatch> {
     let bytes = std::fs::read(recording().join("oracle").join(name)).unwrap();
-    io::read_batches(&bytes).unwrap()
+    ipc::read_batches(&bytes).unwrap()
 }
 
 fn oracle_json(name: &str) -> serde_json::Value {

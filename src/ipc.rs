@@ -1,6 +1,7 @@
 //! Arrow IPC helpers (feature `ipc`): decode chunks from IPC files and streams, and encode
-//! a chunk as an IPC file. Every decoding failure is an [`IoError`], never a panic.
+//! a chunk as an IPC file. Every decoding failure is an [`IpcError`], never a panic.
 
+use std::fmt;
 use std::io::{Cursor, Write};
 use std::path::Path;
 
@@ -10,8 +11,7 @@ use arrow_ipc::reader::{FileReader, StreamDecoder, StreamReader};
 use arrow_ipc::writer::{FileWriter, StreamWriter};
 use arrow_schema::ArrowError;
 
-use crate::Chunk;
-use crate::error::IoError;
+use crate::{Chunk, ChunkError};
 
 /// The first bytes of an Arrow IPC *file* (a stream starts with a message instead).
 const FILE_MAGIC: &[u8] = b"ARROW1";
@@ -20,15 +20,15 @@ const FILE_MAGIC: &[u8] = b"ARROW1";
 /// batches (one chunk per batch).
 ///
 /// # Errors
-/// [`IoError::Ipc`] if the bytes are not Arrow IPC, [`IoError::Chunk`] naming the batch
+/// [`IpcError::Ipc`] if the bytes are not Arrow IPC, [`IpcError::Chunk`] naming the batch
 /// that is not a valid chunk.
-pub fn read_chunks_from_bytes(bytes: &[u8]) -> Result<Vec<Chunk>, IoError> {
+pub fn read_chunks_from_bytes(bytes: &[u8]) -> Result<Vec<Chunk>, IpcError> {
     read_batches(bytes)?
         .iter()
         .enumerate()
         .map(|(batch, record_batch)| {
             Chunk::from_record_batch(record_batch)
-                .map_err(|source| IoError::Chunk { batch, source })
+                .map_err(|source| IpcError::Chunk { batch, source })
         })
         .collect()
 }
@@ -36,10 +36,10 @@ pub fn read_chunks_from_bytes(bytes: &[u8]) -> Result<Vec<Chunk>, IoError> {
 /// Reads a file and decodes it with [`read_chunks_from_bytes`].
 ///
 /// # Errors
-/// [`IoError::Io`] if the file cannot be read, otherwise as [`read_chunks_from_bytes`].
-pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IoError> {
+/// [`IpcError::Io`] if the file cannot be read, otherwise as [`read_chunks_from_bytes`].
+pub fn read_chunks_from_path(path: impl AsRef<Path>) -> Result<Vec<Chunk>, IpcError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
+    let bytes = std::fs::read(path).map_err(|source| IpcError::Io {
         path: path.to_owned(),
         source,
     })?;
@@ -54,10 +54,10 @@ pub const IPC_EXTENSIONS: [&str; 4] = ["arrow", "arrows", "ipc", "feather"];
 /// them. Empty if there are none (the caller decides whether that is an error).
 ///
 /// # Errors
-/// [`IoError::Io`] if the directory cannot be listed.
-pub fn chunk_files(dir: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, IoError> {
+/// [`IpcError::Io`] if the directory cannot be listed.
+pub fn chunk_files(dir: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, IpcError> {
     let dir = dir.as_ref();
-    let io = |source| IoError::Io {
+    let io = |source| IpcError::Io {
         path: dir.to_owned(),
         source,
     };
@@ -78,21 +78,21 @@ pub fn chunk_files(dir: impl AsRef<Path>) -> Result<Vec<std::path::PathBuf>, IoE
 
 /// Decodes the record batches of an Arrow IPC file or stream.
 ///
-/// The framing is checked first ([`IoError::MalformedFraming`]): arrow-ipc allocates
+/// The framing is checked first ([`IpcError::MalformedFraming`]): arrow-ipc allocates
 /// whatever size a message or footer block claims before reading it, so a few hostile
 /// bytes could otherwise request terabytes, which aborts the process.
 ///
 /// arrow-ipc 58 panics on some malformed inputs instead of returning an error (e.g. a
 /// buffer offset past the end of the body, or schema fields it does not expect; see
 /// apache/arrow-rs#10437). Decoding therefore runs under `catch_unwind`, so a bad file
-/// is an [`IoError::DecoderPanicked`] rather than a crash of the embedding process. The
+/// is an [`IpcError::DecoderPanicked`] rather than a crash of the embedding process. The
 /// closure owns only a reader over the caller's bytes, dropped whole on a panic, so no
 /// half-updated state can be observed afterwards. (The process's panic hook still runs
 /// and, by default, prints the message.)
 ///
 /// # Errors
-/// [`IoError::Ipc`] or [`IoError::DecoderPanicked`] if the bytes are not valid Arrow IPC.
-pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IoError> {
+/// [`IpcError::Ipc`] or [`IpcError::DecoderPanicked`] if the bytes are not valid Arrow IPC.
+pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IpcError> {
     check_framing(bytes)?;
     contain_panics(|| {
         if bytes.starts_with(FILE_MAGIC) {
@@ -109,7 +109,7 @@ pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IoError> {
 ///
 /// # Errors
 /// As [`read_batches`].
-pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IoError> {
+pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IpcError> {
     check_stream_messages(buffer.as_slice())?;
     contain_panics(move || {
         let mut buffer = buffer;
@@ -125,20 +125,20 @@ pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>,
     })
 }
 
-/// Runs an arrow-ipc decode, turning a panic into [`IoError::DecoderPanicked`] (see
+/// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] (see
 /// [`read_batches`]).
 fn contain_panics(
     decode: impl FnOnce() -> Result<Vec<RecordBatch>, ArrowError>,
-) -> Result<Vec<RecordBatch>, IoError> {
+) -> Result<Vec<RecordBatch>, IpcError> {
     match std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)) {
-        Ok(batches) => batches.map_err(IoError::Ipc),
+        Ok(batches) => batches.map_err(IpcError::Ipc),
         Err(payload) => {
             let message = payload
                 .downcast_ref::<String>()
                 .cloned()
                 .or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_owned()))
                 .unwrap_or_else(|| "unknown panic".to_owned());
-            Err(IoError::DecoderPanicked { message })
+            Err(IpcError::DecoderPanicked { message })
         }
     }
 }
@@ -146,25 +146,25 @@ fn contain_panics(
 /// Writes one chunk as an Arrow IPC file in the transport layout, its rows in row-id order.
 ///
 /// # Errors
-/// [`IoError::Ipc`] if Arrow fails to encode or write.
-pub fn write_chunk_ipc_file(chunk: &Chunk, writer: impl Write) -> Result<(), IoError> {
+/// [`IpcError::Ipc`] if Arrow fails to encode or write.
+pub fn write_chunk_ipc_file(chunk: &Chunk, writer: impl Write) -> Result<(), IpcError> {
     let batch = export_batch(chunk)?;
-    let mut writer = FileWriter::try_new(writer, &batch.schema()).map_err(IoError::Ipc)?;
-    writer.write(&batch).map_err(IoError::Ipc)?;
-    writer.finish().map_err(IoError::Ipc)
+    let mut writer = FileWriter::try_new(writer, &batch.schema()).map_err(IpcError::Ipc)?;
+    writer.write(&batch).map_err(IpcError::Ipc)?;
+    writer.finish().map_err(IpcError::Ipc)
 }
 
 /// The chunk as it goes into a file: in the transport layout, its rows in row-id order
 /// (Rerun refuses a chunk whose row ids are out of order; see [`Chunk::sorted_by_row_id`]).
-pub(crate) fn export_batch(chunk: &Chunk) -> Result<arrow_array::RecordBatch, IoError> {
+pub(crate) fn export_batch(chunk: &Chunk) -> Result<arrow_array::RecordBatch, IpcError> {
     let sorted = chunk
         .sorted_by_row_id()
-        .map_err(|e| IoError::Ipc(ArrowError::ComputeError(e.to_string())))?;
+        .map_err(|e| IpcError::Ipc(ArrowError::ComputeError(e.to_string())))?;
     sorted
         .as_ref()
         .unwrap_or(chunk)
         .to_record_batch()
-        .map_err(IoError::Ipc)
+        .map_err(IpcError::Ipc)
 }
 
 /// Writes every batch `reader` yields as an Arrow IPC **file** at `path`, atomically: the
@@ -172,17 +172,17 @@ pub(crate) fn export_batch(chunk: &Chunk) -> Result<arrow_array::RecordBatch, Io
 /// number of rows written.
 ///
 /// # Errors
-/// [`IoError::Io`] for the file system, [`IoError::Ipc`] for Arrow (or the reader's own
+/// [`IpcError::Io`] for the file system, [`IpcError::Ipc`] for Arrow (or the reader's own
 /// error).
-pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64, IoError> {
-    let io = |source| IoError::Io {
+pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64, IpcError> {
+    let io = |source| IpcError::Io {
         path: path.to_owned(),
         source,
     };
     // Arrow reports the file system's errors as its own: a full disk is not bad Arrow.
     let written = |error: ArrowError| match error {
         ArrowError::IoError(_, source) => io(source),
-        other => IoError::Ipc(other),
+        other => IpcError::Ipc(other),
     };
     crate::atomic::atomic_write(path, io, |file| {
         let schema = reader.schema();
@@ -190,7 +190,7 @@ pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64
             FileWriter::try_new(std::io::BufWriter::new(file), &schema).map_err(written)?;
         let mut rows = 0;
         for batch in reader {
-            let batch = batch.map_err(IoError::Ipc)?;
+            let batch = batch.map_err(IpcError::Ipc)?;
             rows += batch.num_rows() as u64;
             writer.write(&batch).map_err(written)?;
         }
@@ -208,26 +208,26 @@ pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64
 /// socket, stdout), batch by batch. Returns the number of rows written.
 ///
 /// # Errors
-/// [`IoError::Ipc`] for Arrow, the writer (its I/O errors come wrapped by Arrow) or the
+/// [`IpcError::Ipc`] for Arrow, the writer (its I/O errors come wrapped by Arrow) or the
 /// reader.
 pub fn write_ipc_stream(
     writer: impl Write,
     reader: impl RecordBatchReader,
-) -> Result<u64, IoError> {
-    let mut writer = StreamWriter::try_new(writer, &reader.schema()).map_err(IoError::Ipc)?;
+) -> Result<u64, IpcError> {
+    let mut writer = StreamWriter::try_new(writer, &reader.schema()).map_err(IpcError::Ipc)?;
     let mut rows = 0;
     for batch in reader {
-        let batch = batch.map_err(IoError::Ipc)?;
+        let batch = batch.map_err(IpcError::Ipc)?;
         rows += batch.num_rows() as u64;
-        writer.write(&batch).map_err(IoError::Ipc)?;
+        writer.write(&batch).map_err(IpcError::Ipc)?;
     }
-    writer.finish().map_err(IoError::Ipc)?;
+    writer.finish().map_err(IpcError::Ipc)?;
     Ok(rows)
 }
 
 /// Checks that every size the IPC framing claims fits in `bytes`, so that no decoder
 /// allocation can exceed the input.
-fn check_framing(bytes: &[u8]) -> Result<(), IoError> {
+fn check_framing(bytes: &[u8]) -> Result<(), IpcError> {
     if bytes.starts_with(FILE_MAGIC) {
         check_file_footer(bytes)
     } else {
@@ -241,8 +241,8 @@ fn read_i32_le(bytes: &[u8], at: usize) -> Option<i32> {
     Some(i32::from_le_bytes([four[0], four[1], four[2], four[3]]))
 }
 
-fn malformed(reason: String) -> IoError {
-    IoError::MalformedFraming { reason }
+fn malformed(reason: String) -> IpcError {
+    IpcError::MalformedFraming { reason }
 }
 
 /// Does `start + lengths...` stay within `total`, with no negative part?
@@ -253,7 +253,7 @@ fn fits(total: usize, parts: &[i64]) -> bool {
 
 /// File format: the footer must fit before the trailer, and its dictionary and record
 /// batch blocks (the ones arrow-ipc allocates for) inside the file.
-fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
+fn check_file_footer(bytes: &[u8]) -> Result<(), IpcError> {
     let len = bytes.len();
     let trailer = len
         .checked_sub(FILE_MAGIC.len() + 4)
@@ -295,7 +295,7 @@ fn check_file_footer(bytes: &[u8]) -> Result<(), IoError> {
 }
 
 /// Stream format: each message's metadata and body must lie inside the input.
-fn check_stream_messages(bytes: &[u8]) -> Result<(), IoError> {
+fn check_stream_messages(bytes: &[u8]) -> Result<(), IpcError> {
     let len = bytes.len();
     let mut pos = 0usize;
     while pos < len {
@@ -332,4 +332,63 @@ fn check_stream_messages(bytes: &[u8]) -> Result<(), IoError> {
         pos = meta_end + usize::try_from(body).unwrap_or(usize::MAX);
     }
     Ok(())
+}
+
+/// Reading chunks from Arrow IPC failed.
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum IpcError {
+    /// The file could not be read.
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The bytes are not Arrow IPC (file or stream format).
+    Ipc(ArrowError),
+    /// The IPC framing claims more bytes than the input holds (or negative sizes); rejected
+    /// before decoding, because arrow-ipc would allocate the claimed size first.
+    MalformedFraming {
+        /// What is wrong.
+        reason: String,
+    },
+    /// Arrow's IPC decoder panicked on malformed bytes instead of returning an error (a
+    /// known arrow-ipc weakness); the panic was contained and the input rejected.
+    DecoderPanicked {
+        /// The panic's message.
+        message: String,
+    },
+    /// A batch decoded but is not a valid chunk.
+    Chunk {
+        /// Which batch of the input (0-based).
+        batch: usize,
+        /// Why.
+        source: ChunkError,
+    },
+}
+
+impl fmt::Display for IpcError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Ipc(e) => write!(f, "not Arrow IPC: {e}"),
+            Self::MalformedFraming { reason } => write!(f, "malformed Arrow IPC framing: {reason}"),
+            Self::DecoderPanicked { message } => {
+                write!(f, "malformed Arrow IPC (the decoder panicked: {message})")
+            }
+            Self::Chunk { batch, source } => write!(f, "batch {batch}: {source}"),
+        }
+    }
+}
+
+impl std::error::Error for IpcError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Io { source, .. } => Some(source),
+            Self::Ipc(e) => Some(e),
+            Self::Chunk { source, .. } => Some(source),
+            Self::DecoderPanicked { .. } | Self::MalformedFraming { .. } => None,
+        }
+    }
 }

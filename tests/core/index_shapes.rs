@@ -12,7 +12,7 @@
     reason = "test code: small, non-negative test values, exact in f64"
 )]
 
-mod common;
+use crate::common;
 
 use chunkstore::{
     ChunkStore, GcOptions, GcOrder, GcTarget, LatestAtQuery, RangeQuery, StoreConfig, TimeRange,
@@ -42,7 +42,7 @@ impl Rows {
 /// Every non-null `(time, row id)` the store holds for the component, sorted.
 fn rows_held(store: &ChunkStore) -> Vec<(i64, u128)> {
     let mut rows = Vec::new();
-    for chunk in store.chunks() {
+    for chunk in store.chunks_unordered() {
         let times = chunk.time_column("frame").unwrap().times();
         let column = chunk.component(COMPONENT).unwrap();
         for (row, (&time, row_id)) in times.iter().zip(chunk.row_ids()).enumerate() {

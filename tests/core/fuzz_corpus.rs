@@ -7,12 +7,11 @@
     reason = "the harness asserts with expect, like the fuzz target; a replay fails loudly"
 )]
 
-#[path = "../fuzz/harness/mod.rs"]
-mod harness;
+use crate::harness;
 
 use std::path::{Path, PathBuf};
 
-use chunkstore::IoError;
+use chunkstore::ipc::IpcError;
 
 /// The files of a directory of the repository (but its `README.md`), sorted. A directory
 /// that cannot be read fails the test: a replay of nothing proves nothing.
@@ -69,7 +68,7 @@ fn cli_args_corpus_replays_without_panics() {
 /// What each crash must give now (the root causes are in `tests/fuzz_crashes/README.md`).
 enum Expected {
     /// Decoding the bytes as Arrow IPC gives an error this accepts.
-    Decoding(fn(&Result<Vec<chunkstore::Chunk>, IoError>) -> bool),
+    Decoding(fn(&Result<Vec<chunkstore::Chunk>, IpcError>) -> bool),
     /// The target's harness runs to its end: every one of its checks holds.
     HarnessPasses,
 }
@@ -81,14 +80,14 @@ const CRASHES: &[(&str, &str, Expected)] = &[
     (
         "ipc_insert",
         "ipc_buffer_offset_past_body",
-        Expected::Decoding(|r| matches!(r, Err(IoError::DecoderPanicked { .. }))),
+        Expected::Decoding(|r| matches!(r, Err(IpcError::DecoderPanicked { .. }))),
     ),
     // arrow-ipc would allocate the body size this file's footer claims (far beyond the
     // file); the framing check must reject it first.
     (
         "ipc_insert",
         "ipc_file_block_claims_huge_body",
-        Expected::Decoding(|r| matches!(r, Err(IoError::MalformedFraming { .. }))),
+        Expected::Decoding(|r| matches!(r, Err(IpcError::MalformedFraming { .. }))),
     ),
     // A list of empty structs spanning 202 million values in 856 bytes: a merge's
     // interleave took 3.2 GB of indices. Refused when the chunk is built.
@@ -98,7 +97,7 @@ const CRASHES: &[(&str, &str, Expected)] = &[
         Expected::Decoding(|r| {
             matches!(
                 r,
-                Err(IoError::Chunk {
+                Err(IpcError::Chunk {
                     source: chunkstore::ChunkError::UnbackedValues { .. },
                     ..
                 })
@@ -132,7 +131,7 @@ fn fuzz_crashes_stay_fixed() {
             };
             let bytes = std::fs::read(&file).unwrap();
             if let Expected::Decoding(accepts) = expected {
-                let outcome = chunkstore::io::read_chunks_from_bytes(&bytes);
+                let outcome = chunkstore::ipc::read_chunks_from_bytes(&bytes);
                 assert!(accepts(&outcome), "{target}/{name}: {outcome:?}");
             }
             // The whole harness stays quiet on it (it panics on any broken check).

@@ -8,7 +8,7 @@
     reason = "tests fail loudly on unexpected values; test values are small non-negative integers, exact in f64"
 )]
 
-mod common;
+use crate::common;
 
 use chunkstore::{ChunkStore, LatestAtQuery, RangeQuery, TimeRange};
 use common::*;

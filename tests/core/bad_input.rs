@@ -7,7 +7,7 @@
     reason = "tests fail loudly on unexpected values; test values are small integers, exact in f64"
 )]
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::sync::Arc;

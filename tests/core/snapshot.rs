@@ -27,7 +27,7 @@
     reason = "tests fail loudly; test values are small non-negative integers"
 )]
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::hash::{DefaultHasher, Hash, Hasher};
@@ -444,7 +444,7 @@ fn the_shared_store_publishes_every_write_and_batches_at_once() {
     shared.write(|store| {
         store.subscribe(move |events| sink.lock().unwrap().push(events.len()));
     });
-    shared.drop_entity(&path("a"), false);
+    shared.write(|store| store.drop_entity(&path("a"), false));
     assert!(!seen.lock().unwrap().is_empty());
     assert_eq!(shared.snapshot().stats().num_chunks(), 0);
     assert_eq!(third.stats().num_rows(), 11);
@@ -486,7 +486,7 @@ fn a_version_a_reader_drops_last_is_freed_by_the_writer() {
     let collected = |shared: &SharedStore| {
         let snapshot = shared.snapshot();
         let weak: Vec<_> = snapshot.chunks().iter().map(Arc::downgrade).collect();
-        shared.gc(&GcOptions::everything());
+        shared.write(|store| store.gc(&GcOptions::everything()));
         assert_eq!(shared.snapshot().stats().num_chunks(), 0);
         assert_eq!(
             snapshot.stats().num_chunks(),

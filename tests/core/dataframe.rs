@@ -8,7 +8,7 @@
     reason = "tests fail loudly on unexpected values; test values are small non-negative integers"
 )]
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 
@@ -574,10 +574,10 @@ fn bad_queries_are_named() {
     let error = store.dataframe(&DataframeQuery::new("nope")).unwrap_err();
     assert_eq!(
         error,
-        DataframeError::UnknownIndex {
-            timeline: "nope".to_owned(),
+        DataframeError::UnknownIndex(chunkstore::UnknownTimeline {
+            name: "nope".to_owned(),
             known: vec!["frame".to_owned()]
-        }
+        })
     );
     assert!(error.to_string().contains("unknown timeline \"nope\""));
     assert_eq!(

@@ -85,13 +85,15 @@ impl ChunkStore {
         };
         if chunk.has_rows_without_cells() {
             // A row without cells is in no index: only a scan finds where it is held.
-            let (min, max) = first.time_range();
+            let bounds = first.time_range();
+            let (min, max) = (bounds.min(), bounds.max());
             for id in &entity.chunk_ids {
                 let Some(stored) = self.chunks.get(id) else {
                     continue;
                 };
                 let overlaps = stored.chunk.time_columns().first().is_some_and(|held| {
-                    let (lo, hi) = held.time_range();
+                    let bounds = held.time_range();
+                    let (lo, hi) = (bounds.min(), bounds.max());
                     lo <= max && min <= hi
                 });
                 if overlaps {
