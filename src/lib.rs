@@ -132,6 +132,8 @@ mod export;
 mod gc;
 #[cfg(feature = "parquet")]
 pub mod hive_export;
+#[cfg(feature = "rrd")]
+pub mod hub;
 mod ids;
 mod index;
 mod insert;

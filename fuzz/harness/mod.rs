@@ -14,5 +14,7 @@ pub mod entity_path;
 pub mod ipc_insert;
 #[path = "lifecycle.rs"]
 pub mod lifecycle;
+#[path = "log_msg.rs"]
+pub mod log_msg;
 #[path = "rrd_decode.rs"]
 pub mod rrd_decode;

@@ -34,7 +34,7 @@ impl LatestAtFunction {
     }
 }
 
-fn plan_error(message: &str) -> DataFusionError {
+pub(super) fn plan_error(message: &str) -> DataFusionError {
     DataFusionError::Plan(format!("latest_at: {message}"))
 }
 

@@ -45,6 +45,7 @@ mod integer_times;
 mod latest_at;
 mod pushdown;
 mod scan;
+mod segments;
 mod tables;
 
 use std::sync::Arc;
@@ -56,6 +57,7 @@ use crate::{EntityPathFilter, Snapshot};
 
 pub use latest_at::{LatestAtFunction, asof_join};
 pub use scan::StoreScanExec;
+pub use segments::{SEGMENT_ID_COLUMN, register_segments};
 pub use tables::{ChunksTable, TimelineTable};
 
 /// The name of the table of every stored row.
@@ -93,20 +95,24 @@ pub fn register(ctx: &SessionContext, snapshot: &Snapshot) -> Result<Vec<String>
         "latest_at",
         Arc::new(LatestAtFunction::new(snapshot.clone())),
     );
-    {
-        use datafusion::execution::FunctionRegistry as _;
-        let state = ctx.state_ref();
-        let mut state = state.write();
-        // Once per context, however often a snapshot is registered again.
-        let registered = state
-            .expr_planners()
-            .iter()
-            .any(|planner| format!("{planner:?}") == "IntegerTimes");
-        if !registered {
-            state.register_expr_planner(Arc::new(integer_times::IntegerTimes))?;
-        }
-    }
+    register_expr_planners(ctx)?;
     Ok(names)
+}
+
+/// The planner that lets integers stand for times, once per context however often a
+/// snapshot is registered again.
+fn register_expr_planners(ctx: &SessionContext) -> Result<()> {
+    use datafusion::execution::FunctionRegistry as _;
+    let state = ctx.state_ref();
+    let mut state = state.write();
+    let registered = state
+        .expr_planners()
+        .iter()
+        .any(|planner| format!("{planner:?}") == "IntegerTimes");
+    if !registered {
+        state.register_expr_planner(Arc::new(integer_times::IntegerTimes))?;
+    }
+    Ok(())
 }
 
 /// Registers `table` under exactly `name` (never parsed: a timeline named `a.b` is one

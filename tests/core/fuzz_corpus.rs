@@ -59,6 +59,11 @@ fn rrd_decode_corpus_replays_without_panics() {
     replay_corpus("rrd_decode", harness::rrd_decode::rrd_decode);
 }
 
+#[test]
+fn log_msg_corpus_replays_without_panics() {
+    replay_corpus("log_msg", harness::log_msg::log_msg);
+}
+
 #[cfg(feature = "cli")]
 #[test]
 fn cli_args_corpus_replays_without_panics() {

@@ -2,6 +2,7 @@
 //! operation, and the checks after every step.
 
 use super::*;
+use chunkstore::rrd::{DecodedLogMsg, LogMsg};
 
 /// Row ids unique across the run, in random order: a random high part, a counter low part.
 pub(crate) struct RowIds {
@@ -393,8 +394,9 @@ impl Harness {
         self.insert(model, chunk)
     }
 
-    /// An earlier chunk again: the very chunk, a copy decoded from its transport batch, or
-    /// its rows under a new id.
+    /// An earlier chunk again: the very chunk, a copy decoded from its transport batch, a
+    /// copy sent as a server receives it (a gRPC `LogMsg`, LZ4 or not, decoded), or its
+    /// rows under a new id.
     fn insert_again(&mut self, pick: usize, new_id: bool) -> Result<(), TestCaseError> {
         if self.history.is_empty() {
             return Ok(());
@@ -405,11 +407,28 @@ impl Harness {
         let chunk = if new_id {
             model.id = ChunkId::new();
             Arc::new(model.build())
-        } else if pick.is_multiple_of(2) {
-            chunk
         } else {
-            // A copy decoded from the chunk's transport batch, as a file read again.
-            Arc::new(Chunk::from_record_batch(&chunk.to_record_batch().unwrap()).unwrap())
+            match pick % 4 {
+                0 => chunk,
+                1 | 3 => {
+                    // As a server receives it: an `ArrowMsg` in a `WriteMessagesRequest`.
+                    // Encoding sorts a chunk's rows by row id (as Rerun's format wants), so
+                    // an unsorted chunk comes back as another chunk under its id (SEMANTICS.md
+                    // section 6 refuses it); the model sees what arrived.
+                    let store = chunkstore::rrd::StoreId::recording("model", "test");
+                    let msg = LogMsg::from_chunk(&store, &chunk, pick % 4 == 1).unwrap();
+                    let wire = arrow_buffer::Buffer::from(msg.encode_envelope());
+                    match LogMsg::decode_envelope(&wire).unwrap().decode().unwrap() {
+                        DecodedLogMsg::Chunk { chunk, .. } => {
+                            model = model_chunk_of(&chunk);
+                            Arc::new(chunk)
+                        }
+                        other => return Err(TestCaseError::fail(format!("decoded {other:?}"))),
+                    }
+                }
+                // A copy decoded from the chunk's transport batch, as a file read again.
+                _ => Arc::new(Chunk::from_record_batch(&chunk.to_record_batch().unwrap()).unwrap()),
+            }
         };
         self.insert(model, chunk)
     }

@@ -12,6 +12,8 @@
 //!            [--without-tombstones] [--without-empty-columns] [--out FILE]
 //! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE | --full]
 //! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]]
+//! chunkstore serve [SOURCE]... [--addr HOST:PORT] [--persist FILE.rrd] [--memory-limit BYTES]
+//!            [--read-mode follow|snapshot] [--token TOKEN]
 //! ```
 //!
 //! `chunkstore --help` and `chunkstore <SOURCE> <COMMAND> --help` say the rest. Answers
@@ -23,6 +25,8 @@ mod convert;
 mod dataframe;
 mod load;
 mod output;
+#[cfg(feature = "server")]
+mod serve;
 mod sql;
 mod table;
 
@@ -125,6 +129,23 @@ fn main() -> ExitCode {
             .unwrap_or_default();
         LAST_PANIC.with(|last| *last.borrow_mut() = Some(format!("{message}{place}")));
     }));
+    let args: Vec<OsString> = std::env::args_os().collect();
+    // `chunkstore serve [SOURCE...]`: a command of its own shape (any number of sources,
+    // a long-running process), parsed apart from `chunkstore <SOURCE> <COMMAND>`, and
+    // before the Ctrl-C handler below: the server handles its own signals (it syncs its
+    // log, then stops).
+    if args.get(1).is_some_and(|a| a == "serve") {
+        #[cfg(feature = "server")]
+        return serve::main(&args);
+        #[cfg(not(feature = "server"))]
+        {
+            eprintln!(
+                "error: this chunkstore was built without the server: build it with \
+                 `cargo build --release --features server`"
+            );
+            return ExitCode::from(2);
+        }
+    }
     // Ctrl-C or SIGTERM: the temporary files and directories of outputs being written
     // are removed (the outputs themselves are untouched: they only ever appear whole),
     // then the tool exits as an interrupted program does. A SIGKILL leaves them: see
@@ -134,7 +155,6 @@ fn main() -> ExitCode {
         eprintln!("error: interrupted");
         std::process::exit(130);
     });
-    let args: Vec<OsString> = std::env::args_os().collect();
     let cli = match args::parse(&args) {
         Ok(cli) => cli,
         Err(error) => return usage_error(&error),

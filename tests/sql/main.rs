@@ -25,7 +25,10 @@ use datafusion::physical_plan::{ExecutionPlan, collect};
 use datafusion::prelude::SessionContext;
 use proptest::prelude::*;
 
+#[path = "../common/mod.rs"]
 mod common;
+#[cfg(feature = "server")]
+mod server;
 
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_current_thread()

@@ -1,0 +1,338 @@
+//! Arrow Flight SQL over the hub's recordings: the tables of `chunkstore sql`, stacked
+//! across recordings with `rerun_segment_id` first ([`chunkstore::sql::register_segments`]).
+//! Every query plans and runs on snapshots taken when it starts, so ingest goes on.
+//!
+//! A statement's ticket (and a prepared statement's handle) is its SQL text: the server
+//! keeps no per-query state, and `DoGet` runs the query on the snapshots of that moment.
+//! Flight SQL's metadata calls answer with one catalog (`datafusion`) and one schema
+//! (`public`), DataFusion's defaults, so that qualified names work too.
+
+use std::pin::Pin;
+use std::sync::{Arc, OnceLock};
+
+use arrow_flight::encode::FlightDataEncoderBuilder;
+use arrow_flight::error::FlightError;
+use arrow_flight::sql::metadata::{SqlInfoData, SqlInfoDataBuilder};
+use arrow_flight::sql::server::FlightSqlService;
+use arrow_flight::sql::{
+    ActionClosePreparedStatementRequest, ActionCreatePreparedStatementRequest,
+    ActionCreatePreparedStatementResult, CommandGetCatalogs, CommandGetDbSchemas,
+    CommandGetSqlInfo, CommandGetTables, CommandPreparedStatementQuery, CommandStatementQuery,
+    ProstMessageExt as _, SqlInfo, TicketStatementQuery,
+};
+use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, IpcMessage, SchemaAsIpc, Ticket};
+use arrow_ipc::writer::IpcWriteOptions;
+use arrow_schema::Schema;
+use datafusion::prelude::{SessionConfig, SessionContext};
+use futures::{Stream, TryStreamExt as _};
+use prost::Message as _;
+use tonic::{Request, Response, Status};
+
+use super::ServerState;
+
+const CATALOG: &str = "datafusion";
+const SCHEMA: &str = "public";
+
+type DoGetStream = Pin<Box<dyn Stream<Item = Result<arrow_flight::FlightData, Status>> + Send>>;
+
+/// The Flight SQL service.
+pub struct SqlService {
+    state: Arc<ServerState>,
+}
+
+impl SqlService {
+    pub fn new(state: Arc<ServerState>) -> Self {
+        Self { state }
+    }
+
+    /// A query context over the recordings as they are now.
+    fn session(&self) -> Result<SessionContext, Status> {
+        let ctx =
+            SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
+        let segments: Vec<(String, chunkstore::Snapshot)> = self
+            .state
+            .hub
+            .recordings()
+            .into_iter()
+            .map(|r| (r.info.store_id.recording_id.clone(), r.snapshot))
+            .collect();
+        chunkstore::sql::register_segments(&ctx, &segments).map_err(query_error)?;
+        Ok(ctx)
+    }
+
+    /// The schema `sql`'s answer will have (planned, not run).
+    async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
+        let ctx = self.session()?;
+        let frame = ctx.sql(sql).await.map_err(query_error)?;
+        Ok(frame.schema().as_arrow().clone())
+    }
+
+    /// A flight info whose one endpoint's ticket runs `sql`.
+    async fn statement_info(
+        &self,
+        sql: &str,
+        descriptor: FlightDescriptor,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let schema = self.plan_schema(sql).await?;
+        let ticket = TicketStatementQuery {
+            statement_handle: sql.to_owned().into_bytes().into(),
+        };
+        let endpoint = FlightEndpoint::new().with_ticket(Ticket {
+            ticket: ticket.as_any().encode_to_vec().into(),
+        });
+        let info = FlightInfo::new()
+            .try_with_schema(&schema)
+            .map_err(|e| Status::internal(format!("encoding the schema: {e}")))?
+            .with_endpoint(endpoint)
+            .with_descriptor(descriptor)
+            .with_ordered(true);
+        Ok(Response::new(info))
+    }
+
+    /// Runs `sql` and streams its batches.
+    async fn run(&self, sql: &str) -> Result<Response<DoGetStream>, Status> {
+        let ctx = self.session()?;
+        let frame = ctx.sql(sql).await.map_err(query_error)?;
+        let schema = Arc::new(frame.schema().as_arrow().clone());
+        let batches = frame.execute_stream().await.map_err(query_error)?;
+        let batches = batches.map_err(|e| FlightError::ExternalError(Box::new(e)));
+        let stream = FlightDataEncoderBuilder::new()
+            .with_schema(schema)
+            .build(batches)
+            .map_err(Status::from);
+        Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+/// A query's error as the client sees it: its own mistake (`INVALID_ARGUMENT`), with
+/// DataFusion's message on one line.
+#[expect(clippy::needless_pass_by_value, reason = "the shape `map_err` takes")]
+fn query_error(error: datafusion::error::DataFusionError) -> Status {
+    Status::invalid_argument(error.to_string().replace('\n', " "))
+}
+
+fn sql_info() -> &'static SqlInfoData {
+    static INFO: OnceLock<SqlInfoData> = OnceLock::new();
+    INFO.get_or_init(|| {
+        let mut builder = SqlInfoDataBuilder::new();
+        builder.append(SqlInfo::FlightSqlServerName, "chunkstore");
+        builder.append(SqlInfo::FlightSqlServerVersion, env!("CARGO_PKG_VERSION"));
+        builder.append(SqlInfo::FlightSqlServerArrowVersion, "1.3");
+        builder.append(SqlInfo::FlightSqlServerReadOnly, true);
+        builder.append(SqlInfo::FlightSqlServerSql, true);
+        builder.append(SqlInfo::FlightSqlServerSubstrait, false);
+        builder.append(SqlInfo::FlightSqlServerTransaction, 0i32);
+        builder.append(SqlInfo::FlightSqlServerCancel, false);
+        // The builder only fails on a value type it does not know; these are all known.
+        builder.build().unwrap_or_else(|_| {
+            let mut fallback = SqlInfoDataBuilder::new();
+            fallback.append(SqlInfo::FlightSqlServerName, "chunkstore");
+            #[expect(clippy::expect_used, reason = "a string value always builds")]
+            fallback.build().expect("a server name builds")
+        })
+    })
+}
+
+fn batch_stream(
+    schema: arrow_schema::SchemaRef,
+    batch: Result<arrow_array::RecordBatch, FlightError>,
+) -> Response<DoGetStream> {
+    let stream = FlightDataEncoderBuilder::new()
+        .with_schema(schema)
+        .build(futures::stream::once(async { batch }))
+        .map_err(Status::from);
+    Response::new(Box::pin(stream))
+}
+
+fn metadata_info(
+    schema: &Schema,
+    command: &impl arrow_flight::sql::ProstMessageExt,
+    descriptor: FlightDescriptor,
+) -> Result<Response<FlightInfo>, Status> {
+    let endpoint = FlightEndpoint::new().with_ticket(Ticket {
+        ticket: command.as_any().encode_to_vec().into(),
+    });
+    let info = FlightInfo::new()
+        .try_with_schema(schema)
+        .map_err(|e| Status::internal(format!("encoding the schema: {e}")))?
+        .with_endpoint(endpoint)
+        .with_descriptor(descriptor);
+    Ok(Response::new(info))
+}
+
+fn utf8(bytes: &[u8], what: &str) -> Result<String, Status> {
+    String::from_utf8(bytes.to_vec())
+        .map_err(|_| Status::invalid_argument(format!("{what} is not UTF-8")))
+}
+
+#[tonic::async_trait]
+impl FlightSqlService for SqlService {
+    type FlightService = Self;
+
+    async fn get_flight_info_statement(
+        &self,
+        query: CommandStatementQuery,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        self.statement_info(&query.query, request.into_inner())
+            .await
+    }
+
+    async fn get_flight_info_prepared_statement(
+        &self,
+        query: CommandPreparedStatementQuery,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let sql = utf8(
+            &query.prepared_statement_handle,
+            "the prepared statement handle",
+        )?;
+        self.statement_info(&sql, request.into_inner()).await
+    }
+
+    async fn do_get_statement(
+        &self,
+        ticket: TicketStatementQuery,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let sql = utf8(&ticket.statement_handle, "the statement ticket")?;
+        self.run(&sql).await
+    }
+
+    async fn do_get_prepared_statement(
+        &self,
+        query: CommandPreparedStatementQuery,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let sql = utf8(
+            &query.prepared_statement_handle,
+            "the prepared statement handle",
+        )?;
+        self.run(&sql).await
+    }
+
+    async fn do_action_create_prepared_statement(
+        &self,
+        query: ActionCreatePreparedStatementRequest,
+        _request: Request<arrow_flight::Action>,
+    ) -> Result<ActionCreatePreparedStatementResult, Status> {
+        let schema = self.plan_schema(&query.query).await?;
+        let IpcMessage(dataset_schema) = SchemaAsIpc::new(&schema, &IpcWriteOptions::default())
+            .try_into()
+            .map_err(|e: arrow_schema::ArrowError| {
+                Status::internal(format!("encoding the schema: {e}"))
+            })?;
+        Ok(ActionCreatePreparedStatementResult {
+            prepared_statement_handle: query.query.into_bytes().into(),
+            dataset_schema,
+            parameter_schema: bytes::Bytes::default(),
+        })
+    }
+
+    async fn do_action_close_prepared_statement(
+        &self,
+        _query: ActionClosePreparedStatementRequest,
+        _request: Request<arrow_flight::Action>,
+    ) -> Result<(), Status> {
+        // Nothing is kept per statement.
+        Ok(())
+    }
+
+    async fn get_flight_info_sql_info(
+        &self,
+        query: CommandGetSqlInfo,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let schema = query.clone().into_builder(sql_info()).schema();
+        metadata_info(&schema, &query, request.into_inner())
+    }
+
+    async fn do_get_sql_info(
+        &self,
+        query: CommandGetSqlInfo,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let builder = query.into_builder(sql_info());
+        Ok(batch_stream(builder.schema(), builder.build()))
+    }
+
+    async fn get_flight_info_catalogs(
+        &self,
+        query: CommandGetCatalogs,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let schema = query.into_builder().schema();
+        metadata_info(&schema, &query, request.into_inner())
+    }
+
+    async fn do_get_catalogs(
+        &self,
+        query: CommandGetCatalogs,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let mut builder = query.into_builder();
+        builder.append(CATALOG);
+        Ok(batch_stream(builder.schema(), builder.build()))
+    }
+
+    async fn get_flight_info_schemas(
+        &self,
+        query: CommandGetDbSchemas,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let schema = query.clone().into_builder().schema();
+        metadata_info(&schema, &query, request.into_inner())
+    }
+
+    async fn do_get_schemas(
+        &self,
+        query: CommandGetDbSchemas,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let mut builder = query.into_builder();
+        builder.append(CATALOG, SCHEMA);
+        Ok(batch_stream(builder.schema(), builder.build()))
+    }
+
+    async fn get_flight_info_tables(
+        &self,
+        query: CommandGetTables,
+        request: Request<FlightDescriptor>,
+    ) -> Result<Response<FlightInfo>, Status> {
+        let schema = query.clone().into_builder().schema();
+        metadata_info(&schema, &query, request.into_inner())
+    }
+
+    async fn do_get_tables(
+        &self,
+        query: CommandGetTables,
+        _request: Request<Ticket>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let ctx = self.session()?;
+        let include_schema = query.include_schema;
+        let mut builder = query.into_builder();
+        let names = ctx
+            .catalog(CATALOG)
+            .and_then(|c| c.schema(SCHEMA))
+            .map(|s| s.table_names())
+            .unwrap_or_default();
+        let mut names = names;
+        names.sort();
+        for name in names {
+            let schema = if include_schema {
+                match ctx.table_provider(name.as_str()).await {
+                    Ok(table) => table.schema().as_ref().clone(),
+                    Err(_) => Schema::empty(),
+                }
+            } else {
+                Schema::empty()
+            };
+            builder
+                .append(CATALOG, SCHEMA, &name, "TABLE", &schema)
+                .map_err(Status::from)?;
+        }
+        Ok(batch_stream(builder.schema(), builder.build()))
+    }
+
+    async fn register_sql_info(&self, _id: i32, _result: &SqlInfo) {}
+}

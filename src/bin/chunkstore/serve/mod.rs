@@ -1,0 +1,405 @@
+//! `chunkstore serve`: Rerun's gRPC log protocol in ([`proxy`]), Arrow Flight SQL out
+//! ([`flight`]), on one port, over a [`StoreHub`]; with `--persist`, an append-only `.rrd`
+//! log that every acknowledged message is in ([`persist`]). `docs/SERVER.md` is the
+//! user's page.
+
+mod flight;
+mod persist;
+mod proxy;
+
+use std::ffi::OsString;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use chunkstore::StoreConfig;
+use chunkstore::hub::StoreHub;
+use chunkstore::rrd::LogMsg;
+use clap::{Parser, ValueEnum};
+use tokio::sync::{Semaphore, broadcast};
+
+const SERVE_EXAMPLES: &str = "\
+Examples:
+  chunkstore serve
+  chunkstore serve robot.rrd --persist live.rrd --memory-limit 2GiB
+  chunkstore serve --addr 0.0.0.0:9876 --token s3cret
+
+Log into it from Rerun's SDK (Python):
+  rr.init(\"robot\"); rr.connect_grpc(\"rerun+http://127.0.0.1:9876/proxy\")
+Query it with Flight SQL (ADBC, Python):
+  adbc_driver_flightsql.dbapi.connect(\"grpc://127.0.0.1:9876\")
+Save what it holds with Rerun's CLI (with --read-mode snapshot, which ends the read):
+  rerun --save out.rrd --connect rerun+http://127.0.0.1:9876/proxy
+
+A token (--token) protects every call: Flight SQL clients send it as
+`authorization: Bearer TOKEN`. Rerun's SDK cannot send one, so a token-protected server
+takes no logging from it: use a token for a server that only answers queries (of
+preloaded SOURCEs or a --persist log), or keep the default loopback address.";
+
+/// Serve recordings live: Rerun SDKs log into it (Rerun's gRPC proxy protocol) and SQL
+/// clients query it (Arrow Flight SQL), on one port.
+#[derive(Parser, Debug)]
+#[command(name = "chunkstore serve", version, after_help = SERVE_EXAMPLES)]
+pub struct ServeArgs {
+    /// Recordings to load before listening: `.rrd` files or directories of Arrow IPC
+    /// chunk files. They are served, not written to the --persist log.
+    pub sources: Vec<PathBuf>,
+    /// Address to listen on (`:0` picks a free port; the line printed on start says
+    /// which).
+    #[arg(long, default_value = "127.0.0.1:9876")]
+    pub addr: SocketAddr,
+    /// Append every accepted message to this `.rrd` file before acknowledging it, and
+    /// read it back on start (a file Rerun wrote works too).
+    #[arg(long, value_name = "FILE.rrd")]
+    pub persist: Option<PathBuf>,
+    /// Keep the process near this size (e.g. 512MiB, 2GB): the stores get three quarters
+    /// of it, and garbage collection drops their oldest rows first, keeping the latest of
+    /// each column and all static data.
+    #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
+    pub memory_limit: Option<u64>,
+    /// What a reader (`ReadMessages`: viewers, `rerun --connect`) gets: the history, then
+    /// live messages (follow), or the history alone (snapshot).
+    #[arg(long, value_enum, default_value_t = ReadMode::Follow)]
+    pub read_mode: ReadMode,
+    /// Require `authorization: Bearer TOKEN` on every call (see below).
+    #[arg(long, value_name = "TOKEN")]
+    pub token: Option<String>,
+    /// Most log streams open at once; more are refused (`RESOURCE_EXHAUSTED`).
+    #[arg(long, value_name = "N", default_value_t = 256)]
+    pub max_write_streams: usize,
+    /// Largest message accepted (an image chunk can be many megabytes).
+    #[arg(long, value_name = "BYTES", value_parser = parse_bytes, default_value = "1GiB")]
+    pub max_message_bytes: u64,
+}
+
+/// What `ReadMessages` sends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ReadMode {
+    /// The history, then live messages until the client goes.
+    Follow,
+    /// The history, then the end of the stream.
+    Snapshot,
+}
+
+/// Parses a byte count: an integer, optionally followed by B, KB, MB, GB, TB (powers of
+/// 1000) or KiB, MiB, GiB, TiB (powers of 1024).
+pub fn parse_bytes(text: &str) -> Result<u64, String> {
+    let text = text.trim();
+    let split = text
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(text.len());
+    let (number, unit) = text.split_at(split);
+    let number: u64 = number
+        .parse()
+        .map_err(|_| format!("{text:?} is not a byte count (such as 512MiB or 2GB)"))?;
+    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "kb" => 1_000,
+        "mb" => 1_000_000,
+        "gb" => 1_000_000_000,
+        "tb" => 1_000_000_000_000,
+        "kib" => 1 << 10,
+        "mib" => 1 << 20,
+        "gib" => 1 << 30,
+        "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "{other:?} is not a byte unit (B, KB, MB, GB, TB, KiB, MiB, GiB, TiB)"
+            ));
+        }
+    };
+    number
+        .checked_mul(scale)
+        .ok_or_else(|| format!("{text:?} is too large"))
+}
+
+/// How many live messages a reader may fall behind the writers before it is dropped.
+const LIVE_BACKLOG: usize = 1024;
+
+/// HTTP/2 flow-control windows: bytes a client may send ahead, per stream and per
+/// connection (what the server may hold per client before its store does).
+const STREAM_WINDOW: u32 = 2 << 20;
+const CONNECTION_WINDOW: u32 = 8 << 20;
+
+/// The stores' share of `--memory-limit`, which bounds the process: the rest is for the
+/// server's buffers (HTTP/2 windows, messages in flight, live readers' backlog), the query
+/// engine and the allocator's slack.
+fn store_budget(limit: u64) -> u64 {
+    limit - limit / 4
+}
+
+/// What every RPC handler shares.
+pub struct ServerState {
+    pub hub: StoreHub,
+    pub live: broadcast::Sender<(u64, LogMsg)>,
+    pub persist: Option<Arc<persist::PersistLog>>,
+    pub memory_limit: Option<u64>,
+    pub read_mode: ReadMode,
+    pub write_slots: Arc<Semaphore>,
+    pub max_message_bytes: usize,
+    /// Message bytes ingested since the memory was last measured.
+    bytes_since_check: AtomicU64,
+    /// A garbage collection is under way.
+    collecting: AtomicBool,
+    /// A log rewrite is under way.
+    rewriting: AtomicBool,
+}
+
+impl ServerState {
+    /// After a message of `len` bytes: measure the stores now and then (every
+    /// 1/32 of the limit ingested), collect garbage when over the limit, and rewrite the
+    /// log once it holds much more than the stores.
+    pub fn after_ingest(self: &Arc<Self>, len: usize) {
+        let Some(limit) = self.memory_limit else {
+            return;
+        };
+        let since = self
+            .bytes_since_check
+            .fetch_add(len as u64, Ordering::Relaxed)
+            + len as u64;
+        if since < (limit / 32).max(1) {
+            return;
+        }
+        self.bytes_since_check.store(0, Ordering::Relaxed);
+        // One collection at a time: two streams crossing the limit together would each
+        // collect the whole excess.
+        let budget = store_budget(limit);
+        if self.hub.heap_bytes() > budget && !self.collecting.swap(true, Ordering::AcqRel) {
+            self.hub.collect_garbage(budget);
+            self.collecting.store(false, Ordering::Release);
+        }
+        if let Some(log) = &self.persist
+            && log.len() > limit.saturating_mul(4).max(64 << 20)
+            && !self.rewriting.swap(true, Ordering::AcqRel)
+        {
+            let state = Arc::clone(self);
+            let log = Arc::clone(log);
+            std::thread::spawn(move || {
+                match log.rewrite(&state.hub) {
+                    Ok((before, after)) => eprintln!(
+                        "rewrote {}: {before} bytes to {after} (what the stores hold)",
+                        log.path().display()
+                    ),
+                    Err(e) => eprintln!("warning: rewriting {}: {e}", log.path().display()),
+                }
+                state.rewriting.store(false, Ordering::Release);
+            });
+        }
+    }
+}
+
+/// `chunkstore serve ...`: `args` are the whole command line (program name first).
+pub fn main(args: &[OsString]) -> ExitCode {
+    let mut command_line: Vec<OsString> = vec![OsString::from("chunkstore serve")];
+    command_line.extend(args.iter().skip(2).cloned());
+    let parsed = match ServeArgs::try_parse_from(&command_line) {
+        Ok(parsed) => parsed,
+        Err(error) => return crate::usage_error(&error),
+    };
+    match run(&parsed) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {}", crate::one_line(&message));
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(args: &ServeArgs) -> Result<(), String> {
+    let max_message_bytes = usize::try_from(args.max_message_bytes)
+        .map_err(|_| "--max-message-bytes is too large for this machine".to_owned())?;
+    if args.max_write_streams == 0 {
+        return Err("--max-write-streams must be at least 1".to_owned());
+    }
+    if args.token.as_deref() == Some("") {
+        return Err("--token must not be empty".to_owned());
+    }
+    let (live, _) = broadcast::channel(LIVE_BACKLOG);
+    let persist = match &args.persist {
+        Some(path) => Some(Arc::new(persist::PersistLog::create_or_append(path)?)),
+        None => None,
+    };
+    let listener_log = persist.clone();
+    let listener_live = live.clone();
+    let hub = StoreHub::with_listener(
+        StoreConfig::DEFAULT,
+        Box::new(move |seq, msg: &LogMsg| {
+            if let Some(log) = &listener_log {
+                log.append(seq, msg).map_err(|e| e.to_string())?;
+            }
+            // No reader listening is no error.
+            let _ = listener_live.send((seq, msg.clone()));
+            Ok(())
+        }),
+    )
+    .map_err(|e| e.to_string())?;
+    for source in &args.sources {
+        preload(&hub, source)?;
+    }
+    if let Some(log) = &persist {
+        let report = log.replay_into(&hub);
+        if report.messages > 0 || report.skipped > 0 {
+            eprintln!(
+                "read {} messages back from {}{}",
+                report.messages,
+                log.path().display(),
+                if report.skipped > 0 {
+                    format!(" ({} skipped)", report.skipped)
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    if let Some(limit) = args.memory_limit {
+        hub.collect_garbage(store_budget(limit));
+    }
+    if args.token.is_none() && !args.addr.ip().is_loopback() {
+        eprintln!(
+            "warning: listening on {} without --token: anyone who reaches this address can \
+             read and write every recording",
+            args.addr
+        );
+    }
+    let state = Arc::new(ServerState {
+        hub,
+        live,
+        persist,
+        memory_limit: args.memory_limit,
+        read_mode: args.read_mode,
+        write_slots: Arc::new(Semaphore::new(args.max_write_streams)),
+        max_message_bytes,
+        bytes_since_check: AtomicU64::new(0),
+        collecting: AtomicBool::new(false),
+        rewriting: AtomicBool::new(false),
+    });
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the server's runtime: {e}"))?;
+    runtime.block_on(serve(state, args.addr, args.token.clone()))
+}
+
+/// Loads one SOURCE into the hub: an `.rrd` file message by message (every recording and
+/// blueprint it holds), a chunk directory or IPC file as one recording.
+fn preload(hub: &StoreHub, source: &std::path::Path) -> Result<(), String> {
+    use chunkstore::recording::{LoadedRecording, OpenOptions, SourceKind};
+    let kind = SourceKind::detect(source).map_err(|e| e.to_string())?;
+    if kind == SourceKind::Rrd {
+        let bytes = std::fs::read(source).map_err(|e| crate::about_path(source, e))?;
+        let scan = chunkstore::rrd::scan_log(&arrow_buffer::Buffer::from(bytes));
+        if let Some(fault) = &scan.fault {
+            return Err(crate::about_path(source, fault));
+        }
+        for (i, msg) in scan.messages.into_iter().enumerate() {
+            hub.restore(&msg)
+                .map_err(|e| crate::about_path(source, format!("message {i}: {e}")))?;
+        }
+        return Ok(());
+    }
+    let loaded = LoadedRecording::load(source, &OpenOptions::default(), &mut ())
+        .map_err(|e| crate::about_path(source, e))?;
+    let info = loaded.store_info.clone().unwrap_or_else(|| {
+        let name = source
+            .file_name()
+            .map_or_else(|| "chunks".to_owned(), |n| n.to_string_lossy().into_owned());
+        chunkstore::rrd::StoreInfo::new(chunkstore::rrd::StoreId::recording("chunkstore", name))
+    });
+    hub.adopt(info, loaded.store)
+        .map_err(|e| crate::about_path(source, e))
+}
+
+async fn serve(
+    state: Arc<ServerState>,
+    addr: SocketAddr,
+    token: Option<String>,
+) -> Result<(), String> {
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|e| format!("listening on {addr}: {e}"))?;
+    let local = listener
+        .local_addr()
+        .map_err(|e| format!("listening on {addr}: {e}"))?;
+    println!("listening on rerun+http://{local}/proxy");
+    eprintln!("Flight SQL on grpc://{local}");
+    // The line above is how a script learns the port: make sure it is out.
+    {
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+    }
+    if let Some(log) = state.persist.clone() {
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            loop {
+                tick.tick().await;
+                let log = Arc::clone(&log);
+                let synced = tokio::task::spawn_blocking(move || log.sync_if_dirty()).await;
+                if let Ok(Err(e)) = synced {
+                    eprintln!("warning: syncing the log: {e}");
+                }
+            }
+        });
+    }
+    let auth = proxy::BearerCheck::new(token);
+    let proxy_service = tonic::service::interceptor::InterceptedService::new(
+        proxy::ProxyService::new(Arc::clone(&state)),
+        auth.clone(),
+    );
+    let flight_service = tonic::service::interceptor::InterceptedService::new(
+        arrow_flight::flight_service_server::FlightServiceServer::new(flight::SqlService::new(
+            Arc::clone(&state),
+        ))
+        .max_decoding_message_size(state.max_message_bytes)
+        .max_encoding_message_size(usize::MAX),
+        auth,
+    );
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let shutdown = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut terminate) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = terminate.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    };
+    // HTTP/2's default flow-control windows (64 KiB) let a client send one window, then
+    // wait a round trip for more: an SDK streaming 60 kB chunks ran at a third of its
+    // speed. Large windows let it stream; a write stream still holds one message at a time.
+    let served = tonic::transport::Server::builder()
+        .tcp_nodelay(true)
+        .initial_stream_window_size(Some(STREAM_WINDOW))
+        .initial_connection_window_size(Some(CONNECTION_WINDOW))
+        .add_service(proxy_service)
+        .add_service(flight_service)
+        .serve_with_incoming_shutdown(incoming, shutdown)
+        .await;
+    if let Some(log) = &state.persist {
+        log.sync()
+            .map_err(|e| format!("{}: {e}", log.path().display()))?;
+    }
+    served.map_err(|e| format!("serving on {local}: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_bytes;
+
+    #[test]
+    fn byte_counts_parse_with_units() {
+        assert_eq!(parse_bytes("0"), Ok(0));
+        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
+        assert_eq!(parse_bytes("2GB"), Ok(2_000_000_000));
+        assert_eq!(parse_bytes("7 kib"), Ok(7 << 10));
+        assert!(parse_bytes("MiB").is_err());
+        assert!(parse_bytes("5 parsecs").is_err());
+        assert!(parse_bytes("99999999999TiB").is_err());
+    }
+}

@@ -1,0 +1,298 @@
+//! Rerun's `rerun.sdk_comms.v1alpha1.MessageProxyService` over tonic, written out by hand:
+//! its two messages are the envelope `{ LogMsg log_msg = 1; }` that
+//! [`LogMsg::decode_envelope`] reads, so the codec passes bytes and the library decodes
+//! them (no generated code, no `protoc`).
+//!
+//! - `WriteMessages` (client streaming): each message is decoded and applied in turn; the
+//!   first bad one ends the stream with `INVALID_ARGUMENT` naming it (the earlier ones
+//!   stay); the response comes only once every message is in the store and, with
+//!   `--persist`, synced to disk.
+//! - `ReadMessages` (server streaming): the history ([`StoreHub::replay`]), then, in
+//!   follow mode, every message accepted after it.
+//! - `WriteTable` and `ReadTables` answer `UNIMPLEMENTED`.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+
+use arrow_buffer::Buffer;
+use bytes::{Buf as _, BufMut as _};
+use chunkstore::hub::IngestError;
+use chunkstore::rrd::LogMsg;
+use tokio::sync::broadcast::error::RecvError;
+use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
+use tonic::codegen::{BoxFuture, Service, http};
+use tonic::server::{Grpc, NamedService};
+use tonic::{Request, Response, Status, Streaming};
+
+use super::{ReadMode, ServerState};
+
+const SERVICE: &str = "rerun.sdk_comms.v1alpha1.MessageProxyService";
+
+/// Passes message bytes through: requests arrive as [`Buffer`]s (no copy past tonic's
+/// own), responses leave as encoded bytes.
+#[derive(Clone, Copy, Default)]
+struct RawCodec;
+
+struct RawEncoder;
+struct RawDecoder;
+
+impl Codec for RawCodec {
+    type Encode = Vec<u8>;
+    type Decode = Buffer;
+    type Encoder = RawEncoder;
+    type Decoder = RawDecoder;
+
+    fn encoder(&mut self) -> Self::Encoder {
+        RawEncoder
+    }
+
+    fn decoder(&mut self) -> Self::Decoder {
+        RawDecoder
+    }
+}
+
+impl Encoder for RawEncoder {
+    type Item = Vec<u8>;
+    type Error = Status;
+
+    fn encode(&mut self, item: Vec<u8>, dst: &mut EncodeBuf<'_>) -> Result<(), Status> {
+        dst.put_slice(&item);
+        Ok(())
+    }
+}
+
+impl Decoder for RawDecoder {
+    type Item = Buffer;
+    type Error = Status;
+
+    fn decode(&mut self, src: &mut DecodeBuf<'_>) -> Result<Option<Buffer>, Status> {
+        Ok(Some(Buffer::from(src.copy_to_bytes(src.remaining()))))
+    }
+}
+
+/// The service: routes the proxy's four methods.
+#[derive(Clone)]
+pub struct ProxyService {
+    state: Arc<ServerState>,
+}
+
+impl ProxyService {
+    pub fn new(state: Arc<ServerState>) -> Self {
+        Self { state }
+    }
+}
+
+impl NamedService for ProxyService {
+    const NAME: &'static str = SERVICE;
+}
+
+impl<B> Service<http::Request<B>> for ProxyService
+where
+    B: tonic::codegen::Body + Send + 'static,
+    B::Error: Into<Box<dyn std::error::Error + Send + Sync>> + Send + 'static,
+{
+    type Response = http::Response<tonic::body::Body>;
+    type Error = Infallible;
+    type Future = BoxFuture<Self::Response, Self::Error>;
+
+    fn poll_ready(&mut self, _cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, request: http::Request<B>) -> Self::Future {
+        let state = Arc::clone(&self.state);
+        let limit = state.max_message_bytes;
+        match request.uri().path().strip_prefix(&format!("/{SERVICE}/")) {
+            Some("WriteMessages") => Box::pin(async move {
+                let mut grpc = Grpc::new(RawCodec)
+                    .max_decoding_message_size(limit)
+                    .max_encoding_message_size(usize::MAX);
+                Ok(grpc
+                    .client_streaming(WriteMessages { state }, request)
+                    .await)
+            }),
+            Some("ReadMessages") => Box::pin(async move {
+                let mut grpc = Grpc::new(RawCodec)
+                    .max_decoding_message_size(limit)
+                    .max_encoding_message_size(usize::MAX);
+                Ok(grpc.server_streaming(ReadMessages { state }, request).await)
+            }),
+            Some(method) => {
+                let status =
+                    Status::unimplemented(format!("{SERVICE}/{method} is not served here"));
+                Box::pin(async move { Ok(status.into_http()) })
+            }
+            None => {
+                let status = Status::unimplemented("unknown service");
+                Box::pin(async move { Ok(status.into_http()) })
+            }
+        }
+    }
+}
+
+struct WriteMessages {
+    state: Arc<ServerState>,
+}
+
+impl tonic::server::ClientStreamingService<Buffer> for WriteMessages {
+    type Response = Vec<u8>;
+    type Future = BoxFuture<Response<Vec<u8>>, Status>;
+
+    fn call(&mut self, request: Request<Streaming<Buffer>>) -> Self::Future {
+        let state = Arc::clone(&self.state);
+        Box::pin(write_messages(state, request.into_inner()))
+    }
+}
+
+/// The status a refused message ends its stream with.
+fn refused(index: u64, error: &IngestError) -> Status {
+    let text = format!("message {index} of this stream: {error}");
+    match error {
+        IngestError::Listener(_) => Status::internal(text),
+        _ => Status::invalid_argument(text),
+    }
+}
+
+async fn write_messages(
+    state: Arc<ServerState>,
+    mut stream: Streaming<Buffer>,
+) -> Result<Response<Vec<u8>>, Status> {
+    let Ok(_slot) = Arc::clone(&state.write_slots).try_acquire_owned() else {
+        return Err(Status::resource_exhausted(
+            "too many log streams open at once (--max-write-streams)",
+        ));
+    };
+    let mut index = 0u64;
+    while let Some(bytes) = stream.message().await? {
+        let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
+            Status::invalid_argument(format!("message {index} of this stream: {e}"))
+        })?;
+        let len = msg.body().len();
+        // Decoding a chunk (LZ4, Arrow IPC, validation) and inserting it is CPU work of
+        // well under a millisecond for the SDK's chunks: done on this worker thread, as
+        // other streams are on the others (handing the thread over per message, with
+        // `block_in_place`, cost more than the work).
+        state.hub.ingest(&msg).map_err(|e| refused(index, &e))?;
+        state.after_ingest(len);
+        index += 1;
+    }
+    if let Some(log) = state.persist.clone() {
+        tokio::task::spawn_blocking(move || log.sync())
+            .await
+            .map_err(|e| Status::internal(format!("syncing the log: {e}")))?
+            .map_err(|e| Status::internal(format!("syncing the log: {e}")))?;
+    }
+    // `WriteMessagesResponse {}`: no fields.
+    Ok(Response::new(Vec::new()))
+}
+
+struct ReadMessages {
+    state: Arc<ServerState>,
+}
+
+type MessageStream = tokio_stream::wrappers::ReceiverStream<Result<Vec<u8>, Status>>;
+
+impl tonic::server::ServerStreamingService<Buffer> for ReadMessages {
+    type Response = Vec<u8>;
+    type ResponseStream = MessageStream;
+    type Future = BoxFuture<Response<MessageStream>, Status>;
+
+    fn call(&mut self, _request: Request<Buffer>) -> Self::Future {
+        let state = Arc::clone(&self.state);
+        Box::pin(async move { Ok(Response::new(read_messages(&state))) })
+    }
+}
+
+/// The history, then (follow mode) the live messages, through a channel a task fills.
+fn read_messages(state: &Arc<ServerState>) -> MessageStream {
+    let (tx, rx) = tokio::sync::mpsc::channel(16);
+    // Subscribe before taking the history: a message accepted in between arrives both
+    // ways and is sent once (by sequence number).
+    let mut live = state.live.subscribe();
+    let replay = state.hub.replay();
+    let follow = state.read_mode == ReadMode::Follow;
+    tokio::spawn(async move {
+        let history_seq = replay.seq;
+        let history_tx = tx.clone();
+        let sent = tokio::task::spawn_blocking(move || {
+            for msg in replay.into_messages() {
+                let item = msg
+                    .map(|m| m.encode_envelope())
+                    .map_err(|e| Status::internal(format!("encoding the history: {e}")));
+                if history_tx.blocking_send(item).is_err() {
+                    return false;
+                }
+            }
+            true
+        })
+        .await
+        .unwrap_or(false);
+        if !sent || !follow {
+            return;
+        }
+        loop {
+            match live.recv().await {
+                Ok((seq, msg)) if seq > history_seq => {
+                    if tx.send(Ok(msg.encode_envelope())).await.is_err() {
+                        return;
+                    }
+                }
+                Ok(_) => {}
+                Err(RecvError::Lagged(n)) => {
+                    let _ = tx
+                        .send(Err(Status::data_loss(format!(
+                            "this reader fell {n} messages behind the writers and was \
+                             dropped; reconnect to read the history again"
+                        ))))
+                        .await;
+                    return;
+                }
+                Err(RecvError::Closed) => return,
+            }
+        }
+    });
+    MessageStream::new(rx)
+}
+
+/// `--token`: every call must carry `authorization: Bearer TOKEN`.
+#[derive(Clone)]
+pub struct BearerCheck {
+    expected: Option<Arc<str>>,
+}
+
+impl BearerCheck {
+    pub fn new(token: Option<String>) -> Self {
+        Self {
+            expected: token.map(|t| Arc::from(format!("Bearer {t}"))),
+        }
+    }
+}
+
+impl tonic::service::Interceptor for BearerCheck {
+    fn call(&mut self, request: Request<()>) -> Result<Request<()>, Status> {
+        let Some(expected) = &self.expected else {
+            return Ok(request);
+        };
+        let given = request
+            .metadata()
+            .get("authorization")
+            .and_then(|v| v.to_str().ok());
+        // Compared in constant time: the token is a secret.
+        let matches = given.is_some_and(|given| {
+            given.len() == expected.len()
+                && given
+                    .bytes()
+                    .zip(expected.bytes())
+                    .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+                    == 0
+        });
+        if matches {
+            Ok(request)
+        } else {
+            Err(Status::unauthenticated(
+                "this server needs `authorization: Bearer TOKEN` (its --token)",
+            ))
+        }
+    }
+}

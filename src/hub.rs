@@ -1,0 +1,634 @@
+//! [`StoreHub`]: several stores side by side, keyed by store id, fed one Rerun log message
+//! ([`LogMsg`]) at a time, and replayed as log messages: what a server that SDKs log into
+//! needs, with no I/O of its own (the server in `src/bin/chunkstore/serve/` brings the
+//! network and the disk).
+//!
+//! - Each recording (a `StoreKind::Recording` store id) gets its own [`SharedStore`], so
+//!   readers query snapshots while writers go on.
+//! - Blueprint messages (a viewer's layout) are kept apart, as they came, and never enter a
+//!   store: they are replayed, never queried.
+//! - Every accepted message gets the next sequence number, and the hub's listener sees it
+//!   under the hub's lock, so whoever listens (a log file, live readers) sees messages in
+//!   one order; [`StoreHub::replay`] says up to which number its history goes, so that a
+//!   reader can join history and live messages without a gap or a repeat.
+
+use std::sync::Arc;
+
+use parking_lot::Mutex;
+
+use crate::rrd::{DecodedLogMsg, LogMsg, RrdError, StoreId, StoreInfo, StoreKind};
+use crate::sanity::{Structure, ensure};
+use crate::{
+    Chunk, ChunkStore, ConfigError, GcOptions, InsertError, SanityError, SharedStore, Snapshot,
+    StoreConfig,
+};
+
+/// What the hub's listener is told of each accepted message: its sequence number and the
+/// message. An error refuses to acknowledge the message (the caller's
+/// [`StoreHub::ingest`] returns it), though the store already holds it.
+pub type HubListener = Box<dyn Fn(u64, &LogMsg) -> Result<(), String> + Send + Sync>;
+
+/// Several recordings and their blueprints, fed log messages. See the module docs.
+///
+/// ```
+/// # use std::sync::Arc;
+/// # use arrow_array::{ArrayRef, Float64Array};
+/// use chunkstore::*;
+/// use chunkstore::hub::StoreHub;
+/// use chunkstore::rrd::{LogMsg, StoreId, StoreInfo};
+/// let hub = StoreHub::new(StoreConfig::DEFAULT)?;
+/// let id = StoreId::recording("app", "run-1");
+/// hub.ingest(&LogMsg::from_store_info(&StoreInfo::new(id.clone())))?;
+/// let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/arm")?)
+///     .with_row(RowId::new(), [(Timeline::sequence("frame"), 1)],
+///               [("torque", Arc::new(Float64Array::from(vec![0.5])) as ArrayRef)])
+///     .build()?;
+/// hub.ingest(&LogMsg::from_chunk(&id, &chunk, true)?)?;
+///
+/// let recordings = hub.recordings();
+/// assert_eq!(recordings.len(), 1);
+/// assert_eq!(recordings[0].snapshot.stats().num_rows(), 1);
+/// // The history as messages: the store info, then the chunk.
+/// let replay: Vec<LogMsg> = hub.replay().into_messages().collect::<Result<_, _>>()?;
+/// assert_eq!(replay.len(), 2);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct StoreHub {
+    config: StoreConfig,
+    state: Mutex<HubState>,
+    listener: Option<HubListener>,
+}
+
+#[derive(Default)]
+struct HubState {
+    /// In order of arrival.
+    recordings: Vec<HubEntry>,
+    by_id: ahash::HashMap<StoreId, usize>,
+    /// Every blueprint message, in order of arrival.
+    blueprints: Vec<LogMsg>,
+    blueprint_bytes: u64,
+    /// Stores whose store info said they are not recordings.
+    non_recordings: ahash::HashSet<StoreId>,
+    /// The last sequence number given out.
+    seq: u64,
+}
+
+struct HubEntry {
+    info: StoreInfo,
+    /// The `SetStoreInfo` that announced it (replayed as it came), or one made up when a
+    /// chunk came first.
+    info_msg: LogMsg,
+    store: SharedStore,
+}
+
+/// One recording the hub holds, as of a moment.
+#[derive(Clone)]
+#[non_exhaustive]
+pub struct HubRecording {
+    /// Its store info.
+    pub info: StoreInfo,
+    /// Its contents, as of the call.
+    pub snapshot: Snapshot,
+}
+
+/// Why a message was not accepted. The hub is unchanged, except for
+/// [`IngestError::Listener`].
+#[derive(Debug)]
+#[non_exhaustive]
+pub enum IngestError {
+    /// The message does not decode (malformed protobuf, a corrupt payload, a batch that
+    /// is not a valid chunk).
+    Decode(RrdError),
+    /// The store refused the chunk (a timeline or component type conflict).
+    Insert(Box<InsertError>),
+    /// The message was stored, but the listener failed (a log file could not be written):
+    /// it must not be acknowledged.
+    Listener(String),
+}
+
+impl std::fmt::Display for IngestError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Decode(e) => write!(f, "message does not decode: {e}"),
+            Self::Insert(e) => write!(f, "chunk refused: {e}"),
+            Self::Listener(e) => write!(f, "message stored but not persisted: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for IngestError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Decode(e) => Some(e),
+            Self::Insert(e) => Some(e.as_ref()),
+            Self::Listener(_) => None,
+        }
+    }
+}
+
+/// What one garbage collection across the hub did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct HubGcOutcome {
+    /// Heap bytes of the stores before.
+    pub bytes_before: u64,
+    /// Heap bytes of the stores after.
+    pub bytes_after: u64,
+    /// Chunks dropped.
+    pub chunks_dropped: usize,
+}
+
+impl StoreHub {
+    /// An empty hub whose stores use `config`.
+    ///
+    /// # Errors
+    /// If `config` is not one a store takes.
+    pub fn new(config: StoreConfig) -> Result<Self, ConfigError> {
+        ChunkStore::with_config(config)?;
+        Ok(Self {
+            config,
+            state: Mutex::new(HubState::default()),
+            listener: None,
+        })
+    }
+
+    /// An empty hub that calls `listener` with every accepted message, in order, under
+    /// the hub's lock (keep it quick: a buffered write, a channel send).
+    ///
+    /// # Errors
+    /// If `config` is not one a store takes.
+    pub fn with_listener(config: StoreConfig, listener: HubListener) -> Result<Self, ConfigError> {
+        Ok(Self {
+            listener: Some(listener),
+            ..Self::new(config)?
+        })
+    }
+
+    /// Decodes `msg` (outside the hub's lock: several callers decode at once), then
+    /// applies it: a store info opens a recording (a second one for the same store is
+    /// accepted and changes nothing: Rerun's SDK sends it twice), a chunk goes into its
+    /// recording's store (opened with a default store info if the chunk came first),
+    /// blueprint messages are kept apart. Returns the message's sequence number.
+    ///
+    /// # Errors
+    /// See [`IngestError`]; the hub is then unchanged, but for a listener's failure.
+    pub fn ingest(&self, msg: &LogMsg) -> Result<u64, IngestError> {
+        let decoded = msg.decode().map_err(IngestError::Decode)?;
+        self.apply(msg, decoded)
+    }
+
+    /// Applies `msg` without telling the listener: for history the listener has already
+    /// (a log read back at start) or must not get (files loaded before serving).
+    ///
+    /// # Errors
+    /// As [`StoreHub::ingest`].
+    pub fn restore(&self, msg: &LogMsg) -> Result<u64, IngestError> {
+        let decoded = msg.decode().map_err(IngestError::Decode)?;
+        self.apply_inner(msg, decoded, false)
+    }
+
+    /// Adds a whole loaded recording (say, from a chunk directory), without telling the
+    /// listener. A recording of the same id gets `store`'s chunks inserted.
+    ///
+    /// # Errors
+    /// As [`ChunkStore::insert`], for a recording of the same id; the hub's earlier
+    /// chunks stay.
+    pub fn adopt(&self, info: StoreInfo, store: ChunkStore) -> Result<(), IngestError> {
+        let mut state = self.state.lock();
+        if let Some(&index) = state.by_id.get(&info.store_id) {
+            let chunks: Vec<Arc<Chunk>> = store.chunks_unordered().cloned().collect();
+            state.recordings[index]
+                .store
+                .insert_batch(chunks)
+                .map_err(|e| IngestError::Insert(Box::new(e)))?;
+            return Ok(());
+        }
+        let index = state.recordings.len();
+        state.by_id.insert(info.store_id.clone(), index);
+        let info_msg = LogMsg::from_store_info(&info);
+        state.recordings.push(HubEntry {
+            info,
+            info_msg,
+            store: SharedStore::new(store),
+        });
+        Ok(())
+    }
+
+    /// Applies a message decoded by the caller ([`LogMsg::decode`] of `msg`), for a caller
+    /// that decodes on threads of its own. As [`StoreHub::ingest`] otherwise.
+    ///
+    /// # Errors
+    /// See [`IngestError`].
+    pub fn apply(&self, msg: &LogMsg, decoded: DecodedLogMsg) -> Result<u64, IngestError> {
+        self.apply_inner(msg, decoded, true)
+    }
+
+    fn apply_inner(
+        &self,
+        msg: &LogMsg,
+        decoded: DecodedLogMsg,
+        announce: bool,
+    ) -> Result<u64, IngestError> {
+        let mut state = self.state.lock();
+        match decoded {
+            DecodedLogMsg::StoreInfo(info) => {
+                if info.store_id.kind == StoreKind::Recording {
+                    if !state.by_id.contains_key(&info.store_id) {
+                        state.open(info, msg.clone(), &self.config);
+                    }
+                } else {
+                    state.non_recordings.insert(info.store_id.clone());
+                    state.keep_blueprint(msg);
+                }
+            }
+            DecodedLogMsg::Chunk { store_id, chunk } => {
+                if state.non_recordings.contains(&store_id) {
+                    state.keep_blueprint(msg);
+                } else {
+                    let index = if let Some(&index) = state.by_id.get(&store_id) {
+                        index
+                    } else {
+                        let info = StoreInfo::new(store_id);
+                        let info_msg = LogMsg::from_store_info(&info);
+                        state.open(info, info_msg, &self.config)
+                    };
+                    state.recordings[index]
+                        .store
+                        .insert(Arc::new(chunk))
+                        .map_err(|e| IngestError::Insert(Box::new(e)))?;
+                }
+            }
+            _ => state.keep_blueprint(msg),
+        }
+        state.seq += 1;
+        let seq = state.seq;
+        if let Some(listener) = self.listener.as_ref().filter(|_| announce) {
+            listener(seq, msg).map_err(IngestError::Listener)?;
+        }
+        Ok(seq)
+    }
+
+    /// Every recording, in order of arrival, each as a snapshot of now.
+    pub fn recordings(&self) -> Vec<HubRecording> {
+        let state = self.state.lock();
+        state
+            .recordings
+            .iter()
+            .map(|entry| HubRecording {
+                info: entry.info.clone(),
+                snapshot: entry.store.snapshot(),
+            })
+            .collect()
+    }
+
+    /// The store of one recording, to write to directly (GC, compaction).
+    pub fn store(&self, store_id: &StoreId) -> Option<SharedStore> {
+        let state = self.state.lock();
+        let index = *state.by_id.get(store_id)?;
+        Some(state.recordings[index].store.clone())
+    }
+
+    /// The sequence number of the last accepted message (0 before the first).
+    pub fn last_seq(&self) -> u64 {
+        self.state.lock().seq
+    }
+
+    /// Everything held, as of now: see [`HubReplay`].
+    pub fn replay(&self) -> HubReplay {
+        let state = self.state.lock();
+        let mut infos = Vec::new();
+        let mut static_chunks = Vec::new();
+        let mut temporal_chunks = Vec::new();
+        for entry in &state.recordings {
+            infos.push(entry.info_msg.clone());
+            let snapshot = entry.store.snapshot();
+            for chunk in snapshot.view().chunks() {
+                let chunk = &chunk;
+                let chunks = if chunk.is_static() {
+                    &mut static_chunks
+                } else {
+                    &mut temporal_chunks
+                };
+                chunks.push((entry.info.store_id.clone(), Arc::clone(chunk)));
+            }
+        }
+        HubReplay {
+            seq: state.seq,
+            infos,
+            blueprints: state.blueprints.clone(),
+            chunks: static_chunks.into_iter().chain(temporal_chunks).collect(),
+        }
+    }
+
+    /// Heap bytes held: every recording's store, and the blueprint messages.
+    pub fn heap_bytes(&self) -> u64 {
+        let state = self.state.lock();
+        state.blueprint_bytes
+            + state
+                .recordings
+                .iter()
+                .map(|entry| entry.store.snapshot().stats().heap_bytes)
+                .sum::<u64>()
+    }
+
+    /// Brings the recordings' heap under `limit` bytes if it is over: every recording
+    /// gives up the same fraction of its heap, oldest rows first (in a live stream, the
+    /// data furthest from the newest), keeping the latest chunk of every (entity,
+    /// timeline, component) and all static data, so that latest-at at the newest time
+    /// answers as before. It aims a tenth under the limit, so that a stream just over it
+    /// does not collect on every message. Blueprints are never collected.
+    pub fn collect_garbage(&self, limit: u64) -> HubGcOutcome {
+        let stores: Vec<SharedStore> = {
+            let state = self.state.lock();
+            state.recordings.iter().map(|e| e.store.clone()).collect()
+        };
+        let bytes_of = |stores: &[SharedStore]| {
+            stores
+                .iter()
+                .map(|s| s.snapshot().stats().heap_bytes)
+                .sum::<u64>()
+        };
+        let before = bytes_of(&stores);
+        let mut outcome = HubGcOutcome {
+            bytes_before: before,
+            bytes_after: before,
+            chunks_dropped: 0,
+        };
+        if before <= limit || before == 0 {
+            return outcome;
+        }
+        let target = limit - limit / 10;
+        #[expect(clippy::cast_precision_loss, reason = "a fraction of heap bytes")]
+        let fraction = ((before - target) as f64 / before as f64).clamp(f64::MIN_POSITIVE, 1.0);
+        let Ok(options) = GcOptions::drop_at_least_fraction(fraction) else {
+            return outcome;
+        };
+        for store in &stores {
+            let events = store.write(|s: &mut ChunkStore| s.gc(&options));
+            outcome.chunks_dropped += events.len();
+        }
+        outcome.bytes_after = bytes_of(&stores);
+        outcome
+    }
+
+    /// Checks the hub's own invariants (its index of recordings, its blueprint figure)
+    /// and every recording's store.
+    ///
+    /// # Errors
+    /// The first broken invariant: a bug in this crate.
+    pub fn sanity_check(&self) -> Result<(), SanityError> {
+        let state = self.state.lock();
+        ensure(
+            state.by_id.len() == state.recordings.len(),
+            Structure::Store,
+            "the hub indexes each recording once",
+        )?;
+        for (index, entry) in state.recordings.iter().enumerate() {
+            ensure(
+                state.by_id.get(&entry.info.store_id) == Some(&index),
+                Structure::Store,
+                "the hub's index points at the recording of that id",
+            )?;
+            ensure(
+                entry.info.store_id.kind == StoreKind::Recording,
+                Structure::Store,
+                "the hub's stores are recordings",
+            )?;
+            entry.store.write(|s: &mut ChunkStore| s.sanity_check())?;
+        }
+        ensure(
+            state.blueprint_bytes
+                == state
+                    .blueprints
+                    .iter()
+                    .map(|m| m.body().len() as u64)
+                    .sum::<u64>(),
+            Structure::Stats,
+            "the hub's blueprint bytes are the sum of its blueprint messages",
+        )
+    }
+}
+
+impl HubState {
+    fn open(&mut self, info: StoreInfo, info_msg: LogMsg, config: &StoreConfig) -> usize {
+        let index = self.recordings.len();
+        self.by_id.insert(info.store_id.clone(), index);
+        self.recordings.push(HubEntry {
+            info,
+            info_msg,
+            // `StoreHub::new` checked the configuration.
+            store: SharedStore::new(
+                ChunkStore::with_config(*config).unwrap_or_else(|_| ChunkStore::new()),
+            ),
+        });
+        index
+    }
+
+    fn keep_blueprint(&mut self, msg: &LogMsg) {
+        self.blueprint_bytes += msg.body().len() as u64;
+        self.blueprints.push(msg.clone());
+    }
+}
+
+/// Everything a hub held at one moment, to send as log messages: each recording's store
+/// info, then the blueprint messages as they came, then every static chunk, then every
+/// temporal chunk (a reader that shows data as it arrives has static data before it is
+/// needed). Chunks are those of the stores as they are, compacted and collected, not the
+/// messages that brought them.
+pub struct HubReplay {
+    /// The sequence number of the last message the history includes: a live message with
+    /// a greater number comes after it.
+    pub seq: u64,
+    infos: Vec<LogMsg>,
+    blueprints: Vec<LogMsg>,
+    chunks: Vec<(StoreId, Arc<Chunk>)>,
+}
+
+impl HubReplay {
+    /// The number of messages [`HubReplay::into_messages`] yields.
+    pub fn len(&self) -> usize {
+        self.infos.len() + self.blueprints.len() + self.chunks.len()
+    }
+
+    /// Whether there is nothing to replay.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The messages, chunks encoded (LZ4-compressed, as the SDK sends them) one at a time
+    /// as the iterator is advanced.
+    pub fn into_messages(self) -> impl Iterator<Item = Result<LogMsg, RrdError>> + Send {
+        self.infos.into_iter().chain(self.blueprints).map(Ok).chain(
+            self.chunks
+                .into_iter()
+                .map(|(store_id, chunk)| LogMsg::from_chunk(&store_id, &chunk, true)),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rrd::LogMsgKind;
+    use crate::{ChunkBuilder, ChunkId, EntityPath, RowId, Timeline};
+    use arrow_array::{ArrayRef, Float64Array};
+
+    fn chunk(entity: &str, frame: i64, value: f64) -> Chunk {
+        ChunkBuilder::new(ChunkId::new(), EntityPath::parse(entity).unwrap())
+            .with_row(
+                RowId::new(),
+                [(Timeline::sequence("frame"), frame)],
+                [("x", Arc::new(Float64Array::from(vec![value])) as ArrayRef)],
+            )
+            .build()
+            .unwrap()
+    }
+
+    #[test]
+    fn recordings_stay_apart_and_blueprints_never_become_data() {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let listener_seen = Arc::clone(&seen);
+        let hub = StoreHub::with_listener(
+            StoreConfig::DEFAULT,
+            Box::new(move |seq, msg: &LogMsg| {
+                listener_seen.lock().push((seq, msg.kind()));
+                Ok(())
+            }),
+        )
+        .unwrap();
+        let a = StoreId::recording("app", "a");
+        let b = StoreId::recording("app", "b");
+        let mut bp = StoreId::recording("app", "layout");
+        bp.kind = StoreKind::Blueprint;
+        for id in [&a, &a, &b, &bp] {
+            hub.ingest(&LogMsg::from_store_info(&StoreInfo::new(id.clone())))
+                .unwrap();
+        }
+        hub.ingest(&LogMsg::from_chunk(&a, &chunk("/x", 1, 1.0), true).unwrap())
+            .unwrap();
+        hub.ingest(&LogMsg::from_chunk(&b, &chunk("/y", 1, 2.0), false).unwrap())
+            .unwrap();
+        hub.ingest(&LogMsg::from_chunk(&bp, &chunk("/view", 1, 3.0), true).unwrap())
+            .unwrap();
+        // A chunk before its store info opens the recording.
+        let c = StoreId::recording("app", "c");
+        hub.ingest(&LogMsg::from_chunk(&c, &chunk("/z", 5, 4.0), true).unwrap())
+            .unwrap();
+
+        let recordings = hub.recordings();
+        let ids: Vec<_> = recordings
+            .iter()
+            .map(|r| r.info.store_id.recording_id.as_str())
+            .collect();
+        assert_eq!(ids, ["a", "b", "c"]);
+        assert!(
+            recordings
+                .iter()
+                .all(|r| r.snapshot.stats().num_rows() == 1)
+        );
+        assert_eq!(hub.last_seq(), 8);
+        let seqs: Vec<u64> = seen.lock().iter().map(|(s, _)| *s).collect();
+        assert_eq!(seqs, (1..=8).collect::<Vec<_>>());
+        hub.sanity_check().unwrap();
+
+        // Replay: 3 store infos, 2 blueprint messages, 3 chunks; the blueprint chunk as
+        // it came.
+        let replay = hub.replay();
+        assert_eq!(replay.seq, 8);
+        assert_eq!(replay.len(), 8);
+        let kinds: Vec<LogMsgKind> = replay.into_messages().map(|m| m.unwrap().kind()).collect();
+        assert_eq!(
+            kinds,
+            [
+                LogMsgKind::SetStoreInfo,
+                LogMsgKind::SetStoreInfo,
+                LogMsgKind::SetStoreInfo,
+                LogMsgKind::SetStoreInfo,
+                LogMsgKind::ArrowMsg,
+                LogMsgKind::ArrowMsg,
+                LogMsgKind::ArrowMsg,
+                LogMsgKind::ArrowMsg,
+            ]
+        );
+    }
+
+    #[test]
+    fn a_refused_message_changes_nothing_and_a_replay_rebuilds_the_hub() {
+        let hub = StoreHub::new(StoreConfig::DEFAULT).unwrap();
+        let a = StoreId::recording("app", "a");
+        hub.ingest(&LogMsg::from_chunk(&a, &chunk("/x", 1, 1.0), true).unwrap())
+            .unwrap();
+        // The same component as another type: refused by the store.
+        let strings = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/x").unwrap())
+            .with_row(
+                RowId::new(),
+                [(Timeline::sequence("frame"), 2)],
+                [(
+                    "x",
+                    Arc::new(arrow_array::StringArray::from(vec!["no"])) as ArrayRef,
+                )],
+            )
+            .build()
+            .unwrap();
+        let err = hub
+            .ingest(&LogMsg::from_chunk(&a, &strings, true).unwrap())
+            .unwrap_err();
+        assert!(matches!(err, IngestError::Insert(_)), "{err}");
+        // Garbage.
+        let err = hub
+            .ingest(&LogMsg::new(
+                LogMsgKind::ArrowMsg,
+                arrow_buffer::Buffer::from(vec![0xff, 0xff]),
+            ))
+            .unwrap_err();
+        assert!(matches!(err, IngestError::Decode(_)), "{err}");
+        assert_eq!(hub.last_seq(), 1);
+        assert_eq!(hub.recordings()[0].snapshot.stats().num_rows(), 1);
+
+        // Replaying into a new hub gives the same contents.
+        let copy = StoreHub::new(StoreConfig::DEFAULT).unwrap();
+        for msg in hub.replay().into_messages() {
+            copy.ingest(&msg.unwrap()).unwrap();
+        }
+        let (one, two) = (&hub.recordings()[0], &copy.recordings()[0]);
+        assert_eq!(one.info.store_id, two.info.store_id);
+        assert_eq!(
+            one.snapshot.stats().num_rows(),
+            two.snapshot.stats().num_rows()
+        );
+        copy.sanity_check().unwrap();
+    }
+
+    #[test]
+    fn garbage_collection_brings_the_heap_under_the_limit_and_keeps_the_latest() {
+        let hub = StoreHub::new(StoreConfig::DEFAULT).unwrap();
+        let a = StoreId::recording("app", "a");
+        for frame in 0..200 {
+            let values: Vec<f64> = (0..1000).map(f64::from).collect();
+            let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/x").unwrap())
+                .with_row(
+                    RowId::new(),
+                    [(Timeline::sequence("frame"), frame)],
+                    [("x", Arc::new(Float64Array::from(values)) as ArrayRef)],
+                )
+                .build()
+                .unwrap();
+            hub.ingest(&LogMsg::from_chunk(&a, &chunk, true).unwrap())
+                .unwrap();
+        }
+        let before = hub.heap_bytes();
+        let limit = before / 4;
+        let outcome = hub.collect_garbage(limit);
+        assert!(outcome.chunks_dropped > 0);
+        assert!(outcome.bytes_after <= limit, "{outcome:?} over {limit}");
+        assert_eq!(hub.heap_bytes(), outcome.bytes_after);
+        // The newest row is still there.
+        let snapshot = &hub.recordings()[0].snapshot;
+        let frame = snapshot.view().time_range("frame");
+        assert_eq!(frame.map(|r| r.max().as_i64()), Some(199));
+        hub.sanity_check().unwrap();
+        // Under the limit: nothing to do.
+        let again = hub.collect_garbage(limit);
+        assert_eq!(again.chunks_dropped, 0);
+    }
+}

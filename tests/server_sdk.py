@@ -1,0 +1,264 @@
+"""`chunkstore serve` against the real clients: Rerun 0.41's Python SDK and `rerun` CLI, and
+ADBC's Flight SQL driver. Run by `.ci/run` (which installs them in a venv):
+
+    python tests/server_sdk.py path/to/chunkstore
+
+Each check starts its own server on a free port and kills it (SIGKILL) at the end. The
+`rerun` binary writes under $HOME: this script points HOME at a temporary directory.
+"""
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import adbc_driver_flightsql.dbapi as flight_sql
+import numpy as np
+import pyarrow as pa
+import pyarrow.ipc as ipc
+import rerun as rr
+
+CHUNKSTORE = os.path.abspath(sys.argv[1])
+WORK = tempfile.mkdtemp(prefix="chunkstore-server-sdk-")
+os.environ["HOME"] = os.path.join(WORK, "home")
+os.makedirs(os.environ["HOME"], exist_ok=True)
+RERUN = shutil.which("rerun") or os.path.join(os.path.dirname(sys.executable), "rerun")
+
+
+SERVERS = []
+
+
+class Server:
+    """`chunkstore serve ARGS`, its URL read from the line it prints; killed at exit if a
+    check failed before killing it."""
+
+    def __init__(self, *args):
+        SERVERS.append(self)
+        self.stderr_path = os.path.join(WORK, f"server-{time.monotonic_ns()}.err")
+        self.proc = subprocess.Popen(
+            [CHUNKSTORE, "serve", "--addr", "127.0.0.1:0", *args],
+            stdout=subprocess.PIPE,
+            stderr=open(self.stderr_path, "w"),
+            text=True,
+        )
+        line = self.proc.stdout.readline().strip()
+        assert line.startswith("listening on rerun+http://"), (line, self.stderr())
+        self.proxy = line.removeprefix("listening on ")
+        self.host = self.proxy.removeprefix("rerun+http://").removesuffix("/proxy")
+        self.flight = f"grpc://{self.host}"
+
+    def stderr(self):
+        with open(self.stderr_path) as f:
+            return f.read()
+
+    def kill(self):
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait()
+
+    def sql(self, query):
+        with flight_sql.connect(self.flight) as conn, conn.cursor() as cur:
+            cur.execute(query)
+            return cur.fetch_arrow_table()
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def chunkstore_sql(source, query):
+    """The same query on a file, through the crate's own CLI (as an Arrow IPC file)."""
+    out = os.path.join(WORK, f"answer-{time.monotonic_ns()}.arrow")
+    subprocess.run([CHUNKSTORE, source, "sql", query, "--out", out], check=True)
+    with ipc.open_file(out) as reader:
+        return reader.read_all()
+
+
+def same(a: pa.Table, b: pa.Table, what):
+    a = a.combine_chunks()
+    b = b.combine_chunks()
+    assert a.column_names == b.column_names, (what, a.column_names, b.column_names)
+    assert a.num_rows == b.num_rows, (what, a.num_rows, b.num_rows)
+    for name in a.column_names:
+        assert a[name].equals(b[name]), (what, name, a[name].slice(0, 5), b[name].slice(0, 5))
+
+
+def log_scene(rec):
+    """Several entities and timelines, static data, a recursive Clear, frames out of
+    order, and an image above tonic's 4 MiB default message limit."""
+    rec.log("world/points", rr.Points3D(np.arange(30, dtype=np.float32).reshape(10, 3)), static=True)
+    rec.log("robot/name", rr.TextDocument("arm"), static=True)
+    frames = list(range(60)) + [10, 5, 70, 65]
+    for i, frame in enumerate(frames):
+        rec.set_time("frame", sequence=frame)
+        rec.set_time("sim_time", duration=frame * 0.01)
+        rec.log("robot/arm/torque", rr.Scalars(float(i)))
+        rec.log("robot/leg", rr.Points2D([[i, frame]]))
+    rec.set_time("frame", sequence=30)
+    rec.log("robot", rr.Clear(recursive=True))
+    rec.set_time("frame", sequence=80)
+    rec.log("camera/image", rr.Image(np.full((1200, 1200, 4), 7, dtype=np.uint8)))
+
+
+def check_tee_equals_server():
+    log = os.path.join(WORK, "live.rrd")
+    tee = os.path.join(WORK, "tee.rrd")
+    server = Server("--persist", log, "--read-mode", "snapshot")
+    rec = rr.RecordingStream("chunkstore_test", recording_id="tee")
+    rec.set_sinks(rr.GrpcSink(server.proxy), rr.FileSink(tee))
+    log_scene(rec)
+    rec.disconnect()
+
+    # The tee file is a good recording (Rerun's own check), and what the crate reads from
+    # it equals what the server answers through ADBC, table by table.
+    subprocess.run([RERUN, "rrd", "verify", tee], check=True, capture_output=True)
+    queries = {
+        "frame": "SELECT * FROM frame ORDER BY frame",
+        "sim_time": "SELECT * FROM sim_time ORDER BY sim_time",
+        "chunks": "SELECT entity_path, row_id, frame FROM chunks ORDER BY row_id",
+    }
+    for table, query in queries.items():
+        served = server.sql(query)
+        if table != "chunks":  # `*`: the segment column first
+            assert served.column_names[0] == "rerun_segment_id", served.column_names
+            assert set(served["rerun_segment_id"].to_pylist()) == {"tee"}, table
+            served = served.drop_columns(["rerun_segment_id"])
+        same(served, chunkstore_sql(tee, query), table)
+    assert server.sql("SELECT count(*) AS n FROM frame")["n"][0].as_py() > 60
+
+    # What a viewer reads back (`rerun --save` ends once the snapshot stream ends) is a
+    # good recording with the same contents.
+    saved = os.path.join(WORK, "saved.rrd")
+    subprocess.run(
+        [RERUN, "--save", saved, "--bind", "127.0.0.1", "--port", str(free_port()), "--connect", server.proxy],
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
+    subprocess.run([RERUN, "rrd", "verify", saved], check=True, capture_output=True)
+    for query in ["SELECT * FROM frame ORDER BY frame", "SELECT entity_path, row_id FROM chunks ORDER BY row_id"]:
+        same(chunkstore_sql(saved, query), chunkstore_sql(tee, query), "saved: " + query)
+
+    # Killed and restarted on its log: the same answers.
+    before = server.sql("SELECT * FROM frame ORDER BY frame")
+    server.kill()
+    again = Server("--persist", log)
+    same(again.sql("SELECT * FROM frame ORDER BY frame"), before, "after restart")
+    again.kill()
+
+    # `--persist` of a file Rerun wrote (the tee, with its footer): read back, appended to
+    # in a new stream, and still a file Rerun reads.
+    rerun_file = os.path.join(WORK, "rerun_written.rrd")
+    shutil.copy(tee, rerun_file)
+    on_rerun_file = Server("--persist", rerun_file)
+    same(on_rerun_file.sql("SELECT * FROM frame ORDER BY frame"), before, "persist of Rerun's file")
+    more = rr.RecordingStream("chunkstore_test", recording_id="more")
+    more.set_sinks(rr.GrpcSink(on_rerun_file.proxy))
+    more.set_time("frame", sequence=1)
+    more.log("extra", rr.Scalars(1.0))
+    more.disconnect()
+    on_rerun_file.kill()
+    subprocess.run([RERUN, "rrd", "verify", "--check-footers", "false", rerun_file], check=True, capture_output=True)
+    reread = Server("--persist", rerun_file)
+    segments = reread.sql("SELECT DISTINCT rerun_segment_id AS s FROM frame ORDER BY s")["s"].to_pylist()
+    assert segments == ["more", "tee"], segments
+    reread.kill()
+    print("tee, ADBC, rerun --save, restart and --persist of Rerun's file agree")
+
+
+CLIENT = r"""
+import sys, rerun as rr
+url, rid, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+rec = rr.RecordingStream("chunkstore_test", recording_id=rid)
+rec.set_sinks(rr.GrpcSink(url))
+for i in range(n):
+    rec.set_time("frame", sequence=i)
+    rec.log("value", rr.Scalars(float(i)))
+rec.disconnect()
+"""
+
+
+def check_many_writers_and_readers():
+    server = Server()
+    script = os.path.join(WORK, "client.py")
+    with open(script, "w") as f:
+        f.write(CLIENT)
+    rows = 3000
+    clients = [
+        subprocess.Popen([sys.executable, script, server.proxy, f"client-{i}", str(rows)])
+        for i in range(4)
+    ]
+    queries = 0
+    while any(c.poll() is None for c in clients):
+        # Readers query throughout; no query may fail (a table may not exist yet).
+        try:
+            server.sql("SELECT rerun_segment_id, count(*) FROM frame GROUP BY 1")
+        except Exception as e:  # noqa: BLE001 - only "no such table yet" is allowed
+            assert "frame" in str(e) and "not found" in str(e), e
+        queries += 1
+    for c in clients:
+        assert c.wait() == 0
+    counts = server.sql("SELECT rerun_segment_id AS s, count(*) AS n FROM frame GROUP BY 1 ORDER BY 1")
+    assert counts["s"].to_pylist() == [f"client-{i}" for i in range(4)], counts
+    assert counts["n"].to_pylist() == [rows] * 4, counts
+    server.kill()
+    print(f"4 writers x {rows} rows all arrived; {queries} queries meanwhile, none failed")
+
+
+KILLED_CLIENT = r"""
+import sys, rerun as rr
+url, acked = sys.argv[1], sys.argv[2]
+for batch in range(1000):
+    rec = rr.RecordingStream("chunkstore_test", recording_id="killed")
+    rec.set_sinks(rr.GrpcSink(url))
+    for i in range(100):
+        rec.set_time("frame", sequence=batch * 100 + i)
+        rec.log("value", rr.Scalars(float(i)))
+    rec.disconnect()  # returns once the server acknowledged the stream
+    with open(acked, "a") as f:
+        f.write(f"{batch}\n")
+"""
+
+
+def check_kill_during_ingest():
+    log = os.path.join(WORK, "killed.rrd")
+    acked = os.path.join(WORK, "acked.txt")
+    server = Server("--persist", log)
+    script = os.path.join(WORK, "killed_client.py")
+    with open(script, "w") as f:
+        f.write(KILLED_CLIENT)
+    client = subprocess.Popen([sys.executable, script, server.proxy, acked], stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        if os.path.exists(acked) and len(open(acked).read().split()) >= 5:
+            break
+        time.sleep(0.05)
+    server.kill()  # mid-stream, most likely
+    client.kill()
+    client.wait()
+    batches = [int(b) for b in open(acked).read().split()]
+    assert batches, "no stream was acknowledged"
+    restarted = Server("--persist", log)
+    frames = set(restarted.sql("SELECT frame FROM frame")["frame"].to_pylist())
+    for batch in batches:
+        missing = [f for f in range(batch * 100, batch * 100 + 100) if f not in frames]
+        assert not missing, f"acknowledged batch {batch} lost frames {missing[:5]}"
+    restarted.kill()
+    print(f"killed mid-ingest: all {len(batches)} acknowledged streams were back after restart")
+
+
+if __name__ == "__main__":
+    try:
+        check_tee_equals_server()
+        check_many_writers_and_readers()
+        check_kill_during_ingest()
+    finally:
+        for server in SERVERS:
+            if server.proc.poll() is None:
+                server.kill()
+        shutil.rmtree(WORK, ignore_errors=True)

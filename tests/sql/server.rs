@@ -1,0 +1,487 @@
+//! `chunkstore serve` (feature `server`), driven as a user drives it: the built binary on a
+//! free loopback port, Rerun's proxy protocol written by a raw gRPC client (the bytes an
+//! SDK sends), Arrow Flight SQL read by arrow-flight's client. What the real Rerun SDK and
+//! ADBC do against it is `tests/server_sdk.py`'s part (run by `.ci/run`).
+
+use std::io::{BufRead as _, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+use arrow_array::{Array, Int64Array, RecordBatch, StringArray};
+use arrow_flight::sql::client::FlightSqlServiceClient;
+use bytes::{Buf as _, BufMut as _};
+use chunkstore::rrd::{LogMsg, StoreId, StoreInfo, StoreKind};
+use futures::TryStreamExt as _;
+use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
+use tonic::transport::Channel;
+
+use super::common;
+
+const WRITE: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/WriteMessages";
+const READ: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/ReadMessages";
+
+/// The server, killed (SIGKILL) when dropped.
+struct Server {
+    child: Child,
+    url: String,
+    stderr: PathBuf,
+}
+
+impl Server {
+    fn start(dir: &Path, args: &[&str]) -> Self {
+        let stderr = dir.join(format!("stderr-{}.txt", chunkstore::RowId::new().as_u128()));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+            .arg("serve")
+            .args(["--addr", "127.0.0.1:0"])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let host = line
+            .trim()
+            .strip_prefix("listening on rerun+http://")
+            .and_then(|rest| rest.strip_suffix("/proxy"))
+            .unwrap_or_else(|| {
+                panic!(
+                    "first line {line:?}; stderr: {}",
+                    std::fs::read_to_string(&stderr).unwrap_or_default()
+                )
+            })
+            .to_owned();
+        Self {
+            child,
+            url: format!("http://{host}"),
+            stderr,
+        }
+    }
+
+    fn stderr(&self) -> String {
+        std::fs::read_to_string(&self.stderr).unwrap_or_default()
+    }
+
+    async fn channel(&self) -> Channel {
+        Channel::from_shared(self.url.clone())
+            .unwrap()
+            .connect()
+            .await
+            .unwrap()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[derive(Clone, Copy, Default)]
+struct Raw;
+struct RawEncoder;
+struct RawDecoder;
+
+impl Codec for Raw {
+    type Encode = Vec<u8>;
+    type Decode = Vec<u8>;
+    type Encoder = RawEncoder;
+    type Decoder = RawDecoder;
+    fn encoder(&mut self) -> RawEncoder {
+        RawEncoder
+    }
+    fn decoder(&mut self) -> RawDecoder {
+        RawDecoder
+    }
+}
+
+impl Encoder for RawEncoder {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+    fn encode(&mut self, item: Vec<u8>, dst: &mut EncodeBuf<'_>) -> Result<(), tonic::Status> {
+        dst.put_slice(&item);
+        Ok(())
+    }
+}
+
+impl Decoder for RawDecoder {
+    type Item = Vec<u8>;
+    type Error = tonic::Status;
+    fn decode(&mut self, src: &mut DecodeBuf<'_>) -> Result<Option<Vec<u8>>, tonic::Status> {
+        Ok(Some(src.copy_to_bytes(src.remaining()).to_vec()))
+    }
+}
+
+/// One `WriteMessages` stream of `requests` (encoded envelopes).
+async fn write(server: &Server, requests: Vec<Vec<u8>>) -> Result<(), tonic::Status> {
+    let mut grpc = tonic::client::Grpc::new(server.channel().await);
+    grpc.ready().await.unwrap();
+    let stream = futures::stream::iter(requests);
+    grpc.client_streaming::<_, Vec<u8>, Vec<u8>, _>(
+        tonic::Request::new(stream),
+        tonic::codegen::http::uri::PathAndQuery::from_static(WRITE),
+        Raw,
+    )
+    .await
+    .map(drop)
+}
+
+/// Every message `ReadMessages` sends (the server must end the stream: snapshot mode).
+async fn read_all(server: &Server) -> Vec<LogMsg> {
+    let mut grpc = tonic::client::Grpc::new(server.channel().await);
+    grpc.ready().await.unwrap();
+    let response = grpc
+        .server_streaming::<Vec<u8>, Vec<u8>, _>(
+            tonic::Request::new(Vec::new()),
+            tonic::codegen::http::uri::PathAndQuery::from_static(READ),
+            Raw,
+        )
+        .await
+        .unwrap();
+    let items: Vec<Vec<u8>> = response.into_inner().try_collect().await.unwrap();
+    items
+        .into_iter()
+        .map(|bytes| LogMsg::decode_envelope(&arrow_buffer::Buffer::from(bytes)).unwrap())
+        .collect()
+}
+
+/// A query's batches through Flight SQL, with `token` as a bearer token if given.
+async fn query(
+    server: &Server,
+    sql: &str,
+    token: Option<&str>,
+) -> Result<Vec<RecordBatch>, arrow_flight::error::FlightError> {
+    let mut client = FlightSqlServiceClient::new(server.channel().await);
+    if let Some(token) = token {
+        client.set_token(token.to_owned());
+    }
+    let info = client.execute(sql.to_owned(), None).await?;
+    let mut batches = Vec::new();
+    for endpoint in info.endpoint {
+        let ticket = endpoint.ticket.unwrap();
+        let stream = client.do_get(ticket).await?;
+        batches.extend(stream.try_collect::<Vec<_>>().await?);
+    }
+    Ok(batches)
+}
+
+/// `(segment, rows)` of `SELECT rerun_segment_id, count(*) ... GROUP BY 1 ORDER BY 1`.
+async fn counts(server: &Server, table: &str) -> Vec<(String, i64)> {
+    let sql = format!("SELECT rerun_segment_id, count(*) AS n FROM {table} GROUP BY 1 ORDER BY 1");
+    let batches = query(server, &sql, None).await.unwrap();
+    let mut out = Vec::new();
+    for batch in batches {
+        let segments = batch
+            .column(0)
+            .as_any()
+            .downcast_ref::<StringArray>()
+            .unwrap();
+        let n = batch
+            .column(1)
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .unwrap();
+        for i in 0..batch.num_rows() {
+            out.push((segments.value(i).to_owned(), n.value(i)));
+        }
+    }
+    out
+}
+
+fn envelope(msg: &LogMsg) -> Vec<u8> {
+    msg.encode_envelope()
+}
+
+fn info_msg(id: &StoreId) -> Vec<u8> {
+    envelope(&LogMsg::from_store_info(&StoreInfo::new(id.clone())))
+}
+
+fn chunk_msg(id: &StoreId, entity: &str, frame: i64, value: f64) -> Vec<u8> {
+    let chunk = common::scalar(
+        entity,
+        "x",
+        frame,
+        chunkstore::RowId::new().as_u128(),
+        value,
+    );
+    envelope(&LogMsg::from_chunk(id, &chunk, true).unwrap())
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("chunkstore-server-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn logged_data_is_queryable_replayable_and_survives_a_kill() {
+    let dir = temp_dir("persist");
+    let log = dir.join("live.rrd");
+    let log_arg = log.to_str().unwrap();
+    let rt = runtime();
+    let r1 = StoreId::recording("app", "r1");
+    let r2 = StoreId::recording("app", "r2");
+    let mut blueprint = StoreId::recording("app", "layout");
+    blueprint.kind = StoreKind::Blueprint;
+    {
+        let server = Server::start(&dir, &["--persist", log_arg, "--read-mode", "snapshot"]);
+        rt.block_on(async {
+            // As the SDK: the store info twice, then chunks; a second recording and a
+            // blueprint on other streams.
+            let mut first = vec![info_msg(&r1), info_msg(&r1)];
+            first.extend((0..10).map(|f| chunk_msg(&r1, "/arm", f, f as f64)));
+            write(&server, first).await.unwrap();
+            let second = vec![
+                info_msg(&r2),
+                chunk_msg(&r2, "/leg", 0, 1.0),
+                chunk_msg(&r2, "/leg", 1, 2.0),
+                info_msg(&blueprint),
+                chunk_msg(&blueprint, "/view", 0, 0.0),
+            ];
+            write(&server, second).await.unwrap();
+
+            assert_eq!(
+                counts(&server, "frame").await,
+                [("r1".to_owned(), 10), ("r2".to_owned(), 2)]
+            );
+            // The blueprint is no data: not in `chunks`.
+            assert_eq!(
+                counts(&server, "chunks").await,
+                [("r1".to_owned(), 10), ("r2".to_owned(), 2)]
+            );
+            let sum = query(
+                &server,
+                r#"SELECT sum("/arm:x"[1]) AS s FROM frame WHERE rerun_segment_id = 'r1' AND frame >= 5"#,
+                None,
+            )
+            .await
+            .unwrap();
+            let s = sum[0]
+                .column(0)
+                .as_any()
+                .downcast_ref::<arrow_array::Float64Array>()
+                .unwrap()
+                .value(0);
+            assert!((s - 35.0).abs() < 1e-9, "{s}");
+
+            // The history as messages: 2 recordings' store infos, the blueprint's store
+            // info and chunk as they came, then the 12 chunks.
+            let history = read_all(&server).await;
+            let chunks: usize = history
+                .iter()
+                .filter(|m| matches!(m.decode().unwrap(), chunkstore::rrd::DecodedLogMsg::Chunk { .. }))
+                .count();
+            assert_eq!(chunks, 12);
+            assert_eq!(history.len(), 2 + 2 + 12);
+        });
+        // Dropped: SIGKILL, no clean shutdown.
+    }
+    // Restarted on the same log: everything acknowledged is back.
+    let server = Server::start(&dir, &["--persist", log_arg]);
+    rt.block_on(async {
+        assert_eq!(
+            counts(&server, "frame").await,
+            [("r1".to_owned(), 10), ("r2".to_owned(), 2)]
+        );
+    });
+    drop(server);
+
+    // A torn tail (a write cut short by a crash) is dropped with one warning.
+    let mut bytes = std::fs::read(&log).unwrap();
+    let whole = bytes.len();
+    bytes.extend_from_slice(&[2, 0, 0, 0, 0, 0, 0, 0, 200, 0, 0, 0, 0, 0, 0, 0, 1, 2, 3]);
+    std::fs::write(&log, &bytes).unwrap();
+    let server = Server::start(&dir, &["--persist", log_arg]);
+    rt.block_on(async {
+        assert_eq!(
+            counts(&server, "frame").await,
+            [("r1".to_owned(), 10), ("r2".to_owned(), 2)]
+        );
+    });
+    assert!(
+        server.stderr().contains("torn last message"),
+        "{}",
+        server.stderr()
+    );
+    assert_eq!(std::fs::metadata(&log).unwrap().len(), whole as u64);
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_messages_end_their_stream_and_change_nothing_else() {
+    let dir = temp_dir("bad");
+    let rt = runtime();
+    let server = Server::start(&dir, &[]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        write(&server, vec![info_msg(&r1), chunk_msg(&r1, "/a", 0, 1.0)])
+            .await
+            .unwrap();
+
+        let unknown_oneof = vec![0x0a, 0x03, 0x22, 0x01, 0x00];
+        let mut corrupt = chunk_msg(&r1, "/a", 1, 2.0);
+        let n = corrupt.len();
+        corrupt[n - 40..n - 30].fill(0xee);
+        let mut wrong_type = LogMsg::from_chunk(
+            &r1,
+            &chunkstore::ChunkBuilder::new(
+                chunkstore::ChunkId::new(),
+                chunkstore::EntityPath::parse("/a").unwrap(),
+            )
+            .with_row(
+                chunkstore::RowId::new(),
+                [(chunkstore::Timeline::sequence("frame"), 2)],
+                [(
+                    "x",
+                    std::sync::Arc::new(StringArray::from(vec!["text"])) as arrow_array::ArrayRef,
+                )],
+            )
+            .build()
+            .unwrap(),
+            true,
+        )
+        .unwrap()
+        .encode_envelope();
+        wrong_type.shrink_to_fit();
+        let cases: [(&str, Vec<u8>, &str); 4] = [
+            ("garbage", vec![0xff, 0xff, 0xff], "protobuf"),
+            ("unknown oneof member", unknown_oneof, "kind 4"),
+            ("corrupt payload", corrupt, "message 1"),
+            ("component type conflict", wrong_type, "refused"),
+        ];
+        for (what, bad, says) in cases {
+            // A good message first: it stays.
+            let status = write(&server, vec![chunk_msg(&r1, "/b", 7, 7.0), bad])
+                .await
+                .unwrap_err();
+            assert_eq!(
+                status.code(),
+                tonic::Code::InvalidArgument,
+                "{what}: {status:?}"
+            );
+            assert!(
+                status.message().to_lowercase().contains(says),
+                "{what}: {}",
+                status.message()
+            );
+        }
+        // The good message before each bad one is in (1 + 4 rows), nothing of the bad
+        // ones is, and the server still serves.
+        assert_eq!(counts(&server, "chunks").await, [("r1".to_owned(), 5)]);
+        let good = vec![chunk_msg(&r1, "/a", 9, 9.0)];
+        write(&server, good).await.unwrap();
+        assert_eq!(counts(&server, "chunks").await, [("r1".to_owned(), 6)]);
+
+        // Bad SQL is the client's error, not the server's.
+        let err = query(&server, "SELECT nope FROM frame", None)
+            .await
+            .unwrap_err();
+        assert!(err.to_string().contains("nope"), "{err}");
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_token_guards_every_call() {
+    let dir = temp_dir("token");
+    let rt = runtime();
+    let server = Server::start(&dir, &["--token", "s3cret"]);
+    rt.block_on(async {
+        let err = query(&server, "SELECT 1", None).await.unwrap_err();
+        assert!(err.to_string().contains("Bearer"), "{err}");
+        let err = query(&server, "SELECT 1", Some("wrong")).await.unwrap_err();
+        assert!(err.to_string().contains("Bearer"), "{err}");
+        let batches = query(&server, "SELECT 1 AS one", Some("s3cret"))
+            .await
+            .unwrap();
+        assert_eq!(batches[0].num_rows(), 1);
+        let status = write(&server, vec![info_msg(&StoreId::recording("a", "r"))])
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::Unauthenticated);
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_arguments_exit_2_with_one_line() {
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+            .arg("serve")
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    for args in [
+        &["--addr", "not-an-address"][..],
+        &["--memory-limit", "lots"],
+        &["--addr", "127.0.0.1:0", "/no/such/recording.rrd"],
+        &["--addr", "127.0.0.1:0", "--token", ""],
+    ] {
+        let (code, stderr) = run(args);
+        assert_eq!(code, Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+    }
+    let file = std::env::temp_dir().join(format!("chunkstore-not-a-log-{}", std::process::id()));
+    std::fs::write(&file, b"this is no log").unwrap();
+    let (code, stderr) = run(&["--addr", "127.0.0.1:0", "--persist", file.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("not an .rrd log"), "{stderr}");
+    assert_eq!(std::fs::read(&file).unwrap(), b"this is no log");
+    std::fs::remove_file(&file).unwrap();
+}
+
+#[test]
+fn preloaded_sources_are_served_beside_live_recordings() {
+    let dir = temp_dir("preload");
+    let rrd = Path::new(env!("CARGO_MANIFEST_DIR")).join("testdata/rerun-0.41/a_robot/a_robot.rrd");
+    let expected = chunkstore::recording::LoadedRecording::load(
+        &rrd,
+        &chunkstore::recording::OpenOptions::default(),
+        &mut (),
+    )
+    .unwrap();
+    let rows = i64::try_from(expected.store.stats().num_rows()).unwrap();
+    let recording_id = expected.store_info.unwrap().store_id.recording_id;
+    let rt = runtime();
+    let server = Server::start(&dir, &[rrd.to_str().unwrap()]);
+    rt.block_on(async {
+        assert_eq!(
+            counts(&server, "chunks").await,
+            [(recording_id.clone(), rows)]
+        );
+        // A live recording beside it.
+        let live = StoreId::recording("app", "zz-live");
+        write(
+            &server,
+            vec![info_msg(&live), chunk_msg(&live, "/a", 0, 1.0)],
+        )
+        .await
+        .unwrap();
+        assert_eq!(
+            counts(&server, "chunks").await,
+            [(recording_id, rows), ("zz-live".to_owned(), 1)]
+        );
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
