@@ -203,14 +203,8 @@ impl StoreHub {
                 .map_err(|e| IngestError::Insert(Box::new(e)))?;
             return Ok(());
         }
-        let index = state.recordings.len();
-        state.by_id.insert(info.store_id.clone(), index);
         let info_msg = LogMsg::from_store_info(&info);
-        state.recordings.push(HubEntry {
-            info,
-            info_msg,
-            store: SharedStore::new(store),
-        });
+        state.open(info, info_msg, store);
         Ok(())
     }
 
@@ -234,7 +228,7 @@ impl StoreHub {
             DecodedLogMsg::StoreInfo(info) => {
                 if info.store_id.kind == StoreKind::Recording {
                     if !state.by_id.contains_key(&info.store_id) {
-                        state.open(info, msg.clone(), &self.config);
+                        state.open(info, msg.clone(), self.empty_store());
                     }
                 } else {
                     state.non_recordings.insert(info.store_id.clone());
@@ -250,7 +244,7 @@ impl StoreHub {
                     } else {
                         let info = StoreInfo::new(store_id);
                         let info_msg = LogMsg::from_store_info(&info);
-                        state.open(info, info_msg, &self.config)
+                        state.open(info, info_msg, self.empty_store())
                     };
                     state.recordings[index]
                         .store
@@ -268,6 +262,11 @@ impl StoreHub {
         Ok(seq)
     }
 
+    /// A store for a new recording (`StoreHub::new` checked the configuration).
+    fn empty_store(&self) -> ChunkStore {
+        ChunkStore::with_config(self.config).unwrap_or_else(|_| ChunkStore::new())
+    }
+
     /// Every recording, in order of arrival, each as a snapshot of now.
     pub fn recordings(&self) -> Vec<HubRecording> {
         let state = self.state.lock();
@@ -279,13 +278,6 @@ impl StoreHub {
                 snapshot: entry.store.snapshot(),
             })
             .collect()
-    }
-
-    /// The store of one recording, to write to directly (GC, compaction).
-    pub fn store(&self, store_id: &StoreId) -> Option<SharedStore> {
-        let state = self.state.lock();
-        let index = *state.by_id.get(store_id)?;
-        Some(state.recordings[index].store.clone())
     }
 
     /// The sequence number of the last accepted message (0 before the first).
@@ -303,13 +295,12 @@ impl StoreHub {
             infos.push(entry.info_msg.clone());
             let snapshot = entry.store.snapshot();
             for chunk in snapshot.view().chunks() {
-                let chunk = &chunk;
                 let chunks = if chunk.is_static() {
                     &mut static_chunks
                 } else {
                     &mut temporal_chunks
                 };
-                chunks.push((entry.info.store_id.clone(), Arc::clone(chunk)));
+                chunks.push((entry.info.store_id.clone(), chunk));
             }
         }
         HubReplay {
@@ -410,16 +401,14 @@ impl StoreHub {
 }
 
 impl HubState {
-    fn open(&mut self, info: StoreInfo, info_msg: LogMsg, config: &StoreConfig) -> usize {
+    /// Adds a recording holding `store`; returns its index.
+    fn open(&mut self, info: StoreInfo, info_msg: LogMsg, store: ChunkStore) -> usize {
         let index = self.recordings.len();
         self.by_id.insert(info.store_id.clone(), index);
         self.recordings.push(HubEntry {
             info,
             info_msg,
-            // `StoreHub::new` checked the configuration.
-            store: SharedStore::new(
-                ChunkStore::with_config(*config).unwrap_or_else(|_| ChunkStore::new()),
-            ),
+            store: SharedStore::new(store),
         });
         index
     }

@@ -15,7 +15,7 @@ use super::frames::{
     self, MESSAGE_HEADER_LEN, MessageKind, STREAM_FOOTER_LEN, STREAM_HEADER_LEN, StreamFooter,
     StreamHeader,
 };
-use super::messages::{ArrowMsg, Compression, StoreId, StoreInfo, StoreKind};
+use super::messages::{ArrowMsg, StoreId, StoreInfo, StoreKind};
 use super::payload;
 use super::protobuf::{FieldReader, FieldWriter};
 use crate::Chunk;
@@ -145,21 +145,8 @@ impl LogMsg {
     /// # Errors
     /// If the chunk cannot be encoded as Arrow IPC.
     pub fn from_chunk(store_id: &StoreId, chunk: &Chunk, compress: bool) -> Result<Self, RrdError> {
-        let (payload, uncompressed_size) = payload::encode_chunk(chunk, compress)
+        let (body, _) = payload::encode_arrow_msg(store_id, chunk, compress)
             .map_err(|e| RrdError::new(0, RrdErrorKind::Ipc(e)))?;
-        let compression = if compress {
-            Compression::Lz4
-        } else {
-            Compression::None
-        };
-        let body = ArrowMsg::encode(
-            store_id,
-            chunk.id(),
-            chunk.is_static(),
-            compression,
-            uncompressed_size,
-            &payload,
-        );
         Ok(Self::new(LogMsgKind::ArrowMsg, Buffer::from(body)))
     }
 

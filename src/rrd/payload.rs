@@ -7,7 +7,7 @@ use arrow_ipc::writer::StreamWriter;
 use arrow_schema::{ArrowError, Schema};
 
 use super::error::{RrdError, RrdErrorKind};
-use super::messages::{ArrowMsg, Compression};
+use super::messages::{ArrowMsg, Compression, StoreId};
 use crate::Chunk;
 use crate::ipc::IpcError;
 
@@ -111,6 +111,30 @@ pub(crate) fn encode_chunk(chunk: &Chunk, compress: bool) -> Result<(Vec<u8>, u6
     } else {
         Ok((ipc, size))
     }
+}
+
+/// An `ArrowMsg` body carrying `chunk` of `store_id`, its payload LZ4-compressed if
+/// `compress`; and the size of the payload's uncompressed IPC stream.
+pub(crate) fn encode_arrow_msg(
+    store_id: &StoreId,
+    chunk: &Chunk,
+    compress: bool,
+) -> Result<(Vec<u8>, u64), IpcError> {
+    let (payload, uncompressed_size) = encode_chunk(chunk, compress)?;
+    let compression = if compress {
+        Compression::Lz4
+    } else {
+        Compression::None
+    };
+    let body = ArrowMsg::encode(
+        store_id,
+        chunk.id(),
+        chunk.is_static(),
+        compression,
+        uncompressed_size,
+        &payload,
+    );
+    Ok((body, uncompressed_size))
 }
 
 /// The chunk an `ArrowMsg` carries, checked against what the message says of it (its id

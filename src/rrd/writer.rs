@@ -8,7 +8,7 @@ use std::sync::Arc;
 use super::error::{RrdError, RrdErrorKind};
 use super::frames::{self, MessageKind, StreamFooter, StreamHeader};
 use super::manifest::{self, WrittenChunk};
-use super::messages::{ArrowMsg, Compression, StoreId, StoreInfo};
+use super::messages::{StoreId, StoreInfo};
 use super::payload;
 use crate::Chunk;
 
@@ -92,21 +92,9 @@ impl<W: Write> RrdWriter<W> {
                 },
             ));
         }
-        let (payload, uncompressed_size) = payload::encode_chunk(chunk, self.compress)
-            .map_err(|e| RrdError::new(self.position, RrdErrorKind::Ipc(e)))?;
-        let compression = if self.compress {
-            Compression::Lz4
-        } else {
-            Compression::None
-        };
-        let body = ArrowMsg::encode(
-            &self.store_id,
-            chunk.id(),
-            chunk.is_static(),
-            compression,
-            uncompressed_size,
-            &payload,
-        );
+        let (body, uncompressed_size) =
+            payload::encode_arrow_msg(&self.store_id, chunk, self.compress)
+                .map_err(|e| RrdError::new(self.position, RrdErrorKind::Ipc(e)))?;
         let at = self.write_message(MessageKind::ArrowMsg, &body)?;
         self.written.push(WrittenChunk::new(
             chunk,

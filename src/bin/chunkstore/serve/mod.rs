@@ -165,10 +165,9 @@ impl ServerState {
         }
         self.bytes_since_check.store(0, Ordering::Relaxed);
         // One collection at a time: two streams crossing the limit together would each
-        // collect the whole excess.
-        let budget = store_budget(limit);
-        if self.hub.heap_bytes() > budget && !self.collecting.swap(true, Ordering::AcqRel) {
-            self.hub.collect_garbage(budget);
+        // collect the whole excess. Under the budget, it measures and returns.
+        if !self.collecting.swap(true, Ordering::AcqRel) {
+            self.hub.collect_garbage(store_budget(limit));
             self.collecting.store(false, Ordering::Release);
         }
         if let Some(log) = &self.persist

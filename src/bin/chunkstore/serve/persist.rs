@@ -292,13 +292,12 @@ mod tests {
 
     #[test]
     fn a_rewrite_keeps_what_the_stores_hold_and_what_came_after() {
-        use std::sync::Arc as StdArc;
         let dir = std::env::temp_dir().join(format!("chunkstore-rewrite-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("log.rrd");
         let _ = std::fs::remove_file(&path);
-        let log = StdArc::new(PersistLog::create_or_append(&path).unwrap());
-        let listener_log = StdArc::clone(&log);
+        let log = Arc::new(PersistLog::create_or_append(&path).unwrap());
+        let listener_log = Arc::clone(&log);
         let hub = StoreHub::with_listener(
             StoreConfig::DEFAULT,
             Box::new(move |seq, msg: &LogMsg| {

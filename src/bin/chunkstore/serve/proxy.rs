@@ -105,17 +105,13 @@ where
         let limit = state.max_message_bytes;
         match request.uri().path().strip_prefix(&format!("/{SERVICE}/")) {
             Some("WriteMessages") => Box::pin(async move {
-                let mut grpc = Grpc::new(RawCodec)
-                    .max_decoding_message_size(limit)
-                    .max_encoding_message_size(usize::MAX);
+                let mut grpc = grpc(limit);
                 Ok(grpc
                     .client_streaming(WriteMessages { state }, request)
                     .await)
             }),
             Some("ReadMessages") => Box::pin(async move {
-                let mut grpc = Grpc::new(RawCodec)
-                    .max_decoding_message_size(limit)
-                    .max_encoding_message_size(usize::MAX);
+                let mut grpc = grpc(limit);
                 Ok(grpc.server_streaming(ReadMessages { state }, request).await)
             }),
             Some(method) => {
@@ -129,6 +125,14 @@ where
             }
         }
     }
+}
+
+/// The gRPC handler of either method: messages up to `--max-message-bytes` in, any size
+/// out (a replayed image chunk).
+fn grpc(max_message_bytes: usize) -> Grpc<RawCodec> {
+    Grpc::new(RawCodec)
+        .max_decoding_message_size(max_message_bytes)
+        .max_encoding_message_size(usize::MAX)
 }
 
 struct WriteMessages {
