@@ -251,6 +251,13 @@ fn dataframe_shape() -> (usize, usize) {
     )
 }
 
+/// `DATAFRAME_PHASES=filled_all,...` runs only the phases named (for profiling).
+fn phase_selected(phase: &str) -> bool {
+    std::env::var("DATAFRAME_PHASES")
+        .ok()
+        .is_none_or(|only| only.split(',').any(|p| p == phase))
+}
+
 /// A dataframe view of 1,000 entities × 3 components × 10,000 times (sparse and filled,
 /// whole and a 1% range), op = one output row; then the filled table streamed to a
 /// Parquet file, with the peak RSS that adds. The checksum counts non-null cells.
@@ -279,9 +286,7 @@ fn dataframe() -> bool {
         ("sparse_1pct", false, one_percent),
         ("filled_1pct", true, one_percent),
     ] {
-        // `DATAFRAME_PHASES=filled_all,...` runs only the phases named (for profiling).
-        if std::env::var("DATAFRAME_PHASES").is_ok_and(|only| !only.split(',').any(|p| p == phase))
-        {
+        if !phase_selected(phase) {
             continue;
         }
         let query = DataframeQuery::new(FRAME)
@@ -309,7 +314,7 @@ fn dataframe() -> bool {
         .emit(&store);
     }
     #[cfg(feature = "parquet")]
-    {
+    if phase_selected("parquet_filled_all") {
         ok &= dataframe_to_parquet(&store, times);
     }
     #[cfg(not(feature = "parquet"))]

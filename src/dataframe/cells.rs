@@ -1,13 +1,18 @@
-//! A column's cells for one batch: runs of consecutive rows of one source chunk. The output
-//! list array is built directly: offsets and validity cell by cell (a few instructions
-//! each), the values with one `MutableArrayData::extend` per stretch of a source's values
-//! that the batch takes whole. Null cells hold no values, so a column logged every third
-//! row still copies its values in one stretch per source chunk.
+//! A column's cells for one batch, written into a list array as they come
+//! ([`ListColumnBuilder`]): offsets and validity cell by cell (a few instructions each),
+//! the values as the stretches of the source chunks' values the cells take, copied at the
+//! end (one zero-copy slice when a batch takes one chunk's values whole, one
+//! `MutableArrayData::extend` per stretch otherwise). Null cells hold no values, so a
+//! column logged every third row still copies its values in one stretch per source chunk.
+//! The `chunks` table, which fills many columns a row at a time, records runs of cells per
+//! column first ([`ColumnCells`]) and replays them into the builder.
 
 use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, ListArray, UInt64Array, make_array, new_empty_array};
-use arrow_buffer::{BooleanBufferBuilder, NullBuffer, OffsetBuffer, ScalarBuffer};
+use arrow_buffer::{
+    BooleanBuffer, BooleanBufferBuilder, Buffer, NullBuffer, OffsetBuffer, ScalarBuffer,
+};
 use arrow_data::ArrayData;
 use arrow_data::transform::MutableArrayData;
 use arrow_schema::{ArrowError, FieldRef};
@@ -156,18 +161,19 @@ impl Sources {
         Ok(number)
     }
 
-    /// Raises `maxima[i]` to the time the cell's row has on index column `i`, where its
-    /// chunk has that timeline (the table's own index aside).
-    pub fn raise_times(&self, cell: Cell, maxima: &mut [Option<i64>]) {
+    /// Raises `index_values[i][at]` (output row `at` on index column `i`) to the time the
+    /// cell's row has on index column `i`, where its chunk has that timeline (the table's
+    /// own index aside).
+    pub fn raise_times(&self, cell: Cell, at: usize, index_values: &mut [Vec<Option<i64>>]) {
         // With the index the only index column there is nothing to raise, and the source
-        // need not be read (a cache miss per cell in a wide table).
-        let (true, Cell::Row { source, row }) = (maxima.len() > 1, cell) else {
+        // need not be read.
+        let (true, Cell::Row { source, row }) = (index_values.len() > 1, cell) else {
             return;
         };
         let source = &self.arrays[source as usize];
         for &(index_column, time_column) in &source.time_columns {
             let time = source.chunk.time_columns()[time_column as usize].times()[row as usize];
-            let max = &mut maxima[index_column as usize];
+            let max = &mut index_values[index_column as usize][at];
             *max = (*max).max(Some(time));
         }
     }
@@ -185,19 +191,6 @@ pub(crate) struct ColumnCells {
     /// The finished runs before it.
     runs: Vec<CellRun>,
     len: usize,
-}
-
-/// Scratch space for [`ColumnCells::finish`], one per stream, kept from column to column
-/// and batch to batch.
-#[derive(Debug, Default)]
-pub(crate) struct FinishScratch {
-    /// Source number -> its place among the sources a copy uses (`u32::MAX`: unused).
-    local: Vec<u32>,
-    /// The sources a copy uses, in local order.
-    used: Vec<u32>,
-    /// The stretches of the sources' values the cells take, in order: `(source, start,
-    /// end)`.
-    stretches: Vec<(u32, usize, usize)>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -299,106 +292,138 @@ impl ColumnCells {
         }
     }
 
-    /// The column's array for the batch; the runs are cleared for the next one.
+    /// Writes the column's cells into `builder` as one finished column of its batch; the
+    /// runs are cleared for the next batch.
     ///
     /// # Errors
     /// The batch's values would overflow the list's 32-bit offsets.
     pub fn finish(
         &mut self,
         sources: &Sources,
-        num_rows: usize,
-        scratch: &mut FinishScratch,
-    ) -> Result<ArrayRef, ArrowError> {
+        builder: &mut ListColumnBuilder,
+    ) -> Result<(), ArrowError> {
         self.len = 0;
         self.runs.extend(self.last.take());
-        scratch.stretches.clear();
-        let mut out = ListBuilder {
-            offsets: Vec::with_capacity(num_rows + 1),
-            validity: BooleanBufferBuilder::new(num_rows),
-            nulls: 0,
-            stretches: &mut scratch.stretches,
-        };
-        out.offsets.push(0);
         for run in self.runs.drain(..) {
             match run {
-                CellRun::Nulls(n) => out.repeat_offset(n as usize, false),
-                CellRun::Empties(n) => out.repeat_offset(n as usize, true),
+                CellRun::Nulls(n) => builder.repeat_offset(n as usize, false),
+                CellRun::Empties(n) => builder.repeat_offset(n as usize, true),
                 CellRun::Rows {
                     nulls_before,
                     source,
                     start,
                     len,
                 } => {
-                    out.repeat_offset(nulls_before as usize, false);
-                    out.rows(
-                        source,
-                        &sources.arrays[source as usize].list,
-                        start,
-                        start + len,
-                    )?;
+                    builder.repeat_offset(nulls_before as usize, false);
+                    builder.rows(sources, source, start, start + len);
                 }
                 CellRun::Repeat { source, row, times } => {
                     for _ in 0..times {
-                        out.rows(source, &sources.arrays[source as usize].list, row, row + 1)?;
+                        builder.rows(sources, source, row, row + 1);
                     }
                 }
             }
         }
-        let (offsets, nulls) = out.finish();
-        let values = match scratch.stretches.as_slice() {
-            [] => new_empty_array(sources.item_field.data_type()),
-            &[(source, from, to)] => sources.arrays[source as usize]
-                .list
-                .values()
-                .slice(from, to - from),
-            stretches if stretches.iter().all(|&(s, _, _)| s == stretches[0].0) => {
-                // Several stretches of one chunk (cells a fill repeats): one gather.
-                let indices: UInt64Array = stretches
-                    .iter()
-                    .flat_map(|&(_, from, to)| from as u64..to as u64)
-                    .collect();
-                let values = sources.arrays[stretches[0].0 as usize].list.values();
-                arrow_select::take::take(values, &indices, None)?
-            }
-            stretches => {
-                // Stretches of several chunks: copied stretch by stretch.
-                let FinishScratch { local, used, .. } = scratch;
-                local.clear();
-                local.resize(sources.arrays.len(), u32::MAX);
-                used.clear();
-                for &(source, _, _) in stretches {
-                    if local[source as usize] == u32::MAX {
-                        local[source as usize] = u32::try_from(used.len()).unwrap_or(u32::MAX);
-                        used.push(source);
-                    }
-                }
-                let data: Vec<ArrayData> = used
-                    .iter()
-                    .map(|&s| sources.arrays[s as usize].list.values().to_data())
-                    .collect();
-                let mut values = MutableArrayData::new(data.iter().collect(), false, 0);
-                for &(source, from, to) in stretches {
-                    values.extend(local[source as usize] as usize, from, to);
-                }
-                make_array(values.freeze())
-            }
-        };
-        let list = ListArray::try_new(Arc::clone(&sources.item_field), offsets, values, nulls)?;
-        Ok(Arc::new(list))
+        builder.finish_column(sources)
     }
 }
 
-/// A list array's offsets and validity under construction.
-struct ListBuilder<'a> {
+/// A batch's list arrays, built a column at a time and cell by cell: offsets and validity
+/// per cell (a few instructions each), the values as the stretches of the sources' values
+/// the cells take, copied when the column is done (usually one zero-copy slice). Every
+/// column of a batch writes its offsets and validity into one buffer each, which the
+/// batch's arrays share: two allocations a batch rather than two a column (a batch of a
+/// wide table has thousands of columns of a few hundred cells, and an allocation per
+/// column cost more than the cells). The dataframe builds a batch with one of these;
+/// [`ColumnCells`] replays its runs into one.
+#[derive(Debug)]
+pub(crate) struct ListColumnBuilder {
+    /// Every finished column's offsets, then the current column's (each starting at 0).
     offsets: Vec<i32>,
+    /// Where the current column's offsets start.
+    column_start: usize,
+    /// Every finished column's validity bits, then the current column's.
     validity: BooleanBufferBuilder,
     nulls: usize,
-    /// The stretches of the sources' values the cells take, in order, each as long as
-    /// consecutive cells continue it: `(source, start, end)`.
-    stretches: &'a mut Vec<(u32, usize, usize)>,
+    /// The stretches of the sources' values the current column's cells take, in order,
+    /// each as long as consecutive cells continue it: `(source, start, end)`.
+    stretches: Vec<(u32, usize, usize)>,
+    /// The values would overflow the 32-bit offsets (reported by `finish_column`).
+    overflow: bool,
+    /// Source number -> its place among the sources a copy uses (`u32::MAX`: unused).
+    local: Vec<u32>,
+    /// The sources a copy uses, in local order.
+    used: Vec<u32>,
+    /// The finished columns, waiting for the batch's shared buffers.
+    finished: Vec<FinishedList>,
 }
 
-impl ListBuilder<'_> {
+/// A finished column of a batch: where its offsets and validity are in the shared
+/// buffers, and its own values.
+#[derive(Debug)]
+struct FinishedList {
+    item_field: FieldRef,
+    offsets_start: usize,
+    cells: usize,
+    nulls: usize,
+    values: ArrayRef,
+}
+
+impl Default for ListColumnBuilder {
+    fn default() -> Self {
+        Self {
+            offsets: vec![0],
+            column_start: 0,
+            validity: BooleanBufferBuilder::new(0),
+            nulls: 0,
+            stretches: Vec::new(),
+            overflow: false,
+            local: Vec::new(),
+            used: Vec::new(),
+            finished: Vec::new(),
+        }
+    }
+}
+
+impl ListColumnBuilder {
+    /// How many cells the current column holds.
+    pub fn len(&self) -> usize {
+        self.offsets.len() - self.column_start - 1
+    }
+
+    /// Starts the current column over.
+    fn clear_column(&mut self) {
+        self.offsets.truncate(self.column_start + 1);
+        self.validity
+            .truncate(self.column_start - self.finished.len());
+        self.nulls = 0;
+        self.stretches.clear();
+        self.overflow = false;
+    }
+
+    /// Appends one cell.
+    pub fn push(&mut self, sources: &Sources, cell: Option<Cell>) {
+        match cell {
+            None => self.repeat_offset(1, false),
+            Some(Cell::Empty) => self.repeat_offset(1, true),
+            Some(Cell::Row { source, row }) => self.rows(sources, source, row, row + 1),
+        }
+    }
+
+    /// Appends copies of `cell` until the column holds `len` cells.
+    pub fn pad(&mut self, sources: &Sources, cell: Option<Cell>, len: usize) {
+        let missing = len.saturating_sub(self.len());
+        match cell {
+            None => self.repeat_offset(missing, false),
+            Some(Cell::Empty) => self.repeat_offset(missing, true),
+            Some(Cell::Row { source, row }) => {
+                for _ in 0..missing {
+                    self.rows(sources, source, row, row + 1);
+                }
+            }
+        }
+    }
+
     /// `n` cells holding no values: nulls, or empty lists.
     fn repeat_offset(&mut self, n: usize, valid: bool) {
         let last = self.offsets.last().copied().unwrap_or(0);
@@ -409,21 +434,19 @@ impl ListBuilder<'_> {
         }
     }
 
-    /// Rows `start..end` of `list` (source `source`).
-    fn rows(
-        &mut self,
-        source: u32,
-        list: &ListArray,
-        start: u32,
-        end: u32,
-    ) -> Result<(), ArrowError> {
+    /// Rows `start..end` of source `source`.
+    fn rows(&mut self, sources: &Sources, source: u32, start: u32, end: u32) {
+        let list = &sources.arrays[source as usize].list;
         let (start, end) = (start as usize, end as usize);
         let offsets = list.value_offsets();
         let mut offset = self.offsets.last().copied().unwrap_or(0);
         for row in start..end {
             offset = offset
                 .checked_add(offsets[row + 1] - offsets[row])
-                .ok_or_else(|| ArrowError::OffsetOverflowError(usize::MAX))?;
+                .unwrap_or_else(|| {
+                    self.overflow = true;
+                    offset
+                });
             self.offsets.push(offset);
         }
         match list.nulls() {
@@ -445,11 +468,105 @@ impl ListBuilder<'_> {
             _ if from == to => {}
             _ => self.stretches.push((source, from, to)),
         }
+    }
+
+    /// Ends the current column: its values are copied (or sliced) from `sources`; its
+    /// array comes with the batch's ([`Self::finish_batch`]).
+    ///
+    /// # Errors
+    /// The values overflow the list's 32-bit offsets (the column is dropped).
+    pub fn finish_column(&mut self, sources: &Sources) -> Result<(), ArrowError> {
+        if self.overflow {
+            self.clear_column();
+            return Err(ArrowError::OffsetOverflowError(usize::MAX));
+        }
+        let values = match self.stretches.as_slice() {
+            [] => new_empty_array(sources.item_field.data_type()),
+            &[(source, from, to)] => sources.arrays[source as usize]
+                .list
+                .values()
+                .slice(from, to - from),
+            stretches if stretches.iter().all(|&(s, _, _)| s == stretches[0].0) => {
+                // Several stretches of one chunk (cells a fill repeats): one gather.
+                let indices: UInt64Array = stretches
+                    .iter()
+                    .flat_map(|&(_, from, to)| from as u64..to as u64)
+                    .collect();
+                let values = sources.arrays[stretches[0].0 as usize].list.values();
+                arrow_select::take::take(values, &indices, None)?
+            }
+            stretches => {
+                // Stretches of several chunks: copied stretch by stretch.
+                let Self { local, used, .. } = self;
+                local.clear();
+                local.resize(sources.arrays.len(), u32::MAX);
+                used.clear();
+                for &(source, _, _) in stretches {
+                    if local[source as usize] == u32::MAX {
+                        local[source as usize] = u32::try_from(used.len()).unwrap_or(u32::MAX);
+                        used.push(source);
+                    }
+                }
+                let data: Vec<ArrayData> = used
+                    .iter()
+                    .map(|&s| sources.arrays[s as usize].list.values().to_data())
+                    .collect();
+                let mut values = MutableArrayData::new(data.iter().collect(), false, 0);
+                for &(source, from, to) in stretches {
+                    values.extend(local[source as usize] as usize, from, to);
+                }
+                make_array(values.freeze())
+            }
+        };
+        self.finished.push(FinishedList {
+            item_field: Arc::clone(&sources.item_field),
+            offsets_start: self.column_start,
+            cells: self.len(),
+            nulls: self.nulls,
+            values,
+        });
+        self.column_start = self.offsets.len();
+        self.offsets.push(0);
+        self.nulls = 0;
+        self.stretches.clear();
         Ok(())
     }
 
-    fn finish(mut self) -> (OffsetBuffer<i32>, Option<NullBuffer>) {
-        let nulls = (self.nulls > 0).then(|| NullBuffer::new(self.validity.finish()));
-        (OffsetBuffer::new(ScalarBuffer::from(self.offsets)), nulls)
+    /// The list arrays of the columns finished since the last batch, in order; the
+    /// builder is emptied for the next batch.
+    ///
+    /// # Errors
+    /// Only if a column's parts disagree, which would be a bug here.
+    pub fn finish_batch(&mut self) -> Result<Vec<ArrayRef>, ArrowError> {
+        self.clear_column();
+        // The next batch is about as large: its buffers are sized for it.
+        let capacity = self.offsets.len();
+        let mut offsets = Vec::with_capacity(capacity);
+        offsets.push(0);
+        let offsets = Buffer::from_vec(std::mem::replace(&mut self.offsets, offsets));
+        let validity = std::mem::replace(&mut self.validity, BooleanBufferBuilder::new(capacity))
+            .finish()
+            .into_inner();
+        self.column_start = 0;
+        // Each column's validity bits follow the previous columns' cells.
+        let mut bit = 0;
+        self.finished
+            .drain(..)
+            .map(|list| {
+                let column_offsets =
+                    ScalarBuffer::new(offsets.clone(), list.offsets_start, list.cells + 1);
+                let nulls = (list.nulls > 0).then(|| {
+                    NullBuffer::new(BooleanBuffer::new(validity.clone(), bit, list.cells))
+                });
+                bit += list.cells;
+                let list = ListArray::try_new(
+                    list.item_field,
+                    OffsetBuffer::new(column_offsets),
+                    list.values,
+                    nulls,
+                )?;
+                Ok(Arc::new(list) as ArrayRef)
+            })
+            .collect()
     }
 }

@@ -10,7 +10,7 @@ use arrow_array::builder::{FixedSizeBinaryBuilder, StringBuilder};
 use arrow_array::{Array, ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
-use super::cells::{Cell, ColumnCells, FinishScratch, Sources};
+use super::cells::{Cell, ColumnCells, ListColumnBuilder, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
 use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt, TimeRange, Timeline};
 
@@ -370,11 +370,12 @@ impl ChunkTableStream {
         for (timeline, values) in self.timelines.iter().zip(times) {
             arrays.push(timeline.time_type().array(values));
         }
-        let mut scratch = FinishScratch::default();
+        let mut builder = ListColumnBuilder::default();
         for (cells, sources) in self.cells.iter_mut().zip(&self.sources) {
             cells.pad(None, num_rows);
-            arrays.push(cells.finish(sources, num_rows, &mut scratch)?);
+            cells.finish(sources, &mut builder)?;
         }
+        arrays.extend(builder.finish_batch()?);
         // The row count matters when no column is kept (`count(*)`).
         let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(num_rows));
         RecordBatch::try_new_with_options(Arc::clone(&self.schema), arrays, &options).map(Some)

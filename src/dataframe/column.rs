@@ -59,6 +59,76 @@ impl TemporalColumn {
         }
     }
 
+    /// Replaces `out` with the distinct times of the column's coming rows, then of its
+    /// coming Clears (each list ascending), that are at most `bound` (any, if `None`),
+    /// at most `cap` of each, calling `merge` with each list: what a batch's row times
+    /// are gathered from without consuming anything.
+    pub(super) fn coming_times(
+        &self,
+        bound: Option<TimeInt>,
+        cap: usize,
+        out: &mut Vec<TimeInt>,
+        mut merge: impl FnMut(&[TimeInt]),
+    ) {
+        let take = |time: TimeInt, out: &mut Vec<TimeInt>| {
+            if bound.is_some_and(|bound| time > bound) || out.len() >= cap {
+                return false;
+            }
+            if out.last() != Some(&time) {
+                out.push(time);
+            }
+            true
+        };
+        out.clear();
+        if let Some(cursor) = &self.cursor {
+            cursor.times_ahead(|time| take(time, out));
+            merge(out);
+        }
+        out.clear();
+        for &(time, _) in self.clears.get(self.next_clear..).unwrap_or_default() {
+            if !take(time, out) {
+                break;
+            }
+        }
+        merge(out);
+    }
+
+    /// Consumes the column's rows up to `last` when no Clear applies to them (none in
+    /// the range up to `last`, no static one): the common case, where every event is a
+    /// row and shows itself. Calls `visit` with each time and the row it shows (of the
+    /// rows at one time, the greatest row id's). Consumes nothing when a Clear applies:
+    /// [`Self::take_events_at`] handles those.
+    #[inline]
+    pub(super) fn take_rows_through(
+        &mut self,
+        last: TimeInt,
+        mut visit: impl FnMut(TimeInt, Cell),
+    ) {
+        let clear_due = self
+            .clears
+            .get(self.next_clear)
+            .is_some_and(|&(t, _)| t <= last);
+        if clear_due || self.hidden_by_static_clear {
+            return;
+        }
+        let Some(cursor) = &mut self.cursor else {
+            return;
+        };
+        while let Some(row) = cursor.peek().filter(|row| row.time <= last) {
+            cursor.advance();
+            // Rows at one time come in row id order: the last of them shows.
+            if cursor.peek().is_none_or(|next| next.time != row.time) {
+                visit(
+                    row.time,
+                    Cell::Row {
+                        source: row.source,
+                        row: row.row,
+                    },
+                );
+            }
+        }
+    }
+
     /// Consumes every event at `time` and returns the cell the row shows (the row of
     /// greatest row id, an empty list where a Clear came later (the Clear's mark), or null
     /// where a static Clear hides the row), and that row of greatest row id itself, shown

@@ -2,14 +2,18 @@
 //! streamed as Arrow record batches of bounded size.
 //!
 //! A query is planned once ([`schema`]: which columns, in which order, with which types),
-//! then streamed ([`stream`]): each selected temporal column walks its own range result
-//! (a [`RangeCursor`](crate::query::RangeCursor), already merged across its chunks in
-//! `(time, row id)` order) beside the Clears that apply to it, and an ordered map keyed by
-//! each column's next time groups the columns due at one time into a row: one pass, no
-//! sort. A batch records, per column, runs of consecutive rows of one chunk ([`cells`]),
-//! then builds each list array directly: offsets and validity per cell, the values as
-//! slices of the chunks' own arrays (usually one zero-copy slice per batch), repeated fill
-//! cells of one chunk with one `take`.
+//! then streamed ([`stream`]) a batch at a time, and a batch is built a column at a time.
+//! Each temporal column walks its own range result (a
+//! [`RangeCursor`](crate::query::RangeCursor), already merged across its chunks in
+//! `(time, row id)` order) beside the Clears that apply to it. A batch first gathers its
+//! row times: every column's coming times, looked at without being consumed, merged into
+//! the first `batch_rows` distinct ones (a column whose times the batch already has, as
+//! with many entities on one clock, costs a search per time). Then each column in turn
+//! consumes its events up to the batch's last time and writes its cells straight into a
+//! list array ([`cells`]): offsets and validity per cell, the values as slices of the
+//! chunks' own arrays (usually one zero-copy slice per batch), repeated fill cells of one
+//! chunk with one `take`. One column's state, sources and output are all that a pass
+//! touches, so a table of thousands of columns does not miss the cache on every cell.
 
 mod cells;
 mod chunk_table;

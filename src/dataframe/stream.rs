@@ -1,12 +1,11 @@
-//! Streaming a planned dataframe: columns merged into rows, rows gathered into batches.
+//! Streaming a planned dataframe: batches of rows, each built a column at a time.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
-use super::cells::{Cell, ColumnCells, FinishScratch};
+use super::cells::{Cell, ListColumnBuilder};
 use super::column::{ColumnState, Kind, column_state, exact_cell, row_bytes, visible_cell};
 use super::schema::{Selection, TablePlan};
 use super::{DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeQuery};
@@ -26,12 +25,16 @@ pub struct DataframeStream<'a> {
     columns: Vec<ColumnState>,
     rows: Rows,
     batch_rows: usize,
-    /// Per index column, this batch's values.
+    /// The index values of this batch's rows, ascending (merging) or as sampled.
+    times: Vec<TimeInt>,
+    /// Scratch for gathering `times`.
+    coming: Vec<TimeInt>,
+    merged: Vec<TimeInt>,
+    /// Per index column, this batch's values: the index itself, and on every other
+    /// index column the greatest time among each row's cells.
     index_values: Vec<Vec<Option<i64>>>,
-    /// Per data column, this batch's cells (padded lazily: see [`ColumnCells`]).
-    cells: Vec<ColumnCells>,
-    /// Scratch: the greatest time on each index column among one row's cells.
-    maxima: Vec<Option<i64>>,
+    /// One column's cells while the batch builds it (columns are built one at a time).
+    cells: ListColumnBuilder,
     /// Set once the stream has ended (its last batch, or an error, was handed out).
     done: bool,
 }
@@ -65,39 +68,13 @@ impl std::fmt::Debug for DataframeStream<'_> {
 /// Where rows come from.
 enum Rows {
     /// A row per distinct index value any column has an event at.
-    Merge { next: NextEvents, fill: bool },
+    Merge { fill: bool },
     /// A row per sampled value; `exact`: only what the sparse view has at that time.
     Sample {
         values: Arc<[TimeInt]>,
         next: usize,
         exact: bool,
     },
-}
-
-/// Each temporal column's next event time, the columns grouped by it: columns logged at
-/// the same times (many entities on one clock) move together, one map operation per
-/// distinct time instead of a heap operation per column. With every time distinct it is
-/// a k-way merge like a heap's.
-#[derive(Default)]
-struct NextEvents {
-    by_time: BTreeMap<TimeInt, Vec<u32>>,
-    /// Emptied groups, reused so that a steady merge allocates nothing.
-    spare: Vec<Vec<u32>>,
-}
-
-impl NextEvents {
-    fn push(&mut self, time: TimeInt, column: u32) {
-        let Self { by_time, spare } = self;
-        by_time
-            .entry(time)
-            .or_insert_with(|| spare.pop().unwrap_or_default())
-            .push(column);
-    }
-
-    fn recycle(&mut self, mut group: Vec<u32>) {
-        group.clear();
-        self.spare.push(group);
-    }
 }
 
 impl<'a> DataframeStream<'a> {
@@ -113,17 +90,11 @@ impl<'a> DataframeStream<'a> {
         } else {
             query.range
         };
-        let mut columns = Vec::with_capacity(plan.columns.len());
-        let mut next = NextEvents::default();
-        for (number, column) in plan.columns.iter().enumerate() {
-            let state = column_state(&store, &plan, column, range, query, sampling.is_none())?;
-            if let Kind::Temporal(temporal) = &state.kind
-                && let Some(time) = temporal.next_time()
-            {
-                next.push(time, u32::try_from(number).unwrap_or(u32::MAX));
-            }
-            columns.push(state);
-        }
+        let columns = plan
+            .columns
+            .iter()
+            .map(|column| column_state(&store, &plan, column, range, query, sampling.is_none()))
+            .collect::<Result<Vec<_>, _>>()?;
         let rows = match sampling {
             Some(values) => Rows::Sample {
                 values,
@@ -131,7 +102,6 @@ impl<'a> DataframeStream<'a> {
                 exact: query.exact_index_values,
             },
             None => Rows::Merge {
-                next,
                 fill: query.fill_latest_at,
             },
         };
@@ -151,13 +121,11 @@ impl<'a> DataframeStream<'a> {
         });
         Ok(Self {
             store,
+            times: Vec::new(),
+            coming: Vec::new(),
+            merged: Vec::new(),
             index_values: vec![Vec::new(); plan.index_columns.len()],
-            cells: plan
-                .columns
-                .iter()
-                .map(|_| ColumnCells::default())
-                .collect(),
-            maxima: vec![None; plan.index_columns.len()],
+            cells: ListColumnBuilder::default(),
             plan,
             selection,
             columns,
@@ -203,81 +171,134 @@ impl<'a> DataframeStream<'a> {
         self.batch_rows
     }
 
-    /// Appends one merged row at `time`; `false` when there is none left.
-    fn merge_row(&mut self, num_rows: usize) -> bool {
-        let Rows::Merge { next, fill } = &mut self.rows else {
-            return false;
-        };
-        let Some((time, group)) = next.by_time.pop_first() else {
-            return false;
-        };
-        self.maxima.fill(None);
-        for &number in &group {
-            let state = &mut self.columns[number as usize];
-            let Kind::Temporal(column) = &mut state.kind else {
-                continue;
-            };
-            let (cell, latest) = column.take_events_at(time);
-            if let Some(cell) = cell {
-                state.sources.raise_times(cell, &mut self.maxima);
-            }
-            if self.selection.data[number as usize] {
-                let cells = &mut self.cells[number as usize];
-                cells.pad(if *fill { column.fill } else { None }, num_rows);
-                cells.push(cell);
-            }
-            if *fill && !column.hidden_by_static_clear {
-                match cell {
-                    // A Clear's mark: what came before is hidden (a data component), or
-                    // still answers (the Clear component, which no Clear hides), the
-                    // entity's own Clear at this time included.
-                    Some(Cell::Empty) if column.hides => column.fill = None,
-                    Some(Cell::Empty) | None => {
-                        if !column.hides && latest.is_some() {
-                            column.fill = latest;
-                        }
-                    }
-                    Some(row) => column.fill = Some(row),
+    /// Sets `times` to the next batch's row times: when merging, the first `batch_rows`
+    /// distinct times at which any column (selected or not: every planned column's times
+    /// decide the rows) has a row or a Clear still to come, gathered column by column
+    /// without consuming anything; when sampling, the next sampled values.
+    fn next_times(&mut self) {
+        self.times.clear();
+        let cap = self.batch_rows;
+        match &mut self.rows {
+            Rows::Merge { .. } => {
+                let Self {
+                    times,
+                    coming,
+                    merged,
+                    ..
+                } = self;
+                for state in &self.columns {
+                    let Kind::Temporal(column) = &state.kind else {
+                        continue;
+                    };
+                    // Once the batch is full, only earlier times can still join it.
+                    let bound = times.last().copied().filter(|_| times.len() >= cap);
+                    column.coming_times(bound, cap, coming, |new| {
+                        merge_times(times, new, cap, merged);
+                    });
                 }
             }
-            if let Some(time) = column.next_time() {
-                next.push(time, number);
+            Rows::Sample { values, next, .. } => {
+                let end = values.len().min(next.saturating_add(cap));
+                self.times
+                    .extend_from_slice(values.get(*next..end).unwrap_or_default());
+                *next = end;
             }
         }
-        next.recycle(group);
-        self.push_index_values(time);
-        true
     }
 
-    /// Appends the row sampled at the next value; `false` when there is none left.
-    fn sample_row(&mut self) -> bool {
-        let Rows::Sample {
-            values,
-            next,
-            exact,
-        } = &mut self.rows
-        else {
-            return false;
+    /// Column `number`'s cells on this batch's rows (the merge's events at or before the
+    /// batch's last time consumed), finished in the batch's builder if it is selected.
+    /// Its cells' times raise the batch's other index columns.
+    fn merge_column(&mut self, number: usize, fill: bool) -> Result<(), ArrowError> {
+        let selected = self.selection.data[number];
+        let state = &mut self.columns[number];
+        let cells = &mut self.cells;
+        let num_rows = self.times.len();
+        let pad = match &mut state.kind {
+            Kind::Static(cell) => *cell,
+            Kind::Temporal(column) => {
+                let Some(&last) = self.times.last() else {
+                    return Ok(());
+                };
+                let mut from = 0;
+                let times = &self.times;
+                let sources = &state.sources;
+                let index_values = &mut self.index_values;
+                let mut fill_cell = column.fill;
+                column.take_rows_through(last, |time, cell| {
+                    let row = position_from(times, from, time);
+                    from = row + 1;
+                    sources.raise_times(cell, row, index_values);
+                    if selected {
+                        cells.pad(sources, if fill { fill_cell } else { None }, row);
+                        cells.push(sources, Some(cell));
+                    }
+                    fill_cell = Some(cell);
+                });
+                column.fill = fill_cell;
+                while let Some(time) = column.next_time().filter(|&time| time <= last) {
+                    // Events come in ascending time, each on a later row.
+                    let row = position_from(&self.times, from, time);
+                    from = row + 1;
+                    let (cell, latest) = column.take_events_at(time);
+                    if let Some(cell) = cell {
+                        state.sources.raise_times(cell, row, &mut self.index_values);
+                    }
+                    if selected {
+                        let sources = &state.sources;
+                        cells.pad(sources, if fill { column.fill } else { None }, row);
+                        cells.push(sources, cell);
+                    }
+                    if fill && !column.hidden_by_static_clear {
+                        match cell {
+                            // A Clear's mark: what came before is hidden (a data
+                            // component), or still answers (the Clear component, which no
+                            // Clear hides), the entity's own Clear at this time included.
+                            Some(Cell::Empty) if column.hides => column.fill = None,
+                            Some(Cell::Empty) | None => {
+                                if !column.hides && latest.is_some() {
+                                    column.fill = latest;
+                                }
+                            }
+                            Some(row) => column.fill = Some(row),
+                        }
+                    }
+                }
+                if fill { column.fill } else { None }
+            }
         };
-        let Some(&at) = values.get(*next) else {
-            return false;
-        };
-        *next += 1;
-        self.maxima.fill(None);
-        let query = LatestAtQuery::new(Arc::clone(self.plan.index.name_arc()), at);
-        for (((state, plan), cells), &selected) in self
-            .columns
-            .iter_mut()
-            .zip(&self.plan.columns)
-            .zip(&mut self.cells)
-            .zip(&self.selection.data)
-        {
-            let cell = match &mut state.kind {
-                Kind::Static(cell) => *cell,
-                Kind::Temporal(column) => {
+        if !selected {
+            return Ok(());
+        }
+        cells.pad(&state.sources, pad, num_rows);
+        cells.finish_column(&state.sources)
+    }
+
+    /// Column `number`'s cells at this batch's sampled values, finished in the batch's
+    /// builder if it is selected: the latest-at answer at each (or, `exact`, only a row
+    /// logged there).
+    fn sample_column(
+        &mut self,
+        number: usize,
+        queries: &[LatestAtQuery],
+        exact: bool,
+    ) -> Result<(), ArrowError> {
+        let selected = self.selection.data[number];
+        let state = &mut self.columns[number];
+        let plan = &self.plan.columns[number];
+        let cells = &mut self.cells;
+        match &mut state.kind {
+            Kind::Static(cell) => {
+                if selected {
+                    cells.pad(&state.sources, *cell, queries.len());
+                }
+            }
+            Kind::Temporal(column) => {
+                for (row, query) in queries.iter().enumerate() {
+                    let at = query.at();
                     let answer = self
                         .store
-                        .latest_at_unfiltered(&query, &plan.entity, plan.component.as_str())
+                        .latest_at_unfiltered(query, &plan.entity, plan.component.as_str())
                         .and_then(|answer| {
                             let source = state
                                 .sources
@@ -292,7 +313,7 @@ impl<'a> DataframeStream<'a> {
                             let row = u32::try_from(answer.row()).ok()?;
                             Some((index, Cell::Row { source, row }))
                         });
-                    let cell = if *exact {
+                    let cell = if exact {
                         exact_cell(answer, &column.clears, at, column.hidden_by_static_clear)
                     } else if column.hides {
                         let visible = column.clears.partition_point(|&(t, _)| t <= at);
@@ -302,35 +323,59 @@ impl<'a> DataframeStream<'a> {
                         answer.map(|(_, cell)| cell)
                     };
                     if let Some(cell) = cell {
-                        state.sources.raise_times(cell, &mut self.maxima);
+                        state.sources.raise_times(cell, row, &mut self.index_values);
                     }
-                    cell
+                    if selected {
+                        cells.push(&state.sources, cell);
+                    }
                 }
-            };
-            if selected {
-                cells.push(cell);
             }
         }
-        self.push_index_values(at);
-        true
-    }
-
-    fn push_index_values(&mut self, time: TimeInt) {
-        self.maxima[self.plan.index_position] = Some(time.as_i64());
-        for (values, max) in self.index_values.iter_mut().zip(&self.maxima) {
-            values.push(*max);
+        if !selected {
+            return Ok(());
         }
+        cells.finish_column(&state.sources)
     }
 
+    /// The next batch, built a column at a time: the batch's row times first, then each
+    /// column's cells on them in one pass over that column's own state and sources, so
+    /// that a wide table touches one column's memory at a time rather than every
+    /// column's on every row.
     fn next_batch(&mut self) -> Result<Option<RecordBatch>, ArrowError> {
-        let mut num_rows = 0;
-        while num_rows < self.batch_rows && (self.merge_row(num_rows) || self.sample_row()) {
-            num_rows += 1;
-        }
+        self.next_times();
+        let num_rows = self.times.len();
         if num_rows == 0 {
             return Ok(None);
         }
-        let fill = matches!(self.rows, Rows::Merge { fill: true, .. });
+        for (i, values) in self.index_values.iter_mut().enumerate() {
+            values.clear();
+            if i == self.plan.index_position {
+                values.extend(self.times.iter().map(|time| Some(time.as_i64())));
+            } else {
+                values.resize(num_rows, None);
+            }
+        }
+        match &self.rows {
+            Rows::Merge { fill } => {
+                let fill = *fill;
+                for number in 0..self.columns.len() {
+                    self.merge_column(number, fill)?;
+                }
+            }
+            Rows::Sample { exact, .. } => {
+                let exact = *exact;
+                let name = self.plan.index.name_arc();
+                let queries: Vec<LatestAtQuery> = self
+                    .times
+                    .iter()
+                    .map(|&at| LatestAtQuery::new(Arc::clone(name), at))
+                    .collect();
+                for number in 0..self.columns.len() {
+                    self.sample_column(number, &queries, exact)?;
+                }
+            }
+        }
+        let data = self.cells.finish_batch()?;
         let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.selection.schema.fields().len());
         for ((timeline, values), &selected) in self
             .plan
@@ -339,34 +384,73 @@ impl<'a> DataframeStream<'a> {
             .zip(&mut self.index_values)
             .zip(&self.selection.index)
         {
-            let values = std::mem::take(values);
             if selected {
-                arrays.push(timeline.time_type().array(values));
+                arrays.push(timeline.time_type().array(std::mem::take(values)));
             }
         }
-        let mut scratch = FinishScratch::default();
-        for ((state, cells), &selected) in self
-            .columns
-            .iter()
-            .zip(&mut self.cells)
-            .zip(&self.selection.data)
-        {
-            if !selected {
-                continue;
-            }
-            let pad = match &state.kind {
-                Kind::Static(cell) => *cell,
-                Kind::Temporal(column) if fill => column.fill,
-                Kind::Temporal(_) => None,
-            };
-            cells.pad(pad, num_rows);
-            arrays.push(cells.finish(&state.sources, num_rows, &mut scratch)?);
-        }
+        arrays.extend(data);
         // With no column kept, the batch still says how many rows it stands for.
         let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(num_rows));
         RecordBatch::try_new_with_options(Arc::clone(&self.selection.schema), arrays, &options)
             .map(Some)
     }
+}
+
+/// Where `time` is, or would go, in the ascending `times`, searching from `from` on by
+/// galloping: a few steps for a column with a row every few rows, a logarithmic search
+/// for a sparse one.
+fn position_from(times: &[TimeInt], from: usize, time: TimeInt) -> usize {
+    let rest = times.get(from..).unwrap_or_default();
+    let (mut low, mut high) = (0, 1);
+    // Everything before `low` is earlier than `time`.
+    while high <= rest.len() && rest[high - 1] < time {
+        low = high;
+        high *= 2;
+    }
+    let high = high.min(rest.len());
+    from + low + rest[low..high].partition_point(|&t| t < time)
+}
+
+/// Merges the ascending distinct `new` into the ascending distinct `times`, keeping the
+/// first `cap`. A column whose times the batch already has (many entities on one clock)
+/// costs a search per time and no copy.
+fn merge_times(times: &mut Vec<TimeInt>, new: &[TimeInt], cap: usize, merged: &mut Vec<TimeInt>) {
+    let mut from = 0;
+    let known = new.iter().all(|&time| {
+        from = position_from(times, from, time);
+        let found = times.get(from) == Some(&time);
+        from += 1;
+        found
+    });
+    if known {
+        return;
+    }
+    merged.clear();
+    let (mut a, mut b) = (times.iter().peekable(), new.iter().peekable());
+    while merged.len() < cap {
+        let next = match (a.peek(), b.peek()) {
+            (Some(&&x), Some(&&y)) => {
+                if x <= y {
+                    a.next();
+                }
+                if y <= x {
+                    b.next();
+                }
+                x.min(y)
+            }
+            (Some(&&x), None) => {
+                a.next();
+                x
+            }
+            (None, Some(&&y)) => {
+                b.next();
+                y
+            }
+            (None, None) => break,
+        };
+        merged.push(next);
+    }
+    std::mem::swap(times, merged);
 }
 
 impl Iterator for DataframeStream<'_> {
@@ -387,5 +471,57 @@ impl Iterator for DataframeStream<'_> {
 impl RecordBatchReader for DataframeStream<'_> {
     fn schema(&self) -> SchemaRef {
         Arc::clone(&self.selection.schema)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{merge_times, position_from};
+    use crate::TimeInt;
+
+    fn times(values: &[i64]) -> Vec<TimeInt> {
+        values.iter().map(|&t| TimeInt::saturating(t)).collect()
+    }
+
+    #[test]
+    fn galloping_finds_what_a_binary_search_finds_from_any_start() {
+        let sorted = times(&[1, 3, 4, 8, 9, 10, 20, 21, 40, 41, 42, 43, 90]);
+        for from in 0..=sorted.len() {
+            for t in 0..100 {
+                let time = TimeInt::saturating(t);
+                let expected = from + sorted[from..].partition_point(|&x| x < time);
+                assert_eq!(
+                    position_from(&sorted, from, time),
+                    expected,
+                    "from {from}, t {t}"
+                );
+            }
+        }
+        assert_eq!(position_from(&[], 0, TimeInt::saturating(5)), 0);
+    }
+
+    #[test]
+    fn merged_times_are_the_first_distinct_ones_of_the_union() {
+        let lists: [&[i64]; 6] = [
+            &[5, 9, 12],
+            &[1, 5, 7],
+            &[],
+            &[2, 3, 4, 5, 6, 7, 8],
+            &[40],
+            &[0],
+        ];
+        for cap in 1..12 {
+            let (mut merged, mut scratch) = (Vec::new(), Vec::new());
+            let mut all = Vec::new();
+            for list in lists {
+                merge_times(&mut merged, &times(list), cap, &mut scratch);
+                all.extend_from_slice(list);
+                let mut expected = all.clone();
+                expected.sort_unstable();
+                expected.dedup();
+                expected.truncate(cap);
+                assert_eq!(merged, times(&expected), "cap {cap}");
+            }
+        }
     }
 }

@@ -477,15 +477,47 @@ impl RangeCursor {
     }
 
     /// The row the cursor stands on; `None` once past the last.
+    #[inline]
     pub fn peek(&self) -> Option<CursorRow> {
         self.block.get(self.next).copied()
     }
 
     /// Moves to the next non-null row.
+    #[inline]
     pub fn advance(&mut self) {
         self.next += 1;
         if self.next >= self.block.len() {
             self.refill();
+        }
+    }
+
+    /// Calls `visit` with the times of the rows still to come, in order, without moving,
+    /// until it returns `false` or the rows end. A column-at-a-time reader (the
+    /// dataframe's batches) learns where a batch ends from every column's coming times
+    /// before it consumes any.
+    pub fn times_ahead(&self, mut visit: impl FnMut(TimeInt) -> bool) {
+        for row in &self.block[self.next..] {
+            if !visit(row.time) {
+                return;
+            }
+        }
+        let mut position = self.position;
+        for run in self.result.runs.get(self.run..).unwrap_or_default() {
+            let start = position.max(run.start);
+            position = 0;
+            let source = &self.result.sources[run.source as usize];
+            let Some(time_column) = source.time_column else {
+                continue;
+            };
+            let column = &source.chunk.components()[source.component_column as usize];
+            let times = &source.chunk.time_columns()[time_column as usize];
+            let values = times.times();
+            for pos in start..run.end {
+                let row = times.row_at(pos as usize);
+                if column.is_valid_in_bounds(row) && !visit(TimeInt::saturating(values[row])) {
+                    return;
+                }
+            }
         }
     }
 
