@@ -1,6 +1,7 @@
 //! Compaction on demand: a store filled with compaction off (single rows, in and out of
 //! order) rewritten by `compact()`, the same with tiny thresholds at three sizes (the cost
-//! per chunk must stay flat), and the split of one oversized chunk on insert.
+//! per chunk must stay flat), chunks already split on insert (`compact()` only plans), and
+//! the split of one oversized chunk on insert.
 
 #![allow(
     clippy::expect_used,
@@ -65,6 +66,23 @@ fn compaction(c: &mut Criterion) {
             n as u64,
         );
     }
+
+    // Chunks of 1,000 rows split on insert under the tiny thresholds (every tenth one's
+    // rows shuffled): the pieces are already compact, so `compact()` only plans. It once
+    // weighed each piece as its whole source chunk and rewrote every row, at several times
+    // the cost of the load.
+    let mut frames: Vec<i64> = (0..30_000).collect();
+    let mut random = SplitMix64::new();
+    for chunk in frames.chunks_mut(1_000).step_by(10) {
+        let order = random.permutation(chunk.len());
+        let shuffled: Vec<i64> = order.iter().map(|&i| chunk[0] + i).collect();
+        chunk.copy_from_slice(&shuffled);
+    }
+    let store = store_with(
+        tiny.with_compact_on_insert(true),
+        &scalar_series(&mut ids, &one[0], &frames, 1_000),
+    );
+    bench_compact(c, "compact/split_on_insert/30k_rows", &store, 30_000);
 
     // A sorted chunk 25 times the row threshold: split into slices, nothing copied.
     let frames: Vec<i64> = (0..100_000).collect();

@@ -40,10 +40,71 @@ pub(crate) struct ChunkMemory {
     pub payload_bytes: u64,
 }
 
+/// The range of its items a list's slots reference.
+fn referenced_items(list: &ListArray) -> std::ops::Range<usize> {
+    let offsets = list.value_offsets();
+    // A valid list's offsets are non-negative and ascending (checked when it was built).
+    let at = |i: usize| usize::try_from(offsets[i]).unwrap_or(0);
+    at(0)..at(offsets.len() - 1)
+}
+
 /// An array's validity as `ArrayData` keeps it: not at all when nothing is null (Arrow
 /// drops such a bitmap when it builds the tree, so the generic figures never see it).
 fn counted_nulls(array: &dyn Array) -> Option<&NullBuffer> {
     array.nulls().filter(|nulls| nulls.null_count() > 0)
+}
+
+/// The bytes `data`'s slots reference, children included. Arrow's own
+/// `get_slice_memory_size` counts a list's child whole, but a sliced list (a chunk split
+/// by compaction) references only the child's range between its first and last offset:
+/// counted whole, each piece of a split weighed as much as the chunk it came from, so
+/// compaction cut it again and again.
+fn referenced_bytes(data: &ArrayData) -> u64 {
+    // Only an array built by hand around inconsistent buffers fails Arrow's figure; its
+    // whole buffers are then the honest upper bound.
+    let arrow_figure = |data: &ArrayData| {
+        data.get_slice_memory_size()
+            .unwrap_or_else(|_| data.get_buffer_memory_size()) as u64
+    };
+    let list_range = match data.data_type() {
+        DataType::List(_) | DataType::Map(..) => list_child_range::<i32>(data),
+        DataType::LargeList(_) => list_child_range::<i64>(data),
+        // Arrow slices a fixed-size list's node, not its child.
+        DataType::FixedSizeList(_, size) => {
+            let size = usize::try_from(*size).unwrap_or(0);
+            let range = data.offset() * size..(data.offset() + data.len()) * size;
+            data.child_data()
+                .first()
+                .is_some_and(|child| range.end <= child.len())
+                .then_some(range)
+        }
+        _ if data.child_data().is_empty() => return arrow_figure(data),
+        _ => None,
+    };
+    let children: &[ArrayData] = data.child_data();
+    // The node's own buffers: Arrow's figure without its children's.
+    let own = children.iter().fold(arrow_figure(data), |own, child| {
+        own.saturating_sub(arrow_figure(child))
+    });
+    let referenced_children: u64 = match (list_range, children) {
+        (Some(range), [child]) => referenced_bytes(&child.slice(range.start, range.len())),
+        _ => children.iter().map(referenced_bytes).sum(),
+    };
+    own + referenced_children
+}
+
+/// The range of its child that a list's slots reference, if its offsets are readable
+/// and inside the child.
+fn list_child_range<O: arrow_buffer::ArrowNativeType + TryInto<usize>>(
+    data: &ArrayData,
+) -> Option<std::ops::Range<usize>> {
+    let offsets: &[O] = data.buffers().first()?.typed_data();
+    let first = (*offsets.get(data.offset())?).try_into().ok()?;
+    let last = (*offsets.get(data.offset() + data.len())?)
+        .try_into()
+        .ok()?;
+    let child = data.child_data().first()?;
+    (first <= last && last <= child.len()).then_some(first..last)
 }
 
 /// The address that identifies a buffer's allocation, however it is sliced.
@@ -120,10 +181,7 @@ impl ChunkMemory {
         self.add_array(&data);
         // Only an array built by hand around inconsistent buffers fails this; its whole
         // buffers are then the honest upper bound.
-        let payload = data
-            .get_slice_memory_size()
-            .unwrap_or_else(|_| data.get_buffer_memory_size());
-        payload as u64
+        referenced_bytes(&data)
     }
 
     /// What [`ChunkMemory::add_list`] finds for a list of primitives or of fixed-size
@@ -159,15 +217,18 @@ impl ChunkMemory {
             self.own_bytes += ARRAY_NODE_BYTES + FIELD_BYTES;
             if let Some(nulls) = counted_nulls(items.as_ref()) {
                 self.add_buffer(nulls.buffer());
-                payload += bitmap(items.len());
+                payload += bitmap(referenced_items(list).len());
             }
         }
         self.own_bytes += ARRAY_NODE_BYTES;
         self.add_buffer(leaf);
-        payload += leaf_array.len() as u64 * width;
+        // Only the leaf values the slots reference: a sliced list (a piece of a split
+        // chunk) keeps its whole child.
+        let leaf_len = referenced_items(list).len() * fixed_size.unwrap_or(1);
+        payload += leaf_len as u64 * width;
         if let Some(nulls) = counted_nulls(leaf_array) {
             self.add_buffer(nulls.buffer());
-            payload += bitmap(leaf_array.len());
+            payload += bitmap(leaf_len);
         }
         Some(payload)
     }

@@ -316,6 +316,59 @@ fn typed_memory_figures_equal_the_generic_ones() {
     }
 }
 
+/// A slice of a chunk (a piece of a split) weighs what a copy of its rows weighs: only the
+/// part of each list's child that its cells reference counts, at every level of nesting,
+/// whichever path (typed or Arrow's generic tree) computes it.
+#[test]
+fn a_slice_weighs_what_a_copy_of_its_rows_weighs() {
+    use arrow_array::{FixedSizeListArray, Float32Array, Int16Array, Int32Array, StringArray};
+    use arrow_buffer::{NullBuffer, OffsetBuffer};
+    use arrow_schema::Field;
+
+    let list = |items: ArrayRef, offsets: Vec<i32>| {
+        ListArray::new(
+            Arc::new(Field::new_list_field(items.data_type().clone(), true)),
+            OffsetBuffer::new(offsets.into()),
+            items,
+            None,
+        )
+    };
+    let offsets = || vec![0, 2, 3, 3, 6];
+    let int16 = Arc::new(Int16Array::from(vec![1, 2, 3, 4, 5, 6])) as ArrayRef;
+    let int16_nulls = Arc::new(Int16Array::new(
+        vec![1, 2, 3, 4, 5, 6].into(),
+        Some(NullBuffer::from(vec![true, false, false, true, true, true])),
+    )) as ArrayRef;
+    let points = Arc::new(FixedSizeListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float32, true)),
+        2,
+        Arc::new(Float32Array::from_iter_values((0..12u8).map(f32::from))),
+        None,
+    )) as ArrayRef;
+    let text = Arc::new(StringArray::from(vec!["a", "bb", "ccc", "dddd", "e", "ff"])) as ArrayRef;
+    let nested = Arc::new(list(
+        Arc::new(Int32Array::from_iter_values(0..12)),
+        vec![0, 1, 3, 6, 6, 10, 12],
+    )) as ArrayRef;
+    for items in [int16, int16_nulls, points, text, nested] {
+        let whole = chunk_of(list(items, offsets()));
+        let slice = whole.slice(1, 2).unwrap();
+        let copy = Chunk::gather(&[&whole], &[(0, 1), (0, 2)]).unwrap();
+        let data_type = whole.components()[0].list_array().data_type().clone();
+        assert_eq!(slice.payload_bytes(), copy.payload_bytes(), "{data_type:?}");
+        assert!(
+            slice.payload_bytes() < whole.payload_bytes(),
+            "{data_type:?}"
+        );
+        assert_eq!(
+            memory::ChunkMemory::compute(&slice, true).payload_bytes,
+            slice.payload_bytes(),
+            "{data_type:?}"
+        );
+        slice.sanity_check().unwrap();
+    }
+}
+
 /// The guided search finds exactly the partition point a binary search finds, for
 /// evenly spread, clustered, duplicated and extreme times, and targets inside, between
 /// and beyond them.

@@ -9,12 +9,13 @@ use crate::{Chunk, ChunkStore, StoreEvent};
 
 impl ChunkStore {
     /// Rewrites the store's temporal chunks into chunks near the thresholds: per entity
-    /// and layout, every set of chunks that is not already as few time-sorted,
-    /// non-overlapping chunks as the thresholds allow (nor exactly what an earlier call
-    /// made of it) is merged, sorted and cut again. For a store filled with compaction
-    /// off, or fragmented by garbage collection. Returns the deletions (reason
-    /// [`DeletionReason::Compaction`]) and additions; no query answer changes, and a
-    /// second call in a row changes nothing.
+    /// and layout, every set of chunks that is not already compact (time-sorted and
+    /// non-overlapping on the first timeline, each within the thresholds, no two
+    /// neighbours that would fit in one chunk; nor exactly what an earlier call made of
+    /// it) is merged, sorted and cut again into as few chunks as the thresholds allow.
+    /// For a store filled with compaction off, or fragmented by garbage collection.
+    /// Returns the deletions (reason [`DeletionReason::Compaction`]) and additions; no
+    /// query answer changes, and a second call in a row changes nothing.
     ///
     /// The same as [`ChunkStore::plan_compaction`] then [`ChunkStore::apply_compaction`].
     pub fn compact(&mut self) -> Vec<StoreEvent> {

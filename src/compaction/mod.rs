@@ -39,10 +39,11 @@
 //! that respect the thresholds ([`StoreConfig`]).
 //!
 //! **On demand**, [`ChunkStore::compact`] rewrites, per entity and layout, every set of
-//! chunks that is not already as few time-sorted, non-overlapping chunks as the thresholds
-//! allow. It decides first ([`ChunkStore::plan_compaction`], from `&self`: which groups,
-//! which chunks, why) and applies second ([`ChunkStore::apply_compaction`]), as garbage
-//! collection does.
+//! chunks that is not already compact: time-sorted and non-overlapping on the first
+//! timeline, each within the thresholds, and no two neighbours that would fit in one
+//! chunk (so at most about twice the fewest chunks the thresholds allow). It decides
+//! first ([`ChunkStore::plan_compaction`], from `&self`: which groups, which chunks, why)
+//! and applies second ([`ChunkStore::apply_compaction`]), as garbage collection does.
 //!
 //! The modules: [`plan`] decides, [`apply`] carries a plan out, [`on_insert`] is the
 //! cascade of compaction on insert (waiting chunks, then runs), and [`rewrite`] is the row

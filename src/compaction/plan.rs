@@ -16,7 +16,7 @@ pub enum CompactionReason {
     OutOfSequence,
     /// A chunk exceeds a threshold of the [`StoreConfig`].
     Oversized,
-    /// The group has more chunks than the thresholds require.
+    /// Two neighbouring chunks of the group would fit in one within the thresholds.
     Fragmented,
 }
 
@@ -60,8 +60,9 @@ impl CompactionPlan {
 
 impl ChunkStore {
     /// Chooses what [`ChunkStore::compact`] rewrites, without changing anything: per
-    /// entity and layout, the temporal chunks that are not already as few time-sorted,
-    /// non-overlapping chunks as the thresholds allow, nor exactly the chunks an earlier
+    /// entity and layout, the temporal chunks that are not already compact (time-sorted
+    /// and non-overlapping on the first timeline, each within the thresholds, no two
+    /// neighbours that would fit in one chunk), nor exactly the chunks an earlier
     /// compaction made of them.
     ///
     /// ```
@@ -109,25 +110,31 @@ impl ChunkStore {
     /// least time on the first timeline, then id (a deterministic order).
     fn groups_by_entity_and_layout(&self) -> Vec<Vec<Arc<Chunk>>> {
         let mut groups: Vec<Vec<Arc<Chunk>>> = Vec::new();
-        let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
         let mut temporal: Vec<&Arc<Chunk>> =
             self.chunks_unordered().filter(|c| !c.is_static()).collect();
-        temporal.sort_by_key(|c| {
-            (
-                c.entity_path().clone(),
-                c.time_columns()[0].time_range().min(),
-                c.id(),
-            )
+        // Ids are unique, so an unstable sort is deterministic; keys by reference, as a
+        // cloned path per comparison was most of the planning.
+        temporal.sort_unstable_by(|a, b| {
+            a.entity_path()
+                .cmp(b.entity_path())
+                .then_with(|| {
+                    let first = |c: &Chunk| c.time_columns()[0].time_range().min();
+                    first(a).cmp(&first(b))
+                })
+                .then_with(|| a.id().cmp(&b.id()))
         });
-        for chunk in temporal {
-            let positions = by_entity.entry(chunk.entity_path().clone()).or_default();
-            if let Some(&p) = positions
-                .iter()
-                .find(|&&p| groups[p][0].has_same_layout(chunk))
+        // The entity's groups are the last ones made, as chunks come by entity.
+        let mut entity_groups_start = 0;
+        for (i, chunk) in temporal.iter().enumerate() {
+            if i > 0 && temporal[i - 1].entity_path() != chunk.entity_path() {
+                entity_groups_start = groups.len();
+            }
+            if let Some(group) = groups[entity_groups_start..]
+                .iter_mut()
+                .find(|g| g[0].has_same_layout(chunk))
             {
-                groups[p].push(Arc::clone(chunk));
+                group.push(Arc::clone(chunk));
             } else {
-                positions.push(groups.len());
                 groups.push(vec![Arc::clone(chunk)]);
             }
         }
@@ -146,9 +153,10 @@ impl ChunkStore {
 }
 
 /// Why `chunks` (one layout, sorted by least time on the first timeline) are not already
-/// what a rewrite would make of them (in sequence on the first timeline, each within the
-/// thresholds, and no more of them than the thresholds require); `None` if they are. A
-/// group that needs no rewrite is left alone, which also makes `compact()` idempotent.
+/// compact (in sequence on the first timeline, each within the thresholds, and no two
+/// neighbours that would fit in one chunk); `None` if they are. A group that needs no
+/// rewrite is left alone, which, with the marks of [`ChunkStore::is_one_rewrite`], makes
+/// `compact()` idempotent.
 fn reason_to_rewrite(chunks: &[Arc<Chunk>], config: &StoreConfig) -> Option<CompactionReason> {
     let in_sequence_on = |t: usize| {
         chunks.iter().all(|c| c.time_columns()[t].is_sorted())
@@ -163,14 +171,21 @@ fn reason_to_rewrite(chunks: &[Arc<Chunk>], config: &StoreConfig) -> Option<Comp
     if chunks.iter().any(|c| config.is_oversized(c)) {
         return Some(CompactionReason::Oversized);
     }
-    let sorted = (1..chunks[0].time_columns().len()).all(in_sequence_on);
-    let num_rows: usize = chunks.iter().map(|c| c.num_rows()).sum();
-    let payload: u64 = chunks.iter().map(|c| c.payload_bytes()).sum();
-    let fewest = num_rows
-        .div_ceil(config.max_rows_for(sorted))
-        .max(usize::try_from(payload.div_ceil(config.max_bytes)).unwrap_or(usize::MAX))
-        .max(1);
-    (chunks.len() > fewest).then_some(CompactionReason::Fragmented)
+    // Fragmented if two neighbours would fit in one chunk. Not "more chunks than the
+    // fewest": chunks split on insert come in balanced pieces per source chunk, a few more
+    // than the fewest for the whole group, and rewriting every row of a group to save
+    // those few cost several loads. When no two neighbours fit together, the group has at
+    // most twice the fewest chunks, plus one (a pair's rows or bytes exceed a threshold),
+    // which is also what compaction on insert leaves: it settles chunks of more than half
+    // a threshold.
+    let max_rows = config.max_rows_for((1..chunks[0].time_columns().len()).all(in_sequence_on));
+    chunks
+        .windows(2)
+        .any(|w| {
+            w[0].num_rows() + w[1].num_rows() <= max_rows
+                && w[0].payload_bytes() + w[1].payload_bytes() <= config.max_bytes
+        })
+        .then_some(CompactionReason::Fragmented)
 }
 
 #[cfg(test)]
@@ -251,6 +266,34 @@ mod tests {
         store.apply_compaction(&plan);
         assert_eq!(store.num_chunks(), 3, "10 rows in pieces of at most 4");
         assert!(store.plan_compaction().is_empty());
+    }
+
+    #[test]
+    fn a_group_is_fragmented_only_where_two_neighbours_would_fit_in_one_chunk() {
+        let config = StoreConfig::COMPACTION_OFF.with_max_rows(3);
+        let plan_of = |frames: &[&[i64]]| {
+            let mut store = ChunkStore::with_config(config).unwrap();
+            for frames in frames {
+                store.insert(chunk("e", "x", frames)).unwrap();
+            }
+            store.plan_compaction()
+        };
+        // Three chunks where two would do, but no two neighbours fit together (what a
+        // split on insert leaves): left alone.
+        let plan = plan_of(&[&[0, 1], &[2, 3], &[4, 5]]);
+        assert!(plan.is_empty(), "{plan:?}");
+        assert_eq!(plan.num_groups_left_alone, 1);
+        // The middle one and either neighbour fit in three rows.
+        let plan = plan_of(&[&[0, 1], &[2], &[4, 5]]);
+        assert_eq!(plan.groups.len(), 1);
+        assert_eq!(plan.groups[0].reason, CompactionReason::Fragmented);
+        // Bytes count too: with room for one row's payload, no two rows fit.
+        let (mut store, _) = store_of(vec![chunk("e", "x", &[0]), chunk("e", "x", &[1])]);
+        let one_row = store.chunks_unordered().next().unwrap().payload_bytes();
+        store.config = StoreConfig::COMPACTION_OFF.with_max_bytes(one_row);
+        assert!(store.plan_compaction().is_empty());
+        store.config = StoreConfig::COMPACTION_OFF.with_max_bytes(2 * one_row);
+        assert_eq!(store.plan_compaction().groups.len(), 1);
     }
 
     #[test]
