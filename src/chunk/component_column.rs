@@ -213,6 +213,12 @@ pub(super) struct RawComponentColumn {
     pub(super) descriptor: ComponentDescriptor,
     pub(super) array: ArrayRef,
     pub(super) field: Option<FieldRef>,
+    /// The cells are a slice or a copy of cells of accepted chunks (a split or a merge),
+    /// so [`check_backed_values`], a guard on input, does not judge them again: a slice's
+    /// allowance (one value per row beyond its bytes) shrinks with its rows, and a chunk
+    /// the store accepted whole must stay splittable; the copy of a merge walks only what
+    /// its inputs, each accepted, walk.
+    pub(super) from_accepted_cells: bool,
 }
 
 impl ComponentColumn {
@@ -225,6 +231,7 @@ impl ComponentColumn {
             descriptor,
             array,
             field,
+            from_accepted_cells,
         } = raw;
         let name = || descriptor.name.as_str().to_owned();
         let Some(list) = array.as_any().downcast_ref::<ListArray>() else {
@@ -244,7 +251,7 @@ impl ComponentColumn {
         let best_cell_row = best_cell_row(&list, row_ids);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
-        if leaf.is_none() {
+        if leaf.is_none() && !from_accepted_cells {
             // Primitive items (and fixed-size lists of them) take bytes per value.
             check_backed_values(&list, name)?;
         }

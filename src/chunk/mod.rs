@@ -153,6 +153,7 @@ impl Chunk {
                 descriptor,
                 array,
                 field: None,
+                from_accepted_cells: false,
             })
             .collect();
         Self::from_raw(

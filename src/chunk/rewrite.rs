@@ -150,6 +150,7 @@ impl super::ComponentColumn {
             descriptor: self.descriptor.clone(),
             array,
             field: self.field.clone(),
+            from_accepted_cells: true,
         }
     }
 }

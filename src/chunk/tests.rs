@@ -583,6 +583,16 @@ fn values_without_bytes_are_refused() {
 
     // One value a row, of any type, and booleans at eight to a byte, are fine.
     assert!(build(empty_structs(3), &[1, 1, 1]).is_ok());
+    // Accepted whole, a chunk stays splittable and mergeable, though a piece holds most of
+    // its values in few rows and a copy of it has far fewer bytes of offsets (found by
+    // fuzzing: `tests/fuzz_crashes/ipc_insert/slice_of_unbacked_like_values_refused`).
+    // 100 rows: 404 bytes of offsets allow 3,232 + 100 values.
+    let mut lengths = vec![0; 100];
+    lengths[1] = 3_200;
+    let whole = build(nulls(3_200), &lengths).unwrap();
+    let piece = whole.slice(0, 3).unwrap();
+    assert_eq!(piece.num_rows(), 3);
+    assert!(Chunk::gather(&[&whole, &piece], &[(1, 1), (0, 1), (1, 2)]).is_ok());
     assert!(build(nulls(2), &[1, 0, 1]).is_ok());
     let booleans = BooleanArray::from(vec![true; 80_000]);
     assert!(build(Arc::new(booleans), &[40_000, 40_000]).is_ok());

@@ -201,6 +201,7 @@ impl Chunk {
                         // the same layout as one built through the API.
                         field: (field.name() != name || !says_only_the_descriptor(meta, name))
                             .then(|| Arc::clone(field)),
+                        from_accepted_cells: false,
                     });
                 }
             }
