@@ -211,7 +211,7 @@ def check_many_writers_and_readers():
 
 
 KILLED_CLIENT = r"""
-import sys, rerun as rr
+import sys, time, rerun as rr
 url, acked = sys.argv[1], sys.argv[2]
 for batch in range(1000):
     rec = rr.RecordingStream("chunkstore_test", recording_id="killed")
@@ -219,9 +219,12 @@ for batch in range(1000):
     for i in range(100):
         rec.set_time("frame", sequence=batch * 100 + i)
         rec.log("value", rr.Scalars(float(i)))
-    rec.disconnect()  # returns once the server acknowledged the stream
+    # Returns once the server answered the stream, but also (logging an error, raising
+    # nothing) once the connection broke: the time it returned tells the two apart.
+    rec.disconnect()
+    returned = time.monotonic()
     with open(acked, "a") as f:
-        f.write(f"{batch}\n")
+        f.write(f"{batch} {returned}\n")
 """
 
 
@@ -238,10 +241,15 @@ def check_kill_during_ingest():
         if os.path.exists(acked) and len(open(acked).read().split()) >= 5:
             break
         time.sleep(0.05)
+    # A `disconnect()` that returned before the kill was answered by the living server; one
+    # that returned after it may have returned on the broken connection (the SDK does not
+    # say which), so it proves nothing. CLOCK_MONOTONIC is one clock for both processes.
+    killed_at = time.monotonic()
     server.kill()  # mid-stream, most likely
     client.kill()
     client.wait()
-    batches = [int(b) for b in open(acked).read().split()]
+    lines = [line.split() for line in open(acked).read().splitlines()]
+    batches = [int(batch) for batch, returned in lines if float(returned) < killed_at]
     assert batches, "no stream was acknowledged"
     restarted = Server("--persist", log)
     frames = set(restarted.sql("SELECT frame FROM frame")["frame"].to_pylist())
