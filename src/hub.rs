@@ -238,18 +238,21 @@ impl StoreHub {
             DecodedLogMsg::Chunk { store_id, chunk } => {
                 if state.non_recordings.contains(&store_id) {
                     state.keep_blueprint(msg);
-                } else {
-                    let index = if let Some(&index) = state.by_id.get(&store_id) {
-                        index
-                    } else {
-                        let info = StoreInfo::new(store_id);
-                        let info_msg = LogMsg::from_store_info(&info);
-                        state.open(info, info_msg, self.empty_store())
-                    };
+                } else if let Some(&index) = state.by_id.get(&store_id) {
                     state.recordings[index]
                         .store
                         .insert(Arc::new(chunk))
                         .map_err(|e| IngestError::Insert(Box::new(e)))?;
+                } else {
+                    // The first chunk of a recording without a store info: the recording
+                    // opens only once the chunk is in, so a refused chunk leaves no trace.
+                    let mut store = self.empty_store();
+                    store
+                        .insert(Arc::new(chunk))
+                        .map_err(|e| IngestError::Insert(Box::new(e)))?;
+                    let info = StoreInfo::new(store_id);
+                    let info_msg = LogMsg::from_store_info(&info);
+                    state.open(info, info_msg, store);
                 }
             }
             _ => state.keep_blueprint(msg),
@@ -571,7 +574,26 @@ mod tests {
             ))
             .unwrap_err();
         assert!(matches!(err, IngestError::Decode(_)), "{err}");
+        // The first chunk of an unknown recording, refused: no recording opens (a fuzz
+        // crash: it used to open, empty, before the insert failed).
+        let not_a_clear = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/x").unwrap())
+            .with_row(
+                RowId::new(),
+                [(Timeline::sequence("frame"), 2)],
+                [(
+                    crate::ComponentName::CLEAR_IS_RECURSIVE,
+                    Arc::new(Float64Array::from(vec![1.0])) as ArrayRef,
+                )],
+            )
+            .build()
+            .unwrap();
+        let b = StoreId::recording("app", "b");
+        let err = hub
+            .ingest(&LogMsg::from_chunk(&b, &not_a_clear, true).unwrap())
+            .unwrap_err();
+        assert!(matches!(err, IngestError::Insert(_)), "{err}");
         assert_eq!(hub.last_seq(), 1);
+        assert_eq!(hub.recordings().len(), 1);
         assert_eq!(hub.recordings()[0].snapshot.stats().num_rows(), 1);
 
         // Replaying into a new hub gives the same contents.
