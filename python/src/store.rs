@@ -586,7 +586,9 @@ impl NativeStore {
     fn compact(&self, py: Python<'_>) -> PyResult<(u64, u64)> {
         self.write(py, |shared| {
             let before = shared.snapshot().stats().num_chunks();
-            shared.write(ChunkStore::compact);
+            // Group by group, each group's events dropped: `compact()`'s events would
+            // hold every replaced chunk, the old and new copies of the store at once.
+            shared.write(|store| store.compact_group_by_group(drop));
             Ok((before, shared.snapshot().stats().num_chunks()))
         })
     }

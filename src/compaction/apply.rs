@@ -23,6 +23,32 @@ impl ChunkStore {
         self.apply_compaction(&plan)
     }
 
+    /// Compacts as [`ChunkStore::compact`] does, but one group at a time: each group's
+    /// events go to `on_group` (and to subscribers) as soon as that group is rewritten,
+    /// instead of all of them being returned at the end. A deletion event holds its
+    /// chunk, so `compact()`'s events hold every replaced chunk until they are dropped:
+    /// the old and the new copy of everything it rewrote at once. Here, a caller that
+    /// drops each group's events (as `|_| {}` does) holds the store and one group's
+    /// rewrite at most.
+    ///
+    /// ```
+    /// # use chunkstore::ChunkStore;
+    /// let mut store = ChunkStore::new();
+    /// let mut rewritten = 0;
+    /// store.compact_group_by_group(|events| rewritten += events.len());
+    /// assert_eq!(rewritten, 0); // an empty store has nothing to compact
+    /// ```
+    pub fn compact_group_by_group(&mut self, mut on_group: impl FnMut(Vec<StoreEvent>)) {
+        let plan = self.plan_compaction();
+        for group in &plan.groups {
+            let mut events = Vec::new();
+            if let Some(chunks) = self.planned_chunks(group) {
+                self.rewrite_group(&chunks, &mut events);
+            }
+            on_group(self.finish_mutation(events));
+        }
+    }
+
     /// Rewrites the groups of `plan`. A group the store no longer holds exactly as
     /// planned (one of its chunks left, or they are not all temporal chunks of its entity
     /// and one layout: a plan made before other changes, or by hand) is skipped whole, so

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use super::error::{LoadFault, OpenError};
 use super::{LoadObserver, OpenOptions, ProgressUnit, SourceKind};
 use crate::rrd::{RecordingSelector, RrdError, RrdItem, RrdReader, StoreInfo, StreamHeader};
-use crate::{Chunk, ChunkId, ChunkStore, CompactionPlan, RowId};
+use crate::{Chunk, ChunkId, ChunkStore, RowId};
 
 /// A source loaded whole into a store, with what the loading learnt about it.
 #[derive(Debug)]
@@ -83,14 +83,7 @@ impl LoadedRecording {
             // Group by group, dropping each group's events: `compact()` would hold every
             // replaced chunk in its events until the end, the old and new copies of the
             // whole store at once.
-            let plan = loaded.store.plan_compaction();
-            for group in plan.groups {
-                let one_group = CompactionPlan {
-                    groups: vec![group],
-                    num_groups_left_alone: 0,
-                };
-                loaded.store.apply_compaction(&one_group);
-            }
+            loaded.store.compact_group_by_group(drop);
         }
         Ok(loaded)
     }

@@ -276,6 +276,55 @@ fn compact_rewrites_a_fragmented_store_and_then_has_nothing_to_do() {
 }
 
 #[test]
+fn compact_group_by_group_hands_over_each_group_and_ends_where_compact_ends() {
+    let fill = |store: &mut ChunkStore| {
+        for entity in ["a", "b", "c"] {
+            for frame in (0..300i64).rev() {
+                store
+                    .insert(scalar(
+                        entity,
+                        "x",
+                        frame,
+                        1000 - frame as u128,
+                        frame as f64,
+                    ))
+                    .unwrap();
+            }
+        }
+    };
+    let (mut whole, mut stepwise) = (off(), off());
+    fill(&mut whole);
+    fill(&mut stepwise);
+    let num_groups = stepwise.plan_compaction().groups.len();
+    assert_eq!(num_groups, 3);
+    let whole_events = whole.compact();
+    let mut calls = Vec::new();
+    stepwise.compact_group_by_group(|events| {
+        calls.push(deleted(&events, DeletionReason::Compaction).len());
+    });
+    assert_eq!(
+        calls,
+        [300, 300, 300],
+        "one call per group, with its deletions"
+    );
+    assert_eq!(
+        deleted(&whole_events, DeletionReason::Compaction).len(),
+        900
+    );
+    assert_eq!(stepwise.num_chunks(), whole.num_chunks());
+    for entity in ["a", "b", "c"] {
+        assert_eq!(
+            range_values(&stepwise, entity),
+            range_values(&whole, entity)
+        );
+    }
+    stepwise.sanity_check().unwrap();
+    let mut again = 0;
+    stepwise.compact_group_by_group(|_| again += 1);
+    assert_eq!(again, 0, "nothing left to compact");
+}
+
+#[test]
 fn gc_plans_without_changing_anything_and_applies_exactly_its_plan() {
     let mut store = off();
     ten_by_ten(&mut store, "g");

@@ -311,7 +311,7 @@ impl Harness {
                 start,
                 chunks,
             } => self.insert_run(*entity, *timelines, *start, chunks, randomness)?,
-            Op::Compact => self.compact()?,
+            Op::Compact { group_by_group } => self.compact(*group_by_group)?,
         }
         self.check_after(op)
     }
@@ -534,8 +534,15 @@ impl Harness {
         Ok(())
     }
 
-    fn compact(&mut self) -> Result<(), TestCaseError> {
-        let events = self.store.compact();
+    fn compact(&mut self, group_by_group: bool) -> Result<(), TestCaseError> {
+        let events = if group_by_group {
+            let mut events = Vec::new();
+            self.store
+                .compact_group_by_group(|group| events.extend(group));
+            events
+        } else {
+            self.store.compact()
+        };
         self.replay(&events)?;
         for event in &events {
             if let StoreEvent::Deletion { reason, .. } = event {

@@ -57,7 +57,11 @@ pub(crate) enum Op {
         entity: usize,
         recursive: bool,
     },
-    Compact,
+    /// On-demand compaction: `compact()`, or `compact_group_by_group` (whose events, one
+    /// group's at a time, must replay as `compact()`'s do).
+    Compact {
+        group_by_group: bool,
+    },
     /// A dataframe view (SEMANTICS.md section 9) compared with the model's table.
     Dataframe(DataframeOp),
     /// The store's chunks written as an `.rrd` and read back: into a fresh store, which
@@ -250,7 +254,7 @@ pub(crate) fn op() -> impl Strategy<Value = Op> {
         2 => gc,
         2 => drop_range,
         2 => drop_entity,
-        2 => Just(Op::Compact),
+        2 => any::<bool>().prop_map(|group_by_group| Op::Compact { group_by_group }),
         2 => query_time().prop_map(|at| Op::RrdRoundTrip { at }),
         4 => dataframe_op().prop_map(Op::Dataframe),
     ]
