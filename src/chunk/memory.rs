@@ -198,6 +198,9 @@ impl ChunkMemory {
             None => items.as_ref(),
         };
         let bitmap = |len: usize| len.div_ceil(8) as u64;
+        // Only the items the slots reference: a sliced list (a piece of a split chunk)
+        // keeps its whole child.
+        let num_items = referenced_items(list).len();
 
         let mut payload = list.len() as u64 * size_of::<i32>() as u64;
         self.own_bytes += ARRAY_NODE_BYTES;
@@ -217,14 +220,12 @@ impl ChunkMemory {
             self.own_bytes += ARRAY_NODE_BYTES + FIELD_BYTES;
             if let Some(nulls) = counted_nulls(items.as_ref()) {
                 self.add_buffer(nulls.buffer());
-                payload += bitmap(referenced_items(list).len());
+                payload += bitmap(num_items);
             }
         }
         self.own_bytes += ARRAY_NODE_BYTES;
         self.add_buffer(leaf);
-        // Only the leaf values the slots reference: a sliced list (a piece of a split
-        // chunk) keeps its whole child.
-        let leaf_len = referenced_items(list).len() * fixed_size.unwrap_or(1);
+        let leaf_len = num_items * fixed_size.unwrap_or(1);
         payload += leaf_len as u64 * width;
         if let Some(nulls) = counted_nulls(leaf_array) {
             self.add_buffer(nulls.buffer());

@@ -178,12 +178,15 @@ fn reason_to_rewrite(chunks: &[Arc<Chunk>], config: &StoreConfig) -> Option<Comp
     // most twice the fewest chunks, plus one (a pair's rows or bytes exceed a threshold),
     // which is also what compaction on insert leaves: it settles chunks of more than half
     // a threshold.
-    let max_rows = config.max_rows_for((1..chunks[0].time_columns().len()).all(in_sequence_on));
+    let sorted = (1..chunks[0].time_columns().len()).all(in_sequence_on);
     chunks
         .windows(2)
         .any(|w| {
-            w[0].num_rows() + w[1].num_rows() <= max_rows
-                && w[0].payload_bytes() + w[1].payload_bytes() <= config.max_bytes
+            config.fits(
+                w[0].num_rows() + w[1].num_rows(),
+                w[0].payload_bytes() + w[1].payload_bytes(),
+                sorted,
+            )
         })
         .then_some(CompactionReason::Fragmented)
 }

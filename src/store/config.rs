@@ -124,17 +124,29 @@ impl StoreConfig {
         }
     }
 
+    /// Would a chunk of `rows` rows and `payload_bytes`, time-sorted or not, be within
+    /// both thresholds? The one place the thresholds are compared with.
+    pub(crate) fn fits(&self, rows: usize, payload_bytes: u64, sorted: bool) -> bool {
+        rows <= self.max_rows_for(sorted) && payload_bytes <= self.max_bytes
+    }
+
     /// Does the chunk exceed a threshold (and can be split)?
     pub(crate) fn is_oversized(&self, chunk: &Chunk) -> bool {
         chunk.num_rows() > 1
-            && (chunk.num_rows() > self.max_rows_for(is_time_sorted(chunk))
-                || chunk.payload_bytes() > self.max_bytes)
+            && !self.fits(
+                chunk.num_rows(),
+                chunk.payload_bytes(),
+                is_time_sorted(chunk),
+            )
     }
 
     /// Could the chunk still double without exceeding a threshold?
     pub(crate) fn can_grow(&self, chunk: &Chunk) -> bool {
-        chunk.num_rows() * 2 <= self.max_rows_for(is_time_sorted(chunk))
-            && chunk.payload_bytes() * 2 <= self.max_bytes
+        self.fits(
+            chunk.num_rows() * 2,
+            chunk.payload_bytes() * 2,
+            is_time_sorted(chunk),
+        )
     }
 }
 
