@@ -113,14 +113,38 @@ pub(super) fn rewrite(
         }
         return Ok(pieces);
     }
-    for piece in pieces_rows {
-        let piece = Chunk::gather(inputs, &rows[piece])?;
-        stats.rows_copied_by_compaction += piece.num_rows() as u64;
-        stats.payload_bytes_copied_by_compaction += piece.payload_bytes();
-        pieces.push(piece);
+    // Small pieces are gathered a block at a time, each block then sliced into its
+    // pieces: a gather has a cost per column and per call (arrays built, the chunk
+    // validated), which pieces of a few rows paid once each. A block stays small, so a
+    // piece that garbage collection drops frees its memory once its few block-mates go,
+    // never only with a whole group.
+    let pieces_per_block =
+        usize::try_from(GATHER_BLOCK_BYTES / (payload / num_pieces as u64).max(1))
+            .unwrap_or(usize::MAX)
+            .max(1);
+    let pieces_rows: Vec<std::ops::Range<usize>> = pieces_rows.collect();
+    for block in pieces_rows.chunks(pieces_per_block) {
+        let (Some(first), Some(last)) = (block.first(), block.last()) else {
+            continue;
+        };
+        let gathered = Chunk::gather(inputs, &rows[first.start..last.end])?;
+        stats.rows_copied_by_compaction += gathered.num_rows() as u64;
+        stats.payload_bytes_copied_by_compaction += gathered.payload_bytes();
+        if let [_] = block {
+            pieces.push(gathered);
+            continue;
+        }
+        for piece in block {
+            pieces.push(gathered.slice(piece.start - first.start, piece.len())?);
+        }
     }
     Ok(pieces)
 }
+
+/// The most payload one gather of a rewrite copies for pieces smaller than it (see
+/// [`rewrite`]): enough to spread a gather's fixed cost over pieces of a few rows, small
+/// enough that pieces sharing a block's buffers pin little memory.
+const GATHER_BLOCK_BYTES: u64 = 64 * 1024;
 
 /// `0..num_rows` cut into `num_pieces` consecutive ranges whose lengths differ by at most
 /// one (the longer first): exactly as many pieces as the thresholds ask for, none of them a
@@ -136,4 +160,82 @@ pub(crate) fn balanced_pieces(
         *start += len;
         Some(range)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+
+    use arrow_array::{Array, ArrayRef, Float64Array};
+
+    use super::*;
+    use crate::{ChunkBuilder, ChunkId, EntityPath, RowId, Timeline};
+
+    /// `num_rows` one-row chunks in reverse time order (so the rewrite sorts and copies),
+    /// each row a cell of `values_per_row` floats.
+    fn reversed_rows(num_rows: i64, values_per_row: usize) -> Vec<Chunk> {
+        (0..num_rows)
+            .rev()
+            .map(|frame| {
+                let values = vec![1.0; values_per_row];
+                ChunkBuilder::new(ChunkId::new(), EntityPath::parse("e").unwrap())
+                    .with_row(
+                        RowId::new(),
+                        [(Timeline::sequence("frame"), frame)],
+                        [("x", Arc::new(Float64Array::from(values)) as ArrayRef)],
+                    )
+                    .build()
+                    .unwrap()
+            })
+            .collect()
+    }
+
+    /// How many pieces share each values allocation, by its address.
+    fn pieces_per_allocation(pieces: &[Chunk]) -> Vec<usize> {
+        let mut counts = BTreeMap::new();
+        for piece in pieces {
+            let values = piece.components()[0].list_array().values().to_data();
+            *counts
+                .entry(values.buffers()[0].as_ptr().addr())
+                .or_insert(0) += 1;
+        }
+        counts.into_values().collect()
+    }
+
+    fn rewritten(chunks: &[Chunk], config: &StoreConfig) -> Vec<Chunk> {
+        let inputs: Vec<&Chunk> = chunks.iter().collect();
+        let pieces = rewrite(&inputs, config, &mut StoreStats::default()).unwrap();
+        // Whatever the blocks, the rows come out in time order, cut as the thresholds say.
+        let times: Vec<i64> = pieces
+            .iter()
+            .flat_map(|p| p.time_columns()[0].times().to_vec())
+            .collect();
+        let num_rows = i64::try_from(chunks.len()).unwrap();
+        assert_eq!(times, (0..num_rows).collect::<Vec<_>>());
+        assert!(pieces.iter().all(|p| !config.is_oversized(p)));
+        pieces
+    }
+
+    #[test]
+    fn small_pieces_share_a_bounded_block_and_large_ones_stand_alone() {
+        let config = StoreConfig::COMPACTION_OFF.with_max_rows(3);
+        // 3,000 rows of one float: 1,000 pieces of about 80 payload bytes, gathered a block
+        // of GATHER_BLOCK_BYTES at a time.
+        let pieces = rewritten(&reversed_rows(3000, 1), &config);
+        assert_eq!(pieces.len(), 1000);
+        let shares = pieces_per_allocation(&pieces);
+        assert!(shares.len() > 1, "blocks are bounded: {shares:?}");
+        assert!(
+            shares.iter().all(|&n| n > 1),
+            "small pieces share: {shares:?}"
+        );
+        let block_bytes: u64 = pieces[..shares[0]].iter().map(Chunk::payload_bytes).sum();
+        assert!(block_bytes <= GATHER_BLOCK_BYTES, "{block_bytes}");
+
+        // Rows of 10,000 floats: each piece outweighs a block, so each is its own gather.
+        let pieces = rewritten(&reversed_rows(9, 10_000), &config);
+        assert_eq!(pieces.len(), 3);
+        assert_eq!(pieces_per_allocation(&pieces), [1, 1, 1]);
+    }
 }
