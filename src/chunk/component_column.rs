@@ -225,6 +225,7 @@ impl ComponentColumn {
     pub(super) fn try_new(
         raw: RawComponentColumn,
         row_ids: &[RowId],
+        sorted_by_row_id: bool,
         time_columns: &[TimeColumn],
     ) -> Result<Self, ChunkError> {
         let RawComponentColumn {
@@ -248,7 +249,16 @@ impl ComponentColumn {
             });
         }
         let list = with_shared_item_field(list);
-        let best_cell_row = best_cell_row(&list, row_ids);
+        let best_cell_row = if sorted_by_row_id {
+            // The greatest row id is the last row's: the last non-null cell is the best.
+            (0..list.len())
+                .rev()
+                .find(|&row| list.is_valid(row))
+                .and_then(|row| u32::try_from(row).ok())
+                .unwrap_or(NO_ROW)
+        } else {
+            best_cell_row(&list, row_ids)
+        };
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
         if leaf.is_none() && !from_accepted_cells {
@@ -257,7 +267,7 @@ impl ComponentColumn {
         }
         let bounds_per_timeline = time_columns
             .iter()
-            .map(|column| time_bounds(&list, &column.times, row_ids))
+            .map(|column| time_bounds(&list, column, row_ids))
             .collect();
 
         Ok(Self {
@@ -477,7 +487,41 @@ fn best_cell_row(list: &ListArray, row_ids: &[RowId]) -> u32 {
     clippy::cast_possible_truncation,
     reason = "rows < 2^32, checked in Chunk::from_raw"
 )]
-fn time_bounds(list: &ListArray, times: &[i64], row_ids: &[RowId]) -> Option<ComponentTimeBounds> {
+fn time_bounds(
+    list: &ListArray,
+    column: &TimeColumn,
+    row_ids: &[RowId],
+) -> Option<ComponentTimeBounds> {
+    let times: &[i64] = &column.times;
+    if column.index_order.is_none() {
+        // Rows in `(time, row id)` order: the first and last non-null cells are the
+        // bounds, found from the ends rather than by reading every row.
+        let first_valid = (0..times.len()).find(|&row| list.is_valid(row))?;
+        let last_valid = (first_valid..times.len())
+            .rev()
+            .find(|&row| list.is_valid(row))
+            .unwrap_or(first_valid);
+        return Some(ComponentTimeBounds {
+            min_time: TimeInt::saturating(times[first_valid]),
+            max_time: TimeInt::saturating(times[last_valid]),
+            max_row_id: row_ids[last_valid],
+            max_row: last_valid as u32,
+        });
+    }
+    time_bounds_by_scan(list, times, row_ids)
+}
+
+/// [`time_bounds`] by reading every row, whatever their order: what the sanity check
+/// compares the shortcut with.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn time_bounds_by_scan(
+    list: &ListArray,
+    times: &[i64],
+    row_ids: &[RowId],
+) -> Option<ComponentTimeBounds> {
     let mut bounds: Option<ComponentTimeBounds> = None;
     for (row, (&time, &row_id)) in times.iter().zip(row_ids).enumerate() {
         if !list.is_valid(row) {
@@ -528,7 +572,7 @@ impl ComponentColumn {
         }
         let fresh_bounds = time_columns
             .iter()
-            .map(|column| time_bounds(list, &column.times, row_ids));
+            .map(|column| time_bounds_by_scan(list, &column.times, row_ids));
         if bounds_per_timeline.len() != time_columns.len()
             || !bounds_per_timeline.iter().copied().eq(fresh_bounds)
         {

@@ -207,7 +207,16 @@ impl Chunk {
             return Err(ChunkError::NoComponents);
         }
         let is_sorted_by_row_id = row_ids.is_sorted();
-        let (min_row, max_row_id_row) = row_id_range_rows(&row_ids);
+        let (min_row, max_row_id_row) = if is_sorted_by_row_id {
+            // The first row, and the first of the last row's equals (as the scan finds).
+            let last = row_ids[num_rows - 1];
+            (
+                0,
+                u32::try_from(row_ids.partition_point(|id| *id < last)).unwrap_or(0),
+            )
+        } else {
+            row_id_range_rows(&row_ids)
+        };
         let min_row_id = row_ids[min_row as usize];
 
         let mut time_columns = SmallVec::<[TimeColumn; 1]>::new();
@@ -229,7 +238,12 @@ impl Chunk {
         let mut components: Vec<ComponentColumn> = Vec::with_capacity(raw_components.len());
         check_component_names(&raw_components)?;
         for raw in raw_components {
-            components.push(ComponentColumn::try_new(raw, &row_ids, &time_columns)?);
+            components.push(ComponentColumn::try_new(
+                raw,
+                &row_ids,
+                is_sorted_by_row_id,
+                &time_columns,
+            )?);
         }
 
         let has_clears = components.iter().any(|c| c.descriptor.name.is_clear());

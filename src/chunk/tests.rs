@@ -605,3 +605,48 @@ fn values_without_bytes_are_refused() {
         "{message}"
     );
 }
+
+proptest::proptest! {
+    /// What a chunk derives from rows in `(time, row id)` or row-id order by shortcut (the
+    /// time range from the ends, each component's bounds from its first and last non-null
+    /// cells, the best cell as the last non-null one, the row-id range) equals what reading
+    /// every row gives, whatever the order, ties and nulls: `sanity_check` recomputes each
+    /// by a scan.
+    #[test]
+    fn shortcuts_for_sorted_rows_agree_with_scans(
+        rows in proptest::collection::vec(
+            (0i64..4, 0u128..4, proptest::option::of(0.0f64..1.0)),
+            1..12,
+        ),
+        order in 0u8..3,
+    ) {
+        let mut rows = rows;
+        match order {
+            0 => rows.sort_by_key(|&(time, id, _)| (time, id)),
+            1 => rows.sort_by_key(|&(_, id, _)| id),
+            _ => {}
+        }
+        let chunk = Chunk::try_new(
+            ChunkId::new(),
+            EntityPath::parse("a").unwrap(),
+            rows.iter().map(|&(_, id, _)| RowId::from_u128(id + 1)).collect(),
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(arrow_array::Int64Array::from_iter_values(
+                    rows.iter().map(|&(time, _, _)| time),
+                )) as ArrayRef,
+            )],
+            vec![(
+                "x".into(),
+                Arc::new(ListArray::from_iter_primitive::<
+                    arrow_array::types::Float64Type,
+                    _,
+                    _,
+                >(rows.iter().map(|&(_, _, value)| value.map(|v| vec![Some(v)]))))
+                    as ArrayRef,
+            )],
+        )
+        .unwrap();
+        chunk.sanity_check().unwrap();
+    }
+}

@@ -85,26 +85,40 @@ impl TimeColumn {
                 actual: times.len(),
             });
         }
-        if let Some(row) = times.iter().position(|&t| t == i64::MIN) {
+        // One pass for both orders: a tie of times is in index order when its row ids
+        // are. Sorted times (the usual case) then give the reserved-time check and the
+        // range from their ends; only unsorted ones are read again.
+        let (mut is_sorted, mut in_index_order) = (true, true);
+        for (t, r) in times.windows(2).zip(row_ids.windows(2)) {
+            if t[0] > t[1] {
+                is_sorted = false;
+                break;
+            }
+            in_index_order &= t[0] < t[1] || r[0] <= r[1];
+        }
+        in_index_order &= is_sorted;
+        let reserved = if is_sorted {
+            times.first().is_some_and(|&t| t == i64::MIN).then_some(0)
+        } else {
+            times.iter().position(|&t| t == i64::MIN)
+        };
+        if let Some(row) = reserved {
             return Err(ChunkError::ReservedTime {
                 timeline: name(),
                 row,
             });
         }
-        let is_sorted = times.is_sorted();
-        let in_index_order = is_sorted
-            && times
-                .windows(2)
-                .zip(row_ids.windows(2))
-                .all(|(t, r)| t[0] < t[1] || r[0] <= r[1]);
         let index_order = (!in_index_order).then(|| {
             let mut order: Vec<u32> = (0..row_ids.len() as u32).collect();
             order.sort_by_key(|&i| (times[i as usize], row_ids[i as usize]));
             order.into_boxed_slice()
         });
-        let (min, max) = times.iter().fold((i64::MAX, i64::MIN + 1), |(lo, hi), &t| {
-            (lo.min(t), hi.max(t))
-        });
+        let (min, max) = match (is_sorted, times.first(), times.last()) {
+            (true, Some(&first), Some(&last)) => (first, last),
+            _ => times.iter().fold((i64::MAX, i64::MIN + 1), |(lo, hi), &t| {
+                (lo.min(t), hi.max(t))
+            }),
+        };
         Ok(Self {
             timeline,
             data_type,
