@@ -141,9 +141,10 @@ pub(super) fn rewrite(
     Ok(pieces)
 }
 
-/// The most payload one gather of a rewrite copies for pieces smaller than it (see
-/// [`rewrite`]): enough to spread a gather's fixed cost over pieces of a few rows, small
-/// enough that pieces sharing a block's buffers pin little memory.
+/// About the most payload one gather of a rewrite copies for pieces smaller than it (see
+/// [`rewrite`]; blocks hold as many pieces of the average size as fit): enough to spread a
+/// gather's fixed cost over pieces of a few rows, small enough that pieces sharing a
+/// block's buffers pin little memory.
 const GATHER_BLOCK_BYTES: u64 = 64 * 1024;
 
 /// `0..num_rows` cut into `num_pieces` consecutive ranges whose lengths differ by at most
