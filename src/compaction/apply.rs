@@ -29,7 +29,8 @@ impl ChunkStore {
     /// chunk, so `compact()`'s events hold every replaced chunk until they are dropped:
     /// the old and the new copy of everything it rewrote at once. Here, a caller that
     /// drops each group's events (as `|_| {}` does) holds the store and one group's
-    /// rewrite at most.
+    /// rewrite at most. The whole call is one mutation, as `compact()` is (see
+    /// [`crate::Snapshot::version`]).
     ///
     /// ```
     /// # use chunkstore::ChunkStore;
@@ -45,8 +46,12 @@ impl ChunkStore {
             if let Some(chunks) = self.planned_chunks(group) {
                 self.rewrite_group(&chunks, &mut events);
             }
-            on_group(self.finish_mutation(events));
+            self.announce(&events);
+            on_group(events);
         }
+        // One mutation, as `compact()` is (a snapshot's version counts it once), checked
+        // once on the debug schedule; its events are all announced already.
+        self.finish_mutation(Vec::new());
     }
 
     /// Rewrites the groups of `plan`. A group the store no longer holds exactly as

@@ -121,12 +121,19 @@ impl ChunkStore {
     pub(crate) fn finish_mutation(&mut self, events: Vec<StoreEvent>) -> Vec<StoreEvent> {
         self.num_mutations += 1;
         self.debug_check_on_schedule();
+        self.announce(&events);
+        events
+    }
+
+    /// Hands `events` to the subscribers (none if there are none): what
+    /// [`ChunkStore::finish_mutation`] does last, and what a mutation reporting its events
+    /// in parts does for each part.
+    pub(crate) fn announce(&self, events: &[StoreEvent]) {
         if !events.is_empty() {
             for subscriber in &self.subscribers.0 {
-                subscriber(&events);
+                subscriber(events);
             }
         }
-        events
     }
 
     /// The chunk with this id, if the store holds it.

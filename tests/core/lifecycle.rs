@@ -297,11 +297,15 @@ fn compact_group_by_group_hands_over_each_group_and_ends_where_compact_ends() {
     fill(&mut stepwise);
     let num_groups = stepwise.plan_compaction().groups.len();
     assert_eq!(num_groups, 3);
+    let versions = (whole.snapshot().version(), stepwise.snapshot().version());
     let whole_events = whole.compact();
     let mut calls = Vec::new();
     stepwise.compact_group_by_group(|events| {
         calls.push(deleted(&events, DeletionReason::Compaction).len());
     });
+    // One mutation each, however many groups.
+    assert_eq!(whole.snapshot().version(), versions.0 + 1);
+    assert_eq!(stepwise.snapshot().version(), versions.1 + 1);
     assert_eq!(
         calls,
         [300, 300, 300],
