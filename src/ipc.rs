@@ -100,6 +100,7 @@ pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IpcError> {
         } else {
             StreamReader::try_new(Cursor::new(bytes), None).and_then(Iterator::collect)
         }
+        .map_err(IpcError::Ipc)
     })
 }
 
@@ -110,31 +111,22 @@ pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IpcError> {
 /// # Errors
 /// As [`read_batches`].
 pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IpcError> {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || decode_stream(&buffer))) {
-        Ok(batches) => batches,
-        Err(payload) => Err(decoder_panicked(payload.as_ref())),
-    }
+    contain_panics(move || decode_stream(&buffer))
 }
 
-/// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] (see
-/// [`read_batches`]).
+/// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] with its
+/// message (see [`read_batches`]).
 fn contain_panics(
-    decode: impl FnOnce() -> Result<Vec<RecordBatch>, ArrowError>,
+    decode: impl FnOnce() -> Result<Vec<RecordBatch>, IpcError>,
 ) -> Result<Vec<RecordBatch>, IpcError> {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)) {
-        Ok(batches) => batches.map_err(IpcError::Ipc),
-        Err(payload) => Err(decoder_panicked(payload.as_ref())),
-    }
-}
-
-/// The error for a contained panic of arrow-ipc, with its message.
-fn decoder_panicked(payload: &(dyn std::any::Any + Send)) -> IpcError {
-    let message = payload
-        .downcast_ref::<String>()
-        .cloned()
-        .or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_owned()))
-        .unwrap_or_else(|| "unknown panic".to_owned());
-    IpcError::DecoderPanicked { message }
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)).unwrap_or_else(|payload| {
+        let message = payload
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| payload.downcast_ref::<&str>().map(|s| (*s).to_owned()))
+            .unwrap_or_else(|| "unknown panic".to_owned());
+        Err(IpcError::DecoderPanicked { message })
+    })
 }
 
 /// Writes one chunk as an Arrow IPC file in the transport layout, its rows in row-id order.
