@@ -249,16 +249,7 @@ impl ComponentColumn {
             });
         }
         let list = with_shared_item_field(list);
-        let best_cell_row = if sorted_by_row_id {
-            // The greatest row id is the last row's: the last non-null cell is the best.
-            (0..list.len())
-                .rev()
-                .find(|&row| list.is_valid(row))
-                .and_then(|row| u32::try_from(row).ok())
-                .unwrap_or(NO_ROW)
-        } else {
-            best_cell_row(&list, row_ids)
-        };
+        let best_cell_row = best_cell_row(&list, row_ids, sorted_by_row_id);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
         if leaf.is_none() && !from_accepted_cells {
@@ -472,7 +463,24 @@ impl ListValueTypeRef for ListArray {
     clippy::cast_possible_truncation,
     reason = "rows < 2^32, checked in Chunk::from_raw"
 )]
-fn best_cell_row(list: &ListArray, row_ids: &[RowId]) -> u32 {
+fn best_cell_row(list: &ListArray, row_ids: &[RowId], sorted_by_row_id: bool) -> u32 {
+    if sorted_by_row_id {
+        // The greatest row id is the last row's: the last non-null cell is the best.
+        return (0..list.len())
+            .rev()
+            .find(|&row| list.is_valid(row))
+            .map_or(NO_ROW, |row| row as u32);
+    }
+    best_cell_row_by_scan(list, row_ids)
+}
+
+/// [`best_cell_row`] by reading every row, whatever their order: what the sanity check
+/// compares the shortcut with.
+#[expect(
+    clippy::cast_possible_truncation,
+    reason = "rows < 2^32, checked in Chunk::from_raw"
+)]
+fn best_cell_row_by_scan(list: &ListArray, row_ids: &[RowId]) -> u32 {
     let mut best: Option<(RowId, u32)> = None;
     for (row, &row_id) in row_ids.iter().enumerate() {
         if list.is_valid(row) && best.is_none_or(|(id, _)| row_id >= id) {
@@ -578,7 +586,7 @@ impl ComponentColumn {
         {
             return fail("the bounds on each timeline are those of the non-null cells");
         }
-        if *best_row != best_cell_row(list, row_ids) {
+        if *best_row != best_cell_row_by_scan(list, row_ids) {
             return fail("the best cell is the non-null cell of the greatest row id");
         }
         if *one_instance_per_row != has_one_instance_per_row(list) {
