@@ -27,7 +27,7 @@ pub(crate) struct WriteBuffer {
 
 /// Buffered chunks whose time columns and component columns have the same names in the
 /// same places, and their summary.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 struct BufferGroup {
     /// In arrival order; never empty.
     chunks: Vec<Arc<Chunk>>,
@@ -39,6 +39,23 @@ struct BufferGroup {
     /// Has a chunk left since the summary was made? [`WriteBuffer::refresh`] remakes it
     /// once a removal is done (a seal takes a whole group out one chunk at a time).
     stale: bool,
+}
+
+/// A copy is made when a snapshot shares the group and a write changes it, and a write that
+/// copies a group usually pushes a chunk next: the copy has room for it, rather than
+/// exactly the chunks it holds (which made every push under a `SharedStore` publishing
+/// per insert a reallocation).
+impl Clone for BufferGroup {
+    fn clone(&self) -> Self {
+        let mut chunks = Vec::with_capacity(self.chunks.len() + 1);
+        chunks.extend_from_slice(&self.chunks);
+        Self {
+            chunks,
+            time_ranges: self.time_ranges.clone(),
+            latest: self.latest.clone(),
+            stale: self.stale,
+        }
+    }
 }
 
 /// Where a (timeline, component) is in a group's chunks.

@@ -22,6 +22,8 @@ use crate::{Chunk, ChunkId, ComponentName, RowId};
 /// [`EntityView`], in the store's view.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct EntityIndex {
+    /// Where the entity's view is in the view's entity table (`store/entity_table.rs`).
+    pub slot: u32,
     /// Each component the entity holds chunks of (static or temporal), with its element
     /// type (that of its first data) and how many of the entity's chunks have its column:
     /// a component is forgotten with the last of them, so that what the store accepts

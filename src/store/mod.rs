@@ -9,6 +9,7 @@
 mod buffer;
 mod config;
 mod entity;
+mod entity_table;
 mod events;
 mod membership;
 mod pending;
@@ -28,8 +29,8 @@ use events::Subscribers;
 pub use events::{DeletionReason, StoreEvent};
 pub(crate) use membership::{Holding, Joining};
 pub(crate) use pending::{RewriteMark, SettledRun};
-pub(crate) use view::EntityView;
 pub use view::StoreView;
+pub(crate) use view::{EntityView, EntityViews};
 
 /// A chunk as the store holds it.
 #[derive(Clone, Debug)]
@@ -183,22 +184,27 @@ impl ChunkStore {
 /// An entity's writer part and its own view (copied first if a snapshot shares it), created
 /// if `create` and missing. A function of the two maps rather than a method, so that the
 /// caller keeps the rest of the store to borrow.
+///
+/// One hash lookup, the writer's: its part of the entity holds the entity's slot in the
+/// view's table (see `store/entity_table.rs`).
 pub(crate) fn entity_mut<'a>(
     entities: &'a mut ahash::HashMap<EntityPath, EntityIndex>,
-    views: &'a mut view::EntityViews,
+    views: &'a mut EntityViews,
     path: &EntityPath,
     create: bool,
 ) -> Option<EntityMut<'a>> {
-    // An entry (which clones the path, and in the hash trie prepares a write on the path
-    // to the key) only for a new entity: most writes are to one the store holds.
-    let (index, view) = if create && !entities.contains_key(path) {
-        (
-            entities.entry(path.clone()).or_default(),
-            views.entry(path.clone()).or_default(),
-        )
+    // An entry (which clones the path) only for a new entity: most writes are to one the
+    // store holds.
+    let index = if create && !entities.contains_key(path) {
+        let slot = views.add(path.clone());
+        entities.entry(path.clone()).or_insert(EntityIndex {
+            slot,
+            ..EntityIndex::default()
+        })
     } else {
-        (entities.get_mut(path)?, views.get_mut(path)?)
+        entities.get_mut(path)?
     };
+    let view = views.at_mut(index.slot)?;
     Some(EntityMut {
         index,
         view: Arc::make_mut(view),

@@ -249,7 +249,7 @@ impl ChunkStore {
         }
         // Each entity's own bookkeeping, and large indices' extra heap, which the store
         // adds as indices grow and shrink.
-        for (path, entity) in &view.entities {
+        for (path, entity) in view.entities.iter() {
             let extra = entity.extra_index_heap_bytes();
             expected.heap_bytes += extra + crate::stats::ENTITY_BYTES;
             expected.temporal_heap_bytes += extra;
@@ -279,10 +279,16 @@ impl ChunkStore {
             "the writer's entities are the view's",
         )?;
         for (path, entity) in &self.entities {
-            let Some(view) = self.view.entities.get(path) else {
+            // The writer's part knows where the view is.
+            let Some(view) = self
+                .view
+                .entities
+                .at(entity.slot)
+                .filter(|_| self.view.entities.slot(path) == Some(entity.slot))
+            else {
                 return Err(SanityError::new(
                     Structure::Entity,
-                    "the writer's entities are the view's",
+                    "the writer's entities are the view's, in the slot it keeps",
                 )
                 .at(path));
             };
@@ -328,6 +334,7 @@ impl EntityIndex {
     ) -> Result<(), SanityError> {
         let fail = |invariant| SanityError::new(Structure::Entity, invariant).at(path);
         let Self {
+            slot: _, // checked by `check_entities`
             element_types,
             static_chunks,
             chunk_ids,

@@ -4,12 +4,13 @@
 //! index, the timeline types, the figures) apart from what only its writer needs (the
 //! chunk map's bookkeeping, the garbage collector's orders, buffer ledgers, compaction's
 //! waiting groups). The readers' part is made of persistent pieces: the entity map is a
-//! hash trie (`imbl`), each entity's view and each of its temporal indices sit behind an
-//! `Arc`, and so do the Clear tree's nodes. Cloning a `StoreView` is therefore O(1) (a few
-//! reference counts), and a mutation copies only what it touches, and only while a
-//! snapshot still holds it ([`Arc::make_mut`]): the entity's view, a bounded part of each
-//! index of the (timeline, component) pairs its chunk has cells for (see `index/mod.rs`),
-//! the hash trie's path to the entity.
+//! directory of slots and a radix tree of views (`store/entity_table.rs`), each entity's
+//! view and each of its temporal indices sit behind an `Arc`, and so do the Clear tree's
+//! nodes. Cloning a `StoreView` is therefore O(1) (a few reference counts), and a mutation
+//! copies only what it touches, and only while a snapshot still holds it
+//! ([`Arc::make_mut`]): the entity's view (its small maps and write buffer, not its
+//! indices), a bounded part of each index it changes (see `index/mod.rs`), the entity
+//! table's path to the entity's slot.
 //! A store nobody snapshots owns every piece, so its writes copy nothing.
 
 use std::collections::BTreeMap;
@@ -25,14 +26,11 @@ use crate::small_map::SmallMap;
 use crate::stats::{EntityStats, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeRange, TimeType, Timeline};
 
-/// The entity map: a persistent hash trie, so that a snapshot shares it and a write
-/// copies only the path to the entity it changes.
-pub(crate) type EntityViews = imbl::GenericHashMap<
-    EntityPath,
-    Arc<EntityView>,
-    ahash::RandomState,
-    imbl::shared_ptr::DefaultSharedPtr,
->;
+use super::entity_table::EntityTable;
+
+/// The entity map: path to view, persistent so that a snapshot shares it and a write
+/// copies little (see `store/entity_table.rs`).
+pub(crate) type EntityViews = EntityTable<EntityView>;
 
 /// The static cell that currently answers for one (entity, component).
 #[derive(Clone, Debug)]
@@ -50,11 +48,11 @@ pub(crate) struct EntityView {
     /// temporal). Behind an `Arc`: it changes only when a component appears or goes.
     pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
-    /// Each index inline (a query reaches its entries in as many steps as in a store
-    /// without snapshots): a small index is one vector, copied with the view; a sequence
-    /// (at most 16,384 entries) and a large index sit behind `Arc`s, so copying the view
-    /// counts references there, and a write copies the sequence or a path through the
-    /// large index's persistent B-trees (see `index/mod.rs`).
+    /// Every index's entries sit behind an `Arc` (a small index's vector too), so copying
+    /// the view counts one reference per index: a write that changes only the write
+    /// buffer, as most inserts of a stream do, copies no index, and one that changes an
+    /// index copies its vector or sequence, or a path through its persistent B-trees (see
+    /// `index/mod.rs`).
     pub temporal_per_timeline_per_component:
         SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
@@ -231,7 +229,8 @@ impl StoreView {
             time_types: _, // checked against the chunks by the store
             stats: _,      // recounted by the store
         } = self;
-        for (path, entity) in entities {
+        entities.sanity_check()?;
+        for (path, entity) in entities.iter() {
             entity.sanity_check(path)?;
         }
         clears.sanity_check()
