@@ -27,9 +27,7 @@
 //!
 //! Snapshots share indices with the store (SEMANTICS.md section 10), so a write to an index
 //! a snapshot holds must copy what it changes, and each form bounds that copy. A small
-//! index is one vector of at most [`SMALL_INDEX_MAX_CHUNKS`] entries behind an `Arc`
-//! (copying the entity's view then copies none of them: most writes of a stream change
-//! the entity's write buffer, not its indices), copied whole when it changes. A
+//! index is one vector of at most [`SMALL_INDEX_MAX_CHUNKS`] entries, copied whole. A
 //! sequence is one contiguous deque behind an `Arc` (a query's binary search touches a
 //! few cache lines, and a store nobody snapshots changes it in place), copied whole too,
 //! so it holds at most [`SEQUENCE_MAX_CHUNKS`]: past that, even in order, an index takes
@@ -77,9 +75,8 @@ pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
 /// The index of one (entity, timeline, component): see the module docs.
 #[derive(Clone, Debug)]
 pub(crate) enum TemporalComponentIndex {
-    /// At most [`SMALL_INDEX_MAX_CHUNKS`] entries, sorted by `(least time, chunk id)`;
-    /// behind an `Arc` as the other forms are (see the module docs).
-    Small(Arc<Vec<IndexedChunk>>),
+    /// At most [`SMALL_INDEX_MAX_CHUNKS`] entries, sorted by `(least time, chunk id)`.
+    Small(Vec<IndexedChunk>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] and at most [`SEQUENCE_MAX_CHUNKS`]
     /// entries that do not overlap in time, in time order: each ends strictly before the
     /// next starts.
@@ -126,19 +123,8 @@ fn large_from(entries: impl IntoIterator<Item = IndexedChunk>) -> TemporalCompon
 
 impl Default for TemporalComponentIndex {
     fn default() -> Self {
-        Self::Small(Arc::default())
+        Self::Small(Vec::new())
     }
-}
-
-/// [`Arc::make_mut`] for a small index about to take one more entry: a copy (made when a
-/// snapshot shares the index) has room for it, so the insertion does not reallocate it.
-fn make_mut_with_room(shared: &mut Arc<Vec<IndexedChunk>>) -> &mut Vec<IndexedChunk> {
-    if Arc::get_mut(shared).is_none() {
-        let mut copy = Vec::with_capacity(shared.len() + 1);
-        copy.extend_from_slice(shared);
-        *shared = Arc::new(copy);
-    }
-    Arc::make_mut(shared)
 }
 
 fn min_time_key(entry: &IndexedChunk) -> MinTimeKey {
@@ -149,8 +135,7 @@ impl TemporalComponentIndex {
     /// Indexes a chunk (once: a chunk already indexed is left as it is).
     pub fn insert(&mut self, entry: IndexedChunk) {
         match self {
-            Self::Small(shared) => {
-                let entries = make_mut_with_room(shared);
+            Self::Small(entries) => {
                 let key = min_time_key(&entry);
                 let Err(position) = entries.binary_search_by_key(&key, min_time_key) else {
                     return; // already indexed: a store never inserts a chunk id twice
@@ -205,8 +190,7 @@ impl TemporalComponentIndex {
     /// Forgets a chunk indexed with `bounds`; returns whether it was indexed.
     pub fn remove(&mut self, id: ChunkId, bounds: &ComponentTimeBounds) -> bool {
         match self {
-            Self::Small(shared) => {
-                let entries = Arc::make_mut(shared);
+            Self::Small(entries) => {
                 let key = (bounds.min_time, id);
                 let Ok(position) = entries.binary_search_by_key(&key, min_time_key) else {
                     return false;
@@ -238,7 +222,7 @@ impl TemporalComponentIndex {
                 }
                 entries.remove(position);
                 if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(Arc::new(std::mem::take(entries).into()));
+                    *self = Self::Small(std::mem::take(entries).into());
                 } else if entries.len() * 4 <= entries.capacity() {
                     entries.shrink_to(entries.len() * 2);
                 }
@@ -248,7 +232,7 @@ impl TemporalComponentIndex {
                 let large = Arc::make_mut(shared);
                 let removed = large.remove(id, bounds);
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(Arc::new(large.entries_by_min_time()));
+                    *self = Self::Small(large.entries_by_min_time());
                 }
                 removed
             }

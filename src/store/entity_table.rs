@@ -254,7 +254,13 @@ impl<V: Clone + Default> EntityTable<V> {
     /// Adds an entity the map does not hold, with an empty view; returns its slot.
     pub fn add(&mut self, path: EntityPath) -> u32 {
         debug_assert!(self.directory.get(&path).is_none());
-        let slot = if let Some(slot) = Arc::make_mut(&mut self.free_slots).pop() {
+        // A snapshot may share the free list: it is copied only if it has a slot to give.
+        let reused = if self.free_slots.is_empty() {
+            None
+        } else {
+            Arc::make_mut(&mut self.free_slots).pop()
+        };
+        let slot = if let Some(slot) = reused {
             slot
         } else {
             let slot = self.next_slot;

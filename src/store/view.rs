@@ -8,9 +8,9 @@
 //! view and each of its temporal indices sit behind an `Arc`, and so do the Clear tree's
 //! nodes. Cloning a `StoreView` is therefore O(1) (a few reference counts), and a mutation
 //! copies only what it touches, and only while a snapshot still holds it
-//! ([`Arc::make_mut`]): the entity's view (its small maps and write buffer, not its
-//! indices), a bounded part of each index it changes (see `index/mod.rs`), the entity
-//! table's path to the entity's slot.
+//! ([`Arc::make_mut`]): the entity's view (its small maps, small indices and write
+//! buffer), a bounded part of each larger index it changes (see `index/mod.rs`), the
+//! entity table's path to the entity's slot.
 //! A store nobody snapshots owns every piece, so its writes copy nothing.
 
 use std::collections::BTreeMap;
@@ -48,11 +48,13 @@ pub(crate) struct EntityView {
     /// temporal). Behind an `Arc`: it changes only when a component appears or goes.
     pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
-    /// Every index's entries sit behind an `Arc` (a small index's vector too), so copying
-    /// the view counts one reference per index: a write that changes only the write
-    /// buffer, as most inserts of a stream do, copies no index, and one that changes an
-    /// index copies its vector or sequence, or a path through its persistent B-trees (see
-    /// `index/mod.rs`).
+    /// Each index inline (a query reaches its entries in as many steps as in a store
+    /// without snapshots): a small index is one vector, copied with the view; a sequence
+    /// (at most 16,384 entries) and a large index sit behind `Arc`s, so copying the view
+    /// counts references there, and a write copies the sequence or a path through the
+    /// large index's persistent B-trees (see `index/mod.rs`). (A small index behind an
+    /// `Arc` too made writes under a snapshot cheaper and queries slower: see
+    /// `docs/performance-log.md`, "Publishing per insert".)
     pub temporal_per_timeline_per_component:
         SmallMap<Arc<str>, SmallMap<ComponentName, TemporalComponentIndex>>,
     /// Temporal chunks with no non-null cell on any timeline: no index holds them, but
