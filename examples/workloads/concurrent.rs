@@ -10,8 +10,10 @@
 //! per ten frames (1,000 rows); then garbage collection and on-demand compaction while the
 //! reader runs (their pauses). The plain
 //! store's ns/row is the same second half inserted into a plain `ChunkStore` holding the
-//! first half, with no reader. Reader latency is one fresh snapshot, one latest-at and
-//! dropping the snapshot.
+//! first half, with no reader; `writer_ns_per_row_plain_beside_reader` is the per-insert
+//! third inserted into a fresh plain store while the reader queries the shared one (what
+//! the reader's traffic costs a writer, sharing aside). Reader latency is one fresh
+//! snapshot, one latest-at and dropping the snapshot.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -203,7 +205,7 @@ pub fn concurrent() -> bool {
         }
     });
     let mut elsewhere_store = ChunkStore::with_config(DEFAULT).expect("a valid config");
-    let (_, elsewhere) = with_reader(&shared, &entities, || {
+    let (elsewhere_ns, elsewhere) = with_reader(&shared, &entities, || {
         for chunk in each_insert {
             drop(
                 elsewhere_store
@@ -213,6 +215,9 @@ pub fn concurrent() -> bool {
         }
     });
     drop(elsewhere_store);
+    // The plain store's writer with the reader running beside it (on another store): what
+    // the reader's traffic alone costs a writer, apart from sharing.
+    let beside_reader_ns_per_row = elsewhere_ns / each_insert.len() as f64;
 
     // One publication per insert, per frame (the 100 entities' rows), per ten frames.
     let (ingest_ns, mut ingest) = with_reader(&shared, &entities, || {
@@ -259,6 +264,7 @@ pub fn concurrent() -> bool {
 \"writer_ns_per_row_shared_per_frame\":{frame_ns_per_row:.1},\
 \"writer_ns_per_row_shared_per_ten_frames\":{ten_frames_ns_per_row:.1},\
 \"writer_ns_per_row_plain\":{plain_ns_per_row:.1},\
+\"writer_ns_per_row_plain_beside_reader\":{beside_reader_ns_per_row:.1},\
 \"reader_queries\":{},\"snapshot_kept_bytes\":{kept_by_snapshot},\
 \"checksum\":{checksum},\"peak_rss_kib\":{}}}",
         idle.percentile(0.5),
