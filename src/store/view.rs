@@ -19,14 +19,13 @@ use std::sync::Arc;
 use arrow_schema::DataType;
 
 use super::buffer::WriteBuffer;
+use super::entity_table::EntityTable;
 use crate::clear::ClearIndex;
 use crate::index::{IndexedChunk, TemporalComponentIndex};
 use crate::sanity::{SanityError, Structure};
 use crate::small_map::SmallMap;
 use crate::stats::{EntityStats, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeRange, TimeType, Timeline};
-
-use super::entity_table::EntityTable;
 
 /// The entity map: path to view, persistent so that a snapshot shares it and a write
 /// copies little (see `store/entity_table.rs`).
