@@ -15,8 +15,8 @@
 //!
 //! The store's writer keeps each entity's slot in its own part of the entity
 //! ([`EntityIndex::slot`](super::EntityIndex)), so an insert finds the entity with the
-//! one hash lookup it makes anyway and walks the slot table without hashing the path
-//! again. A reader looks up the path in the directory, then walks the table.
+//! hash lookup of its own map it makes anyway and walks the slot table without hashing
+//! the path again. A reader looks up the path in the directory, then walks the table.
 
 use std::sync::Arc;
 
@@ -55,9 +55,7 @@ impl Directory {
     fn set(&mut self, path: EntityPath, slot: Option<u32>) {
         if let Some(base) = Arc::get_mut(&mut self.base) {
             // Nobody shares the base: write there, with whatever was noted meanwhile.
-            for (path, slot) in self.recent.take().iter().flat_map(|recent| recent.iter()) {
-                apply(base, path.clone(), *slot);
-            }
+            fold(self.recent.take().as_deref(), base);
             apply(base, path, slot);
             return;
         }
@@ -70,9 +68,7 @@ impl Directory {
         }
         if recent.len() > 8 + self.base.len().isqrt() {
             let mut base = (*self.base).clone();
-            for (path, slot) in self.recent.take().iter().flat_map(|recent| recent.iter()) {
-                apply(&mut base, path.clone(), *slot);
-            }
+            fold(self.recent.take().as_deref(), &mut base);
             self.base = Arc::new(base);
         } else if recent.is_empty() {
             self.recent = None;
@@ -106,6 +102,17 @@ impl Directory {
     }
 }
 
+/// Applies the changes noted in `recent` (if any) to `base`.
+fn fold(
+    recent: Option<&ahash::HashMap<EntityPath, Option<u32>>>,
+    base: &mut ahash::HashMap<EntityPath, u32>,
+) {
+    for (path, slot) in recent.into_iter().flatten() {
+        apply(base, path.clone(), *slot);
+    }
+}
+
+/// Adds (`Some`) or removes (`None`) one entity of `base`.
 fn apply(base: &mut ahash::HashMap<EntityPath, u32>, path: EntityPath, slot: Option<u32>) {
     match slot {
         Some(slot) => base.insert(path, slot),

@@ -185,8 +185,9 @@ impl ChunkStore {
 /// if `create` and missing. A function of the two maps rather than a method, so that the
 /// caller keeps the rest of the store to borrow.
 ///
-/// One hash lookup, the writer's: its part of the entity holds the entity's slot in the
-/// view's table (see `store/entity_table.rs`).
+/// Only the writer's map is searched by path: its part of the entity holds the entity's
+/// slot, by which the view's table is walked (see `store/entity_table.rs`). (A call that
+/// may create the entity searches the writer's map twice, as it did before the table.)
 pub(crate) fn entity_mut<'a>(
     entities: &'a mut ahash::HashMap<EntityPath, EntityIndex>,
     views: &'a mut EntityViews,
