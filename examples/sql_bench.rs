@@ -8,7 +8,8 @@
 //! ```sh
 //! cargo run --release --features datafusion --example sql_bench -- 100 1000000 1000 [PARQUET]
 //! ```
-//! (entities, frames, rows per chunk: 100 entities × 1,000,000 frames = 100 M rows). Every
+//! (entities, frames, rows per chunk: 100 entities × 1,000,000 frames = 100 M rows;
+//! `SQL_BENCH_ONLY=pushdown` runs that query alone, for a profiler). Every
 //! entity `/e/{i}` logs `x` = frame + i at every frame, in chunks of consecutive frames,
 //! compaction off (the chunks as generated).
 #![allow(
@@ -132,6 +133,8 @@ fn main() {
     let frames = arg(2, 100_000);
     let rows_per_chunk = arg(3, 1_000);
     let parquet = std::env::args().nth(4);
+    // One query alone (`SQL_BENCH_ONLY=pushdown`), for a profiler.
+    let only = std::env::var("SQL_BENCH_ONLY").ok();
     let start = Instant::now();
     let store = build(entities, frames, rows_per_chunk);
     let (hwm, rss) = memory();
@@ -145,7 +148,8 @@ fn main() {
     let snapshot = store.snapshot();
     let ctx = SessionContext::new();
     chunkstore::sql::register(&ctx, &snapshot).expect("registered");
-    let runtime = tokio::runtime::Builder::new_current_thread()
+    // A worker per core, so that the scan's partitions run side by side.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
         .build()
         .expect("a runtime");
     let (lo, hi) = (frames / 2, frames / 2 + frames / 100 - 1);
@@ -180,6 +184,9 @@ fn main() {
             "SELECT count(*) AS n, avg(x[1]) AS mean FROM chunks".to_owned(),
         ),
     ] {
+        if only.as_ref().is_some_and(|only| only != name) {
+            continue;
+        }
         let runs: Vec<Run> = (0..3).map(|_| run(&runtime, &ctx, &sql)).collect();
         let (hwm, rss) = memory();
         println!(

@@ -44,6 +44,7 @@
 mod integer_times;
 mod latest_at;
 mod pushdown;
+mod read_ahead;
 mod scan;
 mod segments;
 mod tables;

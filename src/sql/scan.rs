@@ -20,15 +20,18 @@ use datafusion::physical_plan::{
     SendableRecordBatchStream,
 };
 
+use super::read_ahead::{READ_AHEAD_BYTES, ReadAhead};
 use crate::{ChunkTableQuery, DataframeQuery, Snapshot};
 
 /// What a scan reads.
 #[derive(Clone, Debug)]
 pub(crate) enum ScanSource {
-    /// A dataframe view: its query holds the range and the columns (which it builds in
-    /// the view's order; `projection` puts them in the order asked for).
+    /// A dataframe view, in consecutive index ranges read in order (never empty): the
+    /// first built on the reader's thread, each other on a thread of its own
+    /// ([`ReadAhead`]). Each query holds its range and the columns (which it builds in the
+    /// view's order; `projection` puts them in the order asked for).
     Dataframe {
-        query: DataframeQuery,
+        queries: Vec<DataframeQuery>,
         projection: Option<Vec<usize>>,
     },
     /// The chunk table: its query holds the row filters and the columns (built in the
@@ -40,9 +43,11 @@ pub(crate) enum ScanSource {
 }
 
 /// Reads one of the store's tables ([`super::register`]) from a snapshot, as one
-/// partition. `EXPLAIN` shows what was pushed down to it; `EXPLAIN ANALYZE` also shows
-/// `chunks_read`, the chunks the store read to answer (the store's own count), and
-/// `rows_built`, the rows the store built before any `LIMIT` cut them.
+/// partition (a timeline table's index range may be built in parts side by side, read in
+/// order). `EXPLAIN` shows what was pushed down to it; `EXPLAIN ANALYZE` also shows
+/// `chunks_read`, the chunks the store read to answer (the store's own count, summed over
+/// the parts: a chunk straddling two parts is read by both), and `rows_built`, the rows
+/// the store built before any `LIMIT` cut them.
 #[derive(Debug)]
 pub struct StoreScanExec {
     snapshot: Snapshot,
@@ -180,19 +185,47 @@ impl ExecutionPlan for StoreScanExec {
         let chunks_read = MetricBuilder::new(&self.metrics).counter("chunks_read", partition);
         let rows_built = MetricBuilder::new(&self.metrics).counter("rows_built", partition);
         let (batches, projection): (Box<dyn Iterator<Item = _> + Send>, _) = match &self.source {
-            ScanSource::Dataframe { query, projection } => {
-                let stream = self
-                    .snapshot
-                    .clone()
-                    .into_dataframe(query)
-                    .map_err(|e| DataFusionError::External(Box::new(e)))?;
-                let counted = CountedDataframe {
-                    stream,
-                    counted: 0,
-                    sources_counted: None,
-                    chunks_read,
+            ScanSource::Dataframe {
+                queries,
+                projection,
+            } => {
+                let counted = |snapshot: Snapshot, query: &DataframeQuery, chunks_read: Count| {
+                    snapshot
+                        .into_dataframe(query)
+                        .map(|stream| CountedDataframe {
+                            stream,
+                            counted: 0,
+                            sources_counted: None,
+                            chunks_read,
+                        })
                 };
-                (Box::new(counted), projection.clone())
+                let (first, rest) = queries
+                    .split_first()
+                    .ok_or_else(|| DataFusionError::Internal("a scan of no range".to_owned()))?;
+                let mut batches: Box<dyn Iterator<Item = _> + Send> = Box::new(
+                    counted(self.snapshot.clone(), first, chunks_read.clone())
+                        .map_err(|e| DataFusionError::External(Box::new(e)))?,
+                );
+                for query in rest {
+                    let (snapshot, query, chunks_read) =
+                        (self.snapshot.clone(), query.clone(), chunks_read.clone());
+                    let part = ReadAhead::spawn(
+                        move || -> Box<dyn Iterator<Item = _>> {
+                            match counted(snapshot, &query, chunks_read) {
+                                Ok(stream) => Box::new(stream),
+                                Err(error) => Box::new(std::iter::once(Err(
+                                    ArrowError::ExternalError(Box::new(error)),
+                                ))),
+                            }
+                        },
+                        READ_AHEAD_BYTES,
+                    )
+                    .map_err(|e| {
+                        DataFusionError::Execution(format!("starting a scan thread: {e}"))
+                    })?;
+                    batches = Box::new(batches.chain(part));
+                }
+                (batches, projection.clone())
             }
             ScanSource::Chunks { query, projection } => {
                 let stream = self

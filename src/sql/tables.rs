@@ -55,6 +55,9 @@ pub struct TimelineTable {
     /// Sampling at these times (the `latest_at` table function), else the sparse view.
     samples: Option<Arc<[TimeInt]>>,
     schema: SchemaRef,
+    /// The times the view holds on its index (`None`: none), found on the first scan
+    /// that splits into partitions: O(n) over the indices, so not on registration.
+    held_range: Arc<std::sync::OnceLock<Option<TimeRange>>>,
 }
 
 impl TimelineTable {
@@ -96,6 +99,7 @@ impl TimelineTable {
             contents,
             samples,
             schema: Arc::new(arrow_schema::Schema::empty()),
+            held_range: Arc::default(),
             snapshot,
         };
         let query = table.query();
@@ -119,6 +123,58 @@ impl TimelineTable {
             Some(times) => query.with_index_values(times.iter().copied()),
             None => query,
         }
+    }
+
+    /// `range` cut into at most `partitions` consecutive ranges of equal width (after
+    /// clipping it to the times the view holds on its index), to be built side by side: a
+    /// row's index time puts it in exactly one of them, and a range is exactly what a
+    /// pushed-down filter on the index makes of the view (SEMANTICS.md section 9), so
+    /// their rows in order are `range`'s. One range when there is no room to cut (fewer
+    /// distinct times than parts, or one part asked for).
+    fn split(&self, range: TimeRange, partitions: usize) -> Vec<TimeRange> {
+        if partitions <= 1 || range.is_empty() {
+            return vec![range];
+        }
+        let held = *self
+            .held_range
+            .get_or_init(|| self.snapshot.time_range(self.index.name()));
+        let Some(held) = held else {
+            return vec![range];
+        };
+        let (lo, hi) = (
+            range.min().max(held.min()).as_i64(),
+            range.max().min(held.max()).as_i64(),
+        );
+        if lo > hi {
+            return vec![range];
+        }
+        let width = i128::from(hi) - i128::from(lo) + 1;
+        let parts = i128::try_from(partitions).unwrap_or(i128::MAX).min(width);
+        if parts <= 1 {
+            return vec![range];
+        }
+        // Bounds of part k: lo + width·k / parts, each within [lo, hi + 1]; the first
+        // and last parts keep the range's own ends, so nothing outside the held times
+        // is cut off (a chunk inserted later into a fresh snapshot does not matter here:
+        // a snapshot never changes).
+        let bound = |k: i128| -> i64 {
+            i64::try_from(i128::from(lo) + width * k / parts).unwrap_or(i64::MAX)
+        };
+        (0..parts)
+            .map(|k| {
+                let min = if k == 0 {
+                    range.min()
+                } else {
+                    TimeInt::saturating(bound(k))
+                };
+                let max = if k == parts - 1 {
+                    range.max()
+                } else {
+                    TimeInt::saturating(bound(k + 1) - 1)
+                };
+                TimeRange::new(min, max)
+            })
+            .collect()
     }
 
     fn time_filter(&self, filter: &Expr) -> Option<TimeFilter> {
@@ -151,7 +207,7 @@ impl TableProvider for TimelineTable {
 
     async fn scan(
         &self,
-        _state: &dyn Session,
+        state: &dyn Session,
         projection: Option<&Vec<usize>>,
         filters: &[Expr],
         limit: Option<usize>,
@@ -177,9 +233,28 @@ impl TableProvider for TimelineTable {
         if let Some(rows) = limit_batch_rows(limit, &mut pushed_down) {
             query = query.with_batch_rows(rows);
         }
+        let projection = projection.and_then(|(_, order)| order);
+        // The range is built in consecutive parts side by side (`target_partitions` of
+        // them), read in order. A sampled view's rows come in the order of its times, and
+        // a pushed-down limit wants the first rows only: both are built in one part.
+        let partitions = if self.samples.is_none() && limit.is_none() {
+            self.split(query.range(), state.config().target_partitions())
+        } else {
+            vec![query.range()]
+        };
+        if partitions.len() > 1 {
+            pushed_down.push(format!(
+                "{} ranges of {} built side by side",
+                partitions.len(),
+                self.index.name()
+            ));
+        }
         let source = ScanSource::Dataframe {
-            query,
-            projection: projection.and_then(|(_, order)| order),
+            queries: partitions
+                .into_iter()
+                .map(|range| query.clone().with_range(range))
+                .collect(),
+            projection,
         };
         let scan = StoreScanExec::new(
             self.snapshot.clone(),

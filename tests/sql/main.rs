@@ -22,7 +22,7 @@ use chunkstore::{
     EntityPathFilter, LatestAtQuery, RowId, Snapshot, StoreConfig, TimeInt, TimeRange, Timeline,
 };
 use datafusion::physical_plan::{ExecutionPlan, collect};
-use datafusion::prelude::SessionContext;
+use datafusion::prelude::{SessionConfig, SessionContext};
 use proptest::prelude::*;
 
 #[path = "../common/mod.rs"]
@@ -45,8 +45,15 @@ struct Answer {
     plan: String,
 }
 
+/// A session whose timeline scans build their range in one part, so that `chunks_read`
+/// counts each chunk once.
 fn context(snapshot: &Snapshot) -> SessionContext {
-    let ctx = SessionContext::new();
+    context_with_parts(snapshot, 1)
+}
+
+/// A session whose timeline scans build their range in up to `parts` parts side by side.
+fn context_with_parts(snapshot: &Snapshot, parts: usize) -> SessionContext {
+    let ctx = SessionContext::new_with_config(SessionConfig::new().with_target_partitions(parts));
     chunkstore::sql::register(&ctx, snapshot).unwrap();
     ctx
 }
@@ -330,6 +337,50 @@ fn a_timeline_table_needs_no_sort_to_be_ordered_by_its_index() {
     .unwrap();
     assert!(sampled.plan.contains("SortExec"), "{}", sampled.plan);
     assert_eq!(int64s(&sampled, 0), vec![1, 3, 5]);
+}
+
+/// A timeline table's range is built in `target_partitions` parts side by side, read in
+/// order: the same rows in the same order as one part, aggregates included, and `EXPLAIN`
+/// says so. A limit or a sample is built in one part.
+#[test]
+fn a_range_built_in_parts_side_by_side_answers_as_one() {
+    let store = grid();
+    let snapshot = store.snapshot();
+    let whole = context(&snapshot);
+    for parts in [2, 4, 200] {
+        let split = context_with_parts(&snapshot, parts);
+        for sql in [
+            "SELECT * FROM frame",
+            "SELECT * FROM frame WHERE frame BETWEEN 3 AND 60",
+            "SELECT * FROM frame WHERE frame >= 97",
+            "SELECT frame FROM frame WHERE frame = 42",
+            r#"SELECT count(*) AS n, sum("/e/1:x"[1]) AS s FROM frame WHERE frame < 77"#,
+            "SELECT frame FROM frame ORDER BY frame DESC",
+        ] {
+            let one = run(&whole, sql).unwrap();
+            let many = run(&split, sql).unwrap();
+            assert_same_table(&many.batch, &one.batch, &format!("{sql} in {parts} parts"));
+            assert!(many.chunks_read >= one.chunks_read, "{sql}");
+        }
+        let plan = run(&split, "SELECT * FROM frame WHERE frame < 50")
+            .unwrap()
+            .plan;
+        assert!(
+            plan.contains("ranges of frame built side by side"),
+            "{plan}"
+        );
+        let limited = run(&split, "SELECT frame FROM frame LIMIT 7").unwrap();
+        assert!(!limited.plan.contains("side by side"), "{}", limited.plan);
+        assert_eq!(int64s(&limited, 0), (0..7).collect::<Vec<i64>>());
+    }
+    // One frame cannot be cut.
+    let split = context_with_parts(&snapshot, 4);
+    let one_frame = run(&split, "SELECT * FROM frame WHERE frame = 42").unwrap();
+    assert!(
+        !one_frame.plan.contains("side by side"),
+        "{}",
+        one_frame.plan
+    );
 }
 
 #[test]
@@ -650,6 +701,19 @@ proptest! {
         assert_same_table(&pushed.batch, &api, "pushed");
         assert_same_table(&unpushed.batch, &api, "unpushed");
         prop_assert!(pushed.chunks_read <= unpushed.chunks_read);
+        // Built in parts side by side, the rows come in the same order, no ORDER BY asked
+        // (a filter DataFusion applies itself may spread the batches over its partitions,
+        // so that query asks for the order).
+        for parts in [2, 3, 7] {
+            let split = context_with_parts(&snapshot, parts);
+            for sql in [
+                format!("SELECT * FROM frame WHERE frame BETWEEN {lo} AND {hi}"),
+                format!("SELECT * FROM frame WHERE frame + 0 BETWEEN {lo} AND {hi} ORDER BY frame"),
+            ] {
+                let answer = run(&split, &sql).unwrap();
+                assert_same_table(&answer.batch, &api, &format!("{sql} in {parts} parts"));
+            }
+        }
 
         // The chunk table, narrowed to one entity, equals the whole table filtered.
         let path = format!("/p/{entity}");

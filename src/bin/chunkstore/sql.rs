@@ -33,7 +33,9 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     // `SHOW TABLES` and `SHOW COLUMNS` need the information schema.
     let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
-    let runtime = tokio::runtime::Builder::new_current_thread()
+    // A worker per core: a timeline table's scan runs one partition per core
+    // (`target_partitions`), each an index range of its own.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
         .build()
         .map_err(|e| format!("starting the query runtime: {e}"))?;
     let (schema, batches): (_, Vec<RecordBatch>) = runtime
