@@ -2,9 +2,10 @@
 DataFusion's Python package (`pip install duckdb datafusion`), for docs/PERFORMANCE.md.
 
     cargo run --release --features datafusion --example sql_bench -- 100 1000000 1000 /tmp/v.parquet
-    python benches/sql_engines.py /tmp/v.parquet 500000 509999
+    python benches/sql_engines.py /tmp/v.parquet 500000 509999 [RUNS]
 
-Three runs of each query, the median; `frame + 0` defeats the range's pushdown.
+RUNS runs of each query (3 by default), the median; `frame + 0` defeats the range's
+pushdown.
 """
 
 import resource
@@ -16,18 +17,24 @@ import datafusion
 import duckdb
 
 
+RUNS = 3
+
+
 def bench(name, run):
     times = []
     answer = None
-    for _ in range(3):
+    for _ in range(RUNS):
         start = time.perf_counter()
         answer = run()
         times.append(time.perf_counter() - start)
-    print(f"{name}: median {statistics.median(times):.4f} s of {[round(t, 4) for t in times]}, answer {answer}")
+    print(f"{name}: median {statistics.median(times):.4f} s (min {min(times):.4f}) of {len(times)} runs, answer {answer}")
 
 
 def main():
+    global RUNS
     path, lo, hi = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    if len(sys.argv) > 4:
+        RUNS = int(sys.argv[4])
 
     def query(source, column):
         return (

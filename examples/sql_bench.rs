@@ -9,7 +9,9 @@
 //! cargo run --release --features datafusion --example sql_bench -- 100 1000000 1000 [PARQUET]
 //! ```
 //! (entities, frames, rows per chunk: 100 entities × 1,000,000 frames = 100 M rows;
-//! `SQL_BENCH_ONLY=pushdown` runs that query alone, for a profiler). Every
+//! `SQL_BENCH_ONLY=pushdown` runs that query alone, for a profiler; `SQL_BENCH_RUNS=11`
+//! runs each query 11 times rather than 3; `DATAFUSION_EXECUTION_TARGET_PARTITIONS=1`
+//! builds each range in one part). Every
 //! entity `/e/{i}` logs `x` = frame + i at every frame, in chunks of consecutive frames,
 //! compaction off (the chunks as generated).
 #![allow(
@@ -135,6 +137,12 @@ fn main() {
     let parquet = std::env::args().nth(4);
     // One query alone (`SQL_BENCH_ONLY=pushdown`), for a profiler.
     let only = std::env::var("SQL_BENCH_ONLY").ok();
+    // Runs per query (the median is reported): `SQL_BENCH_RUNS`, 3 by default.
+    let repeats: usize = std::env::var("SQL_BENCH_RUNS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .filter(|&r| r > 0)
+        .unwrap_or(3);
     let start = Instant::now();
     let store = build(entities, frames, rows_per_chunk);
     let (hwm, rss) = memory();
@@ -146,7 +154,10 @@ fn main() {
         start.elapsed().as_secs_f64()
     );
     let snapshot = store.snapshot();
-    let ctx = SessionContext::new();
+    // `DATAFUSION_EXECUTION_TARGET_PARTITIONS=1` builds each range in one part.
+    let ctx = SessionContext::new_with_config(
+        datafusion::prelude::SessionConfig::from_env().expect("a valid DataFusion environment"),
+    );
     chunkstore::sql::register(&ctx, &snapshot).expect("registered");
     // A worker per core, so that the scan's partitions run side by side.
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -187,7 +198,7 @@ fn main() {
         if only.as_ref().is_some_and(|only| only != name) {
             continue;
         }
-        let runs: Vec<Run> = (0..3).map(|_| run(&runtime, &ctx, &sql)).collect();
+        let runs: Vec<Run> = (0..repeats).map(|_| run(&runtime, &ctx, &sql)).collect();
         let (hwm, rss) = memory();
         println!(
             "{name:>12}: median {:.4} s of {:?}, chunks read {}, answer {}; RSS {rss} MiB, peak {hwm} MiB",
