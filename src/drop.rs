@@ -87,9 +87,11 @@ impl ChunkStore {
         }
         targets.sort_unstable();
         let mut events = Vec::with_capacity(targets.len());
-        for id in targets {
-            self.remove_chunk(id, DeletionReason::Drop, &mut events);
-        }
+        let stored = targets
+            .iter()
+            .filter_map(|id| self.chunks.remove(id))
+            .collect();
+        self.take_out_all(stored, DeletionReason::Drop, &mut events);
         crate::clear::ClearIndex::remove_entity(&mut self.view.clears, entity, recursive);
         self.finish_mutation(events)
     }

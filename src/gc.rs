@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::store::{DeletionReason, Holding, StoredChunk};
+use crate::store::{DeletionReason, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
 use std::fmt;
 
@@ -276,6 +276,7 @@ impl ChunkStore {
     /// deletion with reason [`DeletionReason::Gc`].
     pub fn apply_gc(&mut self, plan: &GcPlan) -> Vec<StoreEvent> {
         let mut events = Vec::with_capacity(plan.chunk_ids.len());
+        let mut removed = Vec::with_capacity(plan.chunk_ids.len());
         for &id in &plan.chunk_ids {
             let Some(stored) = self.chunks.remove(&id) else {
                 continue;
@@ -285,8 +286,10 @@ impl ChunkStore {
                 self.chunks.insert(id, stored);
                 continue;
             }
-            self.take_out(stored, Holding::Everywhere, DeletionReason::Gc, &mut events);
+            removed.push(stored);
         }
+        // Each entity looked up once for all of its chunks (GC takes many of one entity).
+        self.take_out_all(removed, DeletionReason::Gc, &mut events);
         self.finish_mutation(events)
     }
 

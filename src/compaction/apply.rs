@@ -94,10 +94,13 @@ impl ChunkStore {
         let Some(pieces) = self.rewrite_held(chunks, "rewriting a compaction group") else {
             return; // the group stays as it is
         };
-        // Removed first, as in `merge_cascade`: the pieces cover the same times.
-        for chunk in chunks {
-            self.remove_chunk(chunk.id(), DeletionReason::Compaction, events);
-        }
+        // Removed first, as in `merge_cascade`: the pieces cover the same times. One
+        // lookup of the entity for all of them.
+        let stored = chunks
+            .iter()
+            .filter_map(|chunk| self.chunks.remove(&chunk.id()))
+            .collect();
+        self.take_out_all(stored, DeletionReason::Compaction, events);
         let mark = RewriteMark {
             rewrite: self.num_rewrites,
             num_pieces: pieces.len(),

@@ -188,6 +188,75 @@ impl ChunkStore {
         );
     }
 
+    /// Removes the chunks of `stored` (already out of the chunk map, still everywhere
+    /// else: [`Holding::Everywhere`]) for `reason`, one lookup of each entity for all of
+    /// its chunks, and records the deletions in the order given: what a removal one
+    /// chunk at a time records, for the cost of grouping.
+    pub(crate) fn take_out_all(
+        &mut self,
+        stored: Vec<StoredChunk>,
+        reason: DeletionReason,
+        events: &mut Vec<StoreEvent>,
+    ) {
+        // Each chunk's position in `stored`, grouped by entity (first appearance first).
+        let mut groups: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
+        let mut paths: Vec<EntityPath> = Vec::new();
+        for (position, chunk) in stored.iter().enumerate() {
+            let path = chunk.chunk.entity_path();
+            if let Some(positions) = groups.get_mut(path) {
+                positions.push(position);
+            } else {
+                groups.insert(path.clone(), vec![position]);
+                paths.push(path.clone());
+            }
+        }
+        if paths.len() == stored.len() {
+            // Every chunk of its own entity: nothing to share.
+            for chunk in stored {
+                self.take_out(chunk, Holding::Everywhere, reason, events);
+            }
+            return;
+        }
+        // The store-wide orders first, in the order given: they are deques that chunks
+        // leave from an end in that order (oldest first), where an entity at a time would
+        // take them from the middle.
+        for chunk in &stored {
+            if chunk.chunk.is_static() {
+                continue;
+            }
+            if chunk.in_global_orders {
+                remove_from_global_orders(
+                    &mut self.temporal_by_row_id,
+                    &mut self.temporal_per_timeline,
+                    &chunk.chunk,
+                );
+            } else {
+                self.num_outside_global_orders -= 1;
+            }
+        }
+        let mut slots: Vec<Option<StoredChunk>> = stored.into_iter().map(Some).collect();
+        let mut recorded: Vec<Option<StoreEvent>> = Vec::new();
+        recorded.resize_with(slots.len(), || None);
+        let mut group_events = Vec::new();
+        for path in paths {
+            let positions = groups.remove(&path).unwrap_or_default();
+            let chunks = positions.iter().filter_map(|&p| slots[p].take());
+            self.take_out_of_entity(
+                &path,
+                chunks,
+                Holding::OutOfGlobalOrders,
+                reason,
+                &mut group_events,
+            );
+            // One deletion per chunk, in the order the chunks were given.
+            debug_assert_eq!(group_events.len(), positions.len());
+            for (&position, event) in positions.iter().zip(group_events.drain(..)) {
+                recorded[position] = Some(event);
+            }
+        }
+        events.extend(recorded.into_iter().flatten());
+    }
+
     /// Takes a chunk already out of the chunk map out of everything else `holding` says
     /// holds it: see [`ChunkStore::take_out_of_entity`].
     pub(crate) fn take_out(
@@ -220,7 +289,8 @@ impl ChunkStore {
         let mut entity =
             super::entity_mut(&mut self.entities, &mut self.view.entities, path, false);
         let unindex = holding != Holding::FiguresOnly;
-        let still_grouped = holding == Holding::Everywhere;
+        let still_grouped = matches!(holding, Holding::Everywhere | Holding::OutOfGlobalOrders);
+        let in_orders = holding != Holding::OutOfGlobalOrders;
         for StoredChunk {
             chunk,
             ledgered,
@@ -231,7 +301,9 @@ impl ChunkStore {
             let id = chunk.id();
             if unindex && !chunk.is_static() {
                 ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
-                if in_global_orders {
+                if !in_orders {
+                    // Taken out of the store-wide orders already.
+                } else if in_global_orders {
                     remove_from_global_orders(
                         &mut self.temporal_by_row_id,
                         &mut self.temporal_per_timeline,
@@ -308,6 +380,9 @@ pub(crate) enum Holding {
     /// Only in its entity's chunk set and figures: an overwritten static chunk, whose
     /// Clears stay in the Clear index (SEMANTICS.md section 5).
     FiguresOnly,
+    /// Everywhere but the store-wide orders, which [`ChunkStore::take_out_all`] leaves
+    /// first, in the order the chunks go (the orders' outside count included).
+    OutOfGlobalOrders,
 }
 
 fn remove_from_global_orders(

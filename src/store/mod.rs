@@ -27,7 +27,7 @@ pub use config::{ConfigError, StoreConfig};
 pub(crate) use entity::{EntityIndex, EntityMut};
 use events::Subscribers;
 pub use events::{DeletionReason, StoreEvent};
-pub(crate) use membership::{Holding, Joining};
+pub(crate) use membership::Joining;
 pub(crate) use pending::{RewriteMark, SettledRun};
 pub use view::StoreView;
 pub(crate) use view::{EntityView, EntityViews};
