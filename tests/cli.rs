@@ -817,6 +817,34 @@ fn sql_answers_as_a_table_as_json_lines_and_as_files() {
         "{table}"
     );
 
+    // The range is built in parts side by side; the rows still come in index order, a
+    // filter DataFusion applies itself included (no ORDER BY asked).
+    let (json, _) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new("SELECT frame_id FROM frame_id WHERE frame_id + 0 >= 0"),
+        OsStr::new("--json"),
+    ]);
+    let frames: Vec<i64> = json
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["frame_id"]
+                .as_i64()
+                .unwrap()
+        })
+        .collect();
+    assert!(frames.len() > 10, "{json}");
+    assert!(frames.windows(2).all(|w| w[0] < w[1]), "{frames:?}");
+    // That order is kept by design, not by luck of scheduling: no round-robin spreads the
+    // scan's batches over partitions for the filter.
+    let (plan, _) = ok(&[
+        rrd.as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new("EXPLAIN SELECT frame_id FROM frame_id WHERE frame_id + 0 >= 0"),
+    ]);
+    assert!(plan.contains("built side by side"), "{plan}");
+    assert!(!plan.contains("RepartitionExec"), "{plan}");
+
     let (json, _) = ok(&[
         rrd.as_os_str(),
         OsStr::new("sql"),

@@ -30,8 +30,15 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     }
     let loaded = crate::load::load(source, options)?;
     let snapshot = loaded.store.snapshot();
-    // `SHOW TABLES` and `SHOW COLUMNS` need the information schema.
-    let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
+    // `SHOW TABLES` and `SHOW COLUMNS` need the information schema. A timeline table's
+    // scan builds its range on every core and yields the rows in index order; spreading
+    // its batches over partitions for a filter (DataFusion's round-robin repartition)
+    // would interleave them for no gain, so the rows printed keep the table's order.
+    let ctx = SessionContext::new_with_config(
+        SessionConfig::new()
+            .with_information_schema(true)
+            .with_round_robin_repartition(false),
+    );
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
     // A worker per core: a timeline table's scan runs one partition per core
     // (`target_partitions`), each an index range of its own.
