@@ -159,7 +159,8 @@ fn main() {
         datafusion::prelude::SessionConfig::from_env().expect("a valid DataFusion environment"),
     );
     chunkstore::sql::register(&ctx, &snapshot).expect("registered");
-    // A worker per core, so that the scan's partitions run side by side.
+    // A worker per core for DataFusion's partitions, as `chunkstore sql` runs (the
+    // scan's parts have threads of their own either way).
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .build()
         .expect("a runtime");

@@ -55,8 +55,9 @@ pub struct TimelineTable {
     /// Sampling at these times (the `latest_at` table function), else the sparse view.
     samples: Option<Arc<[TimeInt]>>,
     schema: SchemaRef,
-    /// The times the view holds on its index (`None`: none), found on the first scan
-    /// that splits into partitions: O(n) over the indices, so not on registration.
+    /// The times the view holds on its index (`None`: none), found on the first scan of
+    /// an open range that is built in parts: O(n) over the indices, so not on
+    /// registration.
     held_range: Arc<std::sync::OnceLock<Option<TimeRange>>>,
 }
 
@@ -125,8 +126,8 @@ impl TimelineTable {
         }
     }
 
-    /// `range` cut into at most `partitions` consecutive ranges of equal width (after
-    /// clipping it to the times the view holds on its index), to be built side by side: a
+    /// `range` cut into at most `partitions` consecutive ranges of equal width (an open end
+    /// clipped to the times the view holds on its index), to be built side by side: a
     /// row's index time puts it in exactly one of them, and a range is exactly what a
     /// pushed-down filter on the index makes of the view (SEMANTICS.md section 9), so
     /// their rows in order are `range`'s. One range when there is no room to cut (fewer
@@ -135,16 +136,24 @@ impl TimelineTable {
         if partitions <= 1 || range.is_empty() {
             return vec![range];
         }
-        let held = *self
-            .held_range
-            .get_or_init(|| self.snapshot.time_range(self.index.name()));
-        let Some(held) = held else {
-            return vec![range];
+        // An open end is clipped to the times the view holds (else every row would land
+        // in the first part of [lo, i64::MAX]). A range bounded at both ends is cut as
+        // given: finding the held times is O(n) over the indices, too dear for a query
+        // of a session made for it (as Flight SQL makes one per query).
+        let (lo, hi) = if range.min() == TimeInt::MIN || range.max() == TimeInt::MAX {
+            let held = *self
+                .held_range
+                .get_or_init(|| self.snapshot.time_range(self.index.name()));
+            let Some(held) = held else {
+                return vec![range];
+            };
+            (
+                range.min().max(held.min()).as_i64(),
+                range.max().min(held.max()).as_i64(),
+            )
+        } else {
+            (range.min().as_i64(), range.max().as_i64())
         };
-        let (lo, hi) = (
-            range.min().max(held.min()).as_i64(),
-            range.max().min(held.max()).as_i64(),
-        );
         if lo > hi {
             return vec![range];
         }

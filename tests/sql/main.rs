@@ -353,6 +353,7 @@ fn a_range_built_in_parts_side_by_side_answers_as_one() {
             "SELECT * FROM frame",
             "SELECT * FROM frame WHERE frame BETWEEN 3 AND 60",
             "SELECT * FROM frame WHERE frame >= 97",
+            "SELECT * FROM frame WHERE frame BETWEEN -1000 AND 1000000",
             "SELECT frame FROM frame WHERE frame = 42",
             r#"SELECT count(*) AS n, sum("/e/1:x"[1]) AS s FROM frame WHERE frame < 77"#,
             "SELECT frame FROM frame ORDER BY frame DESC",

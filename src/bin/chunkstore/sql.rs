@@ -40,8 +40,8 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
             .with_round_robin_repartition(false),
     );
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
-    // A worker per core: a timeline table's scan runs one partition per core
-    // (`target_partitions`), each an index range of its own.
+    // A worker per core for DataFusion's own partitions (hash aggregates and joins); a
+    // timeline table's scan builds its parts on threads of its own.
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .build()
         .map_err(|e| format!("starting the query runtime: {e}"))?;
