@@ -210,29 +210,16 @@ impl ChunkStore {
                 paths.push(path.clone());
             }
         }
-        if paths.len() == stored.len() {
-            // Every chunk of its own entity: nothing to share.
-            for chunk in stored {
-                self.take_out(chunk, Holding::Everywhere, reason, events);
-            }
-            return;
-        }
         // The store-wide orders first, in the order given: they are deques that chunks
         // leave from an end in that order (oldest first), where an entity at a time would
         // take them from the middle.
-        for chunk in &stored {
-            if chunk.chunk.is_static() {
-                continue;
-            }
-            if chunk.in_global_orders {
-                remove_from_global_orders(
-                    &mut self.temporal_by_row_id,
-                    &mut self.temporal_per_timeline,
-                    &chunk.chunk,
-                );
-            } else {
-                self.num_outside_global_orders -= 1;
-            }
+        for chunk in stored.iter().filter(|stored| !stored.chunk.is_static()) {
+            leave_global_orders(
+                &mut self.temporal_by_row_id,
+                &mut self.temporal_per_timeline,
+                &mut self.num_outside_global_orders,
+                chunk,
+            );
         }
         let mut slots: Vec<Option<StoredChunk>> = stored.into_iter().map(Some).collect();
         let mut recorded: Vec<Option<StoreEvent>> = Vec::new();
@@ -291,28 +278,22 @@ impl ChunkStore {
         let unindex = holding != Holding::FiguresOnly;
         let still_grouped = matches!(holding, Holding::Everywhere | Holding::OutOfGlobalOrders);
         let in_orders = holding != Holding::OutOfGlobalOrders;
-        for StoredChunk {
-            chunk,
-            ledgered,
-            in_global_orders,
-            rewritten_by: _,
-        } in stored
-        {
-            let id = chunk.id();
-            if unindex && !chunk.is_static() {
-                ClearIndex::remove_chunk(&mut self.view.clears, &chunk);
-                if !in_orders {
-                    // Taken out of the store-wide orders already.
-                } else if in_global_orders {
-                    remove_from_global_orders(
+        for stored in stored {
+            if unindex && !stored.chunk.is_static() {
+                ClearIndex::remove_chunk(&mut self.view.clears, &stored.chunk);
+                if in_orders {
+                    leave_global_orders(
                         &mut self.temporal_by_row_id,
                         &mut self.temporal_per_timeline,
-                        &chunk,
+                        &mut self.num_outside_global_orders,
+                        &stored,
                     );
-                } else {
-                    self.num_outside_global_orders -= 1;
                 }
             }
+            let StoredChunk {
+                chunk, ledgered, ..
+            } = stored;
+            let id = chunk.id();
             if let Some(entity) = entity.as_mut() {
                 if unindex {
                     if chunk.is_static() {
@@ -383,6 +364,21 @@ pub(crate) enum Holding {
     /// Everywhere but the store-wide orders, which [`ChunkStore::take_out_all`] leaves
     /// first, in the order the chunks go (the orders' outside count included).
     OutOfGlobalOrders,
+}
+
+/// Takes a temporal chunk out of the store-wide orders, or, if compaction kept it out of
+/// them, out of the count of those outside.
+fn leave_global_orders(
+    by_row_id: &mut crate::ordered::OrderedSet<(crate::RowId, ChunkId)>,
+    per_timeline: &mut ahash::HashMap<Arc<str>, super::TimelineChunks>,
+    num_outside: &mut usize,
+    stored: &StoredChunk,
+) {
+    if stored.in_global_orders {
+        remove_from_global_orders(by_row_id, per_timeline, &stored.chunk);
+    } else {
+        *num_outside -= 1;
+    }
 }
 
 fn remove_from_global_orders(
