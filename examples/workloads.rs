@@ -207,7 +207,9 @@ impl Report {
     /// `peak_rss_kib` from `/proc/self/status`); false if the checksum is wrong.
     fn emit(self, store: &ChunkStore) -> bool {
         let stats = store.stats();
-        let checksum = self.checksum.map_or("null".to_owned(), |c| c.to_string());
+        let checksum = self
+            .checksum
+            .map_or_else(|| "null".to_owned(), |c| c.to_string());
         println!(
             "{{\"workload\":\"{}\",\"phase\":\"{}\",\"impl\":\"{IMPL}\",\"ops\":{},\"ns_per_op\":{:.2},\"checksum\":{checksum},\"chunks\":{},\"store_bytes\":{},\"peak_rss_kib\":{}}}",
             self.workload,

@@ -97,7 +97,7 @@ impl ChunkStore {
                 let timeline = column.timeline();
                 Arc::make_mut(&mut self.view.time_types)
                     .entry(Arc::clone(timeline.name_arc()))
-                    .or_insert(timeline.time_type());
+                    .or_insert_with(|| timeline.time_type());
             }
         }
         self.view.stats.rows_inserted += chunk.num_rows() as u64;

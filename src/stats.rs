@@ -140,7 +140,7 @@ impl BufferLedger {
         let entry = self
             .references
             .entry(buffer_address(buffer))
-            .or_insert((0, buffer_bytes(buffer)));
+            .or_insert_with(|| (0, buffer_bytes(buffer)));
         entry.0 += 1;
         if entry.0 == 1 { entry.1 } else { 0 }
     }

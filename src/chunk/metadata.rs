@@ -16,6 +16,17 @@ impl Metadata {
         Self((!map.is_empty()).then(|| Box::new(map)))
     }
 
+    /// The entries of `map` that `keep` keeps, copied: nothing is allocated when none is
+    /// (decoding copies a schema's and each time field's metadata, usually all dropped).
+    pub(crate) fn kept(map: &HashMap<String, String>, keep: impl Fn(&str, &str) -> bool) -> Self {
+        let kept: HashMap<String, String> = map
+            .iter()
+            .filter(|(key, value)| keep(key, value))
+            .map(|(key, value)| (key.clone(), value.clone()))
+            .collect();
+        Self::new(kept)
+    }
+
     /// A copy of the entries.
     pub(crate) fn to_map(&self) -> HashMap<String, String> {
         self.0.as_deref().cloned().unwrap_or_default()

@@ -131,17 +131,21 @@ impl Chunk {
     /// [`Chunk::try_new`] rejects.
     pub fn from_record_batch(batch: &RecordBatch) -> Result<Self, ChunkError> {
         let schema = batch.schema();
-        let mut metadata = schema.metadata().clone();
-        let id_text = metadata
-            .remove(META_ID)
+        let schema_metadata = schema.metadata();
+        let id_text = schema_metadata
+            .get(META_ID)
             .ok_or(ChunkError::MissingMetadata { key: META_ID })?;
         let id: ChunkId = id_text.parse().map_err(ChunkError::BadChunkId)?;
-        let path_text = metadata
-            .remove(META_ENTITY_PATH)
-            .ok_or(ChunkError::MissingMetadata {
-                key: META_ENTITY_PATH,
-            })?;
-        let entity_path = EntityPath::parse(&path_text)?;
+        let path_text =
+            schema_metadata
+                .get(META_ENTITY_PATH)
+                .ok_or(ChunkError::MissingMetadata {
+                    key: META_ENTITY_PATH,
+                })?;
+        let entity_path = EntityPath::parse(path_text)?;
+        let metadata = Metadata::kept(schema_metadata, |key, _| {
+            key != META_ID && key != META_ENTITY_PATH
+        });
 
         let mut row_ids = None;
         let mut times = Vec::new();
@@ -160,7 +164,7 @@ impl Chunk {
                     let name = field
                         .metadata()
                         .get(META_INDEX_NAME)
-                        .unwrap_or(field.name());
+                        .unwrap_or_else(|| field.name());
                     let time_type = TimeType::from_arrow(array.data_type()).ok_or_else(|| {
                         ChunkError::BadTimeType {
                             timeline: name.clone(),
@@ -170,8 +174,7 @@ impl Chunk {
                     // What `to_record_batch` writes anyway is not kept: a decoded column
                     // then has the layout of one built through the API, and a sorted one
                     // that of an unsorted one (compaction merges them).
-                    let mut field_metadata = field.metadata().clone();
-                    field_metadata.retain(|key, value| match key.as_str() {
+                    let field_metadata = Metadata::kept(field.metadata(), |key, value| match key {
                         META_KIND => value != "index",
                         META_INDEX_NAME => value != name,
                         META_IS_SORTED => false,
@@ -180,12 +183,12 @@ impl Chunk {
                     times.push(RawTimeColumn {
                         timeline: Timeline::new(name.as_str(), time_type),
                         times: RawTimes::Array(Arc::clone(array)),
-                        field_metadata: Metadata::new(field_metadata),
+                        field_metadata,
                     });
                 }
                 ColumnKind::Component => {
                     let meta = field.metadata();
-                    let name = meta.get(META_COMPONENT).unwrap_or(field.name());
+                    let name = meta.get(META_COMPONENT).unwrap_or_else(|| field.name());
                     let descriptor = ComponentDescriptor {
                         name: ComponentName::new(name.as_str()),
                         archetype: meta.get(META_ARCHETYPE).map(|s| Arc::from(s.as_str())),
@@ -207,14 +210,7 @@ impl Chunk {
             }
         }
         let row_ids = row_ids.ok_or(ChunkError::MissingRowIds)?;
-        Self::from_raw(
-            id,
-            entity_path,
-            row_ids,
-            times,
-            components,
-            Metadata::new(metadata),
-        )
+        Self::from_raw(id, entity_path, row_ids, times, components, metadata)
     }
 
     /// Encodes the chunk as a `RecordBatch` in the transport layout. Decoding the result

@@ -83,7 +83,8 @@ impl<'a> FieldReader<'a> {
         let number = u32::try_from(key >> 3)
             .ok()
             .filter(|&n| n != 0)
-            .ok_or((key_start, protobuf(&format!("invalid field key {key}"))))?;
+            // Lazily: the message is built for a bad key only, not for every field.
+            .ok_or_else(|| (key_start, protobuf(&format!("invalid field key {key}"))))?;
         let value_start = self.position;
         let value = match key & 7 {
             0 => WireValue::Varint(self.varint()?),

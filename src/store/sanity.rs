@@ -509,7 +509,7 @@ fn check_component_types(
         for column in stored.chunk.components() {
             let counted = columns_per_component
                 .entry(column.name())
-                .or_insert((column.element_type(), 0));
+                .or_insert_with(|| (column.element_type(), 0));
             counted.1 += 1;
         }
     }

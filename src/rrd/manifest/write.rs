@@ -250,7 +250,7 @@ fn manifest_batch(chunks: &[WrittenChunk]) -> Result<RecordBatch, arrow_schema::
         for WrittenTimeline { timeline, .. } in &chunk.timelines {
             timelines
                 .entry(timeline.name().to_owned())
-                .or_insert(timeline.time_type());
+                .or_insert_with(|| timeline.time_type());
         }
     }
 
