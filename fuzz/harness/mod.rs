@@ -12,6 +12,8 @@ pub mod cli_args;
 pub mod entity_path;
 #[path = "ipc_insert.rs"]
 pub mod ipc_insert;
+#[path = "ipc_schema_cache.rs"]
+pub mod ipc_schema_cache;
 #[path = "lifecycle.rs"]
 pub mod lifecycle;
 #[path = "log_msg.rs"]

@@ -13,6 +13,11 @@ use arrow_schema::ArrowError;
 
 use crate::{Chunk, ChunkError};
 
+mod schema_cache;
+mod schema_layout;
+#[cfg(test)]
+mod tests;
+
 /// The first bytes of an Arrow IPC *file* (a stream starts with a message instead).
 const FILE_MAGIC: &[u8] = b"ARROW1";
 
@@ -106,12 +111,34 @@ pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IpcError> {
 
 /// Decodes the record batches of an Arrow IPC *stream* held in an Arrow [`Buffer`],
 /// without copying: the batches' buffers are slices of `buffer` (which they keep alive).
-/// Checked and contained as [`read_batches`] is.
+/// Checked and contained as [`read_batches`] is. A schema message equal to one this thread
+/// parsed recently, but for its metadata values, reuses that parse (see
+/// [`without_schema_cache`]).
 ///
 /// # Errors
 /// As [`read_batches`].
 pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IpcError> {
     contain_panics(move || decode_stream(&buffer))
+}
+
+/// Runs `decode` with this thread's cache of parsed IPC schemas off: every schema message
+/// met inside is verified and parsed in full, and none is kept. Decoding gives the same
+/// answer either way (the cache only reuses a schema where it can prove the full decode
+/// would give it); this is how the fuzz target and the tests check that.
+///
+/// The cache: every chunk of an `.rrd` stream carries an IPC schema message that differs
+/// from its entity's previous ones only in metadata values (the chunk id), so
+/// [`read_stream_batches_zero_copy`] keeps, per thread, the last few schema messages it
+/// parsed (at most 64, 1 MiB in all) and reuses one for a message equal to it but in those
+/// values.
+pub fn without_schema_cache<T>(decode: impl FnOnce() -> T) -> T {
+    schema_cache::without(decode)
+}
+
+/// Empties this thread's cache of parsed IPC schemas (see [`without_schema_cache`]), so
+/// that what follows starts from nothing, as a fuzz input must.
+pub fn clear_schema_cache() {
+    schema_cache::clear();
 }
 
 /// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] with its
@@ -285,72 +312,123 @@ fn check_stream_messages(bytes: &[u8]) -> Result<(), IpcError> {
     for_each_stream_message(bytes, |_, _| Ok(()))
 }
 
+/// One message of an IPC stream: where its metadata (a flatbuffer) lies in the input.
+struct Frame {
+    metadata: std::ops::Range<usize>,
+}
+
+/// The next message's metadata after byte `pos`, advancing `pos` past the framing: `None`
+/// at the end-of-stream marker or the end of the input. Bytes after the marker are an
+/// error, as in arrow-ipc's own readers.
+fn next_frame(bytes: &[u8], pos: &mut usize) -> Result<Option<Frame>, IpcError> {
+    let len = bytes.len();
+    if *pos >= len {
+        return Ok(None);
+    }
+    let Some(mut meta_len) = read_i32_le(bytes, *pos) else {
+        return Err(malformed(format!("truncated message length at byte {pos}")));
+    };
+    *pos += 4;
+    if meta_len == -1 {
+        // Continuation marker; the length follows.
+        meta_len = read_i32_le(bytes, *pos)
+            .ok_or_else(|| malformed(format!("truncated message length at byte {pos}")))?;
+        *pos += 4;
+    }
+    if meta_len == 0 {
+        // The end-of-stream marker.
+        if *pos < len {
+            return Err(malformed(format!(
+                "{} bytes after the end-of-stream marker at byte {pos}",
+                len - *pos
+            )));
+        }
+        return Ok(None);
+    }
+    let meta_end = usize::try_from(meta_len)
+        .ok()
+        .and_then(|n| pos.checked_add(n))
+        .filter(|&end| end <= len);
+    let Some(meta_end) = meta_end else {
+        return Err(malformed(format!(
+            "message metadata of {meta_len} bytes at byte {pos} exceeds the input"
+        )));
+    };
+    let frame = Frame {
+        metadata: *pos..meta_end,
+    };
+    *pos = meta_end;
+    Ok(Some(frame))
+}
+
+/// The body a message declares, checked to lie inside the input, right after the message's
+/// metadata.
+fn body_range(
+    bytes: &[u8],
+    frame: &Frame,
+    body_length: i64,
+) -> Result<std::ops::Range<usize>, IpcError> {
+    let meta_end = frame.metadata.end;
+    if !fits(
+        bytes.len(),
+        &[i64::try_from(meta_end).unwrap_or(i64::MAX), body_length],
+    ) {
+        return Err(malformed(format!(
+            "message body of {body_length} bytes at byte {meta_end} exceeds the input"
+        )));
+    }
+    Ok(meta_end..meta_end + usize::try_from(body_length).unwrap_or(usize::MAX))
+}
+
+/// Verifies a message's flatbuffer.
+fn verify_message<'a>(bytes: &'a [u8], frame: &Frame) -> Result<arrow_ipc::Message<'a>, IpcError> {
+    arrow_ipc::root_as_message(&bytes[frame.metadata.clone()])
+        .map_err(|e| malformed(format!("message at byte {}: {e}", frame.metadata.start)))
+}
+
 /// Walks the messages of an IPC stream, each verified as a flatbuffer once and its body
 /// checked to lie inside `bytes`, calling `visit` with the message and its body's range,
-/// until the end-of-stream marker or the end of the input. Bytes after the marker are an
-/// error, as in arrow-ipc's own readers.
+/// until the end-of-stream marker or the end of the input.
 fn for_each_stream_message(
     bytes: &[u8],
     mut visit: impl FnMut(arrow_ipc::Message<'_>, std::ops::Range<usize>) -> Result<(), IpcError>,
 ) -> Result<(), IpcError> {
-    let len = bytes.len();
     let mut pos = 0usize;
-    while pos < len {
-        let Some(mut meta_len) = read_i32_le(bytes, pos) else {
-            return Err(malformed(format!("truncated message length at byte {pos}")));
-        };
-        pos += 4;
-        if meta_len == -1 {
-            // Continuation marker; the length follows.
-            meta_len = read_i32_le(bytes, pos)
-                .ok_or_else(|| malformed(format!("truncated message length at byte {pos}")))?;
-            pos += 4;
-        }
-        if meta_len == 0 {
-            // The end-of-stream marker.
-            if pos < len {
-                return Err(malformed(format!(
-                    "{} bytes after the end-of-stream marker at byte {pos}",
-                    len - pos
-                )));
-            }
-            return Ok(());
-        }
-        let meta_end = usize::try_from(meta_len)
-            .ok()
-            .and_then(|n| pos.checked_add(n))
-            .filter(|&end| end <= len);
-        let Some(meta_end) = meta_end else {
-            return Err(malformed(format!(
-                "message metadata of {meta_len} bytes at byte {pos} exceeds the input"
-            )));
-        };
-        let message = arrow_ipc::root_as_message(&bytes[pos..meta_end])
-            .map_err(|e| malformed(format!("message at byte {pos}: {e}")))?;
-        let body = message.bodyLength();
-        if !fits(len, &[i64::try_from(meta_end).unwrap_or(i64::MAX), body]) {
-            return Err(malformed(format!(
-                "message body of {body} bytes at byte {meta_end} exceeds the input"
-            )));
-        }
-        let body_end = meta_end + usize::try_from(body).unwrap_or(usize::MAX);
-        visit(message, meta_end..body_end)?;
-        pos = body_end;
+    while let Some(frame) = next_frame(bytes, &mut pos)? {
+        let message = verify_message(bytes, &frame)?;
+        let body = body_range(bytes, &frame, message.bodyLength())?;
+        pos = body.end;
+        visit(message, body)?;
     }
     Ok(())
 }
 
-/// Decodes the batches of an IPC stream whose framing [`for_each_stream_message`] checks:
-/// each message's flatbuffer is verified there, once (arrow-ipc's `StreamDecoder` would
-/// verify it again, a third of a small chunk's decoding), and decoded here with
-/// arrow-ipc's own schema, dictionary and batch readers, zero-copy from `buffer`.
+/// Decodes the batches of an IPC stream whose framing is checked as in
+/// [`for_each_stream_message`]: each message's flatbuffer is verified once (arrow-ipc's
+/// `StreamDecoder` would verify it again, a third of a small chunk's decoding), and decoded
+/// here with arrow-ipc's own schema, dictionary and batch readers, zero-copy from `buffer`.
+/// A schema message this thread provably decoded before (`schema_cache`) is neither
+/// verified nor parsed again.
 fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
     use arrow_ipc::MessageHeader;
     let unexpected = |reason: &str| IpcError::Ipc(ArrowError::IpcError(reason.to_owned()));
+    let bytes = buffer.as_slice();
     let mut schema: Option<arrow_schema::SchemaRef> = None;
     let mut dictionaries = std::collections::HashMap::new();
     let mut batches = Vec::new();
-    for_each_stream_message(buffer.as_slice(), |message, body| {
+    let mut pos = 0usize;
+    while let Some(frame) = next_frame(bytes, &mut pos)? {
+        if let Some(cached) = schema_cache::lookup(&bytes[frame.metadata.clone()]) {
+            pos = body_range(bytes, &frame, cached.body_length)?.end;
+            if schema.is_some() {
+                return Err(unexpected("a second schema in one stream"));
+            }
+            schema = Some(cached.schema);
+            continue;
+        }
+        let message = verify_message(bytes, &frame)?;
+        let body = body_range(bytes, &frame, message.bodyLength())?;
+        pos = body.end;
         let body = buffer.slice_with_length(body.start, body.len());
         let version = message.version();
         match message.header_type() {
@@ -361,9 +439,13 @@ fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
                 if schema.is_some() {
                     return Err(unexpected("a second schema in one stream"));
                 }
-                schema = Some(std::sync::Arc::new(arrow_ipc::convert::fb_to_schema(
-                    ipc_schema,
-                )));
+                let parsed = std::sync::Arc::new(arrow_ipc::convert::fb_to_schema(ipc_schema));
+                schema_cache::learn(
+                    &bytes[frame.metadata.clone()],
+                    &parsed,
+                    message.bodyLength(),
+                );
+                schema = Some(parsed);
             }
             MessageHeader::RecordBatch => {
                 let (Some(batch), Some(schema)) = (message.header_as_record_batch(), &schema)
@@ -403,8 +485,7 @@ fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
                 )));
             }
         }
-        Ok(())
-    })?;
+    }
     Ok(batches)
 }
 

@@ -64,6 +64,47 @@ fn log_msg_corpus_replays_without_panics() {
     replay_corpus("log_msg", harness::log_msg::log_msg);
 }
 
+#[test]
+fn ipc_schema_cache_corpus_replays_without_panics() {
+    replay_corpus(
+        "ipc_schema_cache",
+        harness::ipc_schema_cache::ipc_schema_cache,
+    );
+}
+
+/// Writes the seeds of `ipc_schema_cache`: every chunk of the robot recording Rerun 0.41
+/// wrote, as the IPC stream of its payload, each with edits that turn its chunk id into
+/// another (the case the cache answers), into another length's worth of garbage, or that
+/// touch bytes outside the metadata values (which must miss).
+#[test]
+#[ignore = "writes fuzz/corpus/ipc_schema_cache: run once with --ignored"]
+fn write_ipc_schema_cache_seeds() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/ipc_schema_cache");
+    std::fs::create_dir_all(&dir).unwrap();
+    for (i, chunk) in crate::common::robot_chunks().iter().enumerate() {
+        let batch = chunk.to_record_batch().unwrap();
+        let mut stream = Vec::new();
+        let mut writer =
+            arrow_ipc::writer::StreamWriter::try_new(&mut stream, &batch.schema()).unwrap();
+        writer.write(&batch).unwrap();
+        writer.finish().unwrap();
+        drop(writer);
+        let id = chunk.id().to_string();
+        let at = stream
+            .windows(id.len())
+            .position(|w| w == id.as_bytes())
+            .map(|at| u16::try_from(at).unwrap());
+        let edits: Vec<(u16, u8)> = match (i % 4, at) {
+            (0, Some(at)) => vec![(at, b'f'), (at + 5, b'0'), (at + 31, b'a')],
+            (1, Some(at)) => vec![(at + 2, 0xff)],
+            (2, _) => vec![(u16::try_from(i * 7).unwrap(), 0x41)],
+            _ => vec![],
+        };
+        let input = harness::ipc_schema_cache::input(&stream, &edits);
+        std::fs::write(dir.join(format!("robot_chunk_{i:03}")), input).unwrap();
+    }
+}
+
 #[cfg(feature = "cli")]
 #[test]
 fn cli_args_corpus_replays_without_panics() {
@@ -129,6 +170,13 @@ const CRASHES: &[(&str, &str, Expected)] = &[
         "component_type_outlived_its_chunks",
         Expected::HarnessPasses,
     ),
+    // The schema cache answered a message whose metadata value, in an entry without a
+    // key, was not UTF-8; the verifier refuses such a message (see the README).
+    (
+        "ipc_schema_cache",
+        "value_without_key_not_utf8",
+        Expected::HarnessPasses,
+    ),
 ];
 
 /// Issue 12, item 12: this test used to pass when its directory was missing (the replay
@@ -140,6 +188,10 @@ fn fuzz_crashes_stay_fixed() {
         ("ipc_insert", harness::ipc_insert::ipc_insert as fn(&[u8])),
         ("chunk_build", harness::chunk_build::chunk_build),
         ("log_msg", harness::log_msg::log_msg),
+        (
+            "ipc_schema_cache",
+            harness::ipc_schema_cache::ipc_schema_cache,
+        ),
     ] {
         for file in files_in(&format!("tests/fuzz_crashes/{target}")) {
             num_files += 1;

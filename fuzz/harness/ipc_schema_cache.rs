@@ -1,0 +1,78 @@
+//! The body of the `ipc_schema_cache` fuzz target: an Arrow IPC stream (twice: the cache
+//! keeps a layout from its second message on) and an edited copy of it, each decoded with
+//! and without the cache of parsed schemas. The two decodes must agree exactly (equal
+//! batches, schema metadata included, or both an error): the cache may reuse a schema only
+//! where it proves the full decode gives the same one. The edits let the fuzzer change a
+//! stream's bytes a few at a time after the cache kept its schema, which is where an
+//! unsound cache would answer from stale bytes.
+//!
+//! Input: a byte `n`, then `n % 8` edits of three bytes (a little-endian `u16` position,
+//! taken modulo the stream's length, and the byte to write there), then the stream.
+
+use arrow_buffer::Buffer;
+use chunkstore::ipc::{clear_schema_cache, read_stream_batches_zero_copy, without_schema_cache};
+
+/// Where to write which byte.
+type Edit = (usize, u8);
+
+/// Splits an input into its edits and its stream; `None` if it is too short for its edits.
+fn parse(data: &[u8]) -> Option<(Vec<Edit>, &[u8])> {
+    let (&count, rest) = data.split_first()?;
+    let edits_len = usize::from(count % 8) * 3;
+    let edits = rest.get(..edits_len)?;
+    let stream = &rest[edits_len..];
+    let edits = edits
+        .chunks_exact(3)
+        .map(|e| (usize::from(u16::from_le_bytes([e[0], e[1]])), e[2]))
+        .collect();
+    Some((edits, stream))
+}
+
+/// An input for this target: `stream` and the edits to make in its copy.
+pub fn input(stream: &[u8], edits: &[(u16, u8)]) -> Vec<u8> {
+    let count = u8::try_from(edits.len()).expect("at most 7 edits");
+    assert!(count < 8, "at most 7 edits");
+    let mut out = vec![count];
+    for (at, byte) in edits {
+        out.extend_from_slice(&at.to_le_bytes());
+        out.push(*byte);
+    }
+    out.extend_from_slice(stream);
+    out
+}
+
+/// Decodes `stream` with the cache, then without it, and checks that they agree.
+fn decode_both_ways(stream: &[u8]) {
+    let cached = read_stream_batches_zero_copy(Buffer::from(stream.to_vec()));
+    let uncached =
+        without_schema_cache(|| read_stream_batches_zero_copy(Buffer::from(stream.to_vec())));
+    match (cached, uncached) {
+        (Ok(cached), Ok(uncached)) => assert_eq!(cached, uncached, "the cache changed a batch"),
+        (Err(_), Err(_)) => {}
+        (cached, uncached) => panic!(
+            "with the cache {}, without it {}",
+            cached.map_or_else(|e| e.to_string(), |b| format!("{} batches", b.len())),
+            uncached.map_or_else(|e| e.to_string(), |b| format!("{} batches", b.len())),
+        ),
+    }
+}
+
+/// The target's body.
+pub fn ipc_schema_cache(data: &[u8]) {
+    let Some((edits, stream)) = parse(data) else {
+        return;
+    };
+    // Each input starts from an empty cache, so that a crash reproduces alone.
+    clear_schema_cache();
+    decode_both_ways(stream);
+    decode_both_ways(stream);
+    if stream.is_empty() {
+        return;
+    }
+    let mut edited = stream.to_vec();
+    for (at, byte) in edits {
+        let at = at % edited.len();
+        edited[at] = byte;
+    }
+    decode_both_ways(&edited);
+}

@@ -1,0 +1,218 @@
+//! Parsed schemas reused across the IPC messages of a stream of chunks.
+//!
+//! Every chunk of an `.rrd` stream carries its own IPC schema message, and for small chunks
+//! verifying and parsing it was a third of decoding the chunk. The messages of one entity
+//! and column set differ only in their schema-level metadata values (the chunk id), so each
+//! thread keeps the last few schema messages it decoded (from a layout's second message on:
+//! a message whose length no recent one had is not worth proving), each with its
+//! [`SchemaLayout`](super::schema_layout::SchemaLayout) proof. A new message equal to a
+//! kept one outside the proven value slots, its slots UTF-8, gets the kept schema's fields
+//! and its own metadata, without verifying or parsing: by the proof, verification would
+//! pass and parsing would give exactly that schema. Anything else is decoded in full.
+//!
+//! The cache is per thread because answers never depend on it (the proof makes a hit and a
+//! full decode agree), so no caller has to own, pass or share one; it is small and bounded.
+
+use std::cell::{Cell, RefCell};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use arrow_schema::{Schema, SchemaRef};
+
+use super::schema_layout::SchemaLayout;
+
+/// How many schema messages a thread keeps.
+const MAX_TEMPLATES: usize = 64;
+
+/// The most message bytes a thread keeps in all; a message larger than a quarter of it is
+/// never kept (a schema of thousands of columns is parsed once per chunk, but its chunk's
+/// data dwarfs that).
+const MAX_TEMPLATE_BYTES: usize = 1 << 20;
+
+/// How many recent misses' lengths a thread remembers: a message is kept only when one of
+/// them had its length. A layout that repeats (an entity's chunks) is kept from its second
+/// message on; a stream whose schemas never repeat pays no proof for them.
+const REMEMBERED_MISSES: usize = 16;
+
+/// A decoded schema message and its proof.
+struct Template {
+    message: Box<[u8]>,
+    layout: SchemaLayout,
+    schema: SchemaRef,
+    /// The `bodyLength` the message declares (the stream's framing checks it).
+    body_length: i64,
+    last_used: u64,
+}
+
+/// One thread's kept schema messages.
+#[derive(Default)]
+struct SchemaCache {
+    templates: Vec<Template>,
+    bytes: usize,
+    clock: u64,
+    /// Messages answered from the cache (for tests and probes).
+    hits: u64,
+    /// The lengths of recent messages that missed and were not kept, a ring.
+    missed_lengths: [usize; REMEMBERED_MISSES],
+    next_miss: usize,
+}
+
+thread_local! {
+    static CACHE: RefCell<SchemaCache> = RefCell::new(SchemaCache::default());
+    /// Set while [`without`] runs.
+    static OFF: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Runs `decode` with this thread's cache off: nothing looked up, nothing kept.
+pub(super) fn without<T>(decode: impl FnOnce() -> T) -> T {
+    /// Turns the cache back on however `decode` ends (a contained panic included).
+    struct On(bool);
+    impl Drop for On {
+        fn drop(&mut self) {
+            OFF.with(|off| off.set(self.0));
+        }
+    }
+    let _on = On(OFF.with(|off| off.replace(true)));
+    decode()
+}
+
+/// Empties this thread's cache.
+pub(super) fn clear() {
+    CACHE.with(|cache| {
+        if let Ok(mut cache) = cache.try_borrow_mut() {
+            *cache = SchemaCache::default();
+        }
+    });
+}
+
+/// A schema found for a message without decoding it.
+pub(super) struct CachedSchema {
+    pub(super) schema: SchemaRef,
+    pub(super) body_length: i64,
+}
+
+/// The schema of `message` (one IPC message's metadata bytes, unverified) if this thread
+/// kept a message it provably decodes like.
+pub(super) fn lookup(message: &[u8]) -> Option<CachedSchema> {
+    if OFF.with(Cell::get) {
+        return None;
+    }
+    CACHE.with(|cache| cache.try_borrow_mut().ok()?.lookup(message))
+}
+
+/// Keeps `message`, which flatbuffers verified and arrow-ipc decoded into `schema`, if
+/// its layout is proven; `body_length` is its declared body length.
+pub(super) fn learn(message: &[u8], schema: &SchemaRef, body_length: i64) {
+    if message.len() > MAX_TEMPLATE_BYTES / 4 || OFF.with(Cell::get) {
+        return;
+    }
+    CACHE.with(|cache| {
+        let Ok(mut cache) = cache.try_borrow_mut() else {
+            return;
+        };
+        if !cache.seen_length(message.len()) {
+            return;
+        }
+        let Some(layout) = SchemaLayout::prove(message) else {
+            return;
+        };
+        cache.insert(Template {
+            message: message.into(),
+            layout,
+            schema: Arc::clone(schema),
+            body_length,
+            last_used: 0,
+        });
+    });
+}
+
+impl SchemaCache {
+    fn lookup(&mut self, message: &[u8]) -> Option<CachedSchema> {
+        self.clock += 1;
+        let clock = self.clock;
+        let template = self
+            .templates
+            .iter_mut()
+            .find(|t| t.message.len() == message.len() && t.matches(message))?;
+        template.last_used = clock;
+        let schema = template.schema_for(message)?;
+        self.hits += 1;
+        Some(CachedSchema {
+            schema: Arc::new(schema),
+            body_length: template.body_length,
+        })
+    }
+
+    /// Did a recent miss have this length? If not, remembers it.
+    fn seen_length(&mut self, len: usize) -> bool {
+        if self.missed_lengths.contains(&len) {
+            return true;
+        }
+        self.missed_lengths[self.next_miss] = len;
+        self.next_miss = (self.next_miss + 1) % REMEMBERED_MISSES;
+        false
+    }
+
+    fn insert(&mut self, mut template: Template) {
+        while !self.templates.is_empty()
+            && (self.templates.len() >= MAX_TEMPLATES
+                || self.bytes + template.message.len() > MAX_TEMPLATE_BYTES)
+        {
+            let oldest = self
+                .templates
+                .iter()
+                .enumerate()
+                .min_by_key(|(_, t)| t.last_used)
+                .map_or(0, |(i, _)| i);
+            let evicted = self.templates.swap_remove(oldest);
+            self.bytes -= evicted.message.len();
+        }
+        self.clock += 1;
+        template.last_used = self.clock;
+        self.bytes += template.message.len();
+        self.templates.push(template);
+    }
+}
+
+impl Template {
+    /// Is `message` (of the same length) equal to this one outside the slots?
+    fn matches(&self, message: &[u8]) -> bool {
+        let mut at = 0;
+        for slot in &self.layout.slots {
+            if self.message[at..slot.start] != message[at..slot.start] {
+                return false;
+            }
+            at = slot.end;
+        }
+        self.message[at..] == message[at..]
+    }
+
+    /// This template's schema with `message`'s metadata values, as `fb_to_schema` would
+    /// build it; `None` if a value is not UTF-8 (the verifier refuses that message, even
+    /// for a value whose entry has no key and so no place in the schema).
+    fn schema_for(&self, message: &[u8]) -> Option<Schema> {
+        let mut metadata = HashMap::with_capacity(self.layout.entries.len());
+        for entry in &self.layout.entries {
+            let Some(value) = &entry.value else {
+                continue;
+            };
+            let value = std::str::from_utf8(message.get(value.clone())?).ok()?;
+            if let Some(key) = &entry.key {
+                metadata.insert(key.clone(), value.to_owned());
+            }
+        }
+        Some(Schema::new_with_metadata(
+            self.schema.fields().clone(),
+            metadata,
+        ))
+    }
+}
+
+/// How many messages this thread answered from its cache, and how many it keeps.
+#[cfg(test)]
+pub(super) fn counts() -> (u64, usize) {
+    CACHE.with(|cache| {
+        let cache = cache.borrow();
+        (cache.hits, cache.templates.len())
+    })
+}

@@ -1,0 +1,239 @@
+//! The schema cache decodes exactly as arrow-ipc does, hit or miss, hostile or not.
+
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    reason = "tests fail loudly on unexpected values"
+)]
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use arrow_array::{ArrayRef, Float64Array, Int64Array, RecordBatch};
+use arrow_buffer::Buffer;
+use arrow_schema::{DataType, Field, Schema};
+
+use super::schema_cache;
+use super::schema_layout::SchemaLayout;
+use super::{read_batches, read_stream_batches_zero_copy, without_schema_cache};
+
+/// An IPC stream of one two-column batch whose schema carries `metadata`; `column` names
+/// the second column.
+fn stream(metadata: &[(&str, &str)], column: &str) -> Vec<u8> {
+    let metadata: HashMap<String, String> = metadata
+        .iter()
+        .map(|(k, v)| ((*k).to_owned(), (*v).to_owned()))
+        .collect();
+    let field_metadata = HashMap::from([("rerun:kind".to_owned(), "data".to_owned())]);
+    let schema = Arc::new(Schema::new_with_metadata(
+        vec![
+            Field::new("frame", DataType::Int64, false),
+            Field::new(column, DataType::Float64, true).with_metadata(field_metadata),
+        ],
+        metadata,
+    ));
+    let batch = RecordBatch::try_new(
+        Arc::clone(&schema),
+        vec![
+            Arc::new(Int64Array::from(vec![1, 2, 3])) as ArrayRef,
+            Arc::new(Float64Array::from(vec![Some(0.5), None, Some(2.5)])),
+        ],
+    )
+    .unwrap();
+    let mut out = Vec::new();
+    let mut writer = arrow_ipc::writer::StreamWriter::try_new(&mut out, &schema).unwrap();
+    writer.write(&batch).unwrap();
+    writer.finish().unwrap();
+    drop(writer);
+    out
+}
+
+fn chunk_stream(id: &str) -> Vec<u8> {
+    stream(
+        &[("rerun:id", id), ("rerun:entity_path", "/robot/arm")],
+        "scalar",
+    )
+}
+
+/// Where the first message's metadata (the schema) lies: after the continuation marker and
+/// the length.
+fn schema_message(stream: &[u8]) -> std::ops::Range<usize> {
+    let len = i32::from_le_bytes(stream[4..8].try_into().unwrap());
+    8..8 + usize::try_from(len).unwrap()
+}
+
+/// Decoding through the cache gives what a decode without it gives, and what arrow-ipc's
+/// own reader gives: equal batches (schema and metadata included), or all an error.
+fn decodes_like_arrow(stream: &[u8]) -> Option<Vec<RecordBatch>> {
+    let cached = read_stream_batches_zero_copy(Buffer::from(stream.to_vec()));
+    let uncached =
+        without_schema_cache(|| read_stream_batches_zero_copy(Buffer::from(stream.to_vec())));
+    let arrow = read_batches(stream);
+    match (cached, uncached, arrow) {
+        (Ok(cached), Ok(uncached), Ok(arrow)) => {
+            assert_eq!(cached, uncached);
+            assert_eq!(cached, arrow);
+            Some(cached)
+        }
+        (Err(_), Err(_), Err(_)) => None,
+        (cached, uncached, arrow) => panic!(
+            "cached, uncached and arrow-ipc disagree: {:?}, {:?}, {:?}",
+            cached.map(|b| b.len()),
+            uncached.map(|b| b.len()),
+            arrow.map(|b| b.len())
+        ),
+    }
+}
+
+fn id(i: usize) -> String {
+    format!("{i:032x}")
+}
+
+#[test]
+fn a_repeated_schema_is_parsed_twice_then_reused_with_its_own_metadata() {
+    schema_cache::clear();
+    for i in 0..5 {
+        let batches = decodes_like_arrow(&chunk_stream(&id(i))).unwrap();
+        assert_eq!(batches[0].schema().metadata()["rerun:id"], id(i));
+    }
+    // The first was parsed and its length remembered, the second parsed and kept; the
+    // other three came from the cache.
+    assert_eq!(schema_cache::counts(), (3, 1));
+
+    // Another column name of the same length is another layout, of a length seen: kept at
+    // once.
+    let renamed = |i: usize| {
+        stream(
+            &[("rerun:id", &id(i)), ("rerun:entity_path", "/robot/arm")],
+            "scalor",
+        )
+    };
+    decodes_like_arrow(&renamed(9)).unwrap();
+    assert_eq!(schema_cache::counts(), (3, 2));
+    decodes_like_arrow(&renamed(10)).unwrap();
+    assert_eq!(schema_cache::counts(), (4, 2));
+
+    // A value of another length is another layout too, kept from its second message on.
+    decodes_like_arrow(&chunk_stream("short")).unwrap();
+    assert_eq!(schema_cache::counts(), (4, 2));
+    decodes_like_arrow(&chunk_stream("shirt")).unwrap();
+    assert_eq!(schema_cache::counts(), (4, 3));
+    decodes_like_arrow(&chunk_stream("shore")).unwrap();
+    assert_eq!(schema_cache::counts(), (5, 3));
+}
+
+#[test]
+fn the_proof_names_every_metadata_value_as_a_slot() {
+    let bytes = chunk_stream(&id(7));
+    let message = &bytes[schema_message(&bytes)];
+    let layout = SchemaLayout::prove(message).expect("arrow-rs's own layout is provable");
+    let mut values: Vec<&str> = layout
+        .slots
+        .iter()
+        .map(|slot| std::str::from_utf8(&message[slot.clone()]).unwrap())
+        .collect();
+    values.sort_unstable();
+    assert_eq!(values, ["/robot/arm", id(7).as_str()]);
+    // A record batch message has no layout.
+    let batch_at = schema_message(&bytes).end;
+    let rest = &bytes[batch_at..];
+    let len = i32::from_le_bytes(rest[4..8].try_into().unwrap());
+    assert!(SchemaLayout::prove(&rest[8..8 + usize::try_from(len).unwrap()]).is_none());
+}
+
+/// Rewrites the stream so that the first metadata entry's key is its own value's string:
+/// a valid flatbuffer in which the value's bytes are read twice.
+fn alias_first_key_to_its_value(stream: &mut [u8]) {
+    let message = schema_message(stream);
+    let buf = &stream[message.clone()];
+    let u32_at = |at: usize| u32::from_le_bytes(buf[at..at + 4].try_into().unwrap()) as usize;
+    let u16_at = |at: usize| usize::from(u16::from_le_bytes(buf[at..at + 2].try_into().unwrap()));
+    let vtable = |table: usize| {
+        let soffset = i32::from_le_bytes(buf[table..table + 4].try_into().unwrap());
+        usize::try_from(i64::try_from(table).unwrap() - i64::from(soffset)).unwrap()
+    };
+    let field = |table: usize, voffset: usize| table + u16_at(vtable(table) + voffset);
+    let follow = |at: usize| at + u32_at(at);
+    let root = u32_at(0);
+    let schema = follow(field(root, 8));
+    let metadata = follow(field(schema, 8));
+    let entry = follow(metadata + 4);
+    let key_field = field(entry, 4);
+    let value = follow(field(entry, 6));
+    assert!(
+        value > key_field,
+        "arrow-rs writes strings before their table"
+    );
+    let offset = u32::try_from(value - key_field).unwrap().to_le_bytes();
+    let at = message.start + key_field;
+    stream[at..at + 4].copy_from_slice(&offset);
+}
+
+#[test]
+fn a_value_that_something_else_reads_is_never_a_slot() {
+    schema_cache::clear();
+    let mut first = stream(&[("rerun:id", &id(1))], "scalar");
+    alias_first_key_to_its_value(&mut first);
+    let message = schema_message(&first);
+    assert!(SchemaLayout::prove(&first[message]).is_none());
+    let batches = decodes_like_arrow(&first).unwrap();
+    // The key is the value now: the aliasing is real.
+    assert_eq!(batches[0].schema().metadata()[&id(1)], id(1));
+
+    // Changing the value changes the key too, which a cache keyed on the other bytes would
+    // have missed.
+    let mut second = stream(&[("rerun:id", &id(2))], "scalar");
+    alias_first_key_to_its_value(&mut second);
+    let batches = decodes_like_arrow(&second).unwrap();
+    assert_eq!(batches[0].schema().metadata()[&id(2)], id(2));
+    assert_eq!(schema_cache::counts(), (0, 0));
+}
+
+#[test]
+fn a_value_that_is_not_utf8_is_refused_as_the_verifier_refuses_it() {
+    schema_cache::clear();
+    decodes_like_arrow(&chunk_stream(&id(1))).unwrap();
+    decodes_like_arrow(&chunk_stream(&id(2))).unwrap();
+    assert_eq!(schema_cache::counts(), (0, 1));
+    let mut bad = chunk_stream(&id(3));
+    let message = schema_message(&bad);
+    let layout = SchemaLayout::prove(&bad[message.clone()]).unwrap();
+    let at = message.start + layout.slots[0].start;
+    bad[at] = 0xff;
+    assert!(decodes_like_arrow(&bad).is_none());
+    assert_eq!(schema_cache::counts(), (0, 1));
+}
+
+#[test]
+fn the_cache_keeps_a_bounded_number_of_layouts() {
+    schema_cache::clear();
+    for i in 0..200 {
+        decodes_like_arrow(&stream(&[("rerun:id", &id(i))], &format!("c{i:04}"))).unwrap();
+    }
+    let (hits, kept) = schema_cache::counts();
+    assert_eq!(hits, 0);
+    assert!((1..=64).contains(&kept), "{kept} layouts kept");
+    // The most recent layouts are still there.
+    decodes_like_arrow(&stream(&[("rerun:id", &id(1000))], "c0199")).unwrap();
+    assert_eq!(schema_cache::counts().0, 1);
+}
+
+#[cfg(feature = "rrd")]
+#[test]
+fn a_recording_written_by_rerun_reuses_its_schemas() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/testdata/rerun-0.41/a_robot/a_robot.rrd"
+    );
+    let bytes = std::fs::read(path).unwrap();
+    schema_cache::clear();
+    let contents = crate::rrd::read_rrd(Buffer::from_vec(bytes), false).unwrap();
+    let (hits, kept) = schema_cache::counts();
+    assert!(
+        hits > 0,
+        "no schema reused among {} chunks",
+        contents.chunks.len()
+    );
+    assert!(kept > 0);
+    // tests/core/rrd.rs checks every chunk against Rerun's own chunk files.
+}
