@@ -15,6 +15,14 @@ use crate::ipc::IpcError;
 /// few bytes of input): a claimed size beyond this is a lie, refused before allocating it.
 const LZ4_MAX_RATIO: u64 = 256;
 
+/// An uncompressed payload this small that is not aligned to [`REALIGN_TO`] bytes is
+/// copied whole into an aligned buffer before decoding.
+const REALIGN_WHOLE_MAX: usize = 64 * 1024;
+
+/// The alignment an IPC body's buffers need (8 for 64-bit values, 16 for 128-bit
+/// decimals); the body pads each buffer to 8 bytes from its start.
+const REALIGN_TO: usize = 16;
+
 /// A payload's bytes: part of a buffer the chunk may share, or borrowed (copied if the
 /// chunk must keep them).
 pub(crate) enum PayloadBytes<'a> {
@@ -39,6 +47,15 @@ pub(crate) fn decode_chunk(
     uncompressed_size: u64,
 ) -> Result<Chunk, RrdErrorKind> {
     let ipc = match (compression, payload) {
+        (Compression::None, PayloadBytes::Shared(buffer))
+            if buffer.len() <= REALIGN_WHOLE_MAX && buffer.as_ptr().addr() % REALIGN_TO != 0 =>
+        {
+            // arrow-ipc copies each misaligned buffer of the batch on its own (an allocation
+            // and a copy per array); one copy of a small payload into an aligned buffer is
+            // cheaper. A larger payload stays shared: its byte arrays (images, blobs), which
+            // need no alignment, are not copied.
+            Buffer::from_slice_ref(buffer.as_slice())
+        }
         (Compression::None, PayloadBytes::Shared(buffer)) => buffer,
         (Compression::None, PayloadBytes::Borrowed(bytes)) => Buffer::from(bytes.to_vec()),
         (Compression::Lz4, payload) => {
@@ -165,4 +182,69 @@ pub(crate) fn decode_message_chunk(
         )));
     }
     Ok(chunk)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests fail loudly on unexpected values")]
+
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Float64Array, Int64Array, ListArray};
+    use arrow_buffer::OffsetBuffer;
+    use arrow_schema::{DataType, Field};
+
+    use super::*;
+    use crate::{ChunkId, EntityPath, RowId, Timeline};
+
+    /// An uncompressed payload decodes to the same chunk wherever it lies in its buffer:
+    /// aligned and shared, misaligned and copied whole (small), or misaligned and left to
+    /// arrow-ipc's per-array copies (large).
+    #[test]
+    fn an_uncompressed_payload_decodes_alike_at_every_alignment() {
+        for rows in [3_usize, 5_000] {
+            let values = Float64Array::from_iter_values(
+                (0..rows * 2).map(|v| f64::from(u32::try_from(v).unwrap())),
+            );
+            let list = ListArray::new(
+                Arc::new(Field::new("item", DataType::Float64, true)),
+                OffsetBuffer::from_lengths(std::iter::repeat_n(2, rows)),
+                Arc::new(values),
+                None,
+            );
+            let n = i64::try_from(rows).unwrap();
+            let chunk = Chunk::try_new(
+                ChunkId::new(),
+                EntityPath::parse("/a").unwrap(),
+                (1..=u128::try_from(rows).unwrap())
+                    .map(RowId::from_u128)
+                    .collect(),
+                vec![(
+                    Timeline::sequence("frame"),
+                    Arc::new(Int64Array::from_iter_values(0..n)) as ArrayRef,
+                )],
+                vec![("x".into(), Arc::new(list) as ArrayRef)],
+            )
+            .unwrap();
+            let (ipc, size) = encode_chunk(&chunk, false).unwrap();
+            assert_eq!(
+                rows > 3,
+                ipc.len() > REALIGN_WHOLE_MAX,
+                "one payload of each kind"
+            );
+            let expected = chunk.to_record_batch().unwrap();
+            for shift in 0..REALIGN_TO {
+                let mut bytes = vec![0u8; shift];
+                bytes.extend_from_slice(&ipc);
+                let buffer = Buffer::from_vec(bytes).slice(shift);
+                let decoded =
+                    decode_chunk(PayloadBytes::Shared(buffer), Compression::None, size).unwrap();
+                assert_eq!(
+                    decoded.to_record_batch().unwrap(),
+                    expected,
+                    "shift {shift}"
+                );
+            }
+        }
+    }
 }
