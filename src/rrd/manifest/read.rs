@@ -218,11 +218,19 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
     }
 
     let mut entries = Vec::with_capacity(batch.num_rows());
+    // An entity's path repeats on every row of its chunks: parsed once, then shared.
+    let mut parsed_paths: ahash::HashMap<&str, EntityPath> = ahash::HashMap::default();
     for row in 0..batch.num_rows() {
         let mut id = [0u8; 16];
         id.copy_from_slice(ids.value(row));
-        let entity_path =
-            EntityPath::parse(paths.value(row)).map_err(|e| format!("manifest row {row}: {e}"))?;
+        let text = paths.value(row);
+        let entity_path = if let Some(path) = parsed_paths.get(text) {
+            path.clone()
+        } else {
+            let path = EntityPath::parse(text).map_err(|e| format!("manifest row {row}: {e}"))?;
+            parsed_paths.insert(text, path.clone());
+            path
+        };
         let mut ranges = Vec::new();
         let mut components: BTreeMap<ComponentName, Vec<ManifestTimeRange>> = BTreeMap::new();
         for ((_, component), ranges_of) in &decoded {
