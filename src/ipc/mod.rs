@@ -418,11 +418,12 @@ fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
     let mut batches = Vec::new();
     let mut pos = 0usize;
     while let Some(frame) = next_frame(bytes, &mut pos)? {
-        if let Some(cached) = schema_cache::lookup(&bytes[frame.metadata.clone()]) {
+        // Only a stream's first schema can come from the cache: a batch message never
+        // matches one, and a second schema is refused below as it would be anyway.
+        if schema.is_none()
+            && let Some(cached) = schema_cache::lookup(&bytes[frame.metadata.clone()])
+        {
             pos = body_range(bytes, &frame, cached.body_length)?.end;
-            if schema.is_some() {
-                return Err(unexpected("a second schema in one stream"));
-            }
             schema = Some(cached.schema);
             continue;
         }
