@@ -248,7 +248,13 @@ impl ComponentColumn {
                 actual: list.len(),
             });
         }
-        let list = with_shared_item_field(list);
+        // Accepted cells' lists carry their source's item field, which was shared when
+        // that source was built (sharing it again was a tenth of slicing a small piece).
+        let list = if from_accepted_cells {
+            list.clone()
+        } else {
+            with_shared_item_field(list)
+        };
         let best_cell_row = best_cell_row(&list, row_ids, sorted_by_row_id);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);

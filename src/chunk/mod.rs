@@ -114,6 +114,16 @@ fn check_component_names(raw_components: &[RawComponentColumn]) -> Result<(), Ch
     }
 }
 
+/// What [`Chunk::from_raw`] knows of who else holds the new chunk's Arrow buffers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Buffers {
+    /// Nothing: every buffer's reference count is read.
+    Unknown,
+    /// A slice: the source chunk, alive while the slice is built, shares every one of
+    /// them (reading the counts was an eighth of slicing a small piece).
+    SharedWithSource,
+}
+
 impl Chunk {
     /// Builds a chunk from columns, validating everything SEMANTICS.md section 2 asks.
     ///
@@ -163,6 +173,7 @@ impl Chunk {
             time_columns,
             components,
             Metadata::default(),
+            Buffers::Unknown,
         )
     }
 
@@ -189,6 +200,7 @@ impl Chunk {
         raw_times: Vec<RawTimeColumn>,
         raw_components: Vec<RawComponentColumn>,
         extra_metadata: Metadata,
+        buffers: Buffers,
     ) -> Result<Self, ChunkError> {
         let num_rows = row_ids.len();
         if num_rows == 0 {
@@ -262,7 +274,10 @@ impl Chunk {
             memory: memory::ChunkMemory::default(),
         };
         chunk.memory = memory::ChunkMemory::of(&chunk);
-        chunk.owned_buffers_when_built = chunk.owns_all_buffers_now();
+        chunk.owned_buffers_when_built = match buffers {
+            Buffers::Unknown => chunk.owns_all_buffers_now(),
+            Buffers::SharedWithSource => false,
+        };
         debug_assert!(chunk.sanity_check().is_ok(), "{:?}", chunk.sanity_check());
         Ok(chunk)
     }

@@ -88,6 +88,7 @@ impl Chunk {
             times,
             components,
             first.extra_metadata.clone(),
+            super::Buffers::Unknown,
         )
     }
 
@@ -125,6 +126,7 @@ impl Chunk {
             times,
             components,
             self.extra_metadata.clone(),
+            super::Buffers::SharedWithSource,
         )
     }
 }

@@ -210,7 +210,15 @@ impl Chunk {
             }
         }
         let row_ids = row_ids.ok_or(ChunkError::MissingRowIds)?;
-        Self::from_raw(id, entity_path, row_ids, times, components, metadata)
+        Self::from_raw(
+            id,
+            entity_path,
+            row_ids,
+            times,
+            components,
+            metadata,
+            super::Buffers::Unknown,
+        )
     }
 
     /// Encodes the chunk as a `RecordBatch` in the transport layout. Decoding the result
