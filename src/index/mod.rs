@@ -87,6 +87,11 @@ pub(crate) enum TemporalComponentIndex {
     Large(Arc<LargeIndex>),
 }
 
+/// [`TemporalComponentIndex::remove_many`] indexes the survivors afresh only from this
+/// many removals on (and only when they are at least half of the index): below it, a
+/// removal each costs less than making the set of removed ids.
+const REBUILD_MIN_REMOVALS: usize = 8;
+
 /// A middle removal from a sequence shifts at most this many entries; past that the
 /// sequence turns into the three views, where removal is logarithmic.
 const SEQUENCE_MAX_SHIFT: usize = 64;
@@ -236,6 +241,61 @@ impl TemporalComponentIndex {
                 }
                 removed
             }
+        }
+    }
+
+    /// Forgets the chunks of `removed` (each indexed with its bounds here); returns how
+    /// many were indexed. Where they are at least half of an index in the three views,
+    /// the survivors are indexed afresh in whichever form suits them (one pass, and
+    /// nothing when none survive) rather than removed one search and rebalance at a time:
+    /// compaction and garbage collection take most or all of an entity's chunks out at
+    /// once.
+    pub fn remove_many(&mut self, removed: &[(ChunkId, ComponentTimeBounds)]) -> usize {
+        let len = self.len();
+        // Only the views pay a search and a rebalance per removal; a vector or a
+        // sequence loses an entry for a shift (none at its ends).
+        let views = matches!(self, Self::Large(_));
+        if !views || removed.len() < REBUILD_MIN_REMOVALS || removed.len() * 2 < len {
+            return removed
+                .iter()
+                .filter(|(id, bounds)| self.remove(*id, bounds))
+                .count();
+        }
+        let gone: ahash::HashSet<ChunkId> = removed.iter().map(|&(id, _)| id).collect();
+        let Self::Large(large) = self else {
+            return 0; // (not reached: only the views are rebuilt)
+        };
+        let mut survivors: Vec<IndexedChunk> = large
+            .chunks_by_min_time
+            .values()
+            .chain(&large.recent)
+            .filter(|e| !gone.contains(&e.chunk_id))
+            .cloned()
+            .collect();
+        survivors.sort_by_key(min_time_key);
+        let num_removed = len - survivors.len();
+        *self = Self::from_sorted(survivors);
+        num_removed
+    }
+
+    /// An index of `entries`, sorted by `(least time, chunk id)` and distinct, in the
+    /// form their number and order call for.
+    fn from_sorted(entries: Vec<IndexedChunk>) -> Self {
+        if entries.len() <= SMALL_INDEX_MAX_CHUNKS {
+            Self::Small(entries)
+        } else if entries.len() <= SEQUENCE_MAX_CHUNKS && in_sequence(&entries) {
+            Self::Sequence(Arc::new(entries.into()))
+        } else {
+            large_from(entries)
+        }
+    }
+
+    /// How many chunks the index holds.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Small(entries) => entries.len(),
+            Self::Sequence(entries) => entries.len(),
+            Self::Large(large) => large.len(),
         }
     }
 

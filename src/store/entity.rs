@@ -11,6 +11,7 @@ use arrow_schema::DataType;
 
 use super::pending::PendingGroups;
 use super::view::{EntityView, StaticWinner};
+use crate::chunk::ComponentTimeBounds;
 use crate::index::{
     IndexedChunk, LARGE_INDEX_BYTES_PER_ENTRY, SMALL_INDEX_BYTES_PER_ENTRY, TemporalComponentIndex,
 };
@@ -207,10 +208,16 @@ impl EntityMut<'_> {
         config: &crate::StoreConfig,
         still_grouped: bool,
     ) -> i64 {
-        let id = chunk.id();
         if still_grouped {
             self.index.pending.remove(chunk, config);
         }
+        self.unindex_temporal(chunk)
+    }
+
+    /// Takes a temporal chunk out of the write buffer or its indices; returns how much the
+    /// indices' extra heap grew.
+    fn unindex_temporal(&mut self, chunk: &Chunk) -> i64 {
+        let id = chunk.id();
         if self.view.buffered.remove(id) {
             return 0; // a buffered chunk is in no index
         }
@@ -246,7 +253,83 @@ impl EntityMut<'_> {
         self.index.large_index_bytes = self.index.large_index_bytes.saturating_add_signed(extra);
         extra
     }
+
+    /// [`EntityMut::remove_temporal`] for many temporal chunks of the entity at once:
+    /// one pass over its compaction groups, and each index's entries removed together
+    /// (indexed afresh where most of them go: see
+    /// [`TemporalComponentIndex::remove_many`]). Returns how much the indices' extra heap
+    /// grew (negative: shrank).
+    pub(super) fn remove_temporal_many(&mut self, chunks: &[&Chunk], still_grouped: bool) -> i64 {
+        if still_grouped && !self.index.pending.is_empty() {
+            let gone: ahash::HashSet<ChunkId> = chunks.iter().map(|c| c.id()).collect();
+            self.index.pending.remove_many(&gone);
+        }
+        // Only indices in the three views gain from removals made together (a vector or
+        // a sequence loses an entry for a shift), and an entity has such an index exactly
+        // when it counts their extra heap: without one, no grouping is paid for.
+        if self.index.large_index_bytes == 0 {
+            return chunks
+                .iter()
+                .map(|chunk| self.unindex_temporal(chunk))
+                .sum();
+        }
+        // Each index's removals, keyed by (timeline, component) names; an index holds a
+        // chunk at most once.
+        let mut per_index: ahash::HashMap<(&str, &str), Vec<(ChunkId, ComponentTimeBounds)>> =
+            ahash::HashMap::default();
+        let mut unindexed: ahash::HashSet<ChunkId> = ahash::HashSet::default();
+        for chunk in chunks {
+            let id = chunk.id();
+            if self.view.buffered.remove(id) {
+                continue; // a buffered chunk is in no index
+            }
+            let mut indexed = false;
+            for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
+                for column in chunk.components() {
+                    let Some(bounds) = column.bounds(time_position) else {
+                        continue;
+                    };
+                    indexed = true;
+                    per_index
+                        .entry((time_column.timeline().name(), column.name().as_str()))
+                        .or_default()
+                        .push((id, bounds));
+                }
+            }
+            if !indexed {
+                unindexed.insert(id);
+            }
+        }
+        if !unindexed.is_empty() {
+            self.view.unindexed.retain(|c| !unindexed.contains(&c.id()));
+        }
+        let mut extra = 0;
+        let per_timeline = &mut self.view.temporal_per_timeline_per_component;
+        for ((timeline, component), removed) in &per_index {
+            let Some(per_component) = per_timeline.get_mut(*timeline) else {
+                continue;
+            };
+            if let Some(index) = per_component.get_mut(*component) {
+                let before = index.extra_heap_bytes();
+                index.remove_many(removed);
+                extra += signed_difference(index.extra_heap_bytes(), before);
+                if index.is_empty() {
+                    per_component.remove(*component);
+                }
+            }
+            if per_component.is_empty() {
+                per_timeline.remove(*timeline);
+            }
+        }
+        self.index.large_index_bytes = self.index.large_index_bytes.saturating_add_signed(extra);
+        extra
+    }
 }
+
+/// A removal of this many chunks of one entity or more goes through
+/// [`EntityMut::remove_temporal_many`]; below it, one at a time costs less than gathering
+/// the removals.
+pub(super) const BULK_REMOVAL_MIN_CHUNKS: usize = 8;
 
 impl EntityView {
     /// What the entity's large indices add to the heap (see

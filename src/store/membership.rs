@@ -5,6 +5,8 @@
 
 use std::sync::Arc;
 
+use smallvec::SmallVec;
+
 use super::{ChunkStore, DeletionReason, StoreEvent, StoredChunk};
 use crate::clear::ClearIndex;
 use crate::{Chunk, ChunkId, EntityPath};
@@ -175,10 +177,12 @@ impl ChunkStore {
             return;
         };
         debug_assert!(merged.iter().all(|chunk| *chunk.entity_path() == path));
-        let stored: Vec<StoredChunk> = merged
-            .iter()
-            .filter_map(|chunk| self.chunks.remove(&chunk.id()))
-            .collect();
+        let mut stored = SmallVec::with_capacity(merged.len());
+        stored.extend(
+            merged
+                .iter()
+                .filter_map(|chunk| self.chunks.remove(&chunk.id())),
+        );
         self.take_out_of_entity(
             &path,
             stored,
@@ -227,7 +231,8 @@ impl ChunkStore {
         let mut group_events = Vec::new();
         for path in paths {
             let positions = groups.remove(&path).unwrap_or_default();
-            let chunks = positions.iter().filter_map(|&p| slots[p].take());
+            let mut chunks = SmallVec::with_capacity(positions.len());
+            chunks.extend(positions.iter().filter_map(|&p| slots[p].take()));
             self.take_out_of_entity(
                 &path,
                 chunks,
@@ -255,7 +260,7 @@ impl ChunkStore {
     ) -> Arc<Chunk> {
         let chunk = Arc::clone(&stored.chunk);
         let path = chunk.entity_path().clone();
-        self.take_out_of_entity(&path, std::iter::once(stored), holding, reason, events);
+        self.take_out_of_entity(&path, smallvec::smallvec![stored], holding, reason, events);
         chunk
     }
 
@@ -266,7 +271,7 @@ impl ChunkStore {
     fn take_out_of_entity(
         &mut self,
         path: &EntityPath,
-        stored: impl IntoIterator<Item = StoredChunk>,
+        stored: SmallVec<[StoredChunk; 1]>,
         holding: Holding,
         reason: DeletionReason,
         events: &mut Vec<StoreEvent>,
@@ -278,6 +283,20 @@ impl ChunkStore {
         let unindex = holding != Holding::FiguresOnly;
         let still_grouped = matches!(holding, Holding::Everywhere | Holding::OutOfGlobalOrders);
         let in_orders = holding != Holding::OutOfGlobalOrders;
+        // The indices and compaction groups all at once where a rewrite or a collection
+        // takes many chunks of the entity out together; one at a time below.
+        let together = unindex && stored.len() >= super::entity::BULK_REMOVAL_MIN_CHUNKS;
+        if together && let Some(entity) = entity.as_mut() {
+            let mut temporal: Vec<&Chunk> = Vec::with_capacity(stored.len());
+            temporal.extend(
+                stored
+                    .iter()
+                    .map(|stored| &*stored.chunk)
+                    .filter(|chunk| !chunk.is_static()),
+            );
+            let extra = entity.remove_temporal_many(&temporal, still_grouped);
+            crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
+        }
         for stored in stored {
             if unindex && !stored.chunk.is_static() {
                 ClearIndex::remove_chunk(&mut self.view.clears, &stored.chunk);
@@ -295,17 +314,11 @@ impl ChunkStore {
             } = stored;
             let id = chunk.id();
             if let Some(entity) = entity.as_mut() {
-                if unindex {
-                    if chunk.is_static() {
-                        entity.remove_static(id);
-                    } else {
-                        let extra = entity.remove_temporal(&chunk, &config, still_grouped);
-                        crate::stats::add_index_bytes(
-                            &mut store_stats,
-                            &mut entity.view.stats,
-                            extra,
-                        );
-                    }
+                if unindex && chunk.is_static() {
+                    entity.remove_static(id);
+                } else if unindex && !together {
+                    let extra = entity.remove_temporal(&chunk, &config, still_grouped);
+                    crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
                 }
                 entity.index.chunk_ids.remove(&id);
                 entity.remove_components(&chunk);

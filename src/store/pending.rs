@@ -234,6 +234,28 @@ impl PendingGroups {
         }
     }
 
+    /// Does the entity have no chunk waiting and no run?
+    pub fn is_empty(&self) -> bool {
+        self.groups.is_empty()
+    }
+
+    /// Forgets every chunk of `gone` (chunks leaving the store together): one pass over
+    /// the groups rather than a search, and a shift of a run's later chunks, per chunk.
+    pub fn remove_many(&mut self, gone: &ahash::HashSet<ChunkId>) {
+        for group in &mut self.groups {
+            for level in &mut group.levels {
+                level.retain(|c| !gone.contains(&c.id()));
+            }
+            for runs in &mut group.tiers {
+                for run in runs.iter_mut() {
+                    run.chunks.retain(|c| !gone.contains(&c.id()));
+                }
+                runs.retain(|run| !run.chunks.is_empty());
+            }
+        }
+        self.groups.retain(|group| !group.is_empty());
+    }
+
     /// Every waiting chunk is a small temporal chunk of the entity that the store holds,
     /// once, in its layout's only group at its level; no group is empty, no level full.
     pub fn sanity_check(

@@ -225,3 +225,90 @@ fn chunks_that_touch_or_arrive_out_of_order_are_not_a_sequence() {
     }
     check(&store);
 }
+
+/// Latest-at answers of `view` at every time in `times`, as `(time, row id)`.
+fn answers(
+    view: &chunkstore::StoreView,
+    times: std::ops::RangeInclusive<i64>,
+) -> Vec<Option<(i64, u128)>> {
+    let entity = path(ENTITY);
+    times
+        .map(|at| {
+            view.latest_at(&LatestAtQuery::new("frame", t(at)), &entity, COMPONENT)
+                .map(|a| (a.time().unwrap().as_i64(), a.row_id().as_u128()))
+        })
+        .collect()
+}
+
+#[test]
+fn many_chunks_of_one_index_leave_at_once_from_every_shape() {
+    // Every index shape (a small vector, an in-order sequence, the three views), losing a
+    // part, most or all of its chunks in one collection or one drop: the removals are made
+    // together (the survivors indexed afresh where most go), and must answer as a scan
+    // does, while a snapshot taken before still answers as it did.
+    type Shape = fn(i64) -> Vec<(i64, Option<f64>)>;
+    let shapes: [(&str, i64, Shape); 3] = [
+        ("small", 24, |k| vec![(k * 10, Some((k * 10) as f64))]),
+        ("sequence", 120, |k| {
+            vec![(k * 10, Some((k * 10) as f64)), (k * 10 + 5, None)]
+        }),
+        // Each chunk reaches past the next one's start: the three views.
+        ("views", 120, |k| {
+            vec![
+                (k * 10, Some((k * 10) as f64)),
+                (k * 10 + 25, Some((k * 10 + 25) as f64)),
+            ]
+        }),
+    ];
+    for (shape, num_chunks, rows_of) in shapes {
+        for fraction in [0.3, 0.6, 1.0] {
+            for by_drop in [false, true] {
+                let mut rows = Rows(0);
+                let mut store = store();
+                // Out of time order for the views (odd chunks first), so none is a
+                // sequence by accident.
+                let order: Vec<i64> = if shape == "views" {
+                    (0..num_chunks)
+                        .filter(|k| k % 2 == 1)
+                        .chain((0..num_chunks).filter(|k| k % 2 == 0))
+                        .collect()
+                } else {
+                    (0..num_chunks).collect()
+                };
+                for k in order {
+                    store.insert(rows.chunk(&rows_of(k))).unwrap();
+                }
+                check(&store);
+                let span = -5..=num_chunks * 10 + 30;
+                let snapshot = store.snapshot();
+                let before = answers(&snapshot, span.clone());
+                let held = store.num_chunks();
+                if by_drop {
+                    let last = (num_chunks as f64 * 10.0 * fraction) as i64;
+                    store.drop_time_range("frame", TimeRange::new(t(0), t(last)));
+                } else {
+                    store.gc(&GcOptions::everything()
+                        .with_target(GcTarget::drop_at_least_fraction(fraction).unwrap()));
+                }
+                let what = format!(
+                    "{shape}, {fraction} by {}",
+                    if by_drop { "drop" } else { "gc" }
+                );
+                assert!(store.num_chunks() < held, "{what}: something left");
+                check(&store);
+                assert_eq!(
+                    answers(&snapshot, span),
+                    before,
+                    "{what}: the snapshot changed"
+                );
+                // The index keeps growing and answering after its rebuild.
+                for k in 0..40 {
+                    store
+                        .insert(rows.chunk(&rows_of(num_chunks + (k * 7) % 40)))
+                        .unwrap();
+                }
+                check(&store);
+            }
+        }
+    }
+}
