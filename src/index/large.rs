@@ -48,12 +48,16 @@ impl LargeIndex {
         self.chunks_by_min_time.len() + self.recent.len()
     }
 
-    /// Every entry, sorted by `(least time, chunk id)`.
-    pub(super) fn entries_by_min_time(&self) -> Vec<IndexedChunk> {
+    /// Every entry `keep` keeps, sorted by `(least time, chunk id)`.
+    pub(super) fn entries_by_min_time(
+        &self,
+        keep: impl Fn(&IndexedChunk) -> bool,
+    ) -> Vec<IndexedChunk> {
         let mut entries: Vec<IndexedChunk> = self
             .chunks_by_min_time
             .values()
             .chain(&self.recent)
+            .filter(|e| keep(e))
             .cloned()
             .collect();
         entries.sort_by_key(min_time_key);

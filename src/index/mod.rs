@@ -147,12 +147,7 @@ impl TemporalComponentIndex {
                 };
                 entries.insert(position, entry);
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
-                    let entries = std::mem::take(entries);
-                    *self = if in_sequence(&entries) {
-                        Self::Sequence(Arc::new(entries.into()))
-                    } else {
-                        large_from(entries)
-                    };
+                    *self = Self::from_sorted(std::mem::take(entries));
                 }
             }
             Self::Sequence(shared) => {
@@ -237,7 +232,7 @@ impl TemporalComponentIndex {
                 let large = Arc::make_mut(shared);
                 let removed = large.remove(id, bounds);
                 if large.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(large.entries_by_min_time());
+                    *self = Self::Small(large.entries_by_min_time(|_| true));
                 }
                 removed
             }
@@ -254,25 +249,20 @@ impl TemporalComponentIndex {
         let len = self.len();
         // Only the views pay a search and a rebalance per removal; a vector or a
         // sequence loses an entry for a shift (none at its ends).
-        let views = matches!(self, Self::Large(_));
-        if !views || removed.len() < REBUILD_MIN_REMOVALS || removed.len() * 2 < len {
-            return removed
-                .iter()
-                .filter(|(id, bounds)| self.remove(*id, bounds))
-                .count();
-        }
-        let gone: ahash::HashSet<ChunkId> = removed.iter().map(|&(id, _)| id).collect();
-        let Self::Large(large) = self else {
-            return 0; // (not reached: only the views are rebuilt)
+        let survivors = match &*self {
+            Self::Large(large)
+                if removed.len() >= REBUILD_MIN_REMOVALS && removed.len() * 2 >= len =>
+            {
+                let gone: ahash::HashSet<ChunkId> = removed.iter().map(|&(id, _)| id).collect();
+                large.entries_by_min_time(|e| !gone.contains(&e.chunk_id))
+            }
+            _ => {
+                return removed
+                    .iter()
+                    .filter(|(id, bounds)| self.remove(*id, bounds))
+                    .count();
+            }
         };
-        let mut survivors: Vec<IndexedChunk> = large
-            .chunks_by_min_time
-            .values()
-            .chain(&large.recent)
-            .filter(|e| !gone.contains(&e.chunk_id))
-            .cloned()
-            .collect();
-        survivors.sort_by_key(min_time_key);
         let num_removed = len - survivors.len();
         *self = Self::from_sorted(survivors);
         num_removed
