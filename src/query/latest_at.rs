@@ -65,9 +65,18 @@ impl<'a> Candidate<'a> {
             .unwrap_or_else(|| self.chunk.row_ids()[self.row as usize])
     }
 
-    /// Does this candidate have a greater index `(time, row id)` than `other`?
+    /// Does this candidate come after `other` by index `(time, row id)`, and of two in
+    /// different chunks with equal indices, by chunk id? The chunk id makes the answer a
+    /// function of the chunks held, whichever path found them (index, write buffer), and
+    /// the same order garbage collection's `protect_latest` keeps (SEMANTICS.md section 3).
     fn is_after(&self, other: &Self) -> bool {
-        self.time > other.time || (self.time == other.time && self.row_id() > other.row_id())
+        if self.time != other.time {
+            return self.time > other.time;
+        }
+        match self.row_id().cmp(&other.row_id()) {
+            std::cmp::Ordering::Equal => self.chunk.id() > other.chunk.id(),
+            unequal => unequal.is_gt(),
+        }
     }
 }
 

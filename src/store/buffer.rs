@@ -81,9 +81,18 @@ fn same_columns(a: &Chunk, b: &Chunk) -> bool {
             .all(|(x, y)| same(x.name().as_str(), y.name().as_str()))
 }
 
-/// Is `b` a greater cell than `a` (by `(time, row id)`)?
-fn is_after(b: &ComponentTimeBounds, a: &ComponentTimeBounds) -> bool {
-    (b.max_time, b.max_row_id) > (a.max_time, a.max_row_id)
+/// Is `b` (of chunk `b_id`) a greater cell than `a` (of chunk `a_id`), by `(time, row
+/// id)` and then chunk id, the order latest-at answers by? The ids are read on a tie only.
+fn is_after(
+    b: &ComponentTimeBounds,
+    b_id: impl FnOnce() -> ChunkId,
+    a: &ComponentTimeBounds,
+    a_id: impl FnOnce() -> ChunkId,
+) -> bool {
+    match (b.max_time, b.max_row_id).cmp(&(a.max_time, a.max_row_id)) {
+        std::cmp::Ordering::Equal => b_id() > a_id(),
+        unequal => unequal.is_gt(),
+    }
 }
 
 impl BufferGroup {
@@ -126,7 +135,10 @@ impl BufferGroup {
                     continue;
                 };
                 let slot = &mut self.latest[t * num_components + c];
-                if slot.is_none_or(|(_, best)| is_after(&bounds, &best)) {
+                if slot.is_none_or(|(best_position, best)| {
+                    let best_chunk = &self.chunks[best_position as usize];
+                    is_after(&bounds, || chunk.id(), &best, || best_chunk.id())
+                }) {
                     *slot = Some((position as u32, bounds));
                 }
             }

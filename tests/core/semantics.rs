@@ -177,6 +177,69 @@ fn latest_at_takes_greatest_time_then_greatest_row_id() {
     assert_eq!(latest(&store, "e", "c", 4), None, "nothing at or before 4");
 }
 
+/// A chunk of `e` holding one `c` cell at `frame = 5` with row id 7, and with `more`, a
+/// second timeline, so that it never merges with the other layout on insert.
+fn tied(value: f64, more: bool) -> chunkstore::Chunk {
+    use std::sync::Arc;
+    let frame = || Arc::new(arrow_array::Int64Array::from(vec![5])) as arrow_array::ArrayRef;
+    let mut times = vec![(chunkstore::Timeline::sequence("frame"), frame())];
+    if more {
+        times.push((chunkstore::Timeline::sequence("other"), frame()));
+    }
+    chunkstore::Chunk::try_new(
+        chunkstore::ChunkId::new(),
+        path("e"),
+        vec![rid(7)],
+        times,
+        vec![("c".into(), f64_list(&[Some(vec![value])]))],
+    )
+    .unwrap()
+}
+
+#[test]
+fn rows_that_tie_on_their_index_answer_from_the_greater_chunk_id() {
+    use chunkstore::{GcOptions, StoreConfig};
+    for config in [StoreConfig::DEFAULT, StoreConfig::COMPACTION_OFF] {
+        for older_first in [true, false] {
+            for filler in [0, 40] {
+                // `newer` has the greater chunk id; insert order, the write buffer and the
+                // index's shape (40 more chunks make it large) must not change the answer.
+                let older = tied(1.0, true);
+                let newer = tied(2.0, false);
+                let mut store = ChunkStore::with_config(config).unwrap();
+                for i in 0..filler {
+                    store
+                        .insert(scalar("e", "c", i - 100, 1000 + i as u128, 0.0))
+                        .unwrap();
+                }
+                let (first, second) = if older_first {
+                    (older, newer)
+                } else {
+                    (newer, older)
+                };
+                store.insert(first).unwrap();
+                store.insert(second).unwrap();
+                store.sanity_check().unwrap();
+                let case = format!("{config:?}, older first: {older_first}, filler: {filler}");
+                assert_eq!(latest(&store, "e", "c", 5), Some((Some(5), 2.0)), "{case}");
+                assert_eq!(
+                    latest(&store, "e", "c", i64::MAX),
+                    Some((Some(5), 2.0)),
+                    "{case}"
+                );
+                // Section 7: protecting the latest chunk keeps this answer.
+                store.gc(&GcOptions::everything().with_protect_latest(1));
+                store.sanity_check().unwrap();
+                assert_eq!(
+                    latest(&store, "e", "c", i64::MAX),
+                    Some((Some(5), 2.0)),
+                    "{case}"
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn latest_at_with_overlapping_and_out_of_order_chunks() {
     // A long chunk spanning 0..=1000, short chunks inside it, inserted in any order.
