@@ -93,6 +93,36 @@ impl TemporalColumn {
         merge(out);
     }
 
+    /// Is every coming time of the column (rows and Clears) that is at most `last`
+    /// `known`? Then merging them into a batch that knows them would add nothing: what
+    /// [`Self::coming_times`] gathers, checked without gathering it.
+    pub(super) fn coming_times_known(
+        &self,
+        last: TimeInt,
+        mut known: impl FnMut(TimeInt) -> bool,
+    ) -> bool {
+        let mut unknown = false;
+        // Stops (`false`) at the first time past `last` or not known; once one is not
+        // known, every later call stops at once.
+        let mut check = |time: TimeInt| {
+            if unknown || time > last {
+                return false;
+            }
+            unknown = !known(time);
+            !unknown
+        };
+        if let Some(cursor) = &self.cursor {
+            cursor.times_ahead(&mut check);
+        }
+        let clears = self.clears.get(self.next_clear..).unwrap_or_default();
+        for &(time, _) in clears {
+            if !check(time) {
+                break;
+            }
+        }
+        !unknown
+    }
+
     /// Consumes the column's rows up to `last` when no Clear applies to them (none in
     /// the range up to `last`, no static one): the common case, where every event is a
     /// row and shows itself. Calls `visit` with each time and the row it shows (of the

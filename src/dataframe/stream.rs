@@ -30,6 +30,7 @@ pub struct DataframeStream<'a> {
     /// Scratch for gathering `times`.
     coming: Vec<TimeInt>,
     merged: Vec<TimeInt>,
+    time_set: TimeSet,
     /// Per index column, this batch's values: the index itself, and on every other
     /// index column the greatest time among each row's cells.
     index_values: Vec<Vec<Option<i64>>>,
@@ -124,6 +125,7 @@ impl<'a> DataframeStream<'a> {
             times: Vec::new(),
             coming: Vec::new(),
             merged: Vec::new(),
+            time_set: TimeSet::default(),
             index_values: vec![Vec::new(); plan.index_columns.len()],
             cells: ListColumnBuilder::default(),
             plan,
@@ -184,16 +186,30 @@ impl<'a> DataframeStream<'a> {
                     times,
                     coming,
                     merged,
+                    time_set,
                     ..
                 } = self;
+                let mut set_is_current = false;
                 for state in &self.columns {
                     let Kind::Temporal(column) = &state.kind else {
                         continue;
                     };
-                    // Once the batch is full, only earlier times can still join it.
-                    let bound = times.last().copied().filter(|_| times.len() >= cap);
-                    column.coming_times(bound, cap, coming, |new| {
-                        merge_times(times, new, cap, merged);
+                    let last = times.last().copied().filter(|_| times.len() >= cap);
+                    // Once the batch is full, only earlier times can still join it; a
+                    // column whose times the batch has (an entity's other components,
+                    // entities on one clock) adds nothing, which a look-up per time
+                    // tells without gathering them.
+                    if let Some(last) = last {
+                        if !set_is_current {
+                            time_set.rebuild(times);
+                            set_is_current = true;
+                        }
+                        if column.coming_times_known(last, |time| time_set.contains(times, time)) {
+                            continue;
+                        }
+                    }
+                    column.coming_times(last, cap, coming, |new| {
+                        set_is_current &= !merge_times(times, new, cap, merged);
                     });
                 }
             }
@@ -214,6 +230,9 @@ impl<'a> DataframeStream<'a> {
         let state = &mut self.columns[number];
         let cells = &mut self.cells;
         let num_rows = self.times.len();
+        if selected {
+            cells.reserve(num_rows);
+        }
         let pad = match &mut state.kind {
             Kind::Static(cell) => *cell,
             Kind::Temporal(column) => {
@@ -225,13 +244,21 @@ impl<'a> DataframeStream<'a> {
                 let sources = &state.sources;
                 let index_values = &mut self.index_values;
                 let mut fill_cell = column.fill;
+                // With the table's index its only index column, no cell raises another.
+                let raises = index_values.len() > 1;
                 column.take_rows_through(last, |time, cell| {
                     let row = position_from(times, from, time);
                     from = row + 1;
-                    sources.raise_times(cell, row, index_values);
+                    if raises {
+                        sources.raise_times(cell, row, index_values);
+                    }
                     if selected {
-                        cells.pad(sources, if fill { fill_cell } else { None }, row);
-                        cells.push(sources, Some(cell));
+                        cells.pad_and_push(
+                            sources,
+                            if fill { fill_cell } else { None },
+                            row,
+                            Some(cell),
+                        );
                     }
                     fill_cell = Some(cell);
                 });
@@ -245,9 +272,8 @@ impl<'a> DataframeStream<'a> {
                         state.sources.raise_times(cell, row, &mut self.index_values);
                     }
                     if selected {
-                        let sources = &state.sources;
-                        cells.pad(sources, if fill { column.fill } else { None }, row);
-                        cells.push(sources, cell);
+                        let pad = if fill { column.fill } else { None };
+                        cells.pad_and_push(&state.sources, pad, row, cell);
                     }
                     if fill && !column.hidden_by_static_clear {
                         match cell {
@@ -396,13 +422,23 @@ impl<'a> DataframeStream<'a> {
     }
 }
 
-/// Where `time` is, or would go, in the ascending `times`, searching from `from` on by
-/// galloping: a few steps for a column with a row every few rows, a logarithmic search
-/// for a sparse one.
+/// Where `time` is, or would go, in the ascending `times`, searching from `from` on: a
+/// few steps for a column with a row every few rows (most of them: entities on a few
+/// clocks), then by galloping, a logarithmic search for a sparse one.
+#[inline]
 fn position_from(times: &[TimeInt], from: usize, time: TimeInt) -> usize {
+    const STEPS: usize = 8;
     let rest = times.get(from..).unwrap_or_default();
-    let (mut low, mut high) = (0, 1);
+    let steps = rest.len().min(STEPS);
+    let mut step = 0;
+    while step < steps && rest[step] < time {
+        step += 1;
+    }
+    if step < steps || rest.len() <= STEPS {
+        return from + step;
+    }
     // Everything before `low` is earlier than `time`.
+    let (mut low, mut high) = (STEPS, 2 * STEPS);
     while high <= rest.len() && rest[high - 1] < time {
         low = high;
         high *= 2;
@@ -411,18 +447,80 @@ fn position_from(times: &[TimeInt], from: usize, time: TimeInt) -> usize {
     from + low + rest[low..high].partition_point(|&t| t < time)
 }
 
+/// A batch's row times as a set: a bitmap over their span where they are dense enough (at
+/// most 64 bits per time), else a binary search. Checking that a column's times are all
+/// known then costs a few instructions per time.
+#[derive(Default)]
+struct TimeSet {
+    first: i64,
+    /// Bit `t - first` is set for each time `t`; empty when the times are too sparse.
+    words: Vec<u64>,
+}
+
+impl TimeSet {
+    fn rebuild(&mut self, times: &[TimeInt]) {
+        self.words.clear();
+        let (Some(first), Some(last)) = (times.first(), times.last()) else {
+            return;
+        };
+        let span = i128::from(last.as_i64()) - i128::from(first.as_i64()) + 1;
+        let Ok(span) = usize::try_from(span) else {
+            return;
+        };
+        if span / 64 > times.len() {
+            return;
+        }
+        self.first = first.as_i64();
+        self.words.resize(span.div_ceil(64), 0);
+        for &time in times {
+            let Some(bit) = self.bit(time) else {
+                continue;
+            };
+            if let Some(word) = self.words.get_mut(bit / 64) {
+                *word |= 1 << (bit % 64);
+            }
+        }
+    }
+
+    /// `time`'s bit: its distance from the first time, which wraps past the words for a
+    /// time before it (`None` where it does not fit a `usize`).
+    #[expect(
+        clippy::cast_sign_loss,
+        reason = "a time before the first wraps to a distance past the span"
+    )]
+    fn bit(&self, time: TimeInt) -> Option<usize> {
+        usize::try_from(time.as_i64().wrapping_sub(self.first) as u64).ok()
+    }
+
+    fn contains(&self, times: &[TimeInt], time: TimeInt) -> bool {
+        if self.words.is_empty() {
+            return times.binary_search(&time).is_ok();
+        }
+        self.bit(time).is_some_and(|bit| {
+            self.words
+                .get(bit / 64)
+                .is_some_and(|word| word & (1 << (bit % 64)) != 0)
+        })
+    }
+}
+
 /// Merges the ascending distinct `new` into the ascending distinct `times`, keeping the
-/// first `cap`. A column whose times the batch already has (many entities on one clock)
-/// costs a search per time and no copy.
-fn merge_times(times: &mut Vec<TimeInt>, new: &[TimeInt], cap: usize, merged: &mut Vec<TimeInt>) {
+/// first `cap`; returns whether `times` changed. A column whose times the batch already
+/// has (many entities on one clock) costs a search per time and no copy.
+fn merge_times(
+    times: &mut Vec<TimeInt>,
+    new: &[TimeInt],
+    cap: usize,
+    merged: &mut Vec<TimeInt>,
+) -> bool {
     let Some(&first) = new.first() else {
-        return;
+        return false;
     };
     // Entities on one clock: the column's times are a run of the batch's, found by one
     // search and one comparison of slices rather than a search per time.
     let at = position_from(times, 0, first);
     if times.get(at..at.saturating_add(new.len())) == Some(new) {
-        return;
+        return false;
     }
     let mut from = at;
     let known = new.iter().all(|&time| {
@@ -432,7 +530,7 @@ fn merge_times(times: &mut Vec<TimeInt>, new: &[TimeInt], cap: usize, merged: &m
         found
     });
     if known {
-        return;
+        return false;
     }
     merged.clear();
     let (mut a, mut b) = (times.iter().peekable(), new.iter().peekable());
@@ -460,6 +558,7 @@ fn merge_times(times: &mut Vec<TimeInt>, new: &[TimeInt], cap: usize, merged: &m
         merged.push(next);
     }
     std::mem::swap(times, merged);
+    true
 }
 
 impl Iterator for DataframeStream<'_> {
@@ -485,7 +584,7 @@ impl RecordBatchReader for DataframeStream<'_> {
 
 #[cfg(test)]
 mod tests {
-    use super::{merge_times, position_from};
+    use super::{TimeSet, merge_times, position_from};
     use crate::TimeInt;
 
     fn times(values: &[i64]) -> Vec<TimeInt> {
@@ -494,19 +593,60 @@ mod tests {
 
     #[test]
     fn galloping_finds_what_a_binary_search_finds_from_any_start() {
-        let sorted = times(&[1, 3, 4, 8, 9, 10, 20, 21, 40, 41, 42, 43, 90]);
+        // Short steps, then galloping: a few times, and many with gaps of every size.
+        let mut long: Vec<i64> = vec![1, 3, 4, 8, 9, 10, 20, 21, 40, 41, 42, 43, 90];
+        long.extend((0..150).map(|i| 100 + i * i / 7));
+        long.dedup();
+        for sorted in [times(&long[..13]), times(&long)] {
+            search_from_everywhere(&sorted);
+        }
+        assert_eq!(position_from(&[], 0, TimeInt::saturating(5)), 0);
+    }
+
+    fn search_from_everywhere(sorted: &[TimeInt]) {
+        let end = sorted.last().map_or(0, |t| t.as_i64() + 2);
         for from in 0..=sorted.len() {
-            for t in 0..100 {
+            for t in 0..end {
                 let time = TimeInt::saturating(t);
                 let expected = from + sorted[from..].partition_point(|&x| x < time);
                 assert_eq!(
-                    position_from(&sorted, from, time),
+                    position_from(sorted, from, time),
                     expected,
                     "from {from}, t {t}"
                 );
             }
         }
-        assert_eq!(position_from(&[], 0, TimeInt::saturating(5)), 0);
+    }
+
+    #[test]
+    fn a_time_set_holds_exactly_its_times_dense_or_sparse() {
+        let extremes = [i64::MIN + 1, -5, 0, 3, i64::MAX - 1, i64::MAX];
+        let dense: Vec<i64> = (10..400).filter(|t| t % 3 != 1).collect();
+        let sparse = [-1_000_000, 0, 7, 1_000_000];
+        let mut set = TimeSet::default();
+        for list in [
+            &dense[..],
+            &sparse[..],
+            &[42][..],
+            &[i64::MIN + 1, i64::MAX][..],
+            &[],
+        ] {
+            let batch = times(list);
+            set.rebuild(&batch);
+            let probes = list
+                .iter()
+                .flat_map(|&t| [t.saturating_sub(1), t, t.saturating_add(1)])
+                .chain(extremes);
+            for t in probes {
+                let time = TimeInt::saturating(t);
+                assert_eq!(
+                    set.contains(&batch, time),
+                    list.contains(&time.as_i64()),
+                    "{t} in a set of {} times",
+                    list.len()
+                );
+            }
+        }
     }
 
     #[test]
@@ -529,13 +669,19 @@ mod tests {
             let (mut merged, mut scratch) = (Vec::new(), Vec::new());
             let mut all = Vec::new();
             for list in lists {
-                merge_times(&mut merged, &times(list), cap, &mut scratch);
+                let before = merged.clone();
+                let changed = merge_times(&mut merged, &times(list), cap, &mut scratch);
                 all.extend_from_slice(list);
                 let mut expected = all.clone();
                 expected.sort_unstable();
                 expected.dedup();
                 expected.truncate(cap);
                 assert_eq!(merged, times(&expected), "cap {cap}");
+                // A change is always reported (an unchanged merge may be too).
+                assert!(
+                    changed || merged == before,
+                    "cap {cap}: a change is reported"
+                );
             }
         }
     }
