@@ -123,6 +123,24 @@ impl TemporalColumn {
         !unknown
     }
 
+    /// The Clears still to come at or before `last`.
+    fn clears_through(&self, last: TimeInt) -> &[(TimeInt, RowId)] {
+        let ahead = self.clears.get(self.next_clear..).unwrap_or_default();
+        &ahead[..ahead.partition_point(|&(time, _)| time <= last)]
+    }
+
+    /// Are the column's coming times up to `last` those of `other` (rows and Clears),
+    /// told without walking them ([`RangeCursor::same_times_ahead`])? `false` says nothing.
+    pub(super) fn same_times_ahead(&self, other: &Self, last: TimeInt) -> bool {
+        let (mine, theirs) = (self.clears_through(last), other.clears_through(last));
+        mine.iter().map(|c| c.0).eq(theirs.iter().map(|c| c.0))
+            && match (&self.cursor, &other.cursor) {
+                (Some(mine), Some(theirs)) => mine.same_times_ahead(theirs, last),
+                (None, None) => true,
+                _ => false,
+            }
+    }
+
     /// Consumes the column's rows up to `last` when no Clear applies to them (none in
     /// the range up to `last`, no static one): the common case, where every event is a
     /// row and shows itself. Calls `visit` with each time and the row it shows (of the

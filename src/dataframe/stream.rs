@@ -6,7 +6,9 @@ use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
 use super::cells::{Cell, ListColumnBuilder};
-use super::column::{ColumnState, Kind, column_state, exact_cell, row_bytes, visible_cell};
+use super::column::{
+    ColumnState, Kind, TemporalColumn, column_state, exact_cell, row_bytes, visible_cell,
+};
 use super::schema::{Selection, TablePlan};
 use super::{DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::{LatestAtQuery, Snapshot, StoreView, TimeInt, TimeRange};
@@ -190,24 +192,31 @@ impl<'a> DataframeStream<'a> {
                     ..
                 } = self;
                 let mut set_is_current = false;
+                // The last column found to add nothing to the batch as it is.
+                let mut known: Option<&TemporalColumn> = None;
                 for state in &self.columns {
                     let Kind::Temporal(column) = &state.kind else {
                         continue;
                     };
                     let last = times.last().copied().filter(|_| times.len() >= cap);
                     // Once the batch is full, only earlier times can still join it; a
-                    // column whose times the batch has (an entity's other components,
-                    // entities on one clock) adds nothing, which a look-up per time
-                    // tells without gathering them.
+                    // column whose times the batch has adds nothing, which a look-up per
+                    // time tells without gathering them, or, for an entity's components
+                    // logged together, the previous column's answer.
                     if let Some(last) = last {
                         if !set_is_current {
                             time_set.rebuild(times);
                             set_is_current = true;
                         }
-                        if column.coming_times_known(last, |time| time_set.contains(times, time)) {
+                        if known.is_some_and(|known| column.same_times_ahead(known, last))
+                            || column
+                                .coming_times_known(last, |time| time_set.contains(times, time))
+                        {
+                            known = Some(column);
                             continue;
                         }
                     }
+                    known = None;
                     column.coming_times(last, cap, coming, |new| {
                         set_is_current &= !merge_times(times, new, cap, merged);
                     });

@@ -9,7 +9,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::sync::Arc;
 
-use arrow_array::ArrayRef;
+use arrow_array::{Array, ArrayRef};
 
 use crate::index::IndexedChunk;
 use crate::{Chunk, ComponentColumn, EntityPath, RowId, StoreView, TimeColumn, TimeInt, TimeRange};
@@ -489,6 +489,56 @@ impl RangeCursor {
         if self.next >= self.block.len() {
             self.refill();
         }
+    }
+
+    /// Are this cursor's rows still to come, up to time `last`, at the same times as
+    /// `other`'s, told without walking them? They are where both have decoded the same
+    /// times and go on with the same runs of the same chunks' time columns, in columns
+    /// without a null cell (so that every position is a row of both): an entity's
+    /// components logged together. `false` says nothing.
+    pub fn same_times_ahead(&self, other: &Self, last: TimeInt) -> bool {
+        let (mine, theirs) = (&self.block[self.next..], &other.block[other.next..]);
+        if mine.len() != theirs.len() || mine.iter().zip(theirs).any(|(a, b)| a.time != b.time) {
+            return false;
+        }
+        if mine.last().is_some_and(|row| row.time > last) {
+            return true; // everything after comes later than `last`
+        }
+        if self.position != other.position {
+            return false;
+        }
+        let mine = self.result.runs.get(self.run..).unwrap_or_default();
+        let theirs = other.result.runs.get(other.run..).unwrap_or_default();
+        let mut position = self.position;
+        for (run, their_run) in mine.iter().zip(theirs) {
+            let source = &self.result.sources[run.source as usize];
+            let their_source = &other.result.sources[their_run.source as usize];
+            let same = (run.start, run.end) == (their_run.start, their_run.end)
+                && Arc::ptr_eq(&source.chunk, &their_source.chunk)
+                && source.time_column == their_source.time_column;
+            let Some(time_column) = source.time_column.filter(|_| same) else {
+                return false;
+            };
+            let start = position.max(run.start);
+            position = 0;
+            if start >= run.end {
+                continue;
+            }
+            let times = &source.chunk.time_columns()[time_column as usize];
+            if TimeInt::saturating(times.times()[times.row_at(start as usize)]) > last {
+                return true;
+            }
+            let has_nulls = |source: &Source| {
+                source.chunk.components()[source.component_column as usize]
+                    .list_array()
+                    .null_count()
+                    > 0
+            };
+            if has_nulls(source) || has_nulls(their_source) {
+                return false;
+            }
+        }
+        mine.len() == theirs.len()
     }
 
     /// Calls `visit` with the times of the rows still to come, in order, without moving,

@@ -499,6 +499,66 @@ fn batches_hold_at_most_the_rows_asked_for_and_concatenate_to_the_table() {
 }
 
 #[test]
+fn components_logged_together_keep_their_own_rows_where_one_is_null() {
+    // One chunk of 120 rows holds three components, some null on frames 50..60: past
+    // the rows a column decodes ahead, so that only their validity tells one column's
+    // times from the one before it (`a` makes the batch, `b` adds nothing, and `c` may
+    // or may not have what `b` has).
+    let frames: Vec<i64> = (0..120).collect();
+    let cells = |gap: bool| -> Vec<Option<Vec<f64>>> {
+        frames
+            .iter()
+            .map(|&f| (!(gap && (50..60).contains(&f))).then(|| vec![f as f64]))
+            .collect()
+    };
+    let text = |f: i64, gap: bool| {
+        if gap && (50..60).contains(&f) {
+            "null".to_owned()
+        } else {
+            format!("[{f}]")
+        }
+    };
+    for gaps in [
+        [true, true, false],
+        [false, false, true],
+        [true, false, true],
+    ] {
+        let chunk = Chunk::try_new(
+            ChunkId::new(),
+            path("/e"),
+            frames.iter().map(|&f| rid(f as u128 + 1)).collect(),
+            vec![(
+                Timeline::sequence("frame"),
+                Arc::new(Int64Array::from(frames.clone())) as ArrayRef,
+            )],
+            ["a", "b", "c"]
+                .iter()
+                .zip(gaps)
+                .map(|(name, gap)| ((*name).into(), f64_list(&cells(gap))))
+                .collect(),
+        )
+        .unwrap();
+        let store = store_of([chunk]);
+        let expected: Vec<String> = frames
+            .iter()
+            .filter(|&&f| gaps.iter().any(|&gap| !(gap && (50..60).contains(&f))))
+            .map(|&f| {
+                let cells: Vec<String> = gaps.iter().map(|&gap| text(f, gap)).collect();
+                format!("{f} | {}", cells.join(" | "))
+            })
+            .collect();
+        for batch_rows in [4, 40, 100, 119, 200] {
+            let query = frame().with_batch_rows(batch_rows);
+            assert_eq!(
+                render(&store, &query).1,
+                expected,
+                "gaps {gaps:?}, batches of {batch_rows}"
+            );
+        }
+    }
+}
+
+#[test]
 fn compaction_and_chunking_never_change_a_table() {
     let chunks = || {
         (0..40).map(|i| {
