@@ -1,9 +1,10 @@
 //! A column's cells for one batch, written into a list array as they come
 //! ([`ListColumnBuilder`]): an offset per cell (a few instructions each; the validity is
-//! read off the offsets when the column ends), the values as the stretches of the source chunks' values the cells take, copied at the
-//! end (one zero-copy slice when a batch takes one chunk's values whole, one
-//! `MutableArrayData::extend` per stretch otherwise). Null cells hold no values, so a
-//! column logged every third row still copies its values in one stretch per source chunk.
+//! read off the offsets when the column ends), the values as the stretches of the source
+//! chunks' values the cells take, copied at the end (one zero-copy slice when a batch
+//! takes one chunk's values whole, one `MutableArrayData::extend` per stretch otherwise).
+//! Null cells hold no values, so a column logged every third row still copies its values
+//! in one stretch per source chunk.
 //! The `chunks` table, which fills many columns a row at a time, records runs of cells per
 //! column first ([`ColumnCells`]) and replays them into the builder.
 
