@@ -11,7 +11,7 @@ use smallvec::SmallVec;
 use super::time_column::TimeColumn;
 use crate::ChunkError;
 use crate::sanity::{SanityError, Structure};
-use crate::{ComponentDescriptor, ComponentName, RowId, TimeInt};
+use crate::{ChunkId, ComponentDescriptor, ComponentName, RowId, TimeInt};
 
 /// The greatest and least index of a component's non-null cells on one timeline.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -24,6 +24,15 @@ pub struct ComponentTimeBounds {
     pub max_row_id: RowId,
     /// The row holding that cell.
     pub max_row: u32,
+}
+
+impl ComponentTimeBounds {
+    /// The key of this greatest cell, in chunk `chunk`, in the order latest-at answers by
+    /// and garbage collection's `protect_latest` keeps: `(time, row id)`, then chunk id for
+    /// a tie (SEMANTICS.md section 3).
+    pub(crate) fn max_index_key(&self, chunk: ChunkId) -> (TimeInt, RowId, ChunkId) {
+        (self.max_time, self.max_row_id, chunk)
+    }
 }
 
 /// One component's column in a chunk.

@@ -500,9 +500,5 @@ fn check_bounds(entry: &IndexedChunk) -> Result<(), SanityError> {
 }
 
 fn max_index_key(entry: &IndexedChunk) -> MaxIndexKey {
-    (
-        entry.bounds.max_time,
-        entry.bounds.max_row_id,
-        entry.chunk_id,
-    )
+    entry.bounds.max_index_key(entry.chunk_id)
 }

@@ -81,20 +81,6 @@ fn same_columns(a: &Chunk, b: &Chunk) -> bool {
             .all(|(x, y)| same(x.name().as_str(), y.name().as_str()))
 }
 
-/// Is `b` (of chunk `b_id`) a greater cell than `a` (of chunk `a_id`), by `(time, row
-/// id)` and then chunk id, the order latest-at answers by? The ids are read on a tie only.
-fn is_after(
-    b: &ComponentTimeBounds,
-    b_id: impl FnOnce() -> ChunkId,
-    a: &ComponentTimeBounds,
-    a_id: impl FnOnce() -> ChunkId,
-) -> bool {
-    match (b.max_time, b.max_row_id).cmp(&(a.max_time, a.max_row_id)) {
-        std::cmp::Ordering::Equal => b_id() > a_id(),
-        unequal => unequal.is_gt(),
-    }
-}
-
 impl BufferGroup {
     fn new(chunk: &Arc<Chunk>) -> Self {
         let mut group = Self {
@@ -135,9 +121,10 @@ impl BufferGroup {
                     continue;
                 };
                 let slot = &mut self.latest[t * num_components + c];
+                // The cell latest-at answers with: the greatest key, ties to chunk id.
                 if slot.is_none_or(|(best_position, best)| {
-                    let best_chunk = &self.chunks[best_position as usize];
-                    is_after(&bounds, || chunk.id(), &best, || best_chunk.id())
+                    let best_chunk = self.chunks[best_position as usize].id();
+                    bounds.max_index_key(chunk.id()) > best.max_index_key(best_chunk)
                 }) {
                     *slot = Some((position as u32, bounds));
                 }

@@ -255,7 +255,7 @@ impl EntityView {
                     let Some(bounds) = column.bounds(time_position) else {
                         return false;
                     };
-                    let key = (bounds.max_time, bounds.max_row_id, id);
+                    let key = bounds.max_index_key(id);
                     let mut after = per_component
                         .and_then(|per_component| per_component.get(column.name()))
                         .map_or(0, |index| index.count_after(key, n));
@@ -264,9 +264,7 @@ impl EntityView {
                             timeline,
                             column.name().as_str(),
                             |other, _, _, bounds| {
-                                after += usize::from(
-                                    (bounds.max_time, bounds.max_row_id, other.id()) > key,
-                                );
+                                after += usize::from(bounds.max_index_key(other.id()) > key);
                             },
                         );
                     }
