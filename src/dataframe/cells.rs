@@ -320,7 +320,7 @@ impl ColumnCells {
                 }
                 CellRun::Repeat { source, row, times } => {
                     for _ in 0..times {
-                        builder.rows(sources, source, row, row + 1);
+                        builder.row(sources, source, row);
                     }
                 }
             }
@@ -547,30 +547,11 @@ impl ListColumnBuilder {
         );
     }
 
-    /// Rows `start..end` of source `source`.
-    #[expect(clippy::cast_possible_truncation, reason = "a batch holds < 2^32 rows")]
+    /// Rows `start..end` of source `source` (consecutive rows take one stretch of values).
     fn rows(&mut self, sources: &Sources, source: u32, start: u32, end: u32) {
-        let list = &sources.arrays[source as usize].list;
-        let (start, end) = (start as usize, end as usize);
-        let offsets = list.value_offsets();
-        let first = self.len();
-        let mut offset = self.offsets.last().copied().unwrap_or(0);
         for row in start..end {
-            let len = offsets[row + 1] - offsets[row];
-            if (len == 0) != list.is_null(row) {
-                self.exceptions.push((first + row - start) as u32);
-            }
-            offset = offset.checked_add(len).unwrap_or_else(|| {
-                self.overflow = true;
-                offset
-            });
-            self.offsets.push(offset);
+            self.row(sources, source, row);
         }
-        self.take_values(
-            source,
-            offsets[start].unsigned_abs() as usize,
-            offsets[end].unsigned_abs() as usize,
-        );
     }
 
     /// Notes that the current column's cells take values `from..to` of source `source`,
