@@ -1,7 +1,8 @@
 //! Clears (SEMANTICS.md section 5), indexed on their own: a tree mirroring the entity tree
 //! holds, per entity that ever logged a Clear, the indices of its Clears per timeline. A
 //! query walks from the root to the queried entity, one map lookup per level, and never
-//! looks at any entity's data.
+//! looks at any entity's data. The maps are keyed by the path's parts, which carry their
+//! hashes ([`PathPart`]), so a level costs a probe and no hashing of text.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -9,7 +10,9 @@ use std::sync::Arc;
 use arrow_array::{Array, BooleanArray};
 use arrow_buffer::ArrowNativeType;
 
+use crate::entity_path::{PartMap, PathPart};
 use crate::sanity::{SanityError, Structure, ensure};
+use crate::small_map::SmallMap;
 use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt, TimeRange};
 
 /// The Clears that apply to one (entity, component) column of a dataframe on one
@@ -33,9 +36,9 @@ type IndexMultiset<K> = BTreeMap<K, u32>;
 #[derive(Clone, Debug, Default)]
 struct EntityClears {
     /// All Clears, flat and recursive, per timeline: they hide this entity's own data.
-    any_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
+    any_per_timeline: SmallMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
     /// Recursive Clears per timeline: they hide descendants' data too.
-    recursive_per_timeline: ahash::HashMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
+    recursive_per_timeline: SmallMap<Arc<str>, IndexMultiset<(TimeInt, RowId, ChunkId)>>,
     static_any: IndexMultiset<(RowId, ChunkId)>,
     static_recursive: IndexMultiset<(RowId, ChunkId)>,
 }
@@ -48,7 +51,7 @@ struct EntityClears {
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ClearIndex {
     clears: Option<Arc<EntityClears>>,
-    children: ahash::HashMap<Arc<str>, Arc<ClearIndex>>,
+    children: PartMap<Arc<ClearIndex>>,
 }
 
 /// One Clear row: its row, and whether it is recursive.
@@ -93,7 +96,7 @@ impl ClearIndex {
         if rows.is_empty() {
             return;
         }
-        let parts = chunk.entity_path().part_arcs();
+        let parts = chunk.entity_path().path_parts();
         if !insert && index.node(parts).is_none_or(|node| node.clears.is_none()) {
             return;
         }
@@ -117,13 +120,9 @@ impl ClearIndex {
             for column in chunk.time_columns() {
                 let name = column.timeline().name_arc();
                 let key = (TimeInt::saturating(column.times()[row]), row_id, id);
-                let update = |per_timeline: &mut ahash::HashMap<Arc<str>, _>| {
+                let update = |per_timeline: &mut SmallMap<Arc<str>, _>| {
                     if insert {
-                        update_multiset(
-                            per_timeline.entry(Arc::clone(name)).or_default(),
-                            key,
-                            true,
-                        );
+                        update_multiset(per_timeline.get_or_default(Arc::clone(name)), key, true);
                     } else if let Some(set) = per_timeline.get_mut(&**name) {
                         update_multiset(set, key, false);
                         if set.is_empty() {
@@ -143,23 +142,23 @@ impl ClearIndex {
     }
 
     /// The node of `parts`, if there is one.
-    fn node(&self, parts: &[Arc<str>]) -> Option<&Self> {
+    fn node(&self, parts: &[PathPart]) -> Option<&Self> {
         let mut node = self;
         for part in parts {
-            node = node.children.get(&**part)?;
+            node = node.children.get(part)?;
         }
         Some(node)
     }
 
     /// The node of `parts`, created (with empty Clears) if `create`; every node on the way
     /// is made this index's own (copied if a snapshot shares it).
-    fn node_mut(&mut self, parts: &[Arc<str>], create: bool) -> Option<&mut Self> {
+    fn node_mut(&mut self, parts: &[PathPart], create: bool) -> Option<&mut Self> {
         let mut node = self;
         for part in parts {
             let child = if create {
-                node.children.entry(Arc::clone(part)).or_default()
+                node.children.entry(part.clone()).or_default()
             } else {
-                node.children.get_mut(&**part)?
+                node.children.get_mut(part)?
             };
             node = Arc::make_mut(child);
         }
@@ -171,15 +170,15 @@ impl ClearIndex {
 
     /// Drops empty Clears and empty subtrees along `parts`, so the index stays as small as
     /// what it holds.
-    fn prune(&mut self, parts: &[Arc<str>]) {
+    fn prune(&mut self, parts: &[PathPart]) {
         if let Some((first, rest)) = parts.split_first()
-            && let Some(child) = self.children.get_mut(&**first)
+            && let Some(child) = self.children.get_mut(first)
         {
             // Already this index's own: `node_mut` copied the path before the removal.
             let child = Arc::make_mut(child);
             child.prune(rest);
             if child.is_empty() {
-                self.children.remove(&**first);
+                self.children.remove(first);
             }
         }
         if self.clears.as_ref().is_some_and(|c| c.is_empty()) {
@@ -190,7 +189,7 @@ impl ClearIndex {
     /// Forgets every Clear logged at `entity` (and at its descendants if `recursive`),
     /// static ones included: what dropping the entity means.
     pub fn remove_entity(index: &mut Arc<Self>, entity: &EntityPath, recursive: bool) {
-        let parts = entity.part_arcs();
+        let parts = entity.path_parts();
         if index.node(parts).is_none() {
             return;
         }
@@ -227,7 +226,7 @@ impl ClearIndex {
             }
         }
         for (part, child) in &self.children {
-            parts.push(Arc::clone(part));
+            parts.push(Arc::clone(part.name()));
             child.collect_static(parts, out);
             parts.pop();
         }
@@ -238,8 +237,8 @@ impl ClearIndex {
     /// decide every latest-at at `+∞`.
     pub fn is_among_latest(&self, entity: &EntityPath, id: ChunkId, n: usize) -> bool {
         let mut node = self;
-        for part in entity.part_arcs() {
-            match node.children.get(&**part) {
+        for part in entity.path_parts() {
+            match node.children.get(part) {
                 Some(child) => node = child,
                 None => return false,
             }
@@ -264,7 +263,7 @@ impl ClearIndex {
         time: Option<TimeInt>,
         row_id: RowId,
     ) -> bool {
-        let parts = entity.part_arcs();
+        let parts = entity.path_parts();
         let mut node = self;
         for depth in 0..=parts.len() {
             if let Some(clears) = &node.clears {
@@ -292,7 +291,7 @@ impl ClearIndex {
         range: TimeRange,
     ) -> ColumnClears {
         let mut out = ColumnClears::default();
-        let parts = entity.part_arcs();
+        let parts = entity.path_parts();
         let mut node = self;
         for depth in 0..=parts.len() {
             if let Some(clears) = &node.clears {
@@ -341,7 +340,7 @@ impl ClearIndex {
         if range.is_empty() {
             return out;
         }
-        let parts = entity.part_arcs();
+        let parts = entity.path_parts();
         let mut node = self;
         for part in parts {
             if let Some(set) = node
@@ -367,6 +366,11 @@ impl ClearIndex {
     }
 
     pub fn sanity_check(&self) -> Result<(), SanityError> {
+        self.sanity_check_below(PathPart::ROOT_HASH)
+    }
+
+    /// The checks of the node whose path hashes to `path_hash`, and of its subtree.
+    fn sanity_check_below(&self, path_hash: u64) -> Result<(), SanityError> {
         let Self { clears, children } = self;
         if let Some(clears) = clears {
             let EntityClears {
@@ -389,7 +393,9 @@ impl ClearIndex {
                     "clear multisets hold positive counts and no empty sets",
                 ));
             }
-            for (timeline, recursive) in recursive_per_timeline {
+            any_per_timeline.sanity_check()?;
+            recursive_per_timeline.sanity_check()?;
+            for (timeline, recursive) in recursive_per_timeline.iter() {
                 let any = any_per_timeline.get(timeline);
                 if !recursive
                     .keys()
@@ -403,13 +409,18 @@ impl ClearIndex {
                 }
             }
         }
-        for child in children.values() {
+        for (part, child) in children {
             ensure(
                 !child.is_empty(),
                 Structure::ClearIndex,
                 "clear index holds no empty subtrees",
             )?;
-            child.sanity_check()?;
+            ensure(
+                part.extends(path_hash),
+                Structure::ClearIndex,
+                "each child's key carries the hash of its parent's path extended by its name",
+            )?;
+            child.sanity_check_below(part.prefix_hash())?;
         }
         Ok(())
     }

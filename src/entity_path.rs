@@ -2,6 +2,9 @@
 //!
 //! An [`EntityPath`] is an `Arc` around its parts and a hash computed once, so cloning is a
 //! reference-count bump, hashing feeds one `u64`, and equality usually settles on the hash.
+//! Each part carries the hash of the path up to it, so that a tree keyed by parts (the
+//! Clear index, walked by every latest-at of a store holding Clears) looks a level up
+//! without hashing text.
 
 use std::cmp::Ordering;
 use std::fmt::{self, Write as _};
@@ -58,7 +61,7 @@ impl std::error::Error for EntityPathError {}
 /// ```
 #[derive(Clone)]
 pub struct EntityPath {
-    parts: Arc<Box<[Arc<str>]>>,
+    parts: Arc<[PathPart]>,
     /// Kept beside the pointer rather than behind it: a store hashes the path of every
     /// query, and reading the hash through the pointer would be a cache miss per query
     /// when the caller's paths are many.
@@ -73,6 +76,84 @@ const PATH_HASH_STATE: ahash::RandomState = ahash::RandomState::with_seeds(
     0xa409_3822_299f_31d0,
     0x082e_fa98_ec4e_6c89,
 );
+
+/// One part of an [`EntityPath`] and the hash of the path up to and including it, which
+/// is all a map keyed by parts hashes (see [`PrefixHasher`]). Two parts are equal if their
+/// names are and the paths above them hash alike: parts of the same parent compare as
+/// their names do.
+#[derive(Clone, Debug)]
+pub(crate) struct PathPart {
+    name: Arc<str>,
+    prefix_hash: u64,
+}
+
+impl PathPart {
+    /// The hash of the root path, which the hash of each part extends.
+    pub const ROOT_HASH: u64 = 0x9e37_79b9_7f4a_7c15;
+
+    /// The part's unescaped text.
+    pub fn name(&self) -> &Arc<str> {
+        &self.name
+    }
+
+    /// The hash of the path up to and including this part.
+    pub fn prefix_hash(&self) -> u64 {
+        self.prefix_hash
+    }
+
+    /// Is this part's hash that of a path hashing to `parent_hash` extended by its name?
+    pub fn extends(&self, parent_hash: u64) -> bool {
+        self.prefix_hash == extend_hash(parent_hash, &self.name)
+    }
+}
+
+impl PartialEq for PathPart {
+    fn eq(&self, other: &Self) -> bool {
+        self.prefix_hash == other.prefix_hash && crate::text::same_text(&self.name, &other.name)
+    }
+}
+
+impl Eq for PathPart {}
+
+impl Hash for PathPart {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        state.write_u64(self.prefix_hash);
+    }
+}
+
+/// The hasher of maps keyed by [`PathPart`]s (or anything else hashing one well-mixed
+/// `u64`): it passes that `u64` through rather than hashing it again.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct PrefixHasher(u64);
+
+impl Hasher for PrefixHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write_u64(&mut self, value: u64) {
+        self.0 = value;
+    }
+
+    /// Not reached by [`PathPart`]; anything else is folded in, so a map stays correct.
+    fn write(&mut self, bytes: &[u8]) {
+        for &byte in bytes {
+            self.0 = (self.0.rotate_left(5) ^ u64::from(byte)).wrapping_mul(0x517c_c1b7_2722_0a95);
+        }
+    }
+}
+
+/// A map keyed by path parts (see [`PathPart`]).
+pub(crate) type PartMap<V> =
+    std::collections::HashMap<PathPart, V, std::hash::BuildHasherDefault<PrefixHasher>>;
+
+/// The hash of the path `parent` extended by `name`.
+fn extend_hash(parent: u64, name: &str) -> u64 {
+    let mut hasher = PATH_HASH_STATE.build_hasher();
+    hasher.write_u64(parent);
+    name.hash(&mut hasher);
+    hasher.finish()
+}
 
 impl EntityPath {
     /// The root path `/`.
@@ -98,14 +179,29 @@ impl EntityPath {
     }
 
     pub(crate) fn from_parts(parts: Vec<Arc<str>>) -> Self {
-        let mut hasher = PATH_HASH_STATE.build_hasher();
-        parts.len().hash(&mut hasher);
-        for part in &parts {
-            part.hash(&mut hasher);
-        }
+        let mut hash = PathPart::ROOT_HASH;
+        let parts: Arc<[PathPart]> = parts
+            .into_iter()
+            .map(|name| {
+                hash = extend_hash(hash, &name);
+                PathPart {
+                    name,
+                    prefix_hash: hash,
+                }
+            })
+            .collect();
+        Self { parts, hash }
+    }
+
+    /// A path from parts whose hashes are already right (a prefix of a path's, plus at most
+    /// new ones pushed with [`extend_hash`]).
+    fn from_hashed_parts(parts: Vec<PathPart>) -> Self {
+        let hash = parts
+            .last()
+            .map_or(PathPart::ROOT_HASH, |part| part.prefix_hash);
         Self {
-            parts: Arc::new(parts.into_boxed_slice()),
-            hash: hasher.finish(),
+            parts: parts.into(),
+            hash,
         }
     }
 
@@ -180,11 +276,12 @@ impl EntityPath {
 
     /// The unescaped parts, root first.
     pub fn parts(&self) -> impl ExactSizeIterator<Item = &str> + '_ {
-        self.parts.iter().map(|p| &**p)
+        self.parts.iter().map(|p| &*p.name)
     }
 
-    /// The shared parts, for building derived paths without copying strings.
-    pub(crate) fn part_arcs(&self) -> &[Arc<str>] {
+    /// The shared parts with their hashes: keys of maps by part, and derived paths built
+    /// without copying strings.
+    pub(crate) fn path_parts(&self) -> &[PathPart] {
         &self.parts
     }
 
@@ -225,14 +322,14 @@ impl EntityPath {
     /// The parent, or `None` for the root.
     pub fn parent(&self) -> Option<Self> {
         let parts = &self.parts;
-        (!parts.is_empty()).then(|| Self::from_parts(parts[..parts.len() - 1].to_vec()))
+        (!parts.is_empty()).then(|| Self::from_hashed_parts(parts[..parts.len() - 1].to_vec()))
     }
 
     /// The strict ancestors, nearest first, ending with the root.
     pub fn ancestors(&self) -> impl Iterator<Item = Self> + '_ {
         (0..self.num_parts())
             .rev()
-            .map(|n| Self::from_parts(self.parts[..n].to_vec()))
+            .map(|n| Self::from_hashed_parts(self.parts[..n].to_vec()))
     }
 
     /// Is `self` a strict ancestor of `other`?
@@ -248,9 +345,11 @@ impl EntityPath {
     /// The path one level below this one.
     #[must_use]
     pub fn join(&self, part: impl Into<Arc<str>>) -> Self {
+        let name: Arc<str> = part.into();
+        let prefix_hash = extend_hash(self.hash, &name);
         let mut parts = self.parts.to_vec();
-        parts.push(part.into());
-        Self::from_parts(parts)
+        parts.push(PathPart { name, prefix_hash });
+        Self::from_hashed_parts(parts)
     }
 }
 
@@ -440,7 +539,10 @@ impl Ord for EntityPath {
         if Arc::ptr_eq(&self.parts, &other.parts) {
             return Ordering::Equal;
         }
-        self.parts.cmp(&other.parts)
+        self.parts
+            .iter()
+            .map(|p| &p.name)
+            .cmp(other.parts.iter().map(|p| &p.name))
     }
 }
 

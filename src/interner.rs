@@ -217,8 +217,9 @@ pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
 /// Are two names equal? Pointers first: equal names are usually the one shared copy, and
 /// std's `Arc` equality takes that shortcut only for sized types (for `str` it always
 /// compares the bytes).
+#[inline]
 pub(crate) fn same_name(a: &Arc<str>, b: &Arc<str>) -> bool {
-    Arc::ptr_eq(a, b) || a == b
+    crate::text::same_text(a, b)
 }
 
 /// Orders two names by their text, with the same shortcut as [`same_name`].

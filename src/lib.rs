@@ -155,6 +155,7 @@ mod snapshot;
 pub mod sql;
 mod stats;
 mod store;
+mod text;
 mod time;
 mod time_text;
 

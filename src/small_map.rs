@@ -29,7 +29,7 @@ pub(crate) enum SmallMap<K, V> {
 
 /// Key equality with a shortcut: names are usually one shared allocation (see
 /// [`crate::interner`]), and `Arc<str>`'s own equality compares the bytes even then.
-pub(crate) trait SmallMapKey: Eq + Hash {
+pub(crate) trait SmallMapKey: SmallMapQuery {
     fn same_key(&self, other: &Self) -> bool {
         self == other
     }
@@ -47,6 +47,33 @@ impl SmallMapKey for crate::ComponentName {}
 #[cfg(test)]
 impl SmallMapKey for String {}
 
+/// What a lookup compares a key with: a name's text is compared with
+/// [`crate::text::same_text`], which skips `memcmp` for short names.
+pub(crate) trait SmallMapQuery: Eq + Hash {
+    fn matches(&self, key: &Self) -> bool {
+        self == key
+    }
+}
+
+impl SmallMapQuery for str {
+    #[inline]
+    fn matches(&self, key: &Self) -> bool {
+        crate::text::same_text(self, key)
+    }
+}
+
+/// Its equality already compares with [`crate::text::same_text`].
+impl SmallMapQuery for crate::ComponentName {}
+
+impl SmallMapQuery for std::sync::Arc<str> {
+    fn matches(&self, key: &Self) -> bool {
+        crate::interner::same_name(self, key)
+    }
+}
+
+#[cfg(test)]
+impl SmallMapQuery for String {}
+
 impl<K, V> Default for SmallMap<K, V> {
     fn default() -> Self {
         Self::Few(SmallVec::new())
@@ -54,15 +81,16 @@ impl<K, V> Default for SmallMap<K, V> {
 }
 
 impl<K: SmallMapKey, V> SmallMap<K, V> {
+    #[inline]
     pub fn get<Q>(&self, key: &Q) -> Option<&V>
     where
         K: Borrow<Q>,
-        Q: Eq + Hash + ?Sized,
+        Q: SmallMapQuery + ?Sized,
     {
         match self {
             Self::Few(entries) => entries
                 .iter()
-                .find(|(k, _)| k.borrow() == key)
+                .find(|(k, _)| k.borrow().matches(key))
                 .map(|(_, v)| v),
             Self::Many(map) => map.get(key),
         }
@@ -71,12 +99,12 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn get_mut<Q>(&mut self, key: &Q) -> Option<&mut V>
     where
         K: Borrow<Q>,
-        Q: Eq + Hash + ?Sized,
+        Q: SmallMapQuery + ?Sized,
     {
         match self {
             Self::Few(entries) => entries
                 .iter_mut()
-                .find(|(k, _)| k.borrow() == key)
+                .find(|(k, _)| k.borrow().matches(key))
                 .map(|(_, v)| v),
             Self::Many(map) => map.get_mut(key),
         }
@@ -130,11 +158,11 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn remove<Q>(&mut self, key: &Q) -> Option<V>
     where
         K: Borrow<Q>,
-        Q: Eq + Hash + ?Sized,
+        Q: SmallMapQuery + ?Sized,
     {
         match self {
             Self::Few(entries) => {
-                let position = entries.iter().position(|(k, _)| k.borrow() == key)?;
+                let position = entries.iter().position(|(k, _)| k.borrow().matches(key))?;
                 Some(entries.swap_remove(position).1)
             }
             Self::Many(map) => map.remove(key),
