@@ -176,6 +176,13 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
         }
     }
 
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Few(entries) => entries.len(),
+            Self::Many(map) => map.len(),
+        }
+    }
+
     pub fn is_empty(&self) -> bool {
         match self {
             Self::Few(entries) => entries.is_empty(),

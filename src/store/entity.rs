@@ -260,6 +260,22 @@ impl EntityMut<'_> {
     /// [`TemporalComponentIndex::remove_many`]). Returns how much the indices' extra heap
     /// grew (negative: shrank).
     pub(super) fn remove_temporal_many(&mut self, chunks: &[&Chunk], still_grouped: bool) -> i64 {
+        // Every temporal chunk the entity holds goes (a collection or a drop taking all of
+        // its temporal data; the chunks are distinct and still in its chunk set): its
+        // temporal structures empty at once rather than entry by entry.
+        let num_temporal =
+            (self.index.chunk_ids.len()).saturating_sub(self.index.static_chunks.len());
+        if chunks.len() == num_temporal {
+            if still_grouped {
+                self.index.pending = super::pending::PendingGroups::default();
+            }
+            self.view.buffered = super::buffer::WriteBuffer::default();
+            self.view.unindexed.clear();
+            self.view.temporal_per_timeline_per_component = SmallMap::default();
+            let freed = i64::try_from(self.index.large_index_bytes).unwrap_or(i64::MAX);
+            self.index.large_index_bytes = 0;
+            return -freed;
+        }
         if still_grouped && !self.index.pending.is_empty() {
             let gone: ahash::HashSet<ChunkId> = chunks.iter().map(|c| c.id()).collect();
             self.index.pending.remove_many(&gone);

@@ -9,6 +9,7 @@ use smallvec::SmallVec;
 
 use super::{ChunkStore, DeletionReason, StoreEvent, StoredChunk};
 use crate::clear::ClearIndex;
+use crate::small_map::SmallMap;
 use crate::{Chunk, ChunkId, EntityPath};
 
 impl ChunkStore {
@@ -117,8 +118,7 @@ impl ChunkStore {
             let (min, max) = (bounds.min(), bounds.max());
             let per_timeline = self
                 .temporal_per_timeline
-                .entry(Arc::clone(column.timeline().name_arc()))
-                .or_default();
+                .get_or_default(Arc::clone(column.timeline().name_arc()));
             per_timeline.by_min_time.insert((min, id));
             per_timeline.by_max_time.insert((max, id));
         }
@@ -383,7 +383,7 @@ pub(crate) enum Holding {
 /// them, out of the count of those outside.
 fn leave_global_orders(
     by_row_id: &mut crate::ordered::OrderedSet<(crate::RowId, ChunkId)>,
-    per_timeline: &mut ahash::HashMap<Arc<str>, super::TimelineChunks>,
+    per_timeline: &mut SmallMap<Arc<str>, super::TimelineChunks>,
     num_outside: &mut usize,
     stored: &StoredChunk,
 ) {
@@ -396,7 +396,7 @@ fn leave_global_orders(
 
 fn remove_from_global_orders(
     by_row_id: &mut crate::ordered::OrderedSet<(crate::RowId, ChunkId)>,
-    per_timeline: &mut ahash::HashMap<Arc<str>, super::TimelineChunks>,
+    per_timeline: &mut SmallMap<Arc<str>, super::TimelineChunks>,
     chunk: &Chunk,
 ) {
     let id = chunk.id();

@@ -20,6 +20,7 @@ use std::fmt;
 use std::sync::Arc;
 
 use crate::ordered::OrderedSet;
+use crate::small_map::SmallMap;
 use crate::stats::StoreLedgers;
 use crate::{Chunk, ChunkId, EntityPath, RowId, TimeInt, TimeRange};
 
@@ -75,7 +76,9 @@ pub struct ChunkStore {
     pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
     /// Temporal chunks by least row id: the garbage collector's default order.
     pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
-    pub(crate) temporal_per_timeline: ahash::HashMap<Arc<str>, TimelineChunks>,
+    /// Temporal chunks by least and by greatest time, per timeline (a store has few: a
+    /// short vector, no hashing of the name per chunk that joins or leaves).
+    pub(crate) temporal_per_timeline: SmallMap<Arc<str>, TimelineChunks>,
     /// Temporal chunks outside the store-wide orders (see [`StoredChunk::in_global_orders`]).
     pub(crate) num_outside_global_orders: usize,
     /// How many rewrites `compact()` has made (it numbers them; see [`RewriteMark`]).

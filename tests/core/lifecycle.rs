@@ -396,6 +396,58 @@ fn gc_never_touches_static_data_and_keeps_the_protected() {
     assert_eq!(latest(&store, "s", 0), Some(7.0));
 }
 
+/// A collection that takes every temporal chunk of an entity empties its temporal
+/// structures at once (not entry by entry): whatever shape its indices had (a sequence, the
+/// large index of overlapping chunks, the write buffer and waiting chunks of compaction on
+/// insert), what is left is exactly its static data, and the entity takes temporal data again.
+#[test]
+fn gc_of_all_temporal_chunks_of_an_entity_leaves_exactly_its_static_data() {
+    let configs = [StoreConfig::COMPACTION_OFF, StoreConfig::DEFAULT];
+    for (config, overlapping) in configs.iter().flat_map(|c| [(*c, false), (*c, true)]) {
+        let mut store = ChunkStore::with_config(config).unwrap();
+        let mut static_only = ChunkStore::with_config(config).unwrap();
+        for s in [&mut store, &mut static_only] {
+            s.insert(static_scalar("e", "s", 1, 7.0)).unwrap();
+        }
+        // 40 chunks of 1 to 3 rows: in order, or each spanning nearly all of time.
+        for c in 0..40i64 {
+            let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..=c % 3)
+                .map(|r| {
+                    let frame = if overlapping {
+                        (c * 7 + r * 100) % 300
+                    } else {
+                        10 * c + r
+                    };
+                    (frame, (c * 3 + r) as u128 + 10, Some(vec![frame as f64]))
+                })
+                .collect();
+            store.insert(scalars("e", "x", &rows)).unwrap();
+        }
+        store.insert(clear("e", Some(50), 1000, false)).unwrap();
+        let events = store.gc(&GcOptions::everything());
+        assert!(!deleted(&events, DeletionReason::Gc).is_empty());
+        store.sanity_check().unwrap();
+        assert_eq!(latest(&store, "e", 1000), None, "{config:?} {overlapping}");
+        assert!(range_values(&store, "e").is_empty());
+        let static_cell = store.latest_at(&LatestAtQuery::new("frame", t(5)), &path("e"), "s");
+        assert_eq!(static_cell.map(|c| first_f64(&c.cell())), Some(7.0));
+        let (kept, expected) = (
+            store.entity_stats(&path("e")).unwrap(),
+            static_only.entity_stats(&path("e")).unwrap(),
+        );
+        assert_eq!(
+            (kept.num_temporal_chunks, kept.heap_bytes),
+            (0, expected.heap_bytes)
+        );
+        assert_eq!(store.stats().heap_bytes, static_only.stats().heap_bytes);
+        store
+            .insert(scalars("e", "x", &[(3, 5000, Some(vec![3.0]))]))
+            .unwrap();
+        store.sanity_check().unwrap();
+        assert_eq!(latest(&store, "e", 10), Some(3.0));
+    }
+}
+
 #[test]
 fn protect_latest_keeps_a_recursive_clear_behind_a_newer_flat_one() {
     let mut store = off();
