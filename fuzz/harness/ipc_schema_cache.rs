@@ -16,7 +16,7 @@ use chunkstore::ipc::{clear_schema_cache, read_stream_batches_zero_copy, without
 type Edit = (usize, u8);
 
 /// Splits an input into its edits and its stream; `None` if it is too short for its edits.
-fn parse(data: &[u8]) -> Option<(Vec<Edit>, &[u8])> {
+pub fn parse(data: &[u8]) -> Option<(Vec<Edit>, &[u8])> {
     let (&count, rest) = data.split_first()?;
     let edits_len = usize::from(count % 8) * 3;
     let edits = rest.get(..edits_len)?;
@@ -66,13 +66,21 @@ pub fn ipc_schema_cache(data: &[u8]) {
     clear_schema_cache();
     decode_both_ways(stream);
     decode_both_ways(stream);
+    if let Some(edited) = edited(stream, &edits) {
+        decode_both_ways(&edited);
+    }
+}
+
+/// A copy of `stream` with `edits` made (positions modulo its length); `None` for an empty
+/// stream, which no edit can touch.
+pub fn edited(stream: &[u8], edits: &[Edit]) -> Option<Vec<u8>> {
     if stream.is_empty() {
-        return;
+        return None;
     }
     let mut edited = stream.to_vec();
-    for (at, byte) in edits {
+    for &(at, byte) in edits {
         let at = at % edited.len();
         edited[at] = byte;
     }
-    decode_both_ways(&edited);
+    Some(edited)
 }

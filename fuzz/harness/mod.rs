@@ -10,6 +10,8 @@ pub mod chunk_build;
 pub mod cli_args;
 #[path = "entity_path.rs"]
 pub mod entity_path;
+#[path = "ipc_batch_decoder.rs"]
+pub mod ipc_batch_decoder;
 #[path = "ipc_insert.rs"]
 pub mod ipc_insert;
 #[path = "ipc_schema_cache.rs"]

@@ -13,6 +13,7 @@ use arrow_schema::ArrowError;
 
 use crate::{Chunk, ChunkError};
 
+mod batch_decoder;
 mod schema_cache;
 mod schema_layout;
 #[cfg(test)]
@@ -135,10 +136,40 @@ pub fn without_schema_cache<T>(decode: impl FnOnce() -> T) -> T {
     schema_cache::without(decode)
 }
 
+/// Runs `decode` with this thread's own batch decoder off: every record batch met inside
+/// is decoded by arrow-ipc's reader. Decoding gives the same answer either way (the own
+/// decoder builds only batches it checks as arrow-ipc would accept them, and hands anything
+/// else to arrow-ipc), but for inputs on which arrow-ipc's reader panics (reported as
+/// [`IpcError::DecoderPanicked`]) and the own decoder builds a valid batch. The
+/// `ipc_batch_decoder` fuzz target checks exactly that.
+///
+/// The own decoder (`ipc/batch_decoder.rs`) builds the arrays chunks are made of with
+/// arrow's typed constructors, which check what they need once, where arrow-ipc's reader
+/// validates a generic `ArrayData` per array.
+pub fn without_own_batch_decoder<T>(decode: impl FnOnce() -> T) -> T {
+    batch_decoder::without(decode)
+}
+
 /// Empties this thread's cache of parsed IPC schemas (see [`without_schema_cache`]), so
 /// that what follows starts from nothing, as a fuzz input must.
 pub fn clear_schema_cache() {
     schema_cache::clear();
+}
+
+/// Runs `decode` with this thread's `flag` set (a part of decoding turned off), and sets it
+/// back as it was however `decode` ends (a contained panic included).
+fn with_flag_set<T>(
+    flag: &'static std::thread::LocalKey<std::cell::Cell<bool>>,
+    decode: impl FnOnce() -> T,
+) -> T {
+    struct Restore(&'static std::thread::LocalKey<std::cell::Cell<bool>>, bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            self.0.with(|flag| flag.set(self.1));
+        }
+    }
+    let _restore = Restore(flag, flag.with(|flag| flag.replace(true)));
+    decode()
 }
 
 /// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] with its
@@ -453,16 +484,21 @@ fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
                 else {
                     return Err(unexpected("a record batch before the schema"));
                 };
-                let batch = arrow_ipc::reader::read_record_batch(
-                    &body,
-                    batch,
-                    std::sync::Arc::clone(schema),
-                    &dictionaries,
-                    None,
-                    &version,
-                )
-                .map_err(IpcError::Ipc)?;
-                batches.push(batch);
+                // Our decoder where it builds the batch; arrow-ipc's answer (or error) for
+                // anything else.
+                let decoded = match batch_decoder::decode_batch(&body, batch, schema) {
+                    Some(decoded) => decoded,
+                    None => arrow_ipc::reader::read_record_batch(
+                        &body,
+                        batch,
+                        std::sync::Arc::clone(schema),
+                        &dictionaries,
+                        None,
+                        &version,
+                    )
+                    .map_err(IpcError::Ipc)?,
+                };
+                batches.push(decoded);
             }
             MessageHeader::DictionaryBatch => {
                 let (Some(dictionary), Some(schema)) =

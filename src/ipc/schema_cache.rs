@@ -65,15 +65,7 @@ thread_local! {
 
 /// Runs `decode` with this thread's cache off: nothing looked up, nothing kept.
 pub(super) fn without<T>(decode: impl FnOnce() -> T) -> T {
-    /// Turns the cache back on however `decode` ends (a contained panic included).
-    struct On(bool);
-    impl Drop for On {
-        fn drop(&mut self) {
-            OFF.with(|off| off.set(self.0));
-        }
-    }
-    let _on = On(OFF.with(|off| off.replace(true)));
-    decode()
+    super::with_flag_set(&OFF, decode)
 }
 
 /// Empties this thread's cache.

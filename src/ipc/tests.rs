@@ -1,4 +1,5 @@
-//! The schema cache decodes exactly as arrow-ipc does, hit or miss, hostile or not.
+//! The schema cache and the own batch decoder decode exactly as arrow-ipc does, hit or
+//! miss, hostile or not.
 
 #![allow(
     clippy::unwrap_used,
@@ -227,7 +228,11 @@ fn a_recording_written_by_rerun_reuses_its_schemas() {
     );
     let bytes = std::fs::read(path).unwrap();
     schema_cache::clear();
+    let built = super::batch_decoder::batches_built();
     let contents = crate::rrd::read_rrd(Buffer::from_vec(bytes), false).unwrap();
+    // Every chunk of Rerun's recording (and of its blueprint, not among the chunks
+    // returned) is a batch the own decoder builds.
+    assert!(super::batch_decoder::batches_built() - built >= contents.chunks.len() as u64);
     let (hits, kept) = schema_cache::counts();
     assert!(
         hits > 0,
@@ -236,4 +241,108 @@ fn a_recording_written_by_rerun_reuses_its_schemas() {
     );
     assert!(kept > 0);
     // tests/core/rrd.rs checks every chunk against Rerun's own chunk files.
+}
+
+/// A one-batch IPC stream of `batch`.
+fn stream_of(batch: &RecordBatch) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut writer = arrow_ipc::writer::StreamWriter::try_new(&mut out, &batch.schema()).unwrap();
+    writer.write(batch).unwrap();
+    writer.finish().unwrap();
+    drop(writer);
+    out
+}
+
+/// Decodes `stream` with the own batch decoder, which must build its batch (or not, per
+/// `built`), and checks the answer against arrow-ipc's alone.
+fn decode_own(stream: &[u8], built: bool) -> Vec<RecordBatch> {
+    let before = super::batch_decoder::batches_built();
+    let own = read_stream_batches_zero_copy(Buffer::from(stream.to_vec())).unwrap();
+    assert_eq!(super::batch_decoder::batches_built() > before, built);
+    let reference = super::without_own_batch_decoder(|| {
+        read_stream_batches_zero_copy(Buffer::from(stream.to_vec())).unwrap()
+    });
+    assert_eq!(own, reference);
+    own
+}
+
+/// Every array type chunks are made of, nulls at every level, built by the own decoder;
+/// a type it does not build goes to arrow-ipc, with the same answer.
+#[test]
+fn the_own_batch_decoder_builds_what_chunks_hold_and_hands_over_the_rest() {
+    use arrow_array::builder::{
+        BooleanBuilder, FixedSizeListBuilder, Float32Builder, ListBuilder, StringBuilder,
+    };
+    use arrow_array::{
+        Array, BinaryArray, FixedSizeBinaryArray, Int32Array, LargeStringArray, StructArray,
+        UInt8Array,
+    };
+    let ids = FixedSizeBinaryArray::try_from_iter((0u8..4).map(|i| [i; 16])).unwrap();
+    let mut points = ListBuilder::new(FixedSizeListBuilder::new(Float32Builder::new(), 3));
+    for row in 0u8..4 {
+        if row == 2 {
+            points.append(false);
+            continue;
+        }
+        for k in 0..row {
+            points
+                .values()
+                .values()
+                .append_slice(&[f32::from(k), 1.0, 2.0]);
+            points.values().append(true);
+        }
+        points.append(true);
+    }
+    let mut texts = ListBuilder::new(StringBuilder::new());
+    texts.append_value([Some("a"), None, Some("é")]);
+    texts.append_null();
+    texts.append_value([Some("")]);
+    texts.append_value([None::<&str>]);
+    let mut flags = ListBuilder::new(BooleanBuilder::new());
+    flags.append_value([Some(true), None]);
+    flags.append_value([Some(false)]);
+    flags.append_null();
+    flags.append_value([]);
+    let pairs = StructArray::from(vec![
+        (
+            Arc::new(Field::new("a", DataType::Int32, true)),
+            Arc::new(Int32Array::from(vec![Some(1), None, Some(3), Some(4)])) as ArrayRef,
+        ),
+        (
+            Arc::new(Field::new("b", DataType::Binary, false)),
+            Arc::new(BinaryArray::from(vec![&b"x"[..], b"", b"yz", b"w"])) as ArrayRef,
+        ),
+    ]);
+    let columns: Vec<(&str, ArrayRef)> = vec![
+        ("row_id", Arc::new(ids)),
+        (
+            "frame",
+            Arc::new(Int64Array::from(vec![Some(1), Some(2), None, Some(4)])),
+        ),
+        ("points", Arc::new(points.finish())),
+        ("texts", Arc::new(texts.finish())),
+        ("flags", Arc::new(flags.finish())),
+        ("pairs", Arc::new(pairs)),
+        ("bytes", Arc::new(UInt8Array::from(vec![1, 2, 3, 255]))),
+    ];
+    let batch = RecordBatch::try_from_iter(columns.clone()).unwrap();
+    assert_eq!(
+        decode_own(&stream_of(&batch), true),
+        std::slice::from_ref(&batch)
+    );
+    // A slice (its offsets start past 0, its validity past bit 0) decodes the same.
+    let sliced = batch.slice(1, 3);
+    assert_eq!(decode_own(&stream_of(&sliced), true), [sliced]);
+    // A type the decoder leaves to arrow-ipc.
+    let mut other = columns;
+    other.push((
+        "large",
+        Arc::new(LargeStringArray::from(vec!["a", "b", "c", "d"])),
+    ));
+    let batch = RecordBatch::try_from_iter(other).unwrap();
+    assert_eq!(
+        decode_own(&stream_of(&batch), false),
+        std::slice::from_ref(&batch)
+    );
+    assert_eq!(batch.num_rows(), batch.column(0).len());
 }

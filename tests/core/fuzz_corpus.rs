@@ -72,6 +72,16 @@ fn ipc_schema_cache_corpus_replays_without_panics() {
     );
 }
 
+/// The own batch decoder's target starts from `ipc_schema_cache`'s seeds (the same input
+/// form) and keeps what its own runs add.
+#[test]
+fn ipc_batch_decoder_corpus_replays_without_panics() {
+    replay_corpus(
+        "ipc_batch_decoder",
+        harness::ipc_batch_decoder::ipc_batch_decoder,
+    );
+}
+
 /// Writes the seeds of `ipc_schema_cache`: every chunk of the robot recording Rerun 0.41
 /// wrote, as the IPC stream of its payload, each with edits that turn its chunk id into
 /// another (the case the cache answers), into another length's worth of garbage, or that
@@ -177,6 +187,21 @@ const CRASHES: &[(&str, &str, Expected)] = &[
         "value_without_key_not_utf8",
         Expected::HarnessPasses,
     ),
+    (
+        "ipc_batch_decoder",
+        "errors_print_a_hash_map",
+        Expected::HarnessPasses,
+    ),
+    (
+        "ipc_batch_decoder",
+        "arrow_ipc_panics_where_ours_builds",
+        Expected::HarnessPasses,
+    ),
+    (
+        "ipc_batch_decoder",
+        "struct_child_longer_than_its_struct",
+        Expected::HarnessPasses,
+    ),
 ];
 
 /// Issue 12, item 12: this test used to pass when its directory was missing (the replay
@@ -191,6 +216,10 @@ fn fuzz_crashes_stay_fixed() {
         (
             "ipc_schema_cache",
             harness::ipc_schema_cache::ipc_schema_cache,
+        ),
+        (
+            "ipc_batch_decoder",
+            harness::ipc_batch_decoder::ipc_batch_decoder,
         ),
     ] {
         for file in files_in(&format!("tests/fuzz_crashes/{target}")) {
