@@ -27,11 +27,20 @@ pub(crate) enum SmallMap<K, V> {
     Many(ahash::HashMap<K, V>),
 }
 
-/// Key equality with a shortcut: names are usually one shared allocation (see
-/// [`crate::interner`]), and `Arc<str>`'s own equality compares the bytes even then.
-pub(crate) trait SmallMapKey: SmallMapQuery {
+/// Key equality with a shortcut, for the keys and for what a lookup compares them with:
+/// names are usually one shared allocation (see [`crate::interner`]), and short ones
+/// compare as words ([`crate::text::same_text`]), where `str`'s own equality calls
+/// `memcmp` whatever the length.
+pub(crate) trait SmallMapKey: Eq + Hash {
     fn same_key(&self, other: &Self) -> bool {
         self == other
+    }
+}
+
+impl SmallMapKey for str {
+    #[inline]
+    fn same_key(&self, other: &Self) -> bool {
+        crate::text::same_text(self, other)
     }
 }
 
@@ -41,38 +50,11 @@ impl SmallMapKey for std::sync::Arc<str> {
     }
 }
 
-/// Its equality already compares pointers first.
+/// Its equality already compares with [`crate::text::same_text`].
 impl SmallMapKey for crate::ComponentName {}
 
 #[cfg(test)]
 impl SmallMapKey for String {}
-
-/// What a lookup compares a key with: a name's text is compared with
-/// [`crate::text::same_text`], which skips `memcmp` for short names.
-pub(crate) trait SmallMapQuery: Eq + Hash {
-    fn matches(&self, key: &Self) -> bool {
-        self == key
-    }
-}
-
-impl SmallMapQuery for str {
-    #[inline]
-    fn matches(&self, key: &Self) -> bool {
-        crate::text::same_text(self, key)
-    }
-}
-
-/// Its equality already compares with [`crate::text::same_text`].
-impl SmallMapQuery for crate::ComponentName {}
-
-impl SmallMapQuery for std::sync::Arc<str> {
-    fn matches(&self, key: &Self) -> bool {
-        crate::interner::same_name(self, key)
-    }
-}
-
-#[cfg(test)]
-impl SmallMapQuery for String {}
 
 impl<K, V> Default for SmallMap<K, V> {
     fn default() -> Self {
@@ -85,12 +67,12 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn get<Q>(&self, key: &Q) -> Option<&V>
     where
         K: Borrow<Q>,
-        Q: SmallMapQuery + ?Sized,
+        Q: SmallMapKey + ?Sized,
     {
         match self {
             Self::Few(entries) => entries
                 .iter()
-                .find(|(k, _)| k.borrow().matches(key))
+                .find(|(k, _)| k.borrow().same_key(key))
                 .map(|(_, v)| v),
             Self::Many(map) => map.get(key),
         }
@@ -99,12 +81,12 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn get_mut<Q>(&mut self, key: &Q) -> Option<&mut V>
     where
         K: Borrow<Q>,
-        Q: SmallMapQuery + ?Sized,
+        Q: SmallMapKey + ?Sized,
     {
         match self {
             Self::Few(entries) => entries
                 .iter_mut()
-                .find(|(k, _)| k.borrow().matches(key))
+                .find(|(k, _)| k.borrow().same_key(key))
                 .map(|(_, v)| v),
             Self::Many(map) => map.get_mut(key),
         }
@@ -158,11 +140,11 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
     pub fn remove<Q>(&mut self, key: &Q) -> Option<V>
     where
         K: Borrow<Q>,
-        Q: SmallMapQuery + ?Sized,
+        Q: SmallMapKey + ?Sized,
     {
         match self {
             Self::Few(entries) => {
-                let position = entries.iter().position(|(k, _)| k.borrow().matches(key))?;
+                let position = entries.iter().position(|(k, _)| k.borrow().same_key(key))?;
                 Some(entries.swap_remove(position).1)
             }
             Self::Many(map) => map.remove(key),

@@ -263,8 +263,11 @@ impl EntityMut<'_> {
         // Every temporal chunk the entity holds goes (a collection or a drop taking all of
         // its temporal data; the chunks are distinct and still in its chunk set): its
         // temporal structures empty at once rather than entry by entry.
-        let num_temporal =
-            (self.index.chunk_ids.len()).saturating_sub(self.index.static_chunks.len());
+        let num_temporal = self
+            .index
+            .chunk_ids
+            .len()
+            .saturating_sub(self.index.static_chunks.len());
         if chunks.len() == num_temporal {
             if still_grouped {
                 self.index.pending = super::pending::PendingGroups::default();
