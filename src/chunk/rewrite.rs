@@ -277,7 +277,9 @@ fn used_chunks(num_chunks: usize, rows: &[RowSource]) -> (Vec<usize>, Vec<RowSou
     if num_chunks <= 1 {
         return (vec![0; num_chunks], rows.to_vec());
     }
-    let mut used: Vec<usize> = Vec::new();
+    // Sized up front: a merge of a full fan uses every one of its chunks, and growing
+    // one push at a time reallocated five times per merge.
+    let mut used: Vec<usize> = Vec::with_capacity(num_chunks.min(rows.len()));
     // A table by chunk position while it is no bigger than a few times the rows (a merge of
     // small chunks, where hashing each row's chunk cost more than the copy); a hash map for
     // one piece of a rewrite of thousands of chunks, which a table per piece would make

@@ -118,10 +118,13 @@ impl ChunkStore {
                 stored.rewritten_by = Some(mark);
             }
         }
-        // A lone small result may keep growing with later inserts.
+        // A lone small result may keep growing with later inserts, from the second level
+        // (the first is the write buffer, which holds only chunks that arrive).
         if config.compact_on_insert {
             for chunk in small {
-                self.merge_cascade(chunk, events);
+                if config.level(chunk.num_rows()) > 0 {
+                    self.merge_cascade(chunk, events);
+                }
             }
         }
     }

@@ -9,7 +9,7 @@
 use std::sync::Arc;
 
 use crate::store::{Joining, SettledRun, StoreConfig};
-use crate::{Chunk, ChunkStore, StoreEvent};
+use crate::{Chunk, ChunkStore, EntityPath, StoreEvent};
 
 /// Where compaction on insert puts a temporal chunk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,16 +61,22 @@ impl ChunkStore {
         } else {
             Joining::Waiting
         };
-        self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
-        if waits {
-            self.merge_cascade(chunk, events);
-        } else {
-            self.settle_run(SettledRun::new(vec![chunk]), events);
+        // The write buffer is the first level: a buffered chunk that fills its group's
+        // fan comes back with the fan, and one that does not is done.
+        let full_fan = self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
+        match joining {
+            Joining::Buffered => {
+                if let Some(fan) = full_fan {
+                    self.merge_fans(chunk.entity_path().clone(), fan, events);
+                }
+            }
+            Joining::Waiting => self.merge_cascade(chunk, events),
+            Joining::Settled => self.settle_run(SettledRun::new(vec![chunk]), events),
         }
     }
 
-    /// Adds a small chunk to its entity's waiting chunks and merges every full fan this
-    /// completes.
+    /// Adds a small chunk (of level one or more) to its entity's waiting chunks and merges
+    /// every full fan this completes.
     pub(super) fn merge_cascade(&mut self, member: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
         let config = self.config;
         let path = member.entity_path().clone();
@@ -80,7 +86,16 @@ impl ChunkStore {
         };
         let (group, level) = entity.pending.push(member, &config);
         // The entity just found answers the first question (most pushes complete no fan).
-        let mut full_fan = entity.pending.take_full_fan(group, level, &config);
+        if let Some(fan) = entity.pending.take_full_fan(group, level, &config) {
+            self.merge_fans(path, fan, events);
+        }
+    }
+
+    /// Merges a full fan of waiting chunks of the entity at `path` (out of their groups or
+    /// write buffer already), then every full fan the result completes, level after level.
+    fn merge_fans(&mut self, path: EntityPath, fan: Vec<Arc<Chunk>>, events: &mut Vec<StoreEvent>) {
+        let config = self.config;
+        let mut full_fan = Some(fan);
         while let Some(fan) = full_fan.take() {
             // The merge's events at once: growing one push at a time reallocated the
             // vector four times per merge.
@@ -113,7 +128,8 @@ impl ChunkStore {
                 } else {
                     Joining::Settled
                 };
-                self.add_chunk_to_orders(piece, joining, events);
+                let fan = self.add_chunk_to_orders(piece, joining, events);
+                debug_assert!(fan.is_none(), "a merged chunk is never buffered");
             }
             let Some(next) = grown else {
                 self.settle_run(SettledRun::new(settled), events);
@@ -358,5 +374,76 @@ mod tests {
             range_times(&snapshot, &entity, 0, 100),
             (0..10).collect::<Vec<_>>()
         );
+    }
+
+    /// The write buffer is compaction's first level: chunks with the same column names but
+    /// another layout (here an archetype) wait in a group of their own, each group is
+    /// merged the moment it holds a full fan and not before, and nothing of it waits in
+    /// the other compaction groups. A lone small result of `compact()` stays as it is while
+    /// later rows fill the buffer.
+    #[test]
+    fn each_layout_waits_in_its_own_group_and_seals_at_its_full_fan() {
+        let entity = EntityPath::parse("e").unwrap();
+        let mut store = ChunkStore::new();
+        let fanout = store.config().merge_fanout;
+        let tagged = |frame: i64| {
+            let value = Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+            let descriptor = crate::ComponentDescriptor::new("x").with_archetype("Tagged");
+            Arc::new(
+                ChunkBuilder::new(ChunkId::new(), entity.clone())
+                    .with_row(
+                        RowId::new(),
+                        [(Timeline::sequence("frame"), frame)],
+                        [(descriptor, value)],
+                    )
+                    .build()
+                    .unwrap(),
+            )
+        };
+        let frames: Vec<i64> = (0..i64::try_from(fanout).unwrap()).collect();
+        let (last, first) = frames.split_last().unwrap();
+        for &frame in first {
+            store.insert(one_row(&entity, frame)).unwrap();
+            store.insert(tagged(frame)).unwrap();
+        }
+        let view = &store.view.entities[&entity];
+        assert_eq!(view.buffered.len(), 2 * (fanout - 1));
+        assert_eq!(view.buffered.largest_group(), fanout - 1);
+        assert!(store.entities[&entity].pending.is_empty(), "only buffered");
+        store.sanity_check().unwrap();
+
+        // The plain layout's fan fills: it alone is merged, into one chunk.
+        let events = store.insert(one_row(&entity, *last)).unwrap();
+        assert_eq!(events.len(), 1 + fanout + 1);
+        assert_eq!(store.view.entities[&entity].buffered.len(), fanout - 1);
+        assert_eq!(store.num_chunks(), 1 + (fanout - 1));
+        store.sanity_check().unwrap();
+        store.insert(tagged(*last)).unwrap();
+        assert!(store.view.entities[&entity].buffered.is_empty());
+        assert_eq!(store.num_chunks(), 2);
+        store.sanity_check().unwrap();
+
+        // Garbage collection takes buffered chunks out of the buffer.
+        let mut collected = ChunkStore::new();
+        for &frame in &frames[..3] {
+            collected.insert(one_row(&entity, frame)).unwrap();
+        }
+        collected.gc(&GcOptions::everything());
+        assert!(collected.entities.is_empty());
+        collected.sanity_check().unwrap();
+
+        // A compacted store of three rows: one small settled chunk, which later rows do
+        // not wait beside.
+        for &frame in &frames[..3] {
+            collected.insert(one_row(&entity, frame)).unwrap();
+        }
+        collected.compact();
+        assert_eq!(collected.num_chunks(), 1);
+        for &frame in &frames[3..] {
+            collected.insert(one_row(&entity, frame)).unwrap();
+        }
+        collected.sanity_check().unwrap();
+        assert_eq!(collected.view.entities[&entity].buffered.len(), fanout - 3);
+        assert_eq!(range_times(&collected, &entity, 0, 100), frames);
     }
 }

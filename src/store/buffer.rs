@@ -1,15 +1,17 @@
-//! [`WriteBuffer`]: an entity's small temporal chunks that compaction on insert will soon
-//! merge (its first level), kept out of the temporal indices. See `compaction/mod.rs` for
-//! why and for what a subscriber sees.
+//! [`WriteBuffer`]: an entity's small temporal chunks, waiting for compaction on insert to
+//! merge them. It is compaction's first level (chunks of fewer than `K` rows, `K` the
+//! merge fanout): a layout's group that reaches `K` chunks is handed back whole by
+//! [`WriteBuffer::push`] and merged, so these chunks are in no other compaction group and
+//! no temporal index. See `compaction/mod.rs` for why and for what a subscriber sees.
 //!
-//! Queries scan the buffer beside the indices, so it is laid out for them: chunks whose
-//! columns have the same names in the same places form one group, and each group keeps,
-//! per time column, its least and greatest time, and per (time column, component column)
-//! its greatest cell. A latest-at at or after a group's greatest time (a viewer asking for
-//! the newest data of a streaming entity) reads that summary; one before its least time
-//! skips the group; only a time inside the group's span looks at its chunks. Without the
-//! summary, a latest-at at a streaming entity read every buffered chunk's columns, each a
-//! cold allocation: 130 → 310 ns a query on 100 entities of 15 buffered chunks each.
+//! Queries scan the buffer beside the indices, so it is laid out for them: chunks of one
+//! layout form one group, and each group keeps, per time column, its least and greatest
+//! time, and per (time column, component column) its greatest cell. A latest-at at or
+//! after a group's greatest time (a viewer asking for the newest data of a streaming
+//! entity) reads that summary; one before its least time skips the group; only a time
+//! inside the group's span looks at its chunks. Without the summary, a latest-at at a
+//! streaming entity read every buffered chunk's columns, each a cold allocation: 130 →
+//! 310 ns a query on 100 entities of 15 buffered chunks each.
 
 use std::sync::Arc;
 
@@ -25,8 +27,8 @@ pub(crate) struct WriteBuffer {
     groups: Vec<BufferGroup>,
 }
 
-/// Buffered chunks whose time columns and component columns have the same names in the
-/// same places, and their summary.
+/// Buffered chunks of one layout (`Chunk::has_same_layout`: they can be merged), and their
+/// summary.
 #[derive(Debug)]
 struct BufferGroup {
     /// In arrival order; never empty.
@@ -65,26 +67,12 @@ struct Located {
     component_column: usize,
 }
 
-/// Do `a` and `b` have the same column names in the same places? Names are mostly one
-/// process-wide allocation each (`shared.rs`), so addresses decide before the bytes do.
-fn same_columns(a: &Chunk, b: &Chunk) -> bool {
-    let same = |x: &str, y: &str| std::ptr::eq(x, y) || x == y;
-    a.time_columns().len() == b.time_columns().len()
-        && a.components().len() == b.components().len()
-        && a.time_columns()
-            .iter()
-            .zip(b.time_columns())
-            .all(|(x, y)| same(x.timeline().name(), y.timeline().name()))
-        && a.components()
-            .iter()
-            .zip(b.components())
-            .all(|(x, y)| same(x.name().as_str(), y.name().as_str()))
-}
-
 impl BufferGroup {
-    fn new(chunk: &Arc<Chunk>) -> Self {
+    /// A group of `chunk` alone, with room for a full fan: it grows to `fanout` chunks
+    /// and is then taken whole, so it never reallocates.
+    fn new(chunk: &Arc<Chunk>, fanout: usize) -> Self {
         let mut group = Self {
-            chunks: Vec::new(),
+            chunks: Vec::with_capacity(fanout),
             time_ranges: SmallVec::new(),
             latest: Vec::new(),
             stale: false,
@@ -204,19 +192,28 @@ impl WriteBuffer {
         self.chunks().any(|c| c.id() == id)
     }
 
-    /// Buffers a temporal chunk (once: the store adds a chunk id once).
-    pub fn push(&mut self, chunk: &Arc<Chunk>) {
-        match self.groups.iter_mut().find(|g| {
+    /// Buffers a temporal chunk (once: the store adds a chunk id once). If its layout's
+    /// group then holds `fanout` chunks, takes them all out and returns them, oldest
+    /// first: a full fan for compaction to merge.
+    pub fn push(&mut self, chunk: &Arc<Chunk>, fanout: usize) -> Option<Vec<Arc<Chunk>>> {
+        let Some(g) = self.groups.iter().position(|g| {
             g.chunks
                 .first()
-                .is_some_and(|first| same_columns(first, chunk))
-        }) {
-            Some(group) => {
-                group.chunks.push(Arc::clone(chunk));
-                group.add_to_summary(group.chunks.len() - 1);
-            }
-            None => self.groups.push(BufferGroup::new(chunk)),
+                .is_some_and(|first| first.has_same_layout(chunk))
+        }) else {
+            debug_assert!(fanout >= 2, "StoreConfig::validate");
+            self.groups.push(BufferGroup::new(chunk, fanout));
+            return None;
+        };
+        let group = &mut self.groups[g];
+        if group.chunks.len() + 1 >= fanout {
+            let mut fan = self.groups.swap_remove(g).chunks;
+            fan.push(Arc::clone(chunk));
+            return Some(fan);
         }
+        group.chunks.push(Arc::clone(chunk));
+        group.add_to_summary(group.chunks.len() - 1);
+        None
     }
 
     /// Takes a chunk out; returns whether it was buffered. The group's summary is stale
@@ -299,9 +296,19 @@ impl WriteBuffer {
         }
     }
 
+    /// The most chunks one group holds: fewer than the merge fanout, whose full fans are
+    /// merged at once (checked by the store, which knows the fanout).
+    pub fn largest_group(&self) -> usize {
+        self.groups
+            .iter()
+            .map(|g| g.chunks.len())
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The buffer's own invariants: groups non-empty, each chunk a temporal chunk of
-    /// `path` buffered once, with its group's column names, and every summary what its
-    /// chunks give.
+    /// `path` buffered once, in its layout's only group, and every summary what its chunks
+    /// give.
     pub fn sanity_check(&self, path: &EntityPath) -> Result<(), SanityError> {
         let fail =
             |invariant: &'static str| Err(SanityError::new(Structure::Entity, invariant).at(path));
@@ -310,21 +317,23 @@ impl WriteBuffer {
             let Some(first) = group.chunks.first() else {
                 return fail("a write buffer's group is never empty");
             };
-            if self.groups[..g]
-                .iter()
-                .any(|other| other.chunks.first().is_some_and(|o| same_columns(o, first)))
-            {
-                return fail("a write buffer has one group per set of column names");
+            if self.groups[..g].iter().any(|other| {
+                other
+                    .chunks
+                    .first()
+                    .is_some_and(|o| o.has_same_layout(first))
+            }) {
+                return fail("a write buffer has one group per layout");
             }
             for chunk in &group.chunks {
                 if chunk.is_static()
                     || chunk.entity_path() != path
-                    || !same_columns(first, chunk)
+                    || !first.has_same_layout(chunk)
                     || !seen.insert(chunk.id())
                 {
                     return fail(
                         "a buffered chunk is a temporal chunk of the entity, buffered once, \
-                         in the group of its column names",
+                         in the group of its layout",
                     );
                 }
             }
@@ -383,7 +392,7 @@ mod tests {
         let other = chunk("y", &[1]);
         let mut buffer = WriteBuffer::default();
         for chunk in [&a, &b, &c, &other] {
-            buffer.push(chunk);
+            assert!(buffer.push(chunk, 16).is_none());
         }
         buffer.sanity_check(&path).unwrap();
         assert_eq!(buffer.len(), 4);

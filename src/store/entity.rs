@@ -202,6 +202,7 @@ impl EntityMut<'_> {
     /// Forgets a temporal chunk from every (timeline, component) index and, if
     /// `still_grouped` (compaction has not taken it out already), from the entity's
     /// compaction groups. Returns how much the indices' extra heap grew (negative: shrank).
+    /// Not for a buffered chunk: see [`EntityMut::unbuffer`].
     pub(super) fn remove_temporal(
         &mut self,
         chunk: &Chunk,
@@ -214,13 +215,20 @@ impl EntityMut<'_> {
         self.unindex_temporal(chunk)
     }
 
-    /// Takes a temporal chunk out of the write buffer or its indices; returns how much the
+    /// Forgets a buffered chunk: out of the write buffer, unless compaction took it out
+    /// already (`still_buffered` false: a full fan it is merging). A buffered chunk is in
+    /// no index and no other compaction group.
+    pub(super) fn unbuffer(&mut self, id: ChunkId, still_buffered: bool) {
+        if still_buffered {
+            let removed = self.view.buffered.remove(id);
+            debug_assert!(removed, "{id} is buffered");
+        }
+    }
+
+    /// Takes a temporal chunk that is not buffered out of its indices; returns how much the
     /// indices' extra heap grew.
     fn unindex_temporal(&mut self, chunk: &Chunk) -> i64 {
         let id = chunk.id();
-        if self.view.buffered.remove(id) {
-            return 0; // a buffered chunk is in no index
-        }
         let mut extra = 0;
         let mut indexed = false;
         let per_timeline = &mut self.view.temporal_per_timeline_per_component;
@@ -258,8 +266,15 @@ impl EntityMut<'_> {
     /// one pass over its compaction groups, and each index's entries removed together
     /// (indexed afresh where most of them go: see
     /// [`TemporalComponentIndex::remove_many`]). Returns how much the indices' extra heap
-    /// grew (negative: shrank).
-    pub(super) fn remove_temporal_many(&mut self, chunks: &[&Chunk], still_grouped: bool) -> i64 {
+    /// grew (negative: shrank). `chunks` are not buffered; `num_buffered` more of the
+    /// entity's chunks are leaving with them (out of its write buffer already, or taken
+    /// out by the caller).
+    pub(super) fn remove_temporal_many(
+        &mut self,
+        chunks: &[&Chunk],
+        num_buffered: usize,
+        still_grouped: bool,
+    ) -> i64 {
         // Every temporal chunk the entity holds goes (a collection or a drop taking all of
         // its temporal data; the chunks are distinct and still in its chunk set): its
         // temporal structures empty at once rather than entry by entry.
@@ -268,7 +283,7 @@ impl EntityMut<'_> {
             .chunk_ids
             .len()
             .saturating_sub(self.index.static_chunks.len());
-        if chunks.len() == num_temporal {
+        if chunks.len() + num_buffered == num_temporal {
             if still_grouped {
                 self.index.pending = super::pending::PendingGroups::default();
             }
@@ -299,9 +314,6 @@ impl EntityMut<'_> {
         let mut unindexed: ahash::HashSet<ChunkId> = ahash::HashSet::default();
         for chunk in chunks {
             let id = chunk.id();
-            if self.view.buffered.remove(id) {
-                continue; // a buffered chunk is in no index
-            }
             let mut indexed = false;
             for (time_position, time_column) in chunk.time_columns().iter().enumerate() {
                 for column in chunk.components() {

@@ -16,20 +16,24 @@ impl ChunkStore {
     /// Adds a validated chunk to every index and figure, and records its addition (and
     /// any static chunk it overwrites).
     pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
-        self.add_chunk_to_orders(chunk, Joining::Settled, events);
+        let fan = self.add_chunk_to_orders(chunk, Joining::Settled, events);
+        debug_assert!(fan.is_none(), "only a buffered chunk completes a fan");
     }
 
     /// [`ChunkStore::add_chunk`], where `joining` says which of the store-wide orders and
     /// indices a temporal chunk joins: a chunk compaction keeps waiting stays out of the
     /// orders (it must then either leave the store or be
     /// [settled](ChunkStore::settle_in_global_orders)), and a buffered one out of the
-    /// indices too.
+    /// indices too. A buffered chunk that completes a full fan of its write buffer's
+    /// group returns the fan (itself included), out of the buffer, for compaction to
+    /// merge at once.
+    #[must_use = "a full fan of the write buffer must be merged"]
     pub(crate) fn add_chunk_to_orders(
         &mut self,
         chunk: Arc<Chunk>,
         joining: Joining,
         events: &mut Vec<StoreEvent>,
-    ) {
+    ) -> Option<Vec<Arc<Chunk>>> {
         let in_global_orders = joining == Joining::Settled;
         let ledgered = !chunk.owns_all_buffers();
         let Some(mut entity) = super::entity_mut(
@@ -38,7 +42,7 @@ impl ChunkStore {
             chunk.entity_path(),
             true,
         ) else {
-            return;
+            return None;
         };
         // An entity leaves the map with its last chunk, so one without chunks is new.
         let new_entity = entity.index.chunk_ids.is_empty();
@@ -62,6 +66,7 @@ impl ChunkStore {
             &mut entity.index.ledger,
         );
         events.push(StoreEvent::Addition(Arc::clone(&chunk)));
+        let mut full_fan = None;
         if chunk.is_static() {
             let overwritten = entity.insert_static(&chunk);
             self.view.stats = store_stats;
@@ -70,6 +75,7 @@ impl ChunkStore {
                 chunk,
                 ledgered,
                 in_global_orders: true,
+                buffered: false,
                 rewritten_by: None,
             };
             self.chunks.insert(stored.chunk.id(), stored);
@@ -86,8 +92,9 @@ impl ChunkStore {
                 }
             }
         } else {
-            let extra = if joining == Joining::Buffered {
-                entity.view.buffered.push(&chunk);
+            let buffered = joining == Joining::Buffered;
+            let extra = if buffered {
+                full_fan = entity.view.buffered.push(&chunk, self.config.merge_fanout);
                 0
             } else {
                 entity.insert_temporal(&chunk)
@@ -104,10 +111,12 @@ impl ChunkStore {
                 chunk,
                 ledgered,
                 in_global_orders,
+                buffered,
                 rewritten_by: None,
             };
             self.chunks.insert(stored.chunk.id(), stored);
         }
+        full_fan
     }
 
     fn insert_in_global_orders(&mut self, chunk: &Chunk) {
@@ -125,7 +134,8 @@ impl ChunkStore {
     }
 
     /// Puts a temporal chunk left out of the store-wide orders into them (a chunk
-    /// compaction stopped waiting for).
+    /// compaction stopped waiting for; one out of a write buffer's fan into its indices
+    /// too).
     pub(crate) fn settle_in_global_orders(&mut self, id: ChunkId) {
         let Some(stored) = self.chunks.get_mut(&id) else {
             return;
@@ -134,9 +144,22 @@ impl ChunkStore {
             return;
         }
         stored.in_global_orders = true;
+        let was_buffered = std::mem::take(&mut stored.buffered);
         let chunk = Arc::clone(&stored.chunk);
         self.num_outside_global_orders -= 1;
         self.insert_in_global_orders(&chunk);
+        // A chunk of a fan its write buffer gave up is in no index yet.
+        if was_buffered
+            && let Some(mut entity) = super::entity_mut(
+                &mut self.entities,
+                &mut self.view.entities,
+                chunk.entity_path(),
+                false,
+            )
+        {
+            let extra = entity.insert_temporal(&chunk);
+            crate::stats::add_index_bytes(&mut self.view.stats, &mut entity.view.stats, extra);
+        }
     }
 
     /// The temporal chunks outside the store-wide orders: some of the chunks compaction
@@ -147,7 +170,13 @@ impl ChunkStore {
         }
         self.entities
             .values()
-            .flat_map(|entity| entity.pending.chunks())
+            .flat_map(|entity| {
+                let buffered = self.view.entities.at(entity.slot).into_iter();
+                entity
+                    .pending
+                    .chunks()
+                    .chain(buffered.flat_map(|view| view.buffered.chunks()))
+            })
             .filter(|chunk| {
                 self.chunks
                     .get(&chunk.id())
@@ -283,18 +312,29 @@ impl ChunkStore {
         let unindex = holding != Holding::FiguresOnly;
         let still_grouped = matches!(holding, Holding::Everywhere | Holding::OutOfGlobalOrders);
         let in_orders = holding != Holding::OutOfGlobalOrders;
+        // Buffered chunks first: out of the write buffer (unless compaction took them out
+        // as a full fan), and in nothing else an entity holds.
+        let mut num_buffered = 0;
+        if unindex && let Some(entity) = entity.as_mut() {
+            for stored in stored.iter().filter(|stored| stored.buffered) {
+                entity.unbuffer(stored.chunk.id(), still_grouped);
+                num_buffered += 1;
+            }
+        }
         // The indices and compaction groups all at once where a rewrite or a collection
         // takes many chunks of the entity out together; one at a time below.
-        let together = unindex && stored.len() >= super::entity::BULK_REMOVAL_MIN_CHUNKS;
+        let together =
+            unindex && stored.len() - num_buffered >= super::entity::BULK_REMOVAL_MIN_CHUNKS;
         if together && let Some(entity) = entity.as_mut() {
             let mut temporal: Vec<&Chunk> = Vec::with_capacity(stored.len());
             temporal.extend(
                 stored
                     .iter()
+                    .filter(|stored| !stored.buffered)
                     .map(|stored| &*stored.chunk)
                     .filter(|chunk| !chunk.is_static()),
             );
-            let extra = entity.remove_temporal_many(&temporal, still_grouped);
+            let extra = entity.remove_temporal_many(&temporal, num_buffered, still_grouped);
             crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
         }
         for stored in stored {
@@ -310,13 +350,16 @@ impl ChunkStore {
                 }
             }
             let StoredChunk {
-                chunk, ledgered, ..
+                chunk,
+                ledgered,
+                buffered,
+                ..
             } = stored;
             let id = chunk.id();
             if let Some(entity) = entity.as_mut() {
                 if unindex && chunk.is_static() {
                     entity.remove_static(id);
-                } else if unindex && !together {
+                } else if unindex && !together && !buffered {
                     let extra = entity.remove_temporal(&chunk, &config, still_grouped);
                     crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
                 }

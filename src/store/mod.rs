@@ -46,6 +46,10 @@ pub(crate) struct StoredChunk {
     /// by one. Garbage collection and range drops read waiting chunks from the entities'
     /// compaction groups instead. Always true for static chunks (which no order holds).
     pub in_global_orders: bool,
+    /// Is it in its entity's write buffer (`store/buffer.rs`)? Then it is in no index and
+    /// no other compaction group, and it leaves the buffer only as part of a full fan, or
+    /// when collected or dropped.
+    pub buffered: bool,
     /// The on-demand compaction that wrote the chunk, if one did: `compact()` leaves alone
     /// a group that is exactly what one of its rewrites made (see
     /// [`RewriteMark`]).

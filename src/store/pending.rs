@@ -279,6 +279,9 @@ impl PendingGroups {
                 return fail("one group per layout");
             }
             for (l, members) in levels.iter().enumerate() {
+                if l == 0 && !members.is_empty() {
+                    return fail("the first level waits in the write buffer, not here");
+                }
                 if members.len() >= config.merge_fanout {
                     return fail("a full fan of waiting chunks is merged at once");
                 }

@@ -31,10 +31,14 @@ impl ChunkStore {
     /// Only a temporal chunk compaction waits for may be left out of the store-wide
     /// orders (part of [`ChunkStore::sanity_check`]).
     fn check_outside_global_orders(&self, chunk: &Arc<Chunk>) -> Result<(), SanityError> {
-        let waiting = self
-            .entities
-            .get(chunk.entity_path())
-            .is_some_and(|e| e.pending.chunks().any(|c| Arc::ptr_eq(c, chunk)));
+        let waiting = self.entities.get(chunk.entity_path()).is_some_and(|e| {
+            e.pending.chunks().any(|c| Arc::ptr_eq(c, chunk))
+                || self
+                    .view
+                    .entities
+                    .at(e.slot)
+                    .is_some_and(|view| view.buffered.chunks().any(|c| Arc::ptr_eq(c, chunk)))
+        });
         if chunk.is_static() || !waiting {
             return Err(SanityError::new(
                 Structure::Store,
@@ -194,6 +198,7 @@ impl ChunkStore {
                 chunk,
                 ledgered,
                 in_global_orders,
+                buffered,
                 rewritten_by,
             },
         ) in chunks
@@ -203,6 +208,11 @@ impl ChunkStore {
                 chunk.id() == id,
                 Structure::Store,
                 "a chunk is keyed by its id",
+            )?;
+            ensure(
+                !*buffered || (!*in_global_orders && !chunk.is_static()),
+                Structure::Store,
+                "a buffered chunk is temporal and outside the store-wide orders",
             )?;
             if let Some(mark) = rewritten_by {
                 check_rewrite_mark(chunk, *mark, *num_rewrites, &mut pieces_per_rewrite)?;
@@ -370,14 +380,25 @@ impl EntityIndex {
         for chunk in buffered.chunks() {
             let waiting = chunks
                 .get(&chunk.id())
-                .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders)
-                && pending.chunks().any(|c| Arc::ptr_eq(c, chunk));
+                .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders && s.buffered);
             if !chunk_ids.contains(&chunk.id()) || !waiting {
-                return Err(fail(
-                    "a buffered chunk is the store's, waiting in its compaction group",
-                )
-                .at(format_args!("{path}: {}", chunk.id())));
+                return Err(
+                    fail("a buffered chunk is the store's, waiting, marked buffered")
+                        .at(format_args!("{path}: {}", chunk.id())),
+                );
             }
+        }
+        let num_buffered = chunk_ids
+            .iter()
+            .filter(|id| chunks.get(id).is_some_and(|s| s.buffered))
+            .count();
+        if num_buffered != buffered.chunks().count() {
+            return Err(fail(
+                "a chunk marked buffered is in its entity's write buffer",
+            ));
+        }
+        if buffered.largest_group() >= config.merge_fanout {
+            return Err(fail("a write buffer's full fan is merged at once"));
         }
         let counted = view.extra_index_heap_bytes();
         if *large_index_bytes != counted {
