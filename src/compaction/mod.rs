@@ -15,14 +15,17 @@
 //! map, the figures, the events: a subscriber sees each one's addition on insert, then,
 //! when its fan fills, the deletion of the fan's chunks for [`DeletionReason::Compaction`]
 //! and the addition of the sealed chunk, all in the events of the insert that filled it),
-//! but they enter no temporal index: the entity's view holds them (`store/buffer.rs`,
-//! grouped and summarized so that a latest-at past a group's newest row reads one
-//! summary), and every query reads them beside the indices (at most `K - 1` per layout,
-//! a few rows each). A row that
-//! arrives in its own chunk thus costs a push and its share of one merge, not an entry in
-//! every (timeline, component) index it has cells for, taken out again a few inserts
-//! later. Snapshots share the buffer with the rest of the entity's view (copied on write,
-//! at most `K - 1` handles per layout). [`ChunkStore::compact`] seals every buffer.
+//! but they enter no temporal index and no other compaction group: the entity's view
+//! holds them (`store/buffer.rs`, grouped by layout and summarized so that a latest-at
+//! past a group's newest row reads one summary), every query reads them beside the
+//! indices (at most `K - 1` per layout, a few rows each), and the push that fills a
+//! group's fan hands the group back whole, to be merged. A row that arrives in its own
+//! chunk thus costs a push and its share of one merge, not an entry in every (timeline,
+//! component) index it has cells for, taken out again a few inserts later. Snapshots
+//! share the buffer with the rest of the entity's view (copied on write, at most `K - 1`
+//! handles per layout). [`ChunkStore::compact`] seals every buffer; a result of
+//! `compact()` too small for the second level stays as it is (the buffer holds only
+//! chunks as they arrive).
 //!
 //! A chunk that no longer grows *settles*, and settled chunks join their entity's *runs*
 //! (per layout, by *tier*, the level of a run's rows): sets of chunks that overlap none of

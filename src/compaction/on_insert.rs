@@ -67,7 +67,7 @@ impl ChunkStore {
         match joining {
             Joining::Buffered => {
                 if let Some(fan) = full_fan {
-                    self.merge_fans(chunk.entity_path().clone(), fan, events);
+                    self.merge_fans(&chunk.entity_path().clone(), fan, events);
                 }
             }
             Joining::Waiting => self.merge_cascade(chunk, events),
@@ -87,13 +87,18 @@ impl ChunkStore {
         let (group, level) = entity.pending.push(member, &config);
         // The entity just found answers the first question (most pushes complete no fan).
         if let Some(fan) = entity.pending.take_full_fan(group, level, &config) {
-            self.merge_fans(path, fan, events);
+            self.merge_fans(&path, fan, events);
         }
     }
 
     /// Merges a full fan of waiting chunks of the entity at `path` (out of their groups or
     /// write buffer already), then every full fan the result completes, level after level.
-    fn merge_fans(&mut self, path: EntityPath, fan: Vec<Arc<Chunk>>, events: &mut Vec<StoreEvent>) {
+    fn merge_fans(
+        &mut self,
+        path: &EntityPath,
+        fan: Vec<Arc<Chunk>>,
+        events: &mut Vec<StoreEvent>,
+    ) {
         let config = self.config;
         let mut full_fan = Some(fan);
         while let Some(fan) = full_fan.take() {
@@ -135,7 +140,7 @@ impl ChunkStore {
                 self.settle_run(SettledRun::new(settled), events);
                 return;
             };
-            let Some(entity) = self.entities.get_mut(&path) else {
+            let Some(entity) = self.entities.get_mut(path) else {
                 self.settle_in_global_orders(next.id());
                 return;
             };

@@ -36,14 +36,12 @@ impl ChunkStore {
     ) -> Option<Vec<Arc<Chunk>>> {
         let in_global_orders = joining == Joining::Settled;
         let ledgered = !chunk.owns_all_buffers();
-        let Some(mut entity) = super::entity_mut(
+        let mut entity = super::entity_mut(
             &mut self.entities,
             &mut self.view.entities,
             chunk.entity_path(),
             true,
-        ) else {
-            return None;
-        };
+        )?;
         // An entity leaves the map with its last chunk, so one without chunks is new.
         let new_entity = entity.index.chunk_ids.is_empty();
         if new_entity {
