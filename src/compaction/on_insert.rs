@@ -62,16 +62,22 @@ impl ChunkStore {
             Joining::Waiting
         };
         // The write buffer is the first level: a buffered chunk that fills its group's
-        // fan comes back with the fan, and one that does not is done.
-        let full_fan = self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
-        match joining {
-            Joining::Buffered => {
-                if let Some(fan) = full_fan {
-                    self.merge_fans(&chunk.entity_path().clone(), fan, events);
-                }
+        // fan comes back with the fan (so the chunk itself is not needed after: no handle
+        // is cloned, two atomic operations a row), and one that does not is done.
+        if joining == Joining::Buffered {
+            if let Some(fan) = self.add_chunk_to_orders(chunk, joining, events)
+                && let Some(path) = fan.first().map(|c| c.entity_path().clone())
+            {
+                self.merge_fans(&path, fan, events);
             }
-            Joining::Waiting => self.merge_cascade(chunk, events),
-            Joining::Settled => self.settle_run(SettledRun::new(vec![chunk]), events),
+            return;
+        }
+        let fan = self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
+        debug_assert!(fan.is_none(), "only a buffered chunk completes a fan");
+        if waits {
+            self.merge_cascade(chunk, events);
+        } else {
+            self.settle_run(SettledRun::new(vec![chunk]), events);
         }
     }
 

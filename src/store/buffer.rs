@@ -92,26 +92,34 @@ impl BufferGroup {
         reason = "a group holds fewer than 2^32 chunks"
     )]
     fn add_to_summary(&mut self, position: usize) {
-        let chunk = Arc::clone(&self.chunks[position]);
-        let num_components = self.num_components();
+        // Borrowed field by field: a handle cloned to free `self` was two atomic
+        // operations on every push.
+        let Self {
+            chunks,
+            time_ranges,
+            latest,
+            ..
+        } = self;
+        let chunk = &chunks[position];
+        let num_components = chunk.components().len();
         for (t, column) in chunk.time_columns().iter().enumerate() {
             let bounds = column.time_range();
             let (least, greatest) = (bounds.min(), bounds.max());
-            match self.time_ranges.get_mut(t) {
+            match time_ranges.get_mut(t) {
                 Some((min, max)) => {
                     *min = (*min).min(least);
                     *max = (*max).max(greatest);
                 }
-                None => self.time_ranges.push((least, greatest)),
+                None => time_ranges.push((least, greatest)),
             }
             for (c, component) in chunk.components().iter().enumerate() {
                 let Some(bounds) = component.bounds(t) else {
                     continue;
                 };
-                let slot = &mut self.latest[t * num_components + c];
+                let slot = &mut latest[t * num_components + c];
                 // The cell latest-at answers with: the greatest key, ties to chunk id.
                 if slot.is_none_or(|(best_position, best)| {
-                    let best_chunk = self.chunks[best_position as usize].id();
+                    let best_chunk = chunks[best_position as usize].id();
                     bounds.max_index_key(chunk.id()) > best.max_index_key(best_chunk)
                 }) {
                     *slot = Some((position as u32, bounds));
