@@ -43,6 +43,10 @@ struct BufferGroup {
     stale: bool,
 }
 
+/// Most room a new group reserves: a full fan with the default fanout, not a million
+/// handles for a store configured never to merge.
+const MAX_RESERVED_CHUNKS: usize = 16;
+
 /// A copy is made when a snapshot shares the group and a write changes it, and a write that
 /// copies a group usually pushes a chunk next: the copy has room for it, rather than
 /// exactly the chunks it holds (which made every push under a `SharedStore` publishing
@@ -68,11 +72,12 @@ struct Located {
 }
 
 impl BufferGroup {
-    /// A group of `chunk` alone, with room for a full fan: it grows to `fanout` chunks
-    /// and is then taken whole, so it never reallocates.
+    /// A group of `chunk` alone, with room for a full fan (up to [`MAX_RESERVED_CHUNKS`]):
+    /// it grows to `fanout` chunks and is then taken whole, so with the default fanout it
+    /// never reallocates.
     fn new(chunk: &Arc<Chunk>, fanout: usize) -> Self {
         let mut group = Self {
-            chunks: Vec::with_capacity(fanout),
+            chunks: Vec::with_capacity(fanout.min(MAX_RESERVED_CHUNKS)),
             time_ranges: SmallVec::new(),
             latest: Vec::new(),
             stale: false,
