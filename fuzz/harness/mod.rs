@@ -3,6 +3,16 @@
 //! replayed by `cargo test` through exactly the code the fuzzer ran.
 #![allow(dead_code, reason = "each fuzz target uses one of the bodies")]
 
+/// Installs, once per process, a panic hook that prints nothing. libfuzzer-sys's own hook
+/// aborts on every panic, even one the library contains on purpose (arrow-ipc's, see
+/// `chunkstore::ipc::read_batches`); with this one those are caught, and a panic that
+/// escapes still aborts in libfuzzer-sys, so it is still a crash. (Its message is not
+/// printed: replay the input with `cargo test`, see `tests/fuzz_crashes/README.md`.)
+pub fn quiet_panic_hook() {
+    static QUIET_HOOK: std::sync::Once = std::sync::Once::new();
+    QUIET_HOOK.call_once(|| std::panic::set_hook(Box::new(|_| {})));
+}
+
 #[path = "chunk_build.rs"]
 pub mod chunk_build;
 #[cfg(feature = "cli")]
