@@ -51,32 +51,25 @@ impl ChunkStore {
                 return;
             }
         }
-        // A chunk that will wait to be merged stays out of the store-wide orders, and one
-        // of the first level (a few rows) out of the indices too: the write buffer.
         let waits = placement == Placement::Wait;
-        let joining = if !waits {
-            Joining::Settled
-        } else if config.level(chunk.num_rows()) == 0 {
-            Joining::Buffered
-        } else {
-            Joining::Waiting
-        };
-        // The write buffer is the first level: a buffered chunk that fills its group's
-        // fan comes back with the fan (so the chunk itself is not needed after: no handle
-        // is cloned, two atomic operations a row), and one that does not is done.
-        if joining == Joining::Buffered {
-            if let Some(fan) = self.add_chunk_to_orders(chunk, joining, events)
+        // The first level (a few rows) is the write buffer, out of the store-wide orders
+        // and the indices: a buffered chunk that fills its group's fan comes back with the
+        // fan (so the chunk itself is not needed after: no handle is cloned, two atomic
+        // operations a row), and one that does not is done.
+        if waits && config.level(chunk.num_rows()) == 0 {
+            if let Some(fan) = self.buffer_chunk(chunk, events)
                 && let Some(path) = fan.first().map(|c| c.entity_path().clone())
             {
                 self.merge_fans(&path, fan, events);
             }
             return;
         }
-        let fan = self.add_chunk_to_orders(Arc::clone(&chunk), joining, events);
-        debug_assert!(fan.is_none(), "only a buffered chunk completes a fan");
+        // A chunk that will wait to be merged stays out of the store-wide orders.
         if waits {
+            self.add_chunk_to_orders(Arc::clone(&chunk), Joining::Waiting, events);
             self.merge_cascade(chunk, events);
         } else {
+            self.add_chunk_to_orders(Arc::clone(&chunk), Joining::Settled, events);
             self.settle_run(SettledRun::new(vec![chunk]), events);
         }
     }
@@ -139,8 +132,7 @@ impl ChunkStore {
                 } else {
                     Joining::Settled
                 };
-                let fan = self.add_chunk_to_orders(piece, joining, events);
-                debug_assert!(fan.is_none(), "a merged chunk is never buffered");
+                self.add_chunk_to_orders(piece, joining, events);
             }
             let Some(next) = grown else {
                 self.settle_run(SettledRun::new(settled), events);

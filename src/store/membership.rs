@@ -16,19 +16,40 @@ impl ChunkStore {
     /// Adds a validated chunk to every index and figure, and records its addition (and
     /// any static chunk it overwrites).
     pub(crate) fn add_chunk(&mut self, chunk: Arc<Chunk>, events: &mut Vec<StoreEvent>) {
-        let fan = self.add_chunk_to_orders(chunk, Joining::Settled, events);
-        debug_assert!(fan.is_none(), "only a buffered chunk completes a fan");
+        self.add_chunk_to_orders(chunk, Joining::Settled, events);
     }
 
     /// [`ChunkStore::add_chunk`], where `joining` says which of the store-wide orders and
     /// indices a temporal chunk joins: a chunk compaction keeps waiting stays out of the
     /// orders (it must then either leave the store or be
-    /// [settled](ChunkStore::settle_in_global_orders)), and a buffered one out of the
-    /// indices too. A buffered chunk that completes a full fan of its write buffer's
-    /// group returns the fan (itself included), out of the buffer, for compaction to
-    /// merge at once.
-    #[must_use = "a full fan of the write buffer must be merged"]
+    /// [settled](ChunkStore::settle_in_global_orders)). Not for a buffered chunk: see
+    /// [`ChunkStore::buffer_chunk`].
     pub(crate) fn add_chunk_to_orders(
+        &mut self,
+        chunk: Arc<Chunk>,
+        joining: Joining,
+        events: &mut Vec<StoreEvent>,
+    ) {
+        debug_assert!(joining != Joining::Buffered, "buffer_chunk buffers");
+        let fan = self.join(chunk, joining, events);
+        debug_assert!(fan.is_none(), "only a buffered chunk completes a fan");
+    }
+
+    /// Adds a small temporal chunk to its entity's write buffer (out of the store-wide
+    /// orders and the indices). If it completes a full fan of its buffer's group, returns
+    /// the fan (itself included), out of the buffer, for compaction to merge at once.
+    #[must_use = "a full fan of the write buffer must be merged"]
+    pub(crate) fn buffer_chunk(
+        &mut self,
+        chunk: Arc<Chunk>,
+        events: &mut Vec<StoreEvent>,
+    ) -> Option<Vec<Arc<Chunk>>> {
+        self.join(chunk, Joining::Buffered, events)
+    }
+
+    /// What [`ChunkStore::add_chunk_to_orders`] and [`ChunkStore::buffer_chunk`] share:
+    /// the chunk joins what `joining` says; a buffered chunk's full fan is returned.
+    fn join(
         &mut self,
         chunk: Arc<Chunk>,
         joining: Joining,
@@ -168,19 +189,26 @@ impl ChunkStore {
         }
         self.entities
             .values()
-            .flat_map(|entity| {
-                let buffered = self.view.entities.at(entity.slot).into_iter();
-                entity
-                    .pending
-                    .chunks()
-                    .chain(buffered.flat_map(|view| view.buffered.chunks()))
-            })
+            .flat_map(|entity| self.waiting_chunks(entity))
             .filter(|chunk| {
                 self.chunks
                     .get(&chunk.id())
                     .is_some_and(|stored| !stored.in_global_orders)
             })
             .collect()
+    }
+
+    /// The chunks compaction on insert keeps waiting at `entity`: in its compaction groups
+    /// and in its write buffer.
+    pub(super) fn waiting_chunks<'a>(
+        &'a self,
+        entity: &'a super::entity::EntityIndex,
+    ) -> impl Iterator<Item = &'a Arc<Chunk>> + 'a {
+        let view = self.view.entities.at(entity.slot).into_iter();
+        entity
+            .pending
+            .chunks()
+            .chain(view.flat_map(|view| view.buffered.chunks()))
     }
 
     /// Removes a chunk from every index and figure and records its deletion; returns the

@@ -31,14 +31,10 @@ impl ChunkStore {
     /// Only a temporal chunk compaction waits for may be left out of the store-wide
     /// orders (part of [`ChunkStore::sanity_check`]).
     fn check_outside_global_orders(&self, chunk: &Arc<Chunk>) -> Result<(), SanityError> {
-        let waiting = self.entities.get(chunk.entity_path()).is_some_and(|e| {
-            e.pending.chunks().any(|c| Arc::ptr_eq(c, chunk))
-                || self
-                    .view
-                    .entities
-                    .at(e.slot)
-                    .is_some_and(|view| view.buffered.chunks().any(|c| Arc::ptr_eq(c, chunk)))
-        });
+        let waiting = self
+            .entities
+            .get(chunk.entity_path())
+            .is_some_and(|e| self.waiting_chunks(e).any(|c| Arc::ptr_eq(c, chunk)));
         if chunk.is_static() || !waiting {
             return Err(SanityError::new(
                 Structure::Store,
