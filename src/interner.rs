@@ -18,6 +18,7 @@
 //! that a set full of values in use costs O(1) per refusal); a value that still finds no
 //! room keeps its own allocation, which is just as correct.
 
+use std::cell::RefCell;
 use std::hash::Hash;
 use std::sync::{Arc, OnceLock};
 
@@ -200,18 +201,76 @@ pub(crate) fn share_name(name: Arc<str>) -> Arc<str> {
     share_in(shared_names(), name)
 }
 
+/// How many fields each thread remembers having shared.
+const RECENT_FIELDS: usize = 8;
+
+/// The last fields a thread shared, each beside the field it was given.
+///
+/// A decoder hands in the same item field for every chunk of a layout (the IPC schema cache
+/// gives each message of a layout the fields it parsed once), and hashing a field sorts its
+/// metadata keys into a fresh vector: remembered, its shared copy is found by pointer.
+/// Holding the given field keeps its address from being reused by another field; holding
+/// the shared one keeps it in the set (a sweep keeps what others hold), so a remembered
+/// shared copy is always the set's.
+#[derive(Default)]
+struct RecentFields {
+    pairs: [Option<(FieldRef, FieldRef)>; RECENT_FIELDS],
+    next: usize,
+}
+
+thread_local! {
+    static RECENT: RefCell<RecentFields> = RefCell::default();
+}
+
+impl RecentFields {
+    /// The shared copy of `field` if `field` is a remembered given or shared field.
+    fn shared_copy_of(&self, field: &FieldRef) -> Option<FieldRef> {
+        self.pairs.iter().flatten().find_map(|(given, shared)| {
+            (Arc::ptr_eq(given, field) || Arc::ptr_eq(shared, field)).then(|| Arc::clone(shared))
+        })
+    }
+
+    fn remember(&mut self, given: FieldRef, shared: FieldRef) {
+        self.pairs[self.next] = Some((given, shared));
+        self.next = (self.next + 1) % RECENT_FIELDS;
+    }
+}
+
 /// The shared copy of a list's item field, as [`share_name`] does for names.
 pub(crate) fn share_field(field: &FieldRef) -> FieldRef {
-    share_in(shared_fields(), Arc::clone(field))
+    let recent = RECENT.with(|recent| recent.try_borrow().ok()?.shared_copy_of(field));
+    if let Some(shared) = recent {
+        return shared;
+    }
+    let shared = share_in(shared_fields(), Arc::clone(field));
+    // Another allocation came back: the set's copy (a refused field comes back itself).
+    if !Arc::ptr_eq(&shared, field) {
+        RECENT.with(|recent| {
+            if let Ok(mut recent) = recent.try_borrow_mut() {
+                recent.remember(Arc::clone(field), Arc::clone(&shared));
+            }
+        });
+    }
+    shared
 }
 
 /// Is `field` the shared copy (so that no chunk owns it)?
 pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
-    shared_fields()
-        .read()
-        .values
-        .get(&**field)
-        .is_some_and(|shared| Arc::ptr_eq(shared, field))
+    let recent = RECENT.with(|recent| {
+        recent.try_borrow().ok().is_some_and(|recent| {
+            recent
+                .pairs
+                .iter()
+                .flatten()
+                .any(|(_, shared)| Arc::ptr_eq(shared, field))
+        })
+    });
+    recent
+        || shared_fields()
+            .read()
+            .values
+            .get(&**field)
+            .is_some_and(|shared| Arc::ptr_eq(shared, field))
 }
 
 /// Are two names equal? Pointers first: equal names are usually the one shared copy, and
@@ -280,6 +339,33 @@ mod tests {
             !is_shared_field(&first) && !is_shared_field(&second),
             "the set keeps a copy of its own, never a caller's field"
         );
+    }
+
+    /// The fields a thread shared last are found again by pointer, given or shared, and
+    /// give the set's copy; a field equal to none of them still goes to the set.
+    #[test]
+    fn recently_shared_fields_are_found_by_pointer() {
+        let make = |name: &str| Arc::new(Field::new(name, arrow_schema::DataType::Int32, true));
+        let given = make("recent-test/item");
+        let shared = share_field(&given);
+        assert!(!Arc::ptr_eq(&shared, &given));
+        for _ in 0..3 {
+            assert!(Arc::ptr_eq(&share_field(&given), &shared));
+            assert!(Arc::ptr_eq(&share_field(&shared), &shared));
+        }
+        assert!(is_shared_field(&shared) && !is_shared_field(&given));
+        // More fields than a thread remembers: the first is then found through the set.
+        let others: Vec<_> = (0..2 * RECENT_FIELDS)
+            .map(|i| make(&format!("recent-test/other{i}")))
+            .collect();
+        for other in &others {
+            assert!(!Arc::ptr_eq(&share_field(other), other));
+        }
+        assert!(Arc::ptr_eq(
+            &share_field(&make("recent-test/item")),
+            &shared
+        ));
+        assert!(is_shared_field(&shared));
     }
 
     #[test]

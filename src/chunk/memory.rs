@@ -260,6 +260,15 @@ impl ChunkMemory {
 
     /// Records a buffer the chunk references (duplicates are removed once all are in).
     fn add_buffer(&mut self, buffer: &Buffer) {
+        // The columns of a chunk decoded from one IPC message all slice its one allocation:
+        // skipping the repeat of the last buffer keeps their handles inline.
+        if self
+            .buffers
+            .last()
+            .is_some_and(|last| buffer_address(last) == buffer_address(buffer))
+        {
+            return;
+        }
         self.buffers.push(buffer.clone());
     }
 
@@ -272,7 +281,8 @@ impl ChunkMemory {
     /// `also_held` on the same allocation (the chunk's own further handles). Any further
     /// reference is another array (perhaps another chunk) sharing it.
     pub fn owns_all_buffers(&self, also_held: &[&Buffer]) -> bool {
-        let mut also_held: Vec<usize> = also_held.iter().map(|b| buffer_address(b)).collect();
+        let mut also_held: SmallVec<[usize; 4]> =
+            also_held.iter().map(|b| buffer_address(b)).collect();
         also_held.sort_unstable();
         self.buffers.iter().all(|b| {
             let address = buffer_address(b);

@@ -1,7 +1,7 @@
 //! [`TimeColumn`]: one timeline's times in a chunk, their `(time, row id)` order, and the
 //! guided search every query runs over them.
 
-use arrow_array::{Array, ArrayRef};
+use arrow_array::{Array, ArrayRef, DurationNanosecondArray, Int64Array, TimestampNanosecondArray};
 use arrow_buffer::ScalarBuffer;
 use arrow_schema::DataType;
 
@@ -42,6 +42,21 @@ pub(super) enum RawTimes {
     },
 }
 
+/// The values of a timeline's array: all three timeline types are 64-bit primitives.
+/// Read through the typed array, which holds them already sliced (building an `ArrayData`
+/// to reach the buffer cost a small chunk more than the column's own checks).
+fn i64_times(array: &ArrayRef) -> Option<ScalarBuffer<i64>> {
+    let any = array.as_any();
+    if let Some(times) = any.downcast_ref::<Int64Array>() {
+        return Some(times.values().clone());
+    }
+    if let Some(times) = any.downcast_ref::<TimestampNanosecondArray>() {
+        return Some(times.values().clone());
+    }
+    any.downcast_ref::<DurationNanosecondArray>()
+        .map(|times| times.values().clone())
+}
+
 impl TimeColumn {
     #[expect(
         clippy::cast_possible_truncation,
@@ -69,10 +84,10 @@ impl TimeColumn {
                         null_count: array.null_count(),
                     });
                 }
-                let data = array.to_data();
-                // All three timeline types are 64-bit primitives: one buffer of i64, sliced.
-                let times =
-                    ScalarBuffer::<i64>::new(data.buffers()[0].clone(), data.offset(), data.len());
+                let times = i64_times(&array).ok_or_else(|| ChunkError::BadTimeType {
+                    timeline: name(),
+                    data_type: array.data_type().clone(),
+                })?;
                 (times, array.data_type().clone())
             }
             RawTimes::Copied { times, data_type } => (times, data_type),

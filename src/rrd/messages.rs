@@ -3,6 +3,8 @@
 //! crate does not know are skipped (the format still grows), and fields it does not use are
 //! kept as bytes so that a file written back says what the original said.
 
+use std::cell::RefCell;
+
 use super::error::RrdErrorKind;
 use super::protobuf::{FieldReader, FieldWriter, WireError};
 use crate::ChunkId;
@@ -57,7 +59,35 @@ impl StoreId {
         }
     }
 
+    /// Decodes a `StoreId` message. Every message of a stream names its store, so the
+    /// last one a thread decoded is kept beside its bytes and copied when they repeat
+    /// (decoding is a function of the bytes alone).
     pub(crate) fn decode(bytes: &[u8]) -> Result<Self, WireError> {
+        thread_local! {
+            static LAST: RefCell<Option<(Box<[u8]>, StoreId)>> = const { RefCell::new(None) };
+        }
+        /// A longer message is decoded every time.
+        const MAX_KEPT_BYTES: usize = 512;
+        let kept = LAST.with(|last| {
+            let last = last.try_borrow().ok()?;
+            let (kept_bytes, id) = last.as_ref()?;
+            (**kept_bytes == *bytes).then(|| id.clone())
+        });
+        if let Some(id) = kept {
+            return Ok(id);
+        }
+        let id = Self::decode_fields(bytes)?;
+        if bytes.len() <= MAX_KEPT_BYTES {
+            LAST.with(|last| {
+                if let Ok(mut last) = last.try_borrow_mut() {
+                    *last = Some((bytes.into(), id.clone()));
+                }
+            });
+        }
+        Ok(id)
+    }
+
+    fn decode_fields(bytes: &[u8]) -> Result<Self, WireError> {
         let mut id = Self {
             kind: StoreKind::Other(0),
             application_id: String::new(),
@@ -366,6 +396,26 @@ mod tests {
         assert_eq!(msg.uncompressed_size, 9);
         assert_eq!(msg.is_static, Some(true));
         assert_eq!(&body[msg.payload], b"xyz");
+    }
+
+    #[test]
+    fn store_ids_decode_by_their_own_bytes_whatever_came_before() {
+        let encoded = |id: &StoreId| {
+            let mut out = FieldWriter::default();
+            id.encode(&mut out);
+            out.bytes
+        };
+        let a = StoreId::recording("app", "rec-a");
+        let b = StoreId {
+            kind: StoreKind::Blueprint,
+            ..StoreId::recording("app", "rec-b")
+        };
+        for id in [&a, &a, &b, &a, &b, &b] {
+            assert_eq!(StoreId::decode(&encoded(id)).unwrap(), *id);
+        }
+        // A message that fails is never the kept one.
+        assert!(StoreId::decode(&[0x12, 0x05, b'x']).is_err());
+        assert_eq!(StoreId::decode(&encoded(&b)).unwrap(), b);
     }
 
     #[test]

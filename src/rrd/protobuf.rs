@@ -41,6 +41,13 @@ impl<'a> FieldReader<'a> {
     }
 
     fn varint(&mut self) -> Result<u64, WireError> {
+        // Keys, lengths of small fields and enums are one byte.
+        if let Some(&byte) = self.bytes.get(self.position)
+            && byte < 0x80
+        {
+            self.position += 1;
+            return Ok(u64::from(byte));
+        }
         let start = self.position;
         let mut value = 0u64;
         for shift in (0..64).step_by(7) {

@@ -109,9 +109,13 @@ pub struct RrdReader<R> {
     header: StreamHeader,
     /// Kinds of the stores seen, to tell blueprint chunks from data.
     store_kinds: ahash::HashMap<StoreId, StoreKind>,
-    /// The recording chunks of the current stream: id, store, and where the message body
-    /// starts (from the stream's start), to check the footer's manifest against.
-    seen: Vec<(ChunkId, StoreId, u64)>,
+    /// The recording chunks of the current stream: id, store (its place in
+    /// `seen_stores`), and where the message body starts (from the stream's start), to
+    /// check the footer's manifest against.
+    seen: Vec<(ChunkId, usize, u64)>,
+    /// The distinct stores of `seen` (a stream has one or two: a copy per chunk was a
+    /// tenth of reading a small chunk's message).
+    seen_stores: Vec<StoreId>,
     /// The vector stream bodies are read into, kept between messages.
     scratch: Vec<u8>,
     /// The last `End` message's body: where it started, and its bytes.
@@ -154,6 +158,7 @@ impl<R: Read> RrdReader<R> {
             },
             store_kinds: ahash::HashMap::default(),
             seen: Vec::new(),
+            seen_stores: Vec::new(),
             scratch: Vec::new(),
             end_message: None,
             done: false,
@@ -390,11 +395,15 @@ impl<R: Read> RrdReader<R> {
                     }
                 };
                 let chunk = payload::decode_message_chunk(&msg, payload, body_at)?;
-                self.seen.push((
-                    chunk.id(),
-                    msg.store_id.clone(),
-                    body_at - self.stream_start,
-                ));
+                let store =
+                    if let Some(store) = self.seen_stores.iter().position(|s| *s == msg.store_id) {
+                        store
+                    } else {
+                        self.seen_stores.push(msg.store_id.clone());
+                        self.seen_stores.len() - 1
+                    };
+                self.seen
+                    .push((chunk.id(), store, body_at - self.stream_start));
                 Ok(Some(RrdItem::Chunk {
                     store_id: msg.store_id,
                     chunk,
@@ -411,7 +420,8 @@ impl<R: Read> RrdReader<R> {
                 }
                 let manifests = manifest::decode_footer(bytes).map_err(within)?;
                 let seen = std::mem::take(&mut self.seen);
-                check_manifests(&manifests, &seen)
+                let seen_stores = std::mem::take(&mut self.seen_stores);
+                check_manifests(&manifests, &seen, &seen_stores)
                     .map_err(|reason| RrdError::new(body_at, RrdErrorKind::Footer { reason }))?;
                 Ok(Some(RrdItem::Footer(manifests)))
             }
@@ -468,6 +478,7 @@ impl<R: Read> RrdReader<R> {
         }
         self.stream_start = self.position;
         self.seen.clear();
+        self.seen_stores.clear();
         self.read_stream_header()?;
         Ok(None)
     }
@@ -476,7 +487,11 @@ impl<R: Read> RrdReader<R> {
 /// Does each recording's manifest list exactly the chunks the stream held, where it held
 /// them? (A chunk that failed to decode still has its row, so a mismatch after a decoding
 /// error is not reported twice: only ids seen are checked for their offsets.)
-fn check_manifests(manifests: &[Manifest], seen: &[(ChunkId, StoreId, u64)]) -> Result<(), String> {
+fn check_manifests(
+    manifests: &[Manifest],
+    seen: &[(ChunkId, usize, u64)],
+    seen_stores: &[StoreId],
+) -> Result<(), String> {
     for manifest in manifests {
         if manifest.store_id.kind != StoreKind::Recording {
             continue;
@@ -486,7 +501,11 @@ fn check_manifests(manifests: &[Manifest], seen: &[(ChunkId, StoreId, u64)]) -> 
             .iter()
             .map(|e| (e.chunk_id, e.byte_offset))
             .collect();
-        for (id, store, offset) in seen.iter().filter(|s| s.1 == manifest.store_id) {
+        let Some(this_store) = seen_stores.iter().position(|s| *s == manifest.store_id) else {
+            continue;
+        };
+        let store = &manifest.store_id;
+        for (id, _, offset) in seen.iter().filter(|s| s.1 == this_store) {
             match listed.get(id) {
                 Some(at) if at == offset => {}
                 Some(at) => {

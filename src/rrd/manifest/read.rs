@@ -10,6 +10,7 @@ use arrow_array::{
 };
 use arrow_buffer::Buffer;
 use arrow_schema::DataType;
+use smallvec::SmallVec;
 
 use super::{
     INDEX_KEY, Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange, STATIC_INDEX,
@@ -140,6 +141,8 @@ struct RangeColumns {
 /// A decoded family of range columns.
 struct DecodedRanges<'a> {
     timeline: Timeline,
+    /// The component of a per-component family.
+    component: Option<ComponentName>,
     starts: Vec<Option<i64>>,
     ends: Vec<Option<i64>>,
     num_rows: Option<&'a UInt64Array>,
@@ -187,8 +190,9 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
         }
     }
 
-    // Decode every range column once.
-    let mut decoded: BTreeMap<(String, Option<String>), DecodedRanges<'_>> = BTreeMap::new();
+    // Decode every range column once, in the families' order (by timeline, then
+    // component), and name each family's component once.
+    let mut decoded: Vec<DecodedRanges<'_>> = Vec::with_capacity(range_columns.len());
     for (key, columns) in range_columns {
         let (Some(start), Some(end)) = (columns.start, columns.end) else {
             continue;
@@ -205,16 +209,13 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
         let num_rows = columns
             .num_rows
             .and_then(|i| batch.column(i).as_any().downcast_ref::<UInt64Array>());
-        let timeline = Timeline::new(key.0.as_str(), time_type);
-        decoded.insert(
-            key,
-            DecodedRanges {
-                timeline,
-                starts,
-                ends,
-                num_rows,
-            },
-        );
+        decoded.push(DecodedRanges {
+            timeline: Timeline::new(key.0.as_str(), time_type),
+            component: key.1.as_deref().map(ComponentName::new),
+            starts,
+            ends,
+            num_rows,
+        });
     }
 
     let mut entries = Vec::with_capacity(batch.num_rows());
@@ -232,8 +233,9 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
             path
         };
         let mut ranges = Vec::new();
-        let mut components: BTreeMap<ComponentName, Vec<ManifestTimeRange>> = BTreeMap::new();
-        for ((_, component), ranges_of) in &decoded {
+        let mut component_ranges: SmallVec<[(&ComponentName, ManifestTimeRange); 8]> =
+            SmallVec::new();
+        for ranges_of in &decoded {
             let (Some(Some(min)), Some(Some(max))) =
                 (ranges_of.starts.get(row), ranges_of.ends.get(row))
             else {
@@ -253,20 +255,37 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
                 min,
                 max,
             };
-            match component {
+            match &ranges_of.component {
                 None => ranges.push(range),
-                Some(name) => components
-                    .entry(ComponentName::new(name.as_str()))
-                    .or_default()
-                    .push(range),
+                Some(name) => component_ranges.push((name, range)),
+            }
+        }
+        // By name; a stable sort keeps each component's ranges in timeline order.
+        component_ranges.sort_by(|a, b| a.0.cmp(b.0));
+        let mut components: Vec<ManifestComponent> = Vec::new();
+        for (name, range) in component_ranges {
+            match components.last_mut() {
+                Some(last) if last.name == *name => last.ranges.push(range),
+                _ => components.push(ManifestComponent {
+                    name: name.clone(),
+                    ranges: vec![range],
+                }),
             }
         }
         let is_static = statics.value(row);
         if is_static {
             for (name, i) in &static_columns {
                 let has = batch.column(*i).as_any().downcast_ref::<BooleanArray>();
-                if has.is_some_and(|has| has.is_valid(row) && has.value(row)) {
-                    components.entry(name.clone()).or_default();
+                if has.is_some_and(|has| has.is_valid(row) && has.value(row))
+                    && let Err(at) = components.binary_search_by(|c| c.name.cmp(name))
+                {
+                    components.insert(
+                        at,
+                        ManifestComponent {
+                            name: name.clone(),
+                            ranges: Vec::new(),
+                        },
+                    );
                 }
             }
         }
@@ -279,10 +298,7 @@ fn entries_from_batch(batch: &RecordBatch) -> Result<Vec<ManifestEntry>, String>
             byte_size: sizes.value(row),
             uncompressed_size: uncompressed.value(row),
             ranges,
-            components: components
-                .into_iter()
-                .map(|(name, ranges)| ManifestComponent { name, ranges })
-                .collect(),
+            components,
         });
     }
     Ok(entries)
