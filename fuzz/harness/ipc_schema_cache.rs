@@ -9,7 +9,9 @@
 //! Input: a byte `n`, then `n % 8` edits of three bytes (a little-endian `u16` position,
 //! taken modulo the stream's length, and the byte to write there), then the stream.
 
+use arrow_array::RecordBatch;
 use arrow_buffer::Buffer;
+use chunkstore::Chunk;
 use chunkstore::ipc::{clear_schema_cache, read_stream_batches_zero_copy, without_schema_cache};
 
 /// Where to write which byte.
@@ -41,18 +43,47 @@ pub fn input(stream: &[u8], edits: &[(u16, u8)]) -> Vec<u8> {
     out
 }
 
-/// Decodes `stream` with the cache, then without it, and checks that they agree.
+/// Decodes `stream` with the cache, then without it, and checks that they agree, batches
+/// and the chunks made of them: a cached schema's batches share its field list, through
+/// which a chunk's layout is kept (`chunk/transport.rs`), where each uncached batch has a
+/// list of its own.
 fn decode_both_ways(stream: &[u8]) {
     let cached = read_stream_batches_zero_copy(Buffer::from(stream.to_vec()));
     let uncached =
         without_schema_cache(|| read_stream_batches_zero_copy(Buffer::from(stream.to_vec())));
     match (cached, uncached) {
-        (Ok(cached), Ok(uncached)) => assert_eq!(cached, uncached, "the cache changed a batch"),
+        (Ok(cached), Ok(uncached)) => {
+            assert_eq!(cached, uncached, "the cache changed a batch");
+            for (cached, uncached) in cached.iter().zip(&uncached) {
+                chunks_agree(cached, uncached);
+            }
+        }
         (Err(_), Err(_)) => {}
         (cached, uncached) => panic!(
             "with the cache {}, without it {}",
             cached.map_or_else(|e| e.to_string(), |b| format!("{} batches", b.len())),
             uncached.map_or_else(|e| e.to_string(), |b| format!("{} batches", b.len())),
+        ),
+    }
+}
+
+/// The chunks of two equal batches are equal, or fail alike.
+fn chunks_agree(a: &RecordBatch, b: &RecordBatch) {
+    match (Chunk::from_record_batch(a), Chunk::from_record_batch(b)) {
+        (Ok(a), Ok(b)) => {
+            assert_eq!(a.id(), b.id());
+            assert_eq!(a.entity_path(), b.entity_path());
+            assert_eq!(
+                a.to_record_batch().ok(),
+                b.to_record_batch().ok(),
+                "a kept layout changed a chunk"
+            );
+        }
+        (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+        (a, b) => panic!(
+            "one chunk decoded, the other did not: {:?} / {:?}",
+            a.err(),
+            b.err()
         ),
     }
 }
