@@ -6,6 +6,7 @@
 //! Clear index, walked by every latest-at of a store holding Clears) looks a level up
 //! without hashing text.
 
+use std::cell::RefCell;
 use std::cmp::Ordering;
 use std::fmt::{self, Write as _};
 use std::hash::{BuildHasher, Hash, Hasher};
@@ -155,6 +156,11 @@ fn extend_hash(parent: u64, name: &str) -> u64 {
     hasher.finish()
 }
 
+/// How many path texts [`EntityPath::parse_recent`] keeps per thread.
+const RECENT_PATHS: usize = 256;
+/// A longer path text is parsed every time.
+const MAX_RECENT_PATH_BYTES: usize = 256;
+
 impl EntityPath {
     /// The root path `/`.
     pub fn root() -> Self {
@@ -203,6 +209,31 @@ impl EntityPath {
             parts: parts.into(),
             hash,
         }
+    }
+
+    /// [`EntityPath::parse`], remembered per thread for the last [`RECENT_PATHS`] texts
+    /// (of at most [`MAX_RECENT_PATH_BYTES`]): a stream's chunks each name their entity in
+    /// text, and parsing allocates every part. Answers never depend on it.
+    pub(crate) fn parse_recent(text: &str) -> Result<Self, EntityPathError> {
+        thread_local! {
+            static RECENT: RefCell<ahash::HashMap<Box<str>, EntityPath>> = RefCell::default();
+        }
+        if let Some(path) = RECENT.with(|recent| recent.try_borrow().ok()?.get(text).cloned()) {
+            return Ok(path);
+        }
+        let path = Self::parse(text)?;
+        if text.len() <= MAX_RECENT_PATH_BYTES {
+            RECENT.with(|recent| {
+                if let Ok(mut recent) = recent.try_borrow_mut() {
+                    // A full set starts again.
+                    if recent.len() == RECENT_PATHS {
+                        recent.clear();
+                    }
+                    recent.insert(text.into(), path.clone());
+                }
+            });
+        }
+        Ok(path)
     }
 
     /// Parses the text form: optional leading `/`, parts separated by `/`, `\` escaping the

@@ -230,6 +230,14 @@ impl RecentFields {
         })
     }
 
+    /// Is `field` a remembered shared copy?
+    fn is_shared_copy(&self, field: &FieldRef) -> bool {
+        self.pairs
+            .iter()
+            .flatten()
+            .any(|(_, shared)| Arc::ptr_eq(shared, field))
+    }
+
     fn remember(&mut self, given: FieldRef, shared: FieldRef) {
         self.pairs[self.next] = Some((given, shared));
         self.next = (self.next + 1) % RECENT_FIELDS;
@@ -257,13 +265,9 @@ pub(crate) fn share_field(field: &FieldRef) -> FieldRef {
 /// Is `field` the shared copy (so that no chunk owns it)?
 pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
     let recent = RECENT.with(|recent| {
-        recent.try_borrow().ok().is_some_and(|recent| {
-            recent
-                .pairs
-                .iter()
-                .flatten()
-                .any(|(_, shared)| Arc::ptr_eq(shared, field))
-        })
+        recent
+            .try_borrow()
+            .is_ok_and(|recent| recent.is_shared_copy(field))
     });
     recent
         || shared_fields()

@@ -9,7 +9,7 @@ use arrow_schema::{ArrowError, Field, FieldRef, Fields, Schema};
 
 use super::{Chunk, Metadata, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::ChunkError;
-use crate::{ChunkId, ComponentDescriptor, ComponentName, RowId, TimeType, Timeline};
+use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
 
 pub(super) const META_ID: &str = "rerun:id";
 pub(super) const META_ENTITY_PATH: &str = "rerun:entity_path";
@@ -240,42 +240,6 @@ mod layout_cache {
     }
 }
 
-/// The entity paths this thread parsed last, by text: an entity's chunks all name it, and
-/// parsing allocates each part. Answers never depend on it.
-mod recent_paths {
-    use std::cell::RefCell;
-
-    use crate::{EntityPath, EntityPathError};
-
-    /// How many paths a thread keeps; a full set starts again.
-    const MAX_PATHS: usize = 256;
-    /// A longer path is parsed every time.
-    const MAX_PATH_BYTES: usize = 256;
-
-    thread_local! {
-        static PATHS: RefCell<ahash::HashMap<Box<str>, EntityPath>> = RefCell::default();
-    }
-
-    /// [`EntityPath::parse`], remembered.
-    pub(super) fn parse(text: &str) -> Result<EntityPath, EntityPathError> {
-        if let Some(path) = PATHS.with(|paths| paths.try_borrow().ok()?.get(text).cloned()) {
-            return Ok(path);
-        }
-        let path = EntityPath::parse(text)?;
-        if text.len() <= MAX_PATH_BYTES {
-            PATHS.with(|paths| {
-                if let Ok(mut paths) = paths.try_borrow_mut() {
-                    if paths.len() == MAX_PATHS {
-                        paths.clear();
-                    }
-                    paths.insert(text.into(), path.clone());
-                }
-            });
-        }
-        Ok(path)
-    }
-}
-
 fn row_ids_from_arrow(array: &ArrayRef) -> Result<Vec<RowId>, ChunkError> {
     let bad_type = || ChunkError::BadRowIdType {
         data_type: array.data_type().clone(),
@@ -344,7 +308,7 @@ impl Chunk {
                 .ok_or_else(|| ChunkError::MissingMetadata {
                     key: META_ENTITY_PATH,
                 })?;
-        let entity_path = recent_paths::parse(path_text)?;
+        let entity_path = EntityPath::parse_recent(path_text)?;
         let metadata = Metadata::kept(schema_metadata, |key, _| {
             key != META_ID && key != META_ENTITY_PATH
         });
@@ -360,20 +324,10 @@ impl Chunk {
                     timeline,
                     field_metadata,
                 } => {
-                    let time_type = TimeType::from_arrow(array.data_type()).ok_or_else(|| {
-                        ChunkError::BadTimeType {
-                            timeline: timeline.name().to_owned(),
-                            data_type: array.data_type().clone(),
-                        }
-                    })?;
-                    // The layout took the type from the field, which a batch's column has.
-                    let timeline = if time_type == timeline.time_type() {
-                        timeline.clone()
-                    } else {
-                        Timeline::new(timeline.name(), time_type)
-                    };
+                    // The layout took the type from the field, and a batch's column has
+                    // its field's type (`RecordBatch` checks it).
                     times.push(RawTimeColumn {
-                        timeline,
+                        timeline: timeline.clone(),
                         times: RawTimes::Array(Arc::clone(array)),
                         field_metadata: field_metadata.clone(),
                     });
@@ -485,7 +439,7 @@ mod tests {
     use arrow_schema::DataType;
 
     use super::*;
-    use crate::{ChunkBuilder, EntityPath};
+    use crate::ChunkBuilder;
 
     /// A chunk of entity `path` whose time field and component field say more than the
     /// API writes, so that its layout keeps field metadata both ways.
