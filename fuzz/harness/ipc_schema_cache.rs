@@ -4,7 +4,9 @@
 //! batches, schema metadata included, or both an error): the cache may reuse a schema only
 //! where it proves the full decode gives the same one. The edits let the fuzzer change a
 //! stream's bytes a few at a time after the cache kept its schema, which is where an
-//! unsound cache would answer from stale bytes.
+//! unsound cache would answer from stale bytes. The chunks decoded straight from the
+//! stream (`read_stream_chunks_zero_copy`: from a cached schema, without a `RecordBatch`)
+//! must be those made of the uncached batches, or fail alike.
 //!
 //! Input: a byte `n`, then `n % 8` edits of three bytes (a little-endian `u16` position,
 //! taken modulo the stream's length, and the byte to write there), then the stream.
@@ -12,7 +14,10 @@
 use arrow_array::RecordBatch;
 use arrow_buffer::Buffer;
 use chunkstore::Chunk;
-use chunkstore::ipc::{clear_schema_cache, read_stream_batches_zero_copy, without_schema_cache};
+use chunkstore::ipc::{
+    IpcError, clear_schema_cache, read_stream_batches_zero_copy, read_stream_chunks_zero_copy,
+    without_schema_cache,
+};
 
 /// Where to write which byte.
 type Edit = (usize, u8);
@@ -51,6 +56,8 @@ fn decode_both_ways(stream: &[u8]) {
     let cached = read_stream_batches_zero_copy(Buffer::from(stream.to_vec()));
     let uncached =
         without_schema_cache(|| read_stream_batches_zero_copy(Buffer::from(stream.to_vec())));
+    let direct = read_stream_chunks_zero_copy(&Buffer::from(stream.to_vec()));
+    direct_chunks_agree(direct, uncached.as_deref());
     match (cached, uncached) {
         (Ok(cached), Ok(uncached)) => {
             assert_eq!(cached, uncached, "the cache changed a batch");
@@ -85,6 +92,44 @@ fn chunks_agree(a: &RecordBatch, b: &RecordBatch) {
             a.err(),
             b.err()
         ),
+    }
+}
+
+/// The chunks decoded straight from a stream are those made of its uncached batches, or
+/// the same error: the stream's, or the first bad chunk's.
+fn direct_chunks_agree(
+    direct: Result<Vec<Chunk>, IpcError>,
+    batches: Result<&[RecordBatch], &IpcError>,
+) {
+    let from_batches = batches.map(|batches| {
+        batches
+            .iter()
+            .enumerate()
+            .map(|(batch, b)| Chunk::from_record_batch(b).map_err(|e| (batch, e)))
+            .collect::<Result<Vec<Chunk>, _>>()
+    });
+    match (direct, from_batches) {
+        (Ok(direct), Ok(Ok(made))) => {
+            assert_eq!(direct.len(), made.len());
+            for (a, b) in direct.iter().zip(&made) {
+                assert_eq!(a.id(), b.id());
+                assert_eq!(a.entity_path(), b.entity_path());
+                assert_eq!(
+                    a.to_record_batch().ok(),
+                    b.to_record_batch().ok(),
+                    "a chunk decoded straight from the stream differs"
+                );
+            }
+        }
+        (Err(IpcError::Chunk { batch, source }), Ok(Err((made_batch, made_error)))) => {
+            assert_eq!(batch, made_batch);
+            assert_eq!(source.to_string(), made_error.to_string());
+        }
+        (Err(IpcError::Chunk { .. }) | Ok(_), _) | (_, Ok(Err(_))) => {
+            panic!("decoded straight from the stream or not, the chunks differ")
+        }
+        (Err(_), Err(_)) => {}
+        (Err(e), Ok(Ok(_))) => panic!("straight from the stream: {e}; from batches: chunks"),
     }
 }
 

@@ -25,7 +25,20 @@ impl Metadata {
     /// into each), so its chunks then hold one map, and comparing two of their layouts
     /// compares one pointer.
     pub(crate) fn kept(map: &HashMap<String, String>, keep: impl Fn(&str, &str) -> bool) -> Self {
-        let entries = || map.iter().filter(|(key, value)| keep(key, value));
+        Self::kept_of(
+            &map.iter()
+                .map(|(key, value)| (key.as_str(), value.as_str())),
+            keep,
+        )
+    }
+
+    /// [`Metadata::kept`] of entries given one by one, their keys unique (a schema's
+    /// metadata read straight from its IPC message, without a map).
+    pub(crate) fn kept_of<'m>(
+        entries: &(impl Iterator<Item = (&'m str, &'m str)> + Clone),
+        keep: impl Fn(&str, &str) -> bool,
+    ) -> Self {
+        let entries = || entries.clone().filter(|&(key, value)| keep(key, value));
         if entries().next().is_none() {
             return Self(None);
         }
@@ -33,12 +46,12 @@ impl Metadata {
             let mut last = last.borrow_mut();
             if let Some(shared) = last.as_ref()
                 && entries().count() == shared.len()
-                && entries().all(|(key, value)| shared.get(key) == Some(value))
+                && entries().all(|(key, value)| shared.get(key).map(String::as_str) == Some(value))
             {
                 return Self(Some(Arc::clone(shared)));
             }
             let kept: HashMap<String, String> = entries()
-                .map(|(key, value)| (key.clone(), value.clone()))
+                .map(|(key, value)| (key.to_owned(), value.to_owned()))
                 .collect();
             let kept = Arc::new(kept);
             *last = Some(Arc::clone(&kept));

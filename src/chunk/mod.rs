@@ -87,6 +87,13 @@ pub struct Chunk {
 /// Every component name is non-empty and appears once. A set for many columns (a chunk
 /// may have 100,000); for the few most chunks have, comparing each with those before it
 /// costs less than making the set (a merge of one-row chunks builds a chunk per 16 rows).
+/// A chunk's time columns before validation: most chunks have one or two timelines, so
+/// they stay inline (a one-row chunk's decode allocates little besides its arrays).
+type RawTimeColumns = SmallVec<[RawTimeColumn; 2]>;
+
+/// A chunk's component columns before validation, inline for a few.
+type RawComponentColumns = SmallVec<[RawComponentColumn; 4]>;
+
 fn check_component_names(raw_components: &[RawComponentColumn]) -> Result<(), ChunkError> {
     const FEW_COLUMNS: usize = 16;
     let names = raw_components
@@ -156,7 +163,7 @@ impl Chunk {
                     field_metadata: Metadata::default(),
                 })
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<RawTimeColumns, _>>()?;
         let components = components
             .into_iter()
             .map(|(descriptor, array)| RawComponentColumn {
@@ -197,8 +204,8 @@ impl Chunk {
         id: ChunkId,
         entity_path: EntityPath,
         row_ids: Vec<RowId>,
-        raw_times: Vec<RawTimeColumn>,
-        raw_components: Vec<RawComponentColumn>,
+        raw_times: RawTimeColumns,
+        raw_components: RawComponentColumns,
         extra_metadata: Metadata,
         buffers: Buffers,
     ) -> Result<Self, ChunkError> {

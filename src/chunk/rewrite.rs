@@ -80,7 +80,7 @@ impl Chunk {
                 };
                 Ok(first.components[position].rebuilt(array))
             })
-            .collect::<Result<Vec<_>, ChunkError>>()?;
+            .collect::<Result<super::RawComponentColumns, ChunkError>>()?;
         Self::from_raw(
             id,
             first.entity_path.clone(),

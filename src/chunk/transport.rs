@@ -78,8 +78,6 @@ fn says_only_the_descriptor(meta: &HashMap<String, String>, name: &str) -> bool 
 struct TransportLayout {
     /// The columns in order, up to the first field that is refused.
     columns: Vec<LaidOutColumn>,
-    /// How many of them are time columns.
-    num_times: usize,
 }
 
 /// One column of a [`TransportLayout`].
@@ -114,11 +112,7 @@ impl TransportLayout {
                 }
             }
         }
-        let num_times = columns
-            .iter()
-            .filter(|c| matches!(c, LaidOutColumn::Time { .. }))
-            .count();
-        (Self { columns, num_times }, failure)
+        (Self { columns }, failure)
     }
 
     fn column(field: &FieldRef, has_row_ids: &mut bool) -> Result<LaidOutColumn, ChunkError> {
@@ -297,29 +291,45 @@ impl Chunk {
     /// [`Chunk::try_new`] rejects.
     pub fn from_record_batch(batch: &RecordBatch) -> Result<Self, ChunkError> {
         let schema = batch.schema_ref();
-        let schema_metadata = schema.metadata();
-        let id_text = schema_metadata
-            .get(META_ID)
-            .ok_or_else(|| ChunkError::MissingMetadata { key: META_ID })?;
-        let id: ChunkId = id_text.parse().map_err(ChunkError::BadChunkId)?;
-        let path_text =
-            schema_metadata
-                .get(META_ENTITY_PATH)
-                .ok_or_else(|| ChunkError::MissingMetadata {
-                    key: META_ENTITY_PATH,
-                })?;
-        let entity_path = EntityPath::parse_recent(path_text)?;
-        let metadata = Metadata::kept(schema_metadata, |key, _| {
-            key != META_ID && key != META_ENTITY_PATH
-        });
+        Self::from_transport_parts(
+            schema.fields(),
+            &schema
+                .metadata()
+                .iter()
+                .map(|(key, value)| (key.as_str(), value.as_str())),
+            batch.columns().iter().cloned(),
+        )
+    }
 
-        let (layout, failure) = layout_cache::layout_of(schema.fields());
+    /// [`Chunk::from_record_batch`] of a batch given in parts, so that a decoder need not
+    /// build a `Schema` (with a metadata map of its own) and a `RecordBatch` only for this
+    /// to read them and drop them: the schema's `fields` and `metadata` entries (their
+    /// keys unique), and the `columns`, each of its field's type (as a `RecordBatch`
+    /// checks).
+    pub(crate) fn from_transport_parts<'m>(
+        fields: &Fields,
+        metadata: &(impl Iterator<Item = (&'m str, &'m str)> + Clone),
+        columns: impl IntoIterator<Item = ArrayRef>,
+    ) -> Result<Self, ChunkError> {
+        let get = |wanted: &'static str| {
+            metadata
+                .clone()
+                .find(|&(key, _)| key == wanted)
+                .map(|(_, value)| value)
+                .ok_or(ChunkError::MissingMetadata { key: wanted })
+        };
+        let id: ChunkId = get(META_ID)?.parse().map_err(ChunkError::BadChunkId)?;
+        let entity_path = EntityPath::parse_recent(get(META_ENTITY_PATH)?)?;
+        let metadata =
+            Metadata::kept_of(metadata, |key, _| key != META_ID && key != META_ENTITY_PATH);
+
+        let (layout, failure) = layout_cache::layout_of(fields);
         let mut row_ids = None;
-        let mut times = Vec::with_capacity(layout.num_times);
-        let mut components = Vec::with_capacity(layout.columns.len() - layout.num_times);
-        for (column, array) in layout.columns.iter().zip(batch.columns()) {
+        let mut times = super::RawTimeColumns::new();
+        let mut components = super::RawComponentColumns::new();
+        for (column, array) in layout.columns.iter().zip(columns) {
             match column {
-                LaidOutColumn::RowId => row_ids = Some(row_ids_from_arrow(array)?),
+                LaidOutColumn::RowId => row_ids = Some(row_ids_from_arrow(&array)?),
                 LaidOutColumn::Time {
                     timeline,
                     field_metadata,
@@ -328,14 +338,14 @@ impl Chunk {
                     // its field's type (`RecordBatch` checks it).
                     times.push(RawTimeColumn {
                         timeline: timeline.clone(),
-                        times: RawTimes::Array(Arc::clone(array)),
+                        times: RawTimes::Array(array),
                         field_metadata: field_metadata.clone(),
                     });
                 }
                 LaidOutColumn::Component { descriptor, field } => {
                     components.push(RawComponentColumn {
                         descriptor: descriptor.clone(),
-                        array: Arc::clone(array),
+                        array,
                         field: field.clone(),
                         from_accepted_cells: false,
                     });

@@ -30,12 +30,14 @@ use arrow_array::types::{
 };
 use arrow_array::{
     Array, ArrayRef, ArrowPrimitiveType, BinaryArray, BooleanArray, FixedSizeBinaryArray,
-    FixedSizeListArray, ListArray, PrimitiveArray, RecordBatch, RecordBatchOptions, StringArray,
-    StructArray,
+    FixedSizeListArray, ListArray, PrimitiveArray, StringArray, StructArray,
 };
 use arrow_buffer::{BooleanBuffer, Buffer, NullBuffer, OffsetBuffer, ScalarBuffer};
-use arrow_schema::{DataType, Field, SchemaRef, TimeUnit};
+use arrow_schema::{DataType, Field, Fields, TimeUnit};
+
 use smallvec::SmallVec;
+
+use super::batch_message::BatchHeader;
 
 thread_local! {
     /// Set while [`without`] runs.
@@ -50,53 +52,65 @@ pub(super) fn batches_built() -> u64 {
     BUILT.with(Cell::get)
 }
 
+/// Is this decoder on on this thread (not within [`without`])?
+pub(super) fn is_on() -> bool {
+    !OFF.with(Cell::get)
+}
+
 /// Runs `decode` with this decoder off on this thread: every batch goes to arrow-ipc.
 pub(super) fn without<T>(decode: impl FnOnce() -> T) -> T {
     super::with_flag_set(&OFF, decode)
 }
 
-/// Decodes the batch `batch` of the message whose body is `body`, with `schema`; `None`
-/// if this decoder does not build it (see the module docs: the caller asks arrow-ipc).
+/// Decodes the batch `header` describes, whose body is `body`, against the schema's
+/// `fields`: its columns and row count, checked as `RecordBatch::try_new` checks them (the
+/// caller may build a chunk of them without a `RecordBatch`). `None` if this decoder does
+/// not build it (see the module docs: the caller asks arrow-ipc).
 pub(super) fn decode_batch(
     body: &Buffer,
-    batch: arrow_ipc::RecordBatch<'_>,
-    schema: &SchemaRef,
-) -> Option<RecordBatch> {
+    header: &BatchHeader,
+    fields: &Fields,
+) -> Option<(Columns, usize)> {
     if OFF.with(Cell::get) {
-        return None;
-    }
-    if batch.compression().is_some() || batch.variadicBufferCounts().is_some_and(|v| !v.is_empty())
-    {
         return None;
     }
     let mut reader = Reader {
         body,
-        nodes: batch
-            .nodes()?
-            .iter()
-            .map(|node| (node.length(), node.null_count()))
-            .collect(),
-        buffers: batch
-            .buffers()?
-            .iter()
-            .map(|buffer| (buffer.offset(), buffer.length()))
-            .collect(),
+        nodes: &header.nodes,
+        buffers: &header.buffers,
         next_node: 0,
         next_buffer: 0,
     };
-    let mut columns = Vec::with_capacity(schema.fields().len());
-    for field in schema.fields() {
+    let mut columns = Columns::with_capacity(fields.len());
+    for field in fields {
         columns.push(reader.array(field)?);
     }
     if reader.next_node != reader.nodes.len() || reader.next_buffer != reader.buffers.len() {
         return None;
     }
-    let rows = usize::try_from(batch.length()).ok()?;
-    let options = RecordBatchOptions::new().with_row_count(Some(rows));
-    let built = RecordBatch::try_new_with_options(Arc::clone(schema), columns, &options).ok()?;
+    let rows = usize::try_from(header.length).ok()?;
+    if !is_valid_batch(fields, &columns, rows) {
+        return None;
+    }
     BUILT.with(|count| count.set(count.get() + 1));
-    Some(built)
+    Some((columns, rows))
 }
+
+/// Would `RecordBatch::try_new_with_options` accept `columns` of `rows` rows for `fields`
+/// (with its default options, as arrow-ipc's reader builds a batch)? The same checks: a
+/// column per field, no nulls in a non-nullable field, every column `rows` long, and each
+/// of exactly its field's type.
+fn is_valid_batch(fields: &Fields, columns: &[ArrayRef], rows: usize) -> bool {
+    fields.len() == columns.len()
+        && fields.iter().zip(columns).all(|(field, column)| {
+            (field.is_nullable() || column.null_count() == 0)
+                && column.len() == rows
+                && column.data_type() == field.data_type()
+        })
+}
+
+/// A batch's columns: a chunk's few stay inline.
+pub(super) type Columns = SmallVec<[ArrayRef; 8]>;
 
 /// A part of the batch this decoder does not build (arrow-ipc decodes the batch instead).
 struct NotBuilt;
@@ -105,8 +119,8 @@ struct NotBuilt;
 /// order of the schema's fields, depth first (the IPC format's order).
 struct Reader<'a> {
     body: &'a Buffer,
-    nodes: SmallVec<[(i64, i64); 16]>,
-    buffers: SmallVec<[(i64, i64); 32]>,
+    nodes: &'a [(i64, i64)],
+    buffers: &'a [(i64, i64)],
     next_node: usize,
     next_buffer: usize,
 }

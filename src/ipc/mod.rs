@@ -14,8 +14,10 @@ use arrow_schema::ArrowError;
 use crate::{Chunk, ChunkError};
 
 mod batch_decoder;
+mod batch_message;
 mod schema_cache;
 mod schema_layout;
+mod stream;
 #[cfg(test)]
 mod tests;
 
@@ -118,8 +120,48 @@ pub fn read_batches(bytes: &[u8]) -> Result<Vec<RecordBatch>, IpcError> {
 ///
 /// # Errors
 /// As [`read_batches`].
+#[allow(
+    clippy::needless_pass_by_value,
+    reason = "the batches hold slices of the buffer; taking it whole is the public signature"
+)]
 pub fn read_stream_batches_zero_copy(buffer: Buffer) -> Result<Vec<RecordBatch>, IpcError> {
-    contain_panics(move || decode_stream(&buffer))
+    read_stream_zero_copy(&buffer)?
+        .into_iter()
+        .map(stream::StreamBatch::into_record_batch)
+        .collect()
+}
+
+/// Decodes the chunks of an Arrow IPC *stream* of transport batches (one chunk per batch)
+/// held in an Arrow [`Buffer`], without copying: the chunks' buffers are slices of `buffer`.
+/// The chunks are those [`Chunk::from_record_batch`] makes of
+/// [`read_stream_batches_zero_copy`]'s batches, but a batch whose schema message this
+/// thread parsed recently (see [`without_schema_cache`]) goes into its chunk with no
+/// `Schema` or `RecordBatch` built for it.
+///
+/// # Errors
+/// As [`read_batches`], and [`IpcError::Chunk`] naming the first batch that is not a valid
+/// chunk.
+pub fn read_stream_chunks_zero_copy(buffer: &Buffer) -> Result<Vec<Chunk>, IpcError> {
+    read_stream_zero_copy(buffer)?
+        .into_iter()
+        .enumerate()
+        .map(|(batch, parts)| {
+            parts
+                .into_chunk()
+                .map_err(|source| IpcError::Chunk { batch, source })
+        })
+        .collect()
+}
+
+/// [`read_stream_batches_zero_copy`]'s batches as the parts a chunk is made of, each
+/// turned into a chunk by [`stream::StreamBatch::into_chunk`] without a `RecordBatch`.
+///
+/// # Errors
+/// As [`read_batches`].
+pub(crate) fn read_stream_zero_copy(
+    buffer: &Buffer,
+) -> Result<stream::StreamBatches<'_>, IpcError> {
+    contain_panics(|| stream::decode_stream(buffer))
 }
 
 /// Runs `decode` with this thread's cache of parsed IPC schemas off: every schema message
@@ -174,9 +216,7 @@ fn with_flag_set<T>(
 
 /// Runs an arrow-ipc decode, turning a panic into [`IpcError::DecoderPanicked`] with its
 /// message (see [`read_batches`]).
-fn contain_panics(
-    decode: impl FnOnce() -> Result<Vec<RecordBatch>, IpcError>,
-) -> Result<Vec<RecordBatch>, IpcError> {
+fn contain_panics<T>(decode: impl FnOnce() -> Result<T, IpcError>) -> Result<T, IpcError> {
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(decode)).unwrap_or_else(|payload| {
         let message = payload
             .downcast_ref::<String>()
@@ -432,98 +472,6 @@ fn for_each_stream_message(
         visit(message, body)?;
     }
     Ok(())
-}
-
-/// Decodes the batches of an IPC stream whose framing is checked as in
-/// [`for_each_stream_message`]: each message's flatbuffer is verified once (arrow-ipc's
-/// `StreamDecoder` would verify it again, a third of a small chunk's decoding), and decoded
-/// here with arrow-ipc's own schema, dictionary and batch readers, zero-copy from `buffer`.
-/// A schema message this thread provably decoded before (`schema_cache`) is neither
-/// verified nor parsed again.
-fn decode_stream(buffer: &Buffer) -> Result<Vec<RecordBatch>, IpcError> {
-    use arrow_ipc::MessageHeader;
-    let unexpected = |reason: &str| IpcError::Ipc(ArrowError::IpcError(reason.to_owned()));
-    let bytes = buffer.as_slice();
-    let mut schema: Option<arrow_schema::SchemaRef> = None;
-    let mut dictionaries = std::collections::HashMap::new();
-    let mut batches = Vec::new();
-    let mut pos = 0usize;
-    while let Some(frame) = next_frame(bytes, &mut pos)? {
-        // Only a stream's first schema can come from the cache: a batch message never
-        // matches one, and a second schema is refused below as it would be anyway.
-        if schema.is_none()
-            && let Some(cached) = schema_cache::lookup(&bytes[frame.metadata.clone()])
-        {
-            pos = body_range(bytes, &frame, cached.body_length)?.end;
-            schema = Some(cached.schema);
-            continue;
-        }
-        let message = verify_message(bytes, &frame)?;
-        let body = body_range(bytes, &frame, message.bodyLength())?;
-        pos = body.end;
-        let body = buffer.slice_with_length(body.start, body.len());
-        let version = message.version();
-        match message.header_type() {
-            MessageHeader::Schema => {
-                let Some(ipc_schema) = message.header_as_schema() else {
-                    return Err(unexpected("a schema message without its schema"));
-                };
-                if schema.is_some() {
-                    return Err(unexpected("a second schema in one stream"));
-                }
-                let parsed = std::sync::Arc::new(arrow_ipc::convert::fb_to_schema(ipc_schema));
-                schema_cache::learn(
-                    &bytes[frame.metadata.clone()],
-                    &parsed,
-                    message.bodyLength(),
-                );
-                schema = Some(parsed);
-            }
-            MessageHeader::RecordBatch => {
-                let (Some(batch), Some(schema)) = (message.header_as_record_batch(), &schema)
-                else {
-                    return Err(unexpected("a record batch before the schema"));
-                };
-                // Our decoder where it builds the batch; arrow-ipc's answer (or error) for
-                // anything else.
-                let decoded = match batch_decoder::decode_batch(&body, batch, schema) {
-                    Some(decoded) => decoded,
-                    None => arrow_ipc::reader::read_record_batch(
-                        &body,
-                        batch,
-                        std::sync::Arc::clone(schema),
-                        &dictionaries,
-                        None,
-                        &version,
-                    )
-                    .map_err(IpcError::Ipc)?,
-                };
-                batches.push(decoded);
-            }
-            MessageHeader::DictionaryBatch => {
-                let (Some(dictionary), Some(schema)) =
-                    (message.header_as_dictionary_batch(), &schema)
-                else {
-                    return Err(unexpected("a dictionary batch before the schema"));
-                };
-                arrow_ipc::reader::read_dictionary(
-                    &body,
-                    dictionary,
-                    schema,
-                    &mut dictionaries,
-                    &version,
-                )
-                .map_err(IpcError::Ipc)?;
-            }
-            MessageHeader::NONE => {}
-            other => {
-                return Err(unexpected(&format!(
-                    "message type {other:?} in a stream of record batches"
-                )));
-            }
-        }
-    }
-    Ok(batches)
 }
 
 /// Reading chunks from Arrow IPC failed.

@@ -15,9 +15,11 @@
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
+use std::rc::Rc;
 use std::sync::Arc;
 
 use arrow_schema::{Schema, SchemaRef};
+use smallvec::SmallVec;
 
 use super::schema_layout::SchemaLayout;
 
@@ -39,6 +41,9 @@ struct Template {
     message: Box<[u8]>,
     layout: SchemaLayout,
     schema: SchemaRef,
+    /// The keys of the layout's entries that have a key and a value, in message order:
+    /// the entries `fb_to_schema` puts in the metadata map.
+    keys: Rc<[String]>,
     /// The `bodyLength` the message declares (the stream's framing checks it).
     body_length: i64,
     last_used: u64,
@@ -77,15 +82,47 @@ pub(super) fn clear() {
     });
 }
 
-/// A schema found for a message without decoding it.
-pub(super) struct CachedSchema {
-    pub(super) schema: SchemaRef,
+/// A schema found for a message without decoding it: a kept schema's fields, and this
+/// message's metadata values, not yet in a map (a chunk reads two of them and keeps the
+/// rest only if they differ from the last chunk's).
+#[derive(Clone)]
+pub(super) struct CachedSchema<'a> {
+    /// The kept schema: its fields are the message's, its metadata values are not.
+    pub(super) template: SchemaRef,
+    /// The metadata keys, in message order, with their values (as many).
+    keys: Rc<[String]>,
+    values: SmallVec<[&'a str; 4]>,
     pub(super) body_length: i64,
+}
+
+impl CachedSchema<'_> {
+    /// The metadata entries, as `fb_to_schema`'s map holds them: of entries with equal
+    /// keys, the last.
+    pub(super) fn metadata(&self) -> impl Iterator<Item = (&str, &str)> + Clone {
+        let keys = &*self.keys;
+        keys.iter()
+            .zip(&self.values)
+            .enumerate()
+            .filter(move |&(at, (key, _))| !keys[at + 1..].contains(key))
+            .map(|(_, (key, value))| (key.as_str(), *value))
+    }
+
+    /// The schema, as `fb_to_schema` would build it from the message.
+    pub(super) fn to_schema(&self) -> SchemaRef {
+        let metadata: HashMap<String, String> = self
+            .metadata()
+            .map(|(key, value)| (key.to_owned(), value.to_owned()))
+            .collect();
+        Arc::new(Schema::new_with_metadata(
+            self.template.fields().clone(),
+            metadata,
+        ))
+    }
 }
 
 /// The schema of `message` (one IPC message's metadata bytes, unverified) if this thread
 /// kept a message it provably decodes like.
-pub(super) fn lookup(message: &[u8]) -> Option<CachedSchema> {
+pub(super) fn lookup(message: &[u8]) -> Option<CachedSchema<'_>> {
     if OFF.with(Cell::get) {
         return None;
     }
@@ -108,10 +145,17 @@ pub(super) fn learn(message: &[u8], schema: &SchemaRef, body_length: i64) {
         let Some(layout) = SchemaLayout::prove(message) else {
             return;
         };
+        let keys = layout
+            .entries
+            .iter()
+            .filter(|entry| entry.value.is_some())
+            .filter_map(|entry| entry.key.clone())
+            .collect();
         cache.insert(Template {
             message: message.into(),
             layout,
             schema: Arc::clone(schema),
+            keys,
             body_length,
             last_used: 0,
         });
@@ -119,7 +163,7 @@ pub(super) fn learn(message: &[u8], schema: &SchemaRef, body_length: i64) {
 }
 
 impl SchemaCache {
-    fn lookup(&mut self, message: &[u8]) -> Option<CachedSchema> {
+    fn lookup<'a>(&mut self, message: &'a [u8]) -> Option<CachedSchema<'a>> {
         self.clock += 1;
         let clock = self.clock;
         let template = self
@@ -127,10 +171,12 @@ impl SchemaCache {
             .iter_mut()
             .find(|t| t.message.len() == message.len() && t.matches(message))?;
         template.last_used = clock;
-        let schema = template.schema_for(message)?;
+        let values = template.values_in(message)?;
         self.hits += 1;
         Some(CachedSchema {
-            schema: Arc::new(schema),
+            template: Arc::clone(&template.schema),
+            keys: Rc::clone(&template.keys),
+            values,
             body_length: template.body_length,
         })
     }
@@ -179,24 +225,21 @@ impl Template {
         self.message[at..] == message[at..]
     }
 
-    /// This template's schema with `message`'s metadata values, as `fb_to_schema` would
-    /// build it; `None` if a value is not UTF-8 (the verifier refuses that message, even
-    /// for a value whose entry has no key and so no place in the schema).
-    fn schema_for(&self, message: &[u8]) -> Option<Schema> {
-        let mut metadata = HashMap::with_capacity(self.layout.entries.len());
+    /// `message`'s values of the entries with a key, in message order; `None` if a value
+    /// is not UTF-8 (the verifier refuses that message, even for a value whose entry has
+    /// no key and so no place in the schema).
+    fn values_in<'a>(&self, message: &'a [u8]) -> Option<SmallVec<[&'a str; 4]>> {
+        let mut values = SmallVec::new();
         for entry in &self.layout.entries {
             let Some(value) = &entry.value else {
                 continue;
             };
             let value = std::str::from_utf8(message.get(value.clone())?).ok()?;
-            if let Some(key) = &entry.key {
-                metadata.insert(key.clone(), value.to_owned());
+            if entry.key.is_some() {
+                values.push(value);
             }
         }
-        Some(Schema::new_with_metadata(
-            self.schema.fields().clone(),
-            metadata,
-        ))
+        Some(values)
     }
 }
 

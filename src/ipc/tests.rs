@@ -244,7 +244,7 @@ fn a_recording_written_by_rerun_reuses_its_schemas() {
 }
 
 /// A one-batch IPC stream of `batch`.
-fn stream_of(batch: &RecordBatch) -> Vec<u8> {
+pub(super) fn stream_of(batch: &RecordBatch) -> Vec<u8> {
     let mut out = Vec::new();
     let mut writer = arrow_ipc::writer::StreamWriter::try_new(&mut out, &batch.schema()).unwrap();
     writer.write(batch).unwrap();
@@ -345,4 +345,81 @@ fn the_own_batch_decoder_builds_what_chunks_hold_and_hands_over_the_rest() {
         std::slice::from_ref(&batch)
     );
     assert_eq!(batch.num_rows(), batch.column(0).len());
+}
+
+/// A chunk's transport batch with `extra` schema metadata entries.
+fn chunk_batch(chunk_id: crate::ChunkId, extra: &[(&str, &str)]) -> RecordBatch {
+    let value = Arc::new(Float64Array::from(vec![1.5])) as ArrayRef;
+    let chunk = crate::ChunkBuilder::new(chunk_id, crate::EntityPath::parse("/robot/arm").unwrap())
+        .with_row(
+            crate::RowId::new(),
+            [(crate::Timeline::sequence("frame"), 7)],
+            [("scalar", value)],
+        )
+        .build()
+        .unwrap();
+    let batch = chunk.to_record_batch().unwrap();
+    let mut metadata = batch.schema().metadata().clone();
+    for (key, value) in extra {
+        metadata.insert((*key).to_owned(), (*value).to_owned());
+    }
+    let schema = Arc::new(Schema::new_with_metadata(
+        batch.schema().fields().clone(),
+        metadata,
+    ));
+    batch.with_schema(schema).unwrap()
+}
+
+/// Chunks decoded straight from a stream, from a cached schema without a `Schema` or a
+/// `RecordBatch`, are those made of its batches decoded in full: with the message's own
+/// id, with what metadata is kept, and where a key repeats, with the value
+/// `fb_to_schema`'s map keeps (the last in message order).
+#[test]
+fn chunks_straight_from_a_stream_are_those_of_its_batches() {
+    use super::read_stream_chunks_zero_copy;
+    schema_cache::clear();
+    for repeat_key in [false, true] {
+        // One message per layout (a map's entries come out in an order of its own), and
+        // each chunk's id written into a copy of it.
+        let first_id = crate::ChunkId::new().to_string();
+        let decoy = crate::ChunkId::new().to_string();
+        let mut template = stream_of(&chunk_batch(
+            first_id.parse().unwrap(),
+            &[("rerun:iX", &decoy), ("sorbet:version", "0.1")],
+        ));
+        if repeat_key {
+            let at = template
+                .windows(8)
+                .position(|w| w == b"rerun:iX")
+                .expect("the key is in the message");
+            template[at..at + 8].copy_from_slice(b"rerun:id");
+        }
+        let id_at = template
+            .windows(first_id.len())
+            .position(|w| w == first_id.as_bytes())
+            .expect("the id is in the message");
+        for _ in 0..4 {
+            let chunk_id = crate::ChunkId::new().to_string();
+            let mut bytes = template.clone();
+            bytes[id_at..id_at + chunk_id.len()].copy_from_slice(chunk_id.as_bytes());
+            let direct = read_stream_chunks_zero_copy(&Buffer::from(bytes.clone())).unwrap();
+            let batches = without_schema_cache(|| {
+                read_stream_batches_zero_copy(Buffer::from(bytes.clone())).unwrap()
+            });
+            let made = crate::Chunk::from_record_batch(&batches[0]).unwrap();
+            assert_eq!(direct.len(), 1);
+            assert_eq!(
+                direct[0].to_record_batch().unwrap(),
+                made.to_record_batch().unwrap()
+            );
+            let expected_id = batches[0].schema_ref().metadata()["rerun:id"].clone();
+            assert_eq!(direct[0].id().to_string(), expected_id);
+            if !repeat_key {
+                assert_eq!(expected_id, chunk_id);
+            }
+        }
+    }
+    // The first layout was parsed twice (then kept) and came from the cache twice; the
+    // second, of a length seen, was kept at once and came from the cache three times.
+    assert_eq!(schema_cache::counts(), (5, 2));
 }

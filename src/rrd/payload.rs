@@ -62,7 +62,7 @@ pub(crate) fn decode_chunk(
             Buffer::from_vec(decompress(payload.as_slice(), uncompressed_size)?)
         }
     };
-    let mut batches = crate::ipc::read_stream_batches_zero_copy(ipc).map_err(RrdErrorKind::Ipc)?;
+    let mut batches = crate::ipc::read_stream_zero_copy(&ipc).map_err(RrdErrorKind::Ipc)?;
     if batches.len() != 1 {
         return Err(RrdErrorKind::Payload {
             reason: format!(
@@ -74,7 +74,7 @@ pub(crate) fn decode_chunk(
     let batch = batches.pop().ok_or_else(|| RrdErrorKind::Payload {
         reason: "no record batch".to_owned(),
     })?;
-    Chunk::from_record_batch(&batch).map_err(RrdErrorKind::Chunk)
+    batch.into_chunk().map_err(RrdErrorKind::Chunk)
 }
 
 /// One LZ4 block of known decompressed size.
