@@ -1,7 +1,7 @@
 //! The body of the `rrd_decode` fuzz target: arbitrary bytes as an `.rrd` stream, read
 //! three ways (from memory, streamed from a reader, and opened lazily through a footer).
-//! Nothing may panic; the two eager readers must agree item for item (chunk ids and error
-//! offsets); a lazy recording, where the bytes open as one, must answer a latest-at as a
+//! Nothing may panic; the two eager readers (from memory, runs of small chunks decode a
+//! phase at a time) must agree item for item (chunk ids, error offsets and kinds); a lazy recording, where the bytes open as one, must answer a latest-at as a
 //! store holding every chunk its manifest lists does; the chunks then go through
 //! everything a store does ([`super::lifecycle::exercise`]).
 
@@ -76,6 +76,11 @@ fn summary(contents: &RrdContents) -> (Vec<ChunkId>, Vec<u64>, usize, bool) {
     )
 }
 
+/// What kind of error it is (its message can print a hash map, in no set order).
+fn kind_of(error: &rrd::RrdError) -> std::mem::Discriminant<rrd::RrdErrorKind> {
+    std::mem::discriminant(&error.kind)
+}
+
 pub fn rrd_decode(bytes: &[u8]) {
     let from_memory = rrd::read_rrd(Buffer::from(bytes.to_vec()), true);
     let streamed = rrd::read_rrd_from(bytes, true);
@@ -83,11 +88,16 @@ pub fn rrd_decode(bytes: &[u8]) {
         (Ok(a), Ok(b)) => (a, b),
         (Err(a), Err(b)) => {
             assert_eq!(a.offset, b.offset, "{a} / {b}");
+            assert_eq!(kind_of(&a), kind_of(&b), "{a} / {b}");
             return;
         }
         (a, b) => panic!("the readers disagree: {:?} / {:?}", a.err(), b.err()),
     };
+    // From memory, runs of messages decode a phase at a time; streamed, one at a time.
     assert_eq!(summary(&from_memory), summary(&streamed));
+    let kinds =
+        |contents: &RrdContents| -> Vec<_> { contents.errors.iter().map(kind_of).collect() };
+    assert_eq!(kinds(&from_memory), kinds(&streamed));
     for error in &from_memory.errors {
         assert!(error.offset <= bytes.len() as u64, "{error}");
         let _ = error.to_string();

@@ -18,6 +18,8 @@ mod batch_message;
 mod schema_cache;
 mod schema_layout;
 mod stream;
+
+pub(crate) use stream::StreamBatches;
 #[cfg(test)]
 mod tests;
 

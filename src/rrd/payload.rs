@@ -46,7 +46,17 @@ pub(crate) fn decode_chunk(
     compression: Compression,
     uncompressed_size: u64,
 ) -> Result<Chunk, RrdErrorKind> {
-    let ipc = match (compression, payload) {
+    let ipc = ipc_stream_of(payload, compression, uncompressed_size)?;
+    chunk_of_stream(crate::ipc::read_stream_zero_copy(&ipc))
+}
+
+/// A payload's IPC stream: decompressed, or the payload itself (shared where it can be).
+pub(crate) fn ipc_stream_of(
+    payload: PayloadBytes<'_>,
+    compression: Compression,
+    uncompressed_size: u64,
+) -> Result<Buffer, RrdErrorKind> {
+    Ok(match (compression, payload) {
         (Compression::None, PayloadBytes::Shared(buffer))
             if buffer.len() <= REALIGN_WHOLE_MAX && buffer.as_ptr().addr() % REALIGN_TO != 0 =>
         {
@@ -61,8 +71,14 @@ pub(crate) fn decode_chunk(
         (Compression::Lz4, payload) => {
             Buffer::from_vec(decompress(payload.as_slice(), uncompressed_size)?)
         }
-    };
-    let mut batches = crate::ipc::read_stream_zero_copy(&ipc).map_err(RrdErrorKind::Ipc)?;
+    })
+}
+
+/// The one chunk of a payload's decoded IPC stream.
+pub(crate) fn chunk_of_stream(
+    decoded: Result<crate::ipc::StreamBatches<'_>, IpcError>,
+) -> Result<Chunk, RrdErrorKind> {
+    let mut batches = decoded.map_err(RrdErrorKind::Ipc)?;
     if batches.len() != 1 {
         return Err(RrdErrorKind::Payload {
             reason: format!(
@@ -161,9 +177,22 @@ pub(crate) fn decode_message_chunk(
     payload: PayloadBytes<'_>,
     body_at: u64,
 ) -> Result<Chunk, RrdError> {
-    let payload_at = body_at + msg.payload.start as u64;
     let chunk = decode_chunk(payload, msg.compression, msg.uncompressed_size)
-        .map_err(|kind| RrdError::new(payload_at, kind))?;
+        .map_err(|kind| RrdError::new(payload_at(msg, body_at), kind))?;
+    check_message_chunk(msg, chunk, body_at)
+}
+
+/// Where a message's payload starts, for its errors.
+pub(crate) fn payload_at(msg: &ArrowMsg, body_at: u64) -> u64 {
+    body_at + msg.payload.start as u64
+}
+
+/// The chunk of a message, checked against what the message says of it.
+pub(crate) fn check_message_chunk(
+    msg: &ArrowMsg,
+    chunk: Chunk,
+    body_at: u64,
+) -> Result<Chunk, RrdError> {
     let mismatch = |reason| RrdError::new(body_at, RrdErrorKind::Payload { reason });
     if let Some(is_static) = msg.is_static
         && is_static != chunk.is_static()

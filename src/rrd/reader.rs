@@ -15,6 +15,23 @@ use super::messages::{ArrowMsg, StoreId, StoreInfo, StoreKind};
 use super::payload;
 use crate::{Chunk, ChunkId};
 
+/// How many `ArrowMsg`s of an input buffer are decoded together, a phase at a time.
+const RUN_MESSAGES: usize = 64;
+
+/// A message body larger than this is decoded on its own: a run is for small chunks,
+/// whose decoding is bound by its code (a large one's by its data), and a run holds all
+/// its decoded payloads at once.
+const RUN_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// The most decompressed payload bytes (as their messages claim) a run decodes at once.
+const RUN_DECODED_BYTES: u64 = 1 << 20;
+
+#[cfg(test)]
+thread_local! {
+    /// Messages this thread decoded in runs (for tests).
+    static RUN_DECODED: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
 /// What an `.rrd` stream holds, item by item.
 #[derive(Debug)]
 #[non_exhaustive]
@@ -120,6 +137,9 @@ pub struct RrdReader<R> {
     scratch: Vec<u8>,
     /// The last `End` message's body: where it started, and its bytes.
     end_message: Option<(u64, Vec<u8>)>,
+    /// What the messages of a run decoded a phase at a time gave, in stream order, not yet
+    /// returned (see [`RrdReader::decode_run`]).
+    ahead: std::collections::VecDeque<Result<Option<RrdItem>, RrdError>>,
     done: bool,
 }
 
@@ -161,6 +181,7 @@ impl<R: Read> RrdReader<R> {
             seen_stores: Vec::new(),
             scratch: Vec::new(),
             end_message: None,
+            ahead: std::collections::VecDeque::new(),
             done: false,
         };
         reader.header = reader.read_stream_header()?;
@@ -172,7 +193,9 @@ impl<R: Read> RrdReader<R> {
         self.header
     }
 
-    /// Bytes consumed so far.
+    /// Bytes consumed so far. A reader over a buffer reads a run of small chunks' messages
+    /// at once (they decode a phase at a time), so this may be ahead of the last item
+    /// returned by up to 64 such messages.
     pub fn position(&self) -> u64 {
         self.position
     }
@@ -326,6 +349,9 @@ impl<R: Read> RrdReader<R> {
 
     /// Reads one message; `Ok(None)` for one that yields nothing (a stream's end).
     fn step(&mut self) -> Result<Option<RrdItem>, RrdError> {
+        if let Some(decoded) = self.ahead.pop_front() {
+            return decoded;
+        }
         if self.end_message.is_some() {
             return self.after_end();
         }
@@ -355,9 +381,171 @@ impl<R: Read> RrdReader<R> {
             return Err(RrdError::new(at, RrdErrorKind::UnknownMessageKind { kind }));
         };
         let body = self.read_body(len, "message body")?;
+        if kind == MessageKind::ArrowMsg
+            && let Body::Shared(first) = &body
+            && let Some(next) = self.take_buffered_arrow_msg()
+        {
+            let mut run = vec![(first.clone(), body_at), next];
+            while run.len() < RUN_MESSAGES
+                && let Some(next) = self.take_buffered_arrow_msg()
+            {
+                run.push(next);
+            }
+            self.decode_run(&run);
+            return self.ahead.pop_front().unwrap_or(Ok(None));
+        }
         let item = self.decode_message(kind, &body, body_at);
         self.recycle(body);
         item
+    }
+
+    /// The next message, taken from the input, if it is an `ArrowMsg` lying whole in an
+    /// input buffer, with a body of at most [`RUN_MESSAGE_BYTES`]; else nothing is taken
+    /// (`step` reads it, and reports its faults, as any other message).
+    fn take_buffered_arrow_msg(&mut self) -> Option<(Buffer, u64)> {
+        let Input::Buffer(buffer) = &mut self.input else {
+            return None;
+        };
+        if !self.pushback.is_empty() {
+            return None;
+        }
+        let header: &[u8; MESSAGE_HEADER_LEN] = buffer
+            .as_slice()
+            .get(..MESSAGE_HEADER_LEN)?
+            .try_into()
+            .ok()?;
+        let (kind, len) = frames::parse_message_header(header);
+        let len = usize::try_from(len)
+            .ok()
+            .filter(|&len| len <= RUN_MESSAGE_BYTES)?;
+        if MessageKind::from_u64(kind) != Some(MessageKind::ArrowMsg)
+            || buffer.len() - MESSAGE_HEADER_LEN < len
+        {
+            return None;
+        }
+        let body = buffer.slice_with_length(MESSAGE_HEADER_LEN, len);
+        *buffer = buffer.slice(MESSAGE_HEADER_LEN + len);
+        let body_at = self.position + MESSAGE_HEADER_LEN as u64;
+        self.position = body_at + len as u64;
+        Some((body, body_at))
+    }
+
+    /// Decodes a run of `ArrowMsg` bodies (each with where it starts) a phase at a time:
+    /// every protobuf, then every payload's LZ4, then every IPC stream, then every chunk,
+    /// queueing each message's item or error in stream order. Each phase's code then stays
+    /// in the instruction cache across the run, where one message at a time ran through
+    /// more code than it holds (`docs/PERFORMANCE.md`, "`.rrd` files"). The answers are
+    /// those of decoding each message on its own: no phase of one message reads another's.
+    fn decode_run(&mut self, run: &[(Buffer, u64)]) {
+        #[cfg(test)]
+        RUN_DECODED.with(|count| count.set(count.get() + run.len()));
+        // Phases past the protobuf go a group at a time, so that the payloads decoded at
+        // once stay small whatever the messages claim.
+        let mut group = Vec::with_capacity(run.len());
+        let mut group_bytes = 0u64;
+        for (body, body_at) in run {
+            let message = self.arrow_msg_of(body, *body_at);
+            let bytes = match &message {
+                Ok(Some((msg, _))) => msg.uncompressed_size,
+                Ok(None) | Err(_) => 0,
+            };
+            if !group.is_empty() && group_bytes.saturating_add(bytes) > RUN_DECODED_BYTES {
+                self.decode_group(std::mem::take(&mut group));
+                group_bytes = 0;
+            }
+            group_bytes = group_bytes.saturating_add(bytes);
+            group.push((message, *body_at));
+        }
+        self.decode_group(group);
+    }
+
+    /// Decodes a group of a run's messages (each decoded as a protobuf, with where its
+    /// body starts) a phase at a time: every payload's LZ4, then every IPC stream, then
+    /// every chunk, queueing each message's item or error.
+    #[allow(
+        clippy::type_complexity,
+        reason = "each message's protobuf (or why it has none), as the run's first phase left it"
+    )]
+    fn decode_group(&mut self, group: Vec<(Result<Option<(ArrowMsg, Buffer)>, RrdError>, u64)>) {
+        // Each message's IPC stream, or why it has none.
+        let mut streams: Vec<Option<Buffer>> = Vec::with_capacity(group.len());
+        let mut failures: Vec<Option<RrdError>> = Vec::with_capacity(group.len());
+        for (message, body_at) in &group {
+            let (stream, failure) = match message {
+                Ok(Some((msg, payload))) => {
+                    let payload = payload::PayloadBytes::Shared(payload.clone());
+                    match payload::ipc_stream_of(payload, msg.compression, msg.uncompressed_size) {
+                        Ok(stream) => (Some(stream), None),
+                        Err(kind) => (
+                            None,
+                            Some(RrdError::new(payload::payload_at(msg, *body_at), kind)),
+                        ),
+                    }
+                }
+                Ok(None) | Err(_) => (None, None),
+            };
+            streams.push(stream);
+            failures.push(failure);
+        }
+        for (((message, body_at), failure), stream) in group.into_iter().zip(failures).zip(streams)
+        {
+            let item = match message {
+                Err(error) => Err(error),
+                Ok(None) => Ok(Some(RrdItem::SkippedBlueprint { offset: body_at })),
+                Ok(Some((msg, _))) => match (failure, stream) {
+                    (Some(error), _) => Err(error),
+                    (None, Some(stream)) => {
+                        payload::chunk_of_stream(crate::ipc::read_stream_zero_copy(&stream))
+                            .map_err(|kind| RrdError::new(payload::payload_at(&msg, body_at), kind))
+                            .and_then(|chunk| payload::check_message_chunk(&msg, chunk, body_at))
+                            .map(|chunk| Some(self.chunk_item(msg, chunk, body_at)))
+                    }
+                    // A payload without a failure has its stream: not reached.
+                    (None, None) => Ok(None),
+                },
+            };
+            self.ahead.push_back(item);
+        }
+    }
+
+    /// An `ArrowMsg` body's message and payload; `None` for a blueprint's.
+    fn arrow_msg_of(
+        &self,
+        body: &Buffer,
+        body_at: u64,
+    ) -> Result<Option<(ArrowMsg, Buffer)>, RrdError> {
+        let msg = ArrowMsg::decode(body.as_slice())
+            .map_err(|(offset, kind)| RrdError::new(body_at + offset as u64, kind))?;
+        if self.kind_of(&msg.store_id) != StoreKind::Recording {
+            return Ok(None);
+        }
+        let payload = body.slice_with_length(msg.payload.start, msg.payload.len());
+        Ok(Some((msg, payload)))
+    }
+
+    /// The kind of a store: as its store info said, else as its id says.
+    fn kind_of(&self, store_id: &StoreId) -> StoreKind {
+        self.store_kinds
+            .get(store_id)
+            .copied()
+            .unwrap_or(store_id.kind)
+    }
+
+    /// A decoded chunk's item, its store and place noted for the footer's check.
+    fn chunk_item(&mut self, msg: ArrowMsg, chunk: Chunk, body_at: u64) -> RrdItem {
+        let store = if let Some(store) = self.seen_stores.iter().position(|s| *s == msg.store_id) {
+            store
+        } else {
+            self.seen_stores.push(msg.store_id.clone());
+            self.seen_stores.len() - 1
+        };
+        self.seen
+            .push((chunk.id(), store, body_at - self.stream_start));
+        RrdItem::Chunk {
+            store_id: msg.store_id,
+            chunk,
+            offset: body_at,
+        }
     }
 
     fn decode_message(
@@ -378,12 +566,7 @@ impl<R: Read> RrdReader<R> {
             }
             MessageKind::ArrowMsg => {
                 let msg = ArrowMsg::decode(bytes).map_err(within)?;
-                let kind = self
-                    .store_kinds
-                    .get(&msg.store_id)
-                    .copied()
-                    .unwrap_or(msg.store_id.kind);
-                if kind != StoreKind::Recording {
+                if self.kind_of(&msg.store_id) != StoreKind::Recording {
                     return Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }));
                 }
                 let payload = match body {
@@ -395,20 +578,7 @@ impl<R: Read> RrdReader<R> {
                     }
                 };
                 let chunk = payload::decode_message_chunk(&msg, payload, body_at)?;
-                let store =
-                    if let Some(store) = self.seen_stores.iter().position(|s| *s == msg.store_id) {
-                        store
-                    } else {
-                        self.seen_stores.push(msg.store_id.clone());
-                        self.seen_stores.len() - 1
-                    };
-                self.seen
-                    .push((chunk.id(), store, body_at - self.stream_start));
-                Ok(Some(RrdItem::Chunk {
-                    store_id: msg.store_id,
-                    chunk,
-                    offset: body_at,
-                }))
+                Ok(Some(self.chunk_item(msg, chunk, body_at)))
             }
             MessageKind::BlueprintActivationCommand => {
                 Ok(Some(RrdItem::SkippedBlueprint { offset: body_at }))
@@ -677,5 +847,155 @@ mod tests {
             RrdErrorKind::UnknownMessageKind { kind: 99 }
         ));
         assert_eq!(contents.store_infos.len(), 1);
+    }
+
+    /// A small chunk of entity `/e{i}`.
+    fn small_chunk(i: u32) -> Chunk {
+        let value = Arc::new(arrow_array::Float64Array::from(vec![f64::from(i)])) as ArrayRef;
+        crate::ChunkBuilder::new(
+            ChunkId::new(),
+            crate::EntityPath::parse(&format!("/e{}", i % 3)).unwrap(),
+        )
+        .with_row(
+            crate::RowId::new(),
+            [(crate::Timeline::sequence("frame"), i64::from(i))],
+            [("x", value)],
+        )
+        .build()
+        .unwrap()
+    }
+
+    /// A one-row chunk whose cell holds `len` zeros.
+    fn zeros_chunk(len: usize) -> Chunk {
+        let values = arrow_array::Float64Array::from(vec![0.0; len]);
+        let cell = Arc::new(arrow_array::ListArray::new(
+            Arc::new(arrow_schema::Field::new(
+                "item",
+                arrow_schema::DataType::Float64,
+                true,
+            )),
+            arrow_buffer::OffsetBuffer::from_lengths([len]),
+            Arc::new(values),
+            None,
+        )) as ArrayRef;
+        crate::ChunkBuilder::new(ChunkId::new(), crate::EntityPath::parse("/zeros").unwrap())
+            .with_row(
+                crate::RowId::new(),
+                [(crate::Timeline::sequence("frame"), 0)],
+                [("x", cell)],
+            )
+            .build()
+            .unwrap()
+    }
+
+    /// What a read gave, to compare: chunk ids with their stores, errors with their
+    /// offsets and messages, store infos, blueprint messages skipped.
+    fn outcome(contents: &RrdContents) -> (Vec<(String, ChunkId)>, Vec<String>, usize, usize) {
+        (
+            contents
+                .chunks
+                .iter()
+                .map(|(store, chunk)| (store.recording_id.clone(), chunk.id()))
+                .collect(),
+            contents
+                .errors
+                .iter()
+                .map(|e| format!("{} {e}", e.offset))
+                .collect(),
+            contents.store_infos.len(),
+            contents.skipped_blueprint_messages,
+        )
+    }
+
+    /// A buffer's runs of `ArrowMsg`s are decoded a phase at a time; each message gives
+    /// what it gives read alone (as a streamed reader reads it), in stream order: chunks,
+    /// errors inside a run (a bad protobuf, corrupt LZ4, a payload that is not a chunk, an
+    /// id the payload contradicts), blueprint chunks, a second store, and a store info
+    /// between runs that makes a recording's later chunks a blueprint's.
+    #[test]
+    fn runs_decode_as_their_messages_do_one_at_a_time() {
+        let store = StoreId::recording("app", "rec");
+        let other = StoreId::recording("app", "other");
+        let blueprint = StoreId {
+            kind: StoreKind::Blueprint,
+            ..StoreId::recording("app", "blueprint")
+        };
+        let mut messages = Vec::new();
+        for i in 0..150 {
+            let id = match i % 7 {
+                3 => &other,
+                5 if i > 60 => &blueprint,
+                _ => &store,
+            };
+            // A few payloads of 1.6 MB that compress to a few kilobytes: a run decodes
+            // them in groups of their own.
+            let zeros = (40..43).contains(&i);
+            let chunk = if zeros {
+                zeros_chunk(200_000)
+            } else {
+                small_chunk(i)
+            };
+            let (mut body, _) = payload::encode_arrow_msg(id, &chunk, zeros || i % 2 == 0).unwrap();
+            match i {
+                // Garbage for a protobuf, a payload's bytes flipped (corrupt LZ4 or IPC).
+                10 => body = vec![0x0f, 0xff, 0xff],
+                20 | 21 => {
+                    let at = body.len() - 30;
+                    body[at] ^= 0xff;
+                    body[at + 1] ^= 0x55;
+                }
+                // The message names another chunk than its payload holds.
+                30 => {
+                    let (claimed, _) =
+                        payload::encode_arrow_msg(id, &small_chunk(i), true).unwrap();
+                    let msg = ArrowMsg::decode(&body).unwrap();
+                    let other_id = ArrowMsg::decode(&claimed).unwrap().chunk_id.unwrap();
+                    body = ArrowMsg::encode(
+                        &msg.store_id,
+                        other_id,
+                        false,
+                        msg.compression,
+                        msg.uncompressed_size,
+                        &body[msg.payload.clone()],
+                    );
+                }
+                _ => {}
+            }
+            messages.push((MessageKind::ArrowMsg, body));
+            if i == 100 {
+                // From here on, "other" is a blueprint.
+                let mut info = StoreInfo::new(other.clone());
+                info.store_id.kind = StoreKind::Blueprint;
+                messages.push((MessageKind::SetStoreInfo, info.encode_set_store_info(2)));
+            }
+            if i == 120 {
+                messages.push((MessageKind::BlueprintActivationCommand, Vec::new()));
+            }
+        }
+        let bytes = stream(&messages);
+        let before = RUN_DECODED.with(std::cell::Cell::get);
+        let in_runs = read_rrd(Buffer::from(bytes.clone()), true).unwrap();
+        // All but the messages that end a run early (after a store info or a blueprint
+        // activation, each of which is read on its own).
+        assert!(RUN_DECODED.with(std::cell::Cell::get) - before > 140);
+        assert!(
+            in_runs
+                .chunks
+                .iter()
+                .any(|(_, c)| c.entity_path().to_string() == "/zeros")
+        );
+        let one_at_a_time = read_rrd_from(bytes.as_slice(), true).unwrap();
+        assert_eq!(outcome(&in_runs), outcome(&one_at_a_time));
+        let (chunks, errors, infos, skipped) = outcome(&in_runs);
+        assert!(chunks.len() > 120, "{}", chunks.len());
+        assert!(errors.len() >= 4, "{errors:?}");
+        assert_eq!(infos, 2);
+        assert!(skipped > 10, "{skipped}");
+        assert!(chunks.iter().any(|(store, _)| store == "other"));
+        // Without keep-going, the first error stops both at the same message.
+        let strict = read_rrd(Buffer::from(bytes.clone()), false).unwrap_err();
+        let strict_streamed = read_rrd_from(bytes.as_slice(), false).unwrap_err();
+        assert_eq!(strict.to_string(), strict_streamed.to_string());
+        assert_eq!(strict.offset, strict_streamed.offset);
     }
 }
