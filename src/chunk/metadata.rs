@@ -17,6 +17,15 @@ thread_local! {
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub(crate) struct Metadata(Option<Arc<HashMap<String, String>>>);
 
+/// A string map's entries as `&str` pairs, as [`Metadata::kept_of`] and
+/// `Chunk::from_transport_parts` take them.
+pub(crate) fn str_entries(
+    map: &HashMap<String, String>,
+) -> impl Iterator<Item = (&str, &str)> + Clone {
+    map.iter()
+        .map(|(key, value)| (key.as_str(), value.as_str()))
+}
+
 impl Metadata {
     /// The entries of `map` that `keep` keeps: nothing is allocated when none is
     /// (decoding copies a schema's and each time field's metadata, usually all dropped),
@@ -25,11 +34,7 @@ impl Metadata {
     /// into each), so its chunks then hold one map, and comparing two of their layouts
     /// compares one pointer.
     pub(crate) fn kept(map: &HashMap<String, String>, keep: impl Fn(&str, &str) -> bool) -> Self {
-        Self::kept_of(
-            &map.iter()
-                .map(|(key, value)| (key.as_str(), value.as_str())),
-            keep,
-        )
+        Self::kept_of(&str_entries(map), keep)
     }
 
     /// [`Metadata::kept`] of entries given one by one, their keys unique (a schema's

@@ -25,6 +25,7 @@ pub(crate) use component_column::ComponentTimeBounds;
 use component_column::RawComponentColumn;
 pub use error::ChunkError;
 use metadata::Metadata;
+pub(crate) use metadata::str_entries;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;
 use time_column::{RawTimeColumn, RawTimes};
@@ -84,9 +85,6 @@ pub struct Chunk {
     memory: memory::ChunkMemory,
 }
 
-/// Every component name is non-empty and appears once. A set for many columns (a chunk
-/// may have 100,000); for the few most chunks have, comparing each with those before it
-/// costs less than making the set (a merge of one-row chunks builds a chunk per 16 rows).
 /// A chunk's time columns before validation: most chunks have one or two timelines, so
 /// they stay inline (a one-row chunk's decode allocates little besides its arrays).
 type RawTimeColumns = SmallVec<[RawTimeColumn; 2]>;
@@ -94,6 +92,9 @@ type RawTimeColumns = SmallVec<[RawTimeColumn; 2]>;
 /// A chunk's component columns before validation, inline for a few.
 type RawComponentColumns = SmallVec<[RawComponentColumn; 4]>;
 
+/// Every component name is non-empty and appears once. A set for many columns (a chunk
+/// may have 100,000); for the few most chunks have, comparing each with those before it
+/// costs less than making the set (a merge of one-row chunks builds a chunk per 16 rows).
 fn check_component_names(raw_components: &[RawComponentColumn]) -> Result<(), ChunkError> {
     const FEW_COLUMNS: usize = 16;
     let names = raw_components

@@ -293,10 +293,7 @@ impl Chunk {
         let schema = batch.schema_ref();
         Self::from_transport_parts(
             schema.fields(),
-            &schema
-                .metadata()
-                .iter()
-                .map(|(key, value)| (key.as_str(), value.as_str())),
+            &super::metadata::str_entries(schema.metadata()),
             batch.columns().iter().cloned(),
         )
     }

@@ -56,10 +56,7 @@ impl BatchSchema<'_> {
 impl StreamBatch<'_> {
     /// The batch as a `RecordBatch`.
     pub(crate) fn into_record_batch(self) -> Result<RecordBatch, IpcError> {
-        let schema = match self.schema {
-            BatchSchema::Parsed(schema) => schema,
-            BatchSchema::Cached(cached) => cached.to_schema(),
-        };
+        let schema = self.schema.full();
         let options = RecordBatchOptions::new().with_row_count(Some(self.rows));
         RecordBatch::try_new_with_options(schema, self.columns.into_vec(), &options)
             .map_err(IpcError::Ipc)
@@ -71,10 +68,7 @@ impl StreamBatch<'_> {
         match &self.schema {
             BatchSchema::Parsed(schema) => Chunk::from_transport_parts(
                 schema.fields(),
-                &schema
-                    .metadata()
-                    .iter()
-                    .map(|(key, value)| (key.as_str(), value.as_str())),
+                &crate::chunk::str_entries(schema.metadata()),
                 self.columns,
             ),
             BatchSchema::Cached(cached) => Chunk::from_transport_parts(
