@@ -74,18 +74,17 @@ fn decode_both_ways(stream: &[u8]) {
     }
 }
 
+/// `a` and `b` are the same chunk: id, entity and every column (`what` says otherwise).
+fn assert_same_chunk(a: &Chunk, b: &Chunk, what: &str) {
+    assert_eq!(a.id(), b.id());
+    assert_eq!(a.entity_path(), b.entity_path());
+    assert_eq!(a.to_record_batch().ok(), b.to_record_batch().ok(), "{what}");
+}
+
 /// The chunks of two equal batches are equal, or fail alike.
 fn chunks_agree(a: &RecordBatch, b: &RecordBatch) {
     match (Chunk::from_record_batch(a), Chunk::from_record_batch(b)) {
-        (Ok(a), Ok(b)) => {
-            assert_eq!(a.id(), b.id());
-            assert_eq!(a.entity_path(), b.entity_path());
-            assert_eq!(
-                a.to_record_batch().ok(),
-                b.to_record_batch().ok(),
-                "a kept layout changed a chunk"
-            );
-        }
+        (Ok(a), Ok(b)) => assert_same_chunk(&a, &b, "a kept layout changed a chunk"),
         (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
         (a, b) => panic!(
             "one chunk decoded, the other did not: {:?} / {:?}",
@@ -112,13 +111,7 @@ fn direct_chunks_agree(
         (Ok(direct), Ok(Ok(made))) => {
             assert_eq!(direct.len(), made.len());
             for (a, b) in direct.iter().zip(&made) {
-                assert_eq!(a.id(), b.id());
-                assert_eq!(a.entity_path(), b.entity_path());
-                assert_eq!(
-                    a.to_record_batch().ok(),
-                    b.to_record_batch().ok(),
-                    "a chunk decoded straight from the stream differs"
-                );
+                assert_same_chunk(a, b, "a chunk decoded straight from the stream differs");
             }
         }
         (Err(IpcError::Chunk { batch, source }), Ok(Err((made_batch, made_error)))) => {

@@ -26,6 +26,10 @@ const RUN_MESSAGE_BYTES: usize = 64 * 1024;
 /// The most decompressed payload bytes (as their messages claim) a run decodes at once.
 const RUN_DECODED_BYTES: u64 = 1 << 20;
 
+/// A message of a run between phases: its protobuf with its payload (after LZ4, its IPC
+/// stream), `None` for a blueprint's, or the error that ends its decoding.
+type RunMessage = Result<Option<(ArrowMsg, Buffer)>, RrdError>;
+
 #[cfg(test)]
 thread_local! {
     /// Messages this thread decoded in runs (for tests).
@@ -383,6 +387,7 @@ impl<R: Read> RrdReader<R> {
         let body = self.read_body(len, "message body")?;
         if kind == MessageKind::ArrowMsg
             && let Body::Shared(first) = &body
+            && first.len() <= RUN_MESSAGE_BYTES
             && let Some(next) = self.take_buffered_arrow_msg()
         {
             let mut run = vec![(first.clone(), body_at), next];
@@ -463,58 +468,47 @@ impl<R: Read> RrdReader<R> {
     /// body starts) a phase at a time: every payload's LZ4, then each IPC stream into its
     /// chunk (apart, the two phases cost more in the allocator than they saved in the
     /// instruction cache), queueing each message's item or error.
-    #[allow(
-        clippy::type_complexity,
-        reason = "each message's protobuf (or why it has none), as the run's first phase left it"
-    )]
-    fn decode_group(&mut self, group: Vec<(Result<Option<(ArrowMsg, Buffer)>, RrdError>, u64)>) {
-        // Each message's IPC stream, or why it has none.
-        let mut streams: Vec<Option<Buffer>> = Vec::with_capacity(group.len());
-        let mut failures: Vec<Option<RrdError>> = Vec::with_capacity(group.len());
-        for (message, body_at) in &group {
-            let (stream, failure) = match message {
-                Ok(Some((msg, payload))) => {
-                    let payload = payload::PayloadBytes::Shared(payload.clone());
-                    match payload::ipc_stream_of(payload, msg.compression, msg.uncompressed_size) {
-                        Ok(stream) => (Some(stream), None),
-                        Err(kind) => (
-                            None,
-                            Some(RrdError::new(payload::payload_at(msg, *body_at), kind)),
-                        ),
+    fn decode_group(&mut self, group: Vec<(RunMessage, u64)>) {
+        // Each message with its payload's IPC stream in place of the payload.
+        let streams: Vec<(RunMessage, u64)> = group
+            .into_iter()
+            .map(|(message, body_at)| {
+                let stream = match message {
+                    Ok(Some((msg, payload))) => {
+                        let payload = payload::PayloadBytes::Shared(payload);
+                        match payload::ipc_stream_of(
+                            payload,
+                            msg.compression,
+                            msg.uncompressed_size,
+                        ) {
+                            Ok(stream) => Ok(Some((msg, stream))),
+                            Err(kind) => {
+                                Err(RrdError::new(payload::payload_at(&msg, body_at), kind))
+                            }
+                        }
                     }
-                }
-                Ok(None) | Err(_) => (None, None),
-            };
-            streams.push(stream);
-            failures.push(failure);
-        }
-        for (((message, body_at), failure), stream) in group.into_iter().zip(failures).zip(streams)
-        {
-            let item = match message {
+                    other => other,
+                };
+                (stream, body_at)
+            })
+            .collect();
+        for (stream, body_at) in streams {
+            let item = match stream {
                 Err(error) => Err(error),
                 Ok(None) => Ok(Some(RrdItem::SkippedBlueprint { offset: body_at })),
-                Ok(Some((msg, _))) => match (failure, stream) {
-                    (Some(error), _) => Err(error),
-                    (None, Some(stream)) => {
-                        payload::chunk_of_stream(crate::ipc::read_stream_zero_copy(&stream))
-                            .map_err(|kind| RrdError::new(payload::payload_at(&msg, body_at), kind))
-                            .and_then(|chunk| payload::check_message_chunk(&msg, chunk, body_at))
-                            .map(|chunk| Some(self.chunk_item(msg, chunk, body_at)))
-                    }
-                    // A payload without a failure has its stream: not reached.
-                    (None, None) => Ok(None),
-                },
+                Ok(Some((msg, stream))) => {
+                    payload::chunk_of_stream(crate::ipc::read_stream_zero_copy(&stream))
+                        .map_err(|kind| RrdError::new(payload::payload_at(&msg, body_at), kind))
+                        .and_then(|chunk| payload::check_message_chunk(&msg, chunk, body_at))
+                        .map(|chunk| Some(self.chunk_item(msg, chunk, body_at)))
+                }
             };
             self.ahead.push_back(item);
         }
     }
 
     /// An `ArrowMsg` body's message and payload; `None` for a blueprint's.
-    fn arrow_msg_of(
-        &self,
-        body: &Buffer,
-        body_at: u64,
-    ) -> Result<Option<(ArrowMsg, Buffer)>, RrdError> {
+    fn arrow_msg_of(&self, body: &Buffer, body_at: u64) -> RunMessage {
         let msg = ArrowMsg::decode(body.as_slice())
             .map_err(|(offset, kind)| RrdError::new(body_at + offset as u64, kind))?;
         if self.kind_of(&msg.store_id) != StoreKind::Recording {
