@@ -25,6 +25,7 @@ pub(crate) use component_column::ComponentTimeBounds;
 use component_column::RawComponentColumn;
 pub use error::ChunkError;
 use metadata::Metadata;
+#[cfg(feature = "ipc")]
 pub(crate) use metadata::str_entries;
 pub(crate) use rewrite::RowSource;
 pub use time_column::TimeColumn;

@@ -19,6 +19,7 @@ mod schema_cache;
 mod schema_layout;
 mod stream;
 
+#[cfg(feature = "rrd")]
 pub(crate) use stream::StreamBatches;
 #[cfg(test)]
 mod tests;
