@@ -146,6 +146,17 @@ impl<K: Ord + Copy> OrderedSet<K> {
     }
 }
 
+impl<K: Ord + Copy> OrderedSet<K> {
+    /// The set of `keys`, in any order: one sort, where inserting them one by one into a
+    /// B-tree searches it per key (a rebuild of the store-wide orders; see
+    /// [`crate::ChunkStore`]'s `restore_global_orders`).
+    pub fn from_keys(mut keys: Vec<K>) -> Self {
+        keys.sort_unstable();
+        keys.dedup();
+        Self::Deque(keys.into())
+    }
+}
+
 impl<K: Ord + Copy> PartialEq for OrderedSet<K> {
     fn eq(&self, other: &Self) -> bool {
         self.iter().eq(other.iter())

@@ -180,6 +180,18 @@ impl<K: SmallMapKey, V> SmallMap<K, V> {
         }
     }
 
+    /// The entries, taken out, in no particular order.
+    pub fn into_entries(self) -> Box<dyn Iterator<Item = (K, V)>>
+    where
+        K: 'static,
+        V: 'static,
+    {
+        match self {
+            Self::Few(entries) => Box::new(entries.into_iter()),
+            Self::Many(map) => Box::new(map.into_iter()),
+        }
+    }
+
     /// The values, in no particular order.
     pub fn values(&self) -> impl Iterator<Item = &V> + '_ {
         self.iter().map(|(_, v)| v)

@@ -139,6 +139,9 @@ impl ChunkStore {
     }
 
     fn insert_in_global_orders(&mut self, chunk: &Chunk) {
+        if self.global_orders_set_aside {
+            return; // the chunk's mark is what `restore_global_orders` reads
+        }
         let id = chunk.id();
         self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
         for column in chunk.time_columns() {
@@ -150,6 +153,58 @@ impl ChunkStore {
             per_timeline.by_min_time.insert((min, id));
             per_timeline.by_max_time.insert((max, id));
         }
+    }
+
+    /// Empties the store-wide orders and stops keeping them, for a mutation that moves so
+    /// many chunks that sorting all of them again costs less than moving each through
+    /// the orders' B-trees (an on-demand compaction that rewrites most of the store: a
+    /// removal and an insertion in each of three B-trees per piece were a third of it).
+    /// Chunks keep their [`StoredChunk::in_global_orders`] marks meanwhile; nothing may
+    /// read the orders until [`ChunkStore::restore_global_orders`], which the mutation
+    /// calls before it ends.
+    pub(crate) fn set_global_orders_aside(&mut self) {
+        self.temporal_by_row_id = crate::ordered::OrderedSet::default();
+        self.temporal_per_timeline = SmallMap::default();
+        self.global_orders_set_aside = true;
+    }
+
+    /// Makes the store-wide orders again from the marks of the chunks the store holds, if
+    /// they were [set aside](ChunkStore::set_global_orders_aside): one pass over the chunk
+    /// map and one sort per order.
+    pub(crate) fn restore_global_orders(&mut self) {
+        type Keys = Vec<(crate::TimeInt, ChunkId)>;
+        if !std::mem::take(&mut self.global_orders_set_aside) {
+            return;
+        }
+        let mut by_row_id = Vec::with_capacity(self.chunks.len());
+        let mut per_timeline: SmallMap<Arc<str>, (Keys, Keys)> = SmallMap::default();
+        for stored in self.chunks.values() {
+            let chunk = &stored.chunk;
+            if !stored.in_global_orders || chunk.is_static() {
+                continue;
+            }
+            let id = chunk.id();
+            by_row_id.push((chunk.row_id_range().0, id));
+            for column in chunk.time_columns() {
+                let bounds = column.time_range();
+                let (by_min, by_max) =
+                    per_timeline.get_or_default(Arc::clone(column.timeline().name_arc()));
+                by_min.push((bounds.min(), id));
+                by_max.push((bounds.max(), id));
+            }
+        }
+        self.temporal_by_row_id = crate::ordered::OrderedSet::from_keys(by_row_id);
+        let mut orders = SmallMap::default();
+        for (name, (by_min, by_max)) in per_timeline.into_entries() {
+            orders.insert(
+                name,
+                super::TimelineChunks {
+                    by_min_time: crate::ordered::OrderedSet::from_keys(by_min),
+                    by_max_time: crate::ordered::OrderedSet::from_keys(by_max),
+                },
+            );
+        }
+        self.temporal_per_timeline = orders;
     }
 
     /// Puts a temporal chunk left out of the store-wide orders into them (a chunk
@@ -277,6 +332,7 @@ impl ChunkStore {
                 &mut self.temporal_by_row_id,
                 &mut self.temporal_per_timeline,
                 &mut self.num_outside_global_orders,
+                self.global_orders_set_aside,
                 chunk,
             );
         }
@@ -371,6 +427,7 @@ impl ChunkStore {
                         &mut self.temporal_by_row_id,
                         &mut self.temporal_per_timeline,
                         &mut self.num_outside_global_orders,
+                        self.global_orders_set_aside,
                         &stored,
                     );
                 }
@@ -448,16 +505,20 @@ pub(crate) enum Holding {
     OutOfGlobalOrders,
 }
 
-/// Takes a temporal chunk out of the store-wide orders, or, if compaction kept it out of
+/// Takes a temporal chunk out of the store-wide orders (unless they are
+/// [set aside](ChunkStore::set_global_orders_aside)), or, if compaction kept it out of
 /// them, out of the count of those outside.
 fn leave_global_orders(
     by_row_id: &mut crate::ordered::OrderedSet<(crate::RowId, ChunkId)>,
     per_timeline: &mut SmallMap<Arc<str>, super::TimelineChunks>,
     num_outside: &mut usize,
+    set_aside: bool,
     stored: &StoredChunk,
 ) {
     if stored.in_global_orders {
-        remove_from_global_orders(by_row_id, per_timeline, &stored.chunk);
+        if !set_aside {
+            remove_from_global_orders(by_row_id, per_timeline, &stored.chunk);
+        }
     } else {
         *num_outside -= 1;
     }

@@ -85,6 +85,9 @@ pub struct ChunkStore {
     pub(crate) temporal_per_timeline: SmallMap<Arc<str>, TimelineChunks>,
     /// Temporal chunks outside the store-wide orders (see [`StoredChunk::in_global_orders`]).
     pub(crate) num_outside_global_orders: usize,
+    /// Are the store-wide orders set aside, empty, while one mutation moves most chunks
+    /// ([`ChunkStore::set_global_orders_aside`])? Never between mutations.
+    pub(crate) global_orders_set_aside: bool,
     /// How many rewrites `compact()` has made (it numbers them; see [`RewriteMark`]).
     pub(crate) num_rewrites: u64,
     pub(crate) ledgers: StoreLedgers,

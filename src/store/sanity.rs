@@ -58,8 +58,15 @@ impl ChunkStore {
             temporal_by_row_id,
             temporal_per_timeline,
             num_outside_global_orders,
+            global_orders_set_aside,
             ..
         } = self;
+        ensure(
+            !global_orders_set_aside,
+            Structure::Store,
+            "the store-wide orders are kept between mutations (a mutation that sets them \
+             aside restores them before it ends)",
+        )?;
         if outside_global_orders != *num_outside_global_orders {
             return Err(SanityError::new(
                 Structure::Store,
@@ -130,6 +137,7 @@ impl ChunkStore {
             temporal_by_row_id: _,        // checked by `check_global_orders`
             temporal_per_timeline: _,     // checked by `check_global_orders`
             num_outside_global_orders: _, // checked by `check_global_orders`
+            global_orders_set_aside: _,   // checked by `check_global_orders`
             num_rewrites: _,              // bounds the marks, checked by `recount`
             ledgers: kept_ledgers,
             num_mutations: _, // a count of calls: nothing to check it against

@@ -275,6 +275,53 @@ fn compact_rewrites_a_fragmented_store_and_then_has_nothing_to_do() {
     assert!(store.compact().is_empty());
 }
 
+/// A compaction that rewrites most of the store sets the store-wide orders aside and
+/// rebuilds them once at the end: they must hold exactly the chunks they held piece by
+/// piece (the sanity check compares them with orders made from scratch), and garbage
+/// collection, which walks them, must still take the oldest rows first.
+#[test]
+fn compacting_most_of_a_store_keeps_its_orders_for_gc_and_time_ranges() {
+    let mut store = off();
+    // 1,000 one-row chunks of `f`, newest first: every one is rewritten.
+    for frame in (0..1000i64).rev() {
+        store
+            .insert(scalar("f", "x", frame, 2000 - frame as u128, frame as f64))
+            .unwrap();
+    }
+    // 50 entities with one compact chunk each, later in time: left as they are.
+    for e in 0..50u128 {
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10)
+            .map(|r| (5000 + r, 10_000 + 10 * e + r as u128, Some(vec![r as f64])))
+            .collect();
+        store.insert(scalars(&format!("k{e}"), "x", &rows)).unwrap();
+    }
+    let time_range = store.time_range("frame");
+    let events = store.compact();
+    assert_eq!(deleted(&events, DeletionReason::Compaction).len(), 1000);
+    store.sanity_check().unwrap();
+    assert_eq!(store.time_range("frame"), time_range);
+
+    let survivors_before_gc: Vec<ChunkId> = store.chunks_unordered().map(|c| c.id()).collect();
+    let events = store
+        .gc(&GcOptions::everything().with_target(GcTarget::drop_at_least_fraction(0.5).unwrap()));
+    store.sanity_check().unwrap();
+    let collected = deleted(&events, DeletionReason::Gc);
+    assert!(!collected.is_empty());
+    // Oldest rows first: every collected chunk's rows are older than every kept chunk's.
+    let newest_collected = collected.iter().map(|c| c.row_id_range().1).max().unwrap();
+    let oldest_kept = store
+        .chunks_unordered()
+        .map(|c| c.row_id_range().0)
+        .min()
+        .unwrap();
+    assert!(newest_collected < oldest_kept);
+    assert!(
+        collected
+            .iter()
+            .all(|c| survivors_before_gc.contains(&c.id()))
+    );
+}
+
 #[test]
 fn compact_group_by_group_hands_over_each_group_and_ends_where_compact_ends() {
     let fill = |store: &mut ChunkStore| {
