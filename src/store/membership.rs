@@ -156,9 +156,10 @@ impl ChunkStore {
     }
 
     /// Empties the store-wide orders and stops keeping them, for a mutation that moves so
-    /// many chunks that sorting all of them again costs less than moving each through
-    /// the orders' B-trees (an on-demand compaction that rewrites most of the store: a
-    /// removal and an insertion in each of three B-trees per piece were a third of it).
+    /// many chunks that sorting the survivors again costs less than moving each through
+    /// the orders (an on-demand compaction that rewrites much of the store: a removal and
+    /// an insertion in each of three B-trees per piece were a third of it; a removal that
+    /// leaves few chunks, see [`ChunkStore::take_out_all`]).
     /// Chunks keep their [`StoredChunk::in_global_orders`] marks meanwhile; nothing may
     /// read the orders until [`ChunkStore::restore_global_orders`], which the mutation
     /// calls before it ends.
@@ -324,6 +325,17 @@ impl ChunkStore {
                 paths.push(path.clone());
             }
         }
+        // Where few chunks stay (a collection of everything, the drop of an entity that
+        // was most of the store), the store-wide orders are made again from the survivors
+        // rather than every chunk taken out of them: a rebuild costs about 1.8 k
+        // instructions a chunk kept, taking one out 0.3 k (deques, from their front) to
+        // 1.6 k (B-trees). (Not inside a mutation that set them aside already.)
+        let rebuild = !self.global_orders_set_aside
+            && !stored.is_empty()
+            && self.chunks.len().saturating_mul(8) <= stored.len();
+        if rebuild {
+            self.set_global_orders_aside();
+        }
         // The store-wide orders first, in the order given: they are deques that chunks
         // leave from an end in that order (oldest first), where an entity at a time would
         // take them from the middle.
@@ -335,6 +347,9 @@ impl ChunkStore {
                 self.global_orders_set_aside,
                 chunk,
             );
+        }
+        if rebuild {
+            self.restore_global_orders();
         }
         let mut slots: Vec<Option<StoredChunk>> = stored.into_iter().map(Some).collect();
         let mut recorded: Vec<Option<StoreEvent>> = Vec::new();

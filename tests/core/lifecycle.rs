@@ -322,6 +322,36 @@ fn compacting_most_of_a_store_keeps_its_orders_for_gc_and_time_ranges() {
     );
 }
 
+/// A collection that leaves few chunks rebuilds the store-wide orders from the survivors
+/// (instead of taking each collected chunk out of them): the survivors must be exactly
+/// what the orders hold, and what the next collection and the time range read.
+#[test]
+fn collecting_almost_everything_keeps_the_orders_of_what_is_left() {
+    let mut store = off();
+    ten_by_ten(&mut store, "a"); // frames 0..100, ten chunks
+    for frame in 0..200i64 {
+        store
+            .insert(scalar("b", "x", frame, 1000 + frame as u128, frame as f64))
+            .unwrap();
+    }
+    // Everything but the chunks touching frames 95..=96: a's last chunk, b's two rows.
+    let options =
+        GcOptions::everything().with_protected_time_range("frame", TimeRange::new(t(95), t(96)));
+    let events = store.gc(&options);
+    assert_eq!(deleted(&events, DeletionReason::Gc).len(), 9 + 198);
+    store.sanity_check().unwrap();
+    assert_eq!(store.num_chunks(), 3);
+    assert_eq!(
+        store.time_range("frame"),
+        Some(TimeRange::new(t(90), t(99)))
+    );
+    // The next collection walks the rebuilt orders and takes the rest.
+    let events = store.gc(&GcOptions::everything());
+    assert_eq!(deleted(&events, DeletionReason::Gc).len(), 3);
+    store.sanity_check().unwrap();
+    assert_eq!(store.time_range("frame"), None);
+}
+
 #[test]
 fn compact_group_by_group_hands_over_each_group_and_ends_where_compact_ends() {
     let fill = |store: &mut ChunkStore| {
