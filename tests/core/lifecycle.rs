@@ -54,6 +54,17 @@ fn ten_by_ten(store: &mut ChunkStore, entity: &str) {
     }
 }
 
+/// `num_frames` one-row chunks at frames `num_frames - 1` down to 0 (values = frame), in
+/// that order, row ids ascending as they arrive.
+fn newest_first(store: &mut ChunkStore, entity: &str, num_frames: i64) {
+    for frame in (0..num_frames).rev() {
+        let row_id = (num_frames - frame) as u128;
+        store
+            .insert(scalar(entity, "x", frame, row_id, frame as f64))
+            .unwrap();
+    }
+}
+
 fn deleted(events: &[StoreEvent], reason: DeletionReason) -> Vec<Arc<Chunk>> {
     events
         .iter()
@@ -262,11 +273,7 @@ fn an_oversized_unsorted_chunk_is_sorted_then_sized_as_sorted() {
 #[test]
 fn compact_rewrites_a_fragmented_store_and_then_has_nothing_to_do() {
     let mut store = off();
-    for frame in (0..1000i64).rev() {
-        store
-            .insert(scalar("f", "x", frame, 1000 - frame as u128, frame as f64))
-            .unwrap();
-    }
+    newest_first(&mut store, "f", 1000);
     let before = range_values(&store, "f");
     let events = store.compact();
     assert_eq!(deleted(&events, DeletionReason::Compaction).len(), 1000);
@@ -283,11 +290,7 @@ fn compact_rewrites_a_fragmented_store_and_then_has_nothing_to_do() {
 fn compacting_most_of_a_store_keeps_its_orders_for_gc_and_time_ranges() {
     let mut store = off();
     // 1,000 one-row chunks of `f`, newest first: every one is rewritten.
-    for frame in (0..1000i64).rev() {
-        store
-            .insert(scalar("f", "x", frame, 2000 - frame as u128, frame as f64))
-            .unwrap();
-    }
+    newest_first(&mut store, "f", 1000);
     // 50 entities with one compact chunk each, later in time: left as they are.
     for e in 0..50u128 {
         let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..10)
