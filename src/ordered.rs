@@ -144,9 +144,7 @@ impl<K: Ord + Copy> OrderedSet<K> {
             Self::Tree(_) => Ok(()),
         }
     }
-}
 
-impl<K: Ord + Copy> OrderedSet<K> {
     /// The set of `keys`, in any order: one sort, where inserting them one by one into a
     /// B-tree searches it per key (a rebuild of the store-wide orders; see
     /// [`crate::ChunkStore`]'s `restore_global_orders`).
