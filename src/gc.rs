@@ -305,7 +305,7 @@ impl ChunkStore {
         let outside = self.chunks_outside_global_orders();
         let mut outside_by_row_id: Vec<_> = outside
             .iter()
-            .map(|c| (c.row_id_range().0, c.id()))
+            .map(|c| crate::store::row_id_order_key(c))
             .collect();
         outside_by_row_id.sort_unstable();
         let by_row_id = merge_sorted(

@@ -142,16 +142,12 @@ impl ChunkStore {
         if self.global_orders_set_aside {
             return; // the chunk's mark is what `restore_global_orders` reads
         }
-        let id = chunk.id();
-        self.temporal_by_row_id.insert((chunk.row_id_range().0, id));
-        for column in chunk.time_columns() {
-            let bounds = column.time_range();
-            let (min, max) = (bounds.min(), bounds.max());
-            let per_timeline = self
-                .temporal_per_timeline
-                .get_or_default(Arc::clone(column.timeline().name_arc()));
-            per_timeline.by_min_time.insert((min, id));
-            per_timeline.by_max_time.insert((max, id));
+        self.temporal_by_row_id
+            .insert(super::row_id_order_key(chunk));
+        for (name, by_min, by_max) in super::time_order_keys(chunk) {
+            let per_timeline = self.temporal_per_timeline.get_or_default(Arc::clone(name));
+            per_timeline.by_min_time.insert(by_min);
+            per_timeline.by_max_time.insert(by_max);
         }
     }
 
@@ -184,14 +180,11 @@ impl ChunkStore {
             if !stored.in_global_orders || chunk.is_static() {
                 continue;
             }
-            let id = chunk.id();
-            by_row_id.push((chunk.row_id_range().0, id));
-            for column in chunk.time_columns() {
-                let bounds = column.time_range();
-                let (by_min, by_max) =
-                    per_timeline.get_or_default(Arc::clone(column.timeline().name_arc()));
-                by_min.push((bounds.min(), id));
-                by_max.push((bounds.max(), id));
+            by_row_id.push(super::row_id_order_key(chunk));
+            for (name, min_key, max_key) in super::time_order_keys(chunk) {
+                let (by_min, by_max) = per_timeline.get_or_default(Arc::clone(name));
+                by_min.push(min_key);
+                by_max.push(max_key);
             }
         }
         self.temporal_by_row_id = crate::ordered::OrderedSet::from_keys(by_row_id);
@@ -544,15 +537,11 @@ fn remove_from_global_orders(
     per_timeline: &mut SmallMap<Arc<str>, super::TimelineChunks>,
     chunk: &Chunk,
 ) {
-    let id = chunk.id();
-    by_row_id.remove(&(chunk.row_id_range().0, id));
-    for column in chunk.time_columns() {
-        let bounds = column.time_range();
-        let (min, max) = (bounds.min(), bounds.max());
-        let name = column.timeline().name();
+    by_row_id.remove(&super::row_id_order_key(chunk));
+    for (name, by_min, by_max) in super::time_order_keys(chunk) {
         if let Some(chunks) = per_timeline.get_mut(name) {
-            chunks.by_min_time.remove(&(min, id));
-            chunks.by_max_time.remove(&(max, id));
+            chunks.by_min_time.remove(&by_min);
+            chunks.by_max_time.remove(&by_max);
             if chunks.by_min_time.is_empty() {
                 per_timeline.remove(name);
             }

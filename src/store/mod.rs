@@ -64,6 +64,28 @@ pub(crate) struct TimelineChunks {
     pub by_max_time: OrderedSet<(TimeInt, ChunkId)>,
 }
 
+/// A temporal chunk's key in the store-wide order by least row id.
+pub(crate) fn row_id_order_key(chunk: &Chunk) -> (RowId, ChunkId) {
+    (chunk.row_id_range().0, chunk.id())
+}
+
+/// A temporal chunk's keys in its timelines' orders: per time column, the timeline's name
+/// and the chunk's keys by least and by greatest time. What the orders are kept, taken
+/// apart and rebuilt by (`store/membership.rs`).
+pub(crate) fn time_order_keys(
+    chunk: &Chunk,
+) -> impl Iterator<Item = (&Arc<str>, (TimeInt, ChunkId), (TimeInt, ChunkId))> + '_ {
+    let id = chunk.id();
+    chunk.time_columns().iter().map(move |column| {
+        let bounds = column.time_range();
+        (
+            column.timeline().name_arc(),
+            (bounds.min(), id),
+            (bounds.max(), id),
+        )
+    })
+}
+
 /// An in-memory store of chunks, answering latest-at and range queries.
 ///
 /// Every query is a method of [`StoreView`], which the store dereferences to (as `String`
