@@ -647,6 +647,69 @@ fn drop_entity_removes_static_data_clears_and_optionally_descendants() {
     assert_eq!(store.stats().heap_bytes, 0);
 }
 
+/// Queries look for an entity's path, and its ancestors', among the bits of a filter of the
+/// entities holding Clears before walking the Clears' tree; bits stay set when Clears go
+/// and are made again once they outnumber the entities. Whatever came and went, each
+/// answer hides exactly what the Clears still held hide.
+#[test]
+fn clears_of_many_entities_that_come_and_go_hide_what_they_still_hold() {
+    let mut store = off();
+    let n = 300_u128;
+    let mut row_id = 0;
+    let mut next = || {
+        row_id += 1;
+        row_id
+    };
+    for i in 0..n {
+        store
+            .insert(scalar(&format!("e{i}/v"), "x", 1, next(), 1.0))
+            .unwrap();
+        store
+            .insert(scalar(&format!("f{i}"), "x", 1, next(), 2.0))
+            .unwrap();
+        store
+            .insert(scalar(&format!("f{i}/v"), "x", 1, next(), 3.0))
+            .unwrap();
+        store
+            .insert(clear(&format!("e{i}"), Some(5), next(), true))
+            .unwrap();
+        store
+            .insert(clear(&format!("f{i}"), Some(5), next(), false))
+            .unwrap();
+    }
+    store.sanity_check().unwrap();
+    let check = |store: &ChunkStore, gone: u128| {
+        for i in (0..n)
+            .step_by(7)
+            .chain([gone.saturating_sub(1), gone, n - 1])
+        {
+            let kept = i >= gone;
+            let e = format!("e{i}/v");
+            let f = format!("f{i}");
+            assert_eq!(latest(store, &e, 5), (!kept).then_some(1.0), "{e}");
+            assert_eq!(latest(store, &e, 4), Some(1.0), "{e} before its Clear");
+            assert_eq!(latest(store, &f, 5), None, "{f}");
+            assert_eq!(latest(store, &f, 4), Some(2.0), "{f} before its Clear");
+            // A flat Clear hides nothing below its entity.
+            assert_eq!(latest(store, &format!("{f}/v"), 5), Some(3.0), "{f}/v");
+        }
+    };
+    check(&store, 0);
+    // Most of the recursive Clears go, one entity at a time (a drop of `e{i}` alone: its
+    // value at `e{i}/v` stays), until their stale bits outnumber the entities left.
+    for gone in 0..250 {
+        store.drop_entity(&path(&format!("e{gone}")), false);
+        store.sanity_check().unwrap();
+        if gone % 50 == 49 {
+            check(&store, gone + 1);
+        }
+    }
+    // A Clear logged again after its entity's went is seen again.
+    store.insert(clear("e3", Some(5), next(), true)).unwrap();
+    store.sanity_check().unwrap();
+    assert_eq!(latest(&store, "e3/v", 5), None);
+}
+
 #[test]
 fn stats_per_entity_add_up_and_follow_every_mutation() {
     let mut store = off();
