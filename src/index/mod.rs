@@ -313,10 +313,16 @@ impl TemporalComponentIndex {
     pub fn count_after(&self, key: MaxIndexKey, cap: usize) -> usize {
         match self {
             Self::Small(entries) => entries.iter().filter(|e| max_index_key(e) > key).count(),
-            // Greatest indices ascend with the position.
-            Self::Sequence(entries) => {
-                entries.len() - entries.partition_point(|e| max_index_key(e) <= key)
-            }
+            // Greatest indices ascend with the position: the chunks after `key` are the
+            // last ones, counted from the end up to `cap` (garbage collection asks with the
+            // few it protects, so this reads the entries it is about to read anyway rather
+            // than a binary search's cold ones).
+            Self::Sequence(entries) => entries
+                .iter()
+                .rev()
+                .take(cap)
+                .take_while(|e| max_index_key(e) > key)
+                .count(),
             Self::Large(large) => large.count_after(key, cap),
         }
     }
