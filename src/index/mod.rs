@@ -35,14 +35,15 @@
 //! copies only the nodes on its path, O(log n) however many chunks the index holds.
 
 mod large;
+mod sequence;
 
-use std::collections::VecDeque;
 use std::sync::Arc;
 
 use crate::chunk::ComponentTimeBounds;
 use crate::sanity::{SanityError, Structure};
 use crate::{Chunk, ChunkId, RowId, TimeInt};
 use large::LargeIndex;
+use sequence::ChunkSequence;
 
 /// A chunk as the index sees it: the chunk, where its time column and component column are,
 /// and the component's bounds on this timeline.
@@ -80,7 +81,7 @@ pub(crate) enum TemporalComponentIndex {
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] and at most [`SEQUENCE_MAX_CHUNKS`]
     /// entries that do not overlap in time, in time order: each ends strictly before the
     /// next starts.
-    Sequence(Arc<VecDeque<IndexedChunk>>),
+    Sequence(Arc<ChunkSequence>),
     /// More than half of [`SMALL_INDEX_MAX_CHUNKS`] entries. Behind an `Arc` so that
     /// copying an entity's view counts one reference here; a write under a snapshot then
     /// copies the index's roots and recent queue, and the B-tree nodes on its path.
@@ -157,14 +158,14 @@ impl TemporalComponentIndex {
                     return;
                 };
                 if entries.len() >= SEQUENCE_MAX_CHUNKS {
-                    let mut index = large_from(std::mem::take(entries));
+                    let mut index = large_from(entries.take_entries());
                     index.insert(entry);
                     *self = index;
                 } else if last.bounds.max_time < entry.bounds.min_time {
                     entries.push_back(entry);
                 } else if entry.bounds.max_time < first.bounds.min_time {
                     entries.push_front(entry);
-                } else if let Err(position) = binary_search_deque(entries, &min_time_key(&entry)) {
+                } else if let Err(position) = entries.search(&min_time_key(&entry)) {
                     // A chunk filling a gap (the rest of a chunk a range drop cut) keeps
                     // the sequence, if it overlaps neither neighbour and few entries move.
                     let fits = position
@@ -177,7 +178,7 @@ impl TemporalComponentIndex {
                     if fits && position.min(entries.len() - position) <= SEQUENCE_MAX_SHIFT {
                         entries.insert(position, entry);
                     } else {
-                        let mut index = large_from(std::mem::take(entries));
+                        let mut index = large_from(entries.take_entries());
                         index.insert(entry);
                         *self = index;
                     }
@@ -209,22 +210,22 @@ impl TemporalComponentIndex {
                 } else if entries.back().is_some_and(|e| min_time_key(e) == key) {
                     entries.len() - 1
                 } else {
-                    let Ok(position) = binary_search_deque(entries, &key) else {
+                    let Ok(position) = entries.search(&key) else {
                         return false;
                     };
                     position
                 };
                 if position.min(entries.len() - 1 - position) > SEQUENCE_MAX_SHIFT {
-                    let mut index = large_from(std::mem::take(entries));
+                    let mut index = large_from(entries.take_entries());
                     let removed = index.remove(id, bounds);
                     *self = index;
                     return removed;
                 }
                 entries.remove(position);
                 if entries.len() <= SMALL_INDEX_MAX_CHUNKS / 2 {
-                    *self = Self::Small(std::mem::take(entries).into());
-                } else if entries.len() * 4 <= entries.capacity() {
-                    entries.shrink_to(entries.len() * 2);
+                    *self = Self::Small(entries.take_entries().into());
+                } else {
+                    entries.shrink_if_sparse();
                 }
                 true
             }
@@ -274,7 +275,7 @@ impl TemporalComponentIndex {
         if entries.len() <= SMALL_INDEX_MAX_CHUNKS {
             Self::Small(entries)
         } else if entries.len() <= SEQUENCE_MAX_CHUNKS && in_sequence(&entries) {
-            Self::Sequence(Arc::new(entries.into()))
+            Self::Sequence(Arc::new(ChunkSequence::new(entries)))
         } else {
             large_from(entries)
         }
@@ -360,7 +361,7 @@ impl TemporalComponentIndex {
             // every cell of the chunks before it (each ends before the next starts), so it
             // alone holds the answer.
             Self::Sequence(entries) => {
-                let starting = entries.partition_point(|e| e.bounds.min_time <= t);
+                let starting = entries.count_starting(|&min| min <= t);
                 if let Some(entry) = starting.checked_sub(1).and_then(|last| entries.get(last)) {
                     f(entry, entry.bounds.max_time > t);
                 }
@@ -384,7 +385,7 @@ impl TemporalComponentIndex {
                 .filter(|e| e.bounds.max_time >= t)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let end = entries.partition_point(|e| e.bounds.min_time < t);
+                let end = entries.count_starting(|&min| min < t);
                 if let Some(e) = end.checked_sub(1).and_then(|last| entries.get(last))
                     && e.bounds.max_time >= t
                 {
@@ -409,8 +410,8 @@ impl TemporalComponentIndex {
                 .take_while(|e| e.bounds.min_time <= max)
                 .for_each(f),
             Self::Sequence(entries) => {
-                let start = entries.partition_point(|e| e.bounds.min_time < min);
-                let end = entries.partition_point(|e| e.bounds.min_time <= max);
+                let start = entries.count_starting(|&t| t < min);
+                let end = entries.count_starting(|&t| t <= max);
                 entries.range(start..end.max(start)).for_each(f);
             }
             Self::Large(large) => large.for_each_starting_in(min, max, &mut f),
@@ -457,6 +458,9 @@ impl TemporalComponentIndex {
                 if !in_sequence(entries.iter()) {
                     return Err(fail("a sequence's chunks each end before the next starts"));
                 }
+                if !entries.keys_match_entries() {
+                    return Err(fail("a sequence keeps each entry's least time beside it"));
+                }
                 entries.iter().try_for_each(check_bounds)
             }
             Self::Large(large) => {
@@ -474,10 +478,6 @@ impl TemporalComponentIndex {
 
 /// The position of the entry keyed `key` in a sequence (sorted by that key), or where it
 /// would go.
-fn binary_search_deque(entries: &VecDeque<IndexedChunk>, key: &MinTimeKey) -> Result<usize, usize> {
-    entries.binary_search_by(|e| min_time_key(e).cmp(key))
-}
-
 /// Do the entry's bounds equal what its chunk computed?
 fn check_bounds(entry: &IndexedChunk) -> Result<(), SanityError> {
     let IndexedChunk {
