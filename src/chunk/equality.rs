@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ListArray};
 
+use super::component_column::same_data_type;
 use super::{Chunk, ComponentColumn};
 
 impl Chunk {
@@ -23,7 +24,7 @@ impl Chunk {
                 .zip(&other.time_columns)
                 .all(|(a, b)| {
                     a.timeline == b.timeline
-                        && a.data_type == b.data_type
+                        && same_data_type(&a.data_type, &b.data_type)
                         && a.field_metadata == b.field_metadata
                 })
             && self.components.iter().zip(&other.components).all(|(a, b)| {
@@ -33,7 +34,7 @@ impl Chunk {
                         (Some(a), Some(b)) => Arc::ptr_eq(a, b) || a == b,
                         _ => false,
                     }
-                    && a.list.data_type() == b.list.data_type()
+                    && same_data_type(a.list.data_type(), b.list.data_type())
             })
             && self.extra_metadata == other.extra_metadata
     }

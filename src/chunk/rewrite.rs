@@ -9,7 +9,7 @@ use arrow_buffer::{ArrowNativeType, Buffer, NullBuffer, OffsetBuffer, ScalarBuff
 use arrow_data::ArrayData;
 use arrow_schema::{DataType, FieldRef};
 
-use super::component_column::leaf_shape;
+use super::component_column::{leaf_shape, same_data_type};
 use super::{Chunk, ComponentColumn, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::ChunkError;
 use crate::{ChunkId, RowId};
@@ -181,7 +181,7 @@ pub(super) fn gather_single_values(
     for column in columns {
         if column.null_free_leaf().is_none()
             || !column.one_instance_per_row
-            || column.list.data_type() != first.list.data_type()
+            || !same_data_type(column.list.data_type(), first.list.data_type())
         {
             return None;
         }
