@@ -148,12 +148,6 @@ impl Hasher for PrefixHasher {
 pub(crate) type PartMap<V> =
     std::collections::HashMap<PathPart, V, std::hash::BuildHasherDefault<PrefixHasher>>;
 
-/// A map keyed by entity paths, by the hash each path carries (ahash's, mixed already):
-/// hashing it again cost some 20 instructions a lookup, and a store's writer looks its
-/// entity up twice or more per insert.
-pub(crate) type PathMap<V> =
-    std::collections::HashMap<EntityPath, V, std::hash::BuildHasherDefault<PrefixHasher>>;
-
 /// The hash of the path `parent` extended by `name`.
 fn extend_hash(parent: u64, name: &str) -> u64 {
     let mut hasher = PATH_HASH_STATE.build_hasher();

@@ -21,7 +21,6 @@
 use std::sync::Arc;
 
 use crate::EntityPath;
-use crate::entity_path::PathMap;
 use crate::sanity::{SanityError, Structure, ensure};
 
 /// The directory: path to slot, as a hash map shared with snapshots and the changes made
@@ -35,11 +34,11 @@ use crate::sanity::{SanityError, Structure, ensure};
 /// thus costs O(√n) amortized, where copying the whole map each time would be O(n).
 #[derive(Clone, Debug, Default)]
 struct Directory {
-    base: Arc<PathMap<u32>>,
+    base: Arc<ahash::HashMap<EntityPath, u32>>,
     /// Entities added (`Some`) or removed (`None`) since `base` was last copied, while a
     /// snapshot shared it; folded into `base` by the first change made once none does.
     /// `None` rather than empty, so that a lookup reads nothing more when there are none.
-    recent: Option<Arc<PathMap<Option<u32>>>>,
+    recent: Option<Arc<ahash::HashMap<EntityPath, Option<u32>>>>,
     len: usize,
 }
 
@@ -104,14 +103,17 @@ impl Directory {
 }
 
 /// Applies the changes noted in `recent` (if any) to `base`.
-fn fold(recent: Option<&PathMap<Option<u32>>>, base: &mut PathMap<u32>) {
+fn fold(
+    recent: Option<&ahash::HashMap<EntityPath, Option<u32>>>,
+    base: &mut ahash::HashMap<EntityPath, u32>,
+) {
     for (path, slot) in recent.into_iter().flatten() {
         apply(base, path.clone(), *slot);
     }
 }
 
 /// Adds (`Some`) or removes (`None`) one entity of `base`.
-fn apply(base: &mut PathMap<u32>, path: EntityPath, slot: Option<u32>) {
+fn apply(base: &mut ahash::HashMap<EntityPath, u32>, path: EntityPath, slot: Option<u32>) {
     match slot {
         Some(slot) => base.insert(path, slot),
         None => base.remove(&path),

@@ -19,7 +19,6 @@ mod view;
 use std::fmt;
 use std::sync::Arc;
 
-use crate::entity_path::PathMap;
 use crate::ordered::OrderedSet;
 use crate::small_map::SmallMap;
 use crate::stats::StoreLedgers;
@@ -100,7 +99,7 @@ pub struct ChunkStore {
     pub(crate) view: StoreView,
     pub(crate) chunks: ahash::HashMap<ChunkId, StoredChunk>,
     /// The writer's part of each entity (its view is in `view.entities`).
-    pub(crate) entities: PathMap<EntityIndex>,
+    pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
     /// Temporal chunks by least row id: the garbage collector's default order.
     pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
     /// Temporal chunks by least and by greatest time, per timeline (a store has few: a
@@ -222,7 +221,7 @@ impl ChunkStore {
 /// slot, by which the view's table is walked (see `store/entity_table.rs`). (A call that
 /// may create the entity searches the writer's map twice, as it did before the table.)
 pub(crate) fn entity_mut<'a>(
-    entities: &'a mut PathMap<EntityIndex>,
+    entities: &'a mut ahash::HashMap<EntityPath, EntityIndex>,
     views: &'a mut EntityViews,
     path: &EntityPath,
     create: bool,
