@@ -28,8 +28,9 @@
 //! Snapshots share indices with the store (SEMANTICS.md section 10), so a write to an index
 //! a snapshot holds must copy what it changes, and each form bounds that copy. A small
 //! index is one vector of at most [`SMALL_INDEX_MAX_CHUNKS`] entries, copied whole. A
-//! sequence is one contiguous deque behind an `Arc` (a query's binary search touches a
-//! few cache lines, and a store nobody snapshots changes it in place), copied whole too,
+//! sequence is a deque of entries and one of their least times behind an `Arc` (a
+//! query's binary search reads the dense times, `sequence.rs`, and a store nobody
+//! snapshots changes both in place), copied whole too,
 //! so it holds at most [`SEQUENCE_MAX_CHUNKS`]: past that, even in order, an index takes
 //! the three views, persistent B-trees (`imbl::OrdMap`, 16-entry nodes) of which a write
 //! copies only the nodes on its path, O(log n) however many chunks the index holds.
