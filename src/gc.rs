@@ -317,16 +317,20 @@ impl ChunkStore {
         let GcOrder::FurthestFrom { timeline, time } = order else {
             return Box::new(by_row_id);
         };
-        let on_timeline =
-            |c: &&Arc<Chunk>| c.time_column(timeline).map(|t| (t.time_range(), c.id()));
+        // The waiting chunks' keys in this timeline's orders, as the orders key them.
+        let on_timeline = |c: &&Arc<Chunk>| {
+            crate::store::time_order_keys(c)
+                .find(|(name, _, _)| ***name == **timeline)
+                .map(|(_, by_min, by_max)| (by_min, by_max))
+        };
         let mut outside_by_max: Vec<_> = outside
             .iter()
-            .filter_map(|c| on_timeline(c).map(|(range, id)| (range.max(), id)))
+            .filter_map(|c| on_timeline(c).map(|(_, by_max)| by_max))
             .collect();
         outside_by_max.sort_unstable();
         let mut outside_by_min_desc: Vec<_> = outside
             .iter()
-            .filter_map(|c| on_timeline(c).map(|(range, id)| (range.min(), id)))
+            .filter_map(|c| on_timeline(c).map(|(by_min, _)| by_min))
             .collect();
         outside_by_min_desc.sort_unstable_by(|a, b| b.cmp(a));
         let (by_max_time, by_min_time_desc) = match self.temporal_per_timeline.get(&**timeline) {
