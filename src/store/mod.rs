@@ -86,6 +86,11 @@ pub(crate) fn time_order_keys(
     })
 }
 
+/// The writer's part of each entity by path. A hashbrown map for its `entry_ref`: a write
+/// finds or makes its entity in one lookup. Keyed by ahash, drawn per process, not by the
+/// path's own public-seeded hash (see `docs/performance-log.md` on `PathMap`).
+pub(crate) type EntityMap = hashbrown::HashMap<EntityPath, EntityIndex, ahash::RandomState>;
+
 /// An in-memory store of chunks, answering latest-at and range queries.
 ///
 /// Every query is a method of [`StoreView`], which the store dereferences to (as `String`
@@ -99,7 +104,7 @@ pub struct ChunkStore {
     pub(crate) view: StoreView,
     pub(crate) chunks: ahash::HashMap<ChunkId, StoredChunk>,
     /// The writer's part of each entity (its view is in `view.entities`).
-    pub(crate) entities: ahash::HashMap<EntityPath, EntityIndex>,
+    pub(crate) entities: EntityMap,
     /// Temporal chunks by least row id: the garbage collector's default order.
     pub(crate) temporal_by_row_id: OrderedSet<(RowId, ChunkId)>,
     /// Temporal chunks by least and by greatest time, per timeline (a store has few: a
@@ -218,20 +223,17 @@ impl ChunkStore {
 /// caller keeps the rest of the store to borrow.
 ///
 /// Only the writer's map is searched by path: its part of the entity holds the entity's
-/// slot, by which the view's table is walked (see `store/entity_table.rs`). (A call that
-/// may create the entity searches the writer's map twice, as it did before the table.)
+/// slot, by which the view's table is walked (see `store/entity_table.rs`), once per call.
 pub(crate) fn entity_mut<'a>(
-    entities: &'a mut ahash::HashMap<EntityPath, EntityIndex>,
+    entities: &'a mut EntityMap,
     views: &'a mut EntityViews,
     path: &EntityPath,
     create: bool,
 ) -> Option<EntityMut<'a>> {
-    // An entry (which clones the path) only for a new entity: most writes are to one the
-    // store holds.
-    let index = if create && !entities.contains_key(path) {
-        let slot = views.add(path.clone());
-        entities.entry(path.clone()).or_insert(EntityIndex {
-            slot,
+    // One lookup either way; the path is cloned only for a new entity.
+    let index = if create {
+        entities.entry_ref(path).or_insert_with(|| EntityIndex {
+            slot: views.add(path.clone()),
             ..EntityIndex::default()
         })
     } else {
