@@ -87,17 +87,19 @@ impl ChunkStore {
             // A row without cells is in no index: only a scan finds where it is held.
             let bounds = first.time_range();
             let (min, max) = (bounds.min(), bounds.max());
-            for id in &entity.chunk_ids {
-                let Some(stored) = self.chunks.get(id) else {
-                    continue;
-                };
-                let overlaps = stored.chunk.time_columns().first().is_some_and(|held| {
+            let held = entity
+                .chunk_ids
+                .iter()
+                .filter_map(|id| self.chunks.get(id).map(|stored| &stored.chunk))
+                .chain(view.buffered.chunks());
+            for held in held {
+                let overlaps = held.time_columns().first().is_some_and(|held| {
                     let bounds = held.time_range();
                     let (lo, hi) = (bounds.min(), bounds.max());
                     lo <= max && min <= hi
                 });
                 if overlaps {
-                    consider(&stored.chunk);
+                    consider(held);
                 }
             }
             return candidates;

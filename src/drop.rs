@@ -83,6 +83,10 @@ impl ChunkStore {
         for (path, index) in &self.entities {
             if path == entity || (recursive && entity.is_ancestor_of(path)) {
                 targets.extend(index.chunk_ids.iter().copied());
+                // The write buffer's chunks are in no chunk set.
+                if let Some(view) = self.view.entities.at(index.slot) {
+                    targets.extend(view.buffered.chunks().map(|chunk| chunk.id()));
+                }
             }
         }
         targets.sort_unstable();

@@ -272,6 +272,57 @@ mod tests {
             .collect()
     }
 
+    /// An entity's chunks are its chunk set and its write buffer together (the buffer's
+    /// chunks enter no set): an entity holding only buffered rows is still held, counted,
+    /// compacted and dropped whole, and a recursive drop takes the buffered rows of its
+    /// descendants.
+    #[test]
+    fn buffered_chunks_belong_to_their_entity_though_in_no_chunk_set() {
+        let (root, child, other) = (
+            EntityPath::parse("a").unwrap(),
+            EntityPath::parse("a/b").unwrap(),
+            EntityPath::parse("c").unwrap(),
+        );
+        let mut store = ChunkStore::new();
+        let fanout = i64::try_from(store.config().merge_fanout).unwrap();
+        // `a`: only buffered rows. `a/b`: a sealed fan and buffered rows. `c`: buffered.
+        for frame in 0..3 {
+            store.insert(one_row(&root, frame)).unwrap();
+        }
+        for frame in 0..fanout + 2 {
+            store.insert(one_row(&child, frame)).unwrap();
+        }
+        store.insert(one_row(&other, 0)).unwrap();
+        store.sanity_check().unwrap();
+        assert!(
+            store.entities[&root].chunk_ids.is_empty(),
+            "buffered: in no set"
+        );
+        assert_eq!(store.entities[&child].chunk_ids.len(), 1, "the sealed fan");
+        assert_eq!(store.num_chunks(), 3 + 1 + 2 + 1);
+        assert_eq!(
+            store.entity_paths(),
+            vec![root.clone(), child.clone(), other.clone()]
+        );
+
+        // `compact()` plans the buffered rows of every entity.
+        let mut compacted = store.clone();
+        compacted.compact();
+        compacted.sanity_check().unwrap();
+        assert_eq!(compacted.num_chunks(), 3, "one chunk per entity");
+
+        // A recursive drop takes every buffered row under the path, and the entities go.
+        let events = store.drop_entity(&root, true);
+        assert_eq!(events.len(), 3 + 1 + 2);
+        store.sanity_check().unwrap();
+        assert_eq!(store.entity_paths(), vec![other.clone()]);
+        assert_eq!(store.num_chunks(), 1);
+        // An entity that comes back after its drop starts from nothing.
+        store.insert(one_row(&root, 5)).unwrap();
+        store.sanity_check().unwrap();
+        assert_eq!(store.num_chunks(), 2);
+    }
+
     /// Rows arriving one per chunk wait in the write buffer, in no index, and every
     /// question sees them: latest-at, range, dataframes, idempotent ingest, garbage
     /// collection's protection of the latest, snapshots. The fan's last chunk seals them

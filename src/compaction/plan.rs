@@ -125,6 +125,10 @@ impl ChunkStore {
                     .map(|stored| &stored.chunk)
                     .filter(|chunk| !chunk.is_static()),
             );
+            // The write buffer's chunks are in no chunk set.
+            if let Some(view) = self.view.entities.at(entity.slot) {
+                temporal.extend(view.buffered.chunks());
+            }
             // Ids are unique, so an unstable sort is deterministic.
             temporal.sort_unstable_by_key(|c| (c.time_columns()[0].time_range().min(), c.id()));
             let entity_groups_start = groups.len();

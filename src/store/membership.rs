@@ -64,12 +64,14 @@ impl ChunkStore {
             true,
         )?;
         // An entity leaves the map with its last chunk, so one without chunks is new.
-        let new_entity = entity.index.chunk_ids.is_empty();
+        let new_entity = entity.holds_no_chunks();
         if new_entity {
             entity.view.stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
         entity.add_components(&chunk);
-        entity.index.chunk_ids.insert(chunk.id());
+        if joining != Joining::Buffered {
+            entity.index.chunk_ids.insert(chunk.id());
+        }
         entity.index.max_row_id = entity.index.max_row_id.max(chunk.row_id_range().1);
         let mut store_stats = self.view.stats;
         if new_entity {
@@ -225,6 +227,7 @@ impl ChunkStore {
                 false,
             )
         {
+            entity.index.chunk_ids.insert(chunk.id());
             let extra = entity.insert_temporal(&chunk);
             crate::stats::add_index_bytes(&mut self.view.stats, &mut entity.view.stats, extra);
         }
@@ -424,7 +427,7 @@ impl ChunkStore {
                     .map(|stored| &*stored.chunk)
                     .filter(|chunk| !chunk.is_static()),
             );
-            let extra = entity.remove_temporal_many(&temporal, num_buffered, still_grouped);
+            let extra = entity.remove_temporal_many(&temporal, still_grouped);
             crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
         }
         for stored in stored {
@@ -454,7 +457,9 @@ impl ChunkStore {
                     let extra = entity.remove_temporal(&chunk, &config, still_grouped);
                     crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
                 }
-                entity.index.chunk_ids.remove(&id);
+                if !buffered {
+                    entity.index.chunk_ids.remove(&id);
+                }
                 entity.remove_components(&chunk);
                 crate::stats::account(
                     &chunk,
@@ -473,7 +478,7 @@ impl ChunkStore {
         }
         // Nothing left: the entity is forgotten, as if never inserted (its component types
         // included).
-        let emptied = entity.is_some_and(|entity| entity.index.chunk_ids.is_empty());
+        let emptied = entity.is_some_and(|entity| entity.holds_no_chunks());
         if emptied {
             self.forget_entity(path);
             store_stats.heap_bytes = store_stats

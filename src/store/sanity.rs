@@ -308,10 +308,11 @@ impl ChunkStore {
             };
             let counted = expected.get(path).map(|e| &e.0);
             let num_chunks = counted.map_or(0, |c| c.num_static_chunks + c.num_temporal_chunks);
-            if num_chunks != entity.chunk_ids.len() as u64 {
+            let num_listed = entity.chunk_ids.len() + view.buffered.chunks().count();
+            if num_chunks != num_listed as u64 {
                 return Err(SanityError::new(
                     Structure::Entity,
-                    "its chunk ids list all its chunks",
+                    "its chunk ids and its write buffer list all its chunks",
                 )
                 .at(path));
             }
@@ -385,20 +386,21 @@ impl EntityIndex {
             let waiting = chunks
                 .get(&chunk.id())
                 .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders && s.buffered);
-            if !chunk_ids.contains(&chunk.id()) || !waiting {
-                return Err(
-                    fail("a buffered chunk is the store's, waiting, marked buffered")
-                        .at(format_args!("{path}: {}", chunk.id())),
-                );
+            if chunk_ids.contains(&chunk.id()) || !waiting {
+                return Err(fail(
+                    "a buffered chunk is the store's, waiting, marked buffered, in no chunk set",
+                )
+                .at(format_args!("{path}: {}", chunk.id())));
             }
         }
-        let num_buffered = chunk_ids
+        // With the count above (chunk set and buffer together list every chunk), no
+        // chunk marked buffered is outside the buffer.
+        if chunk_ids
             .iter()
-            .filter(|id| chunks.get(id).is_some_and(|s| s.buffered))
-            .count();
-        if num_buffered != buffered.chunks().count() {
+            .any(|id| chunks.get(id).is_some_and(|s| s.buffered))
+        {
             return Err(fail(
-                "a chunk marked buffered is in its entity's write buffer",
+                "a chunk marked buffered is in its entity's write buffer, not its chunk set",
             ));
         }
         if buffered.largest_group() >= config.merge_fanout {
@@ -412,21 +414,28 @@ impl EntityIndex {
                 )),
             );
         }
-        if chunk_ids.is_empty()
+        if (chunk_ids.is_empty() && buffered.is_empty())
             || chunk_ids
                 .iter()
                 .any(|id| chunks.get(id).is_none_or(|s| s.chunk.entity_path() != path))
         {
-            return Err(fail("its chunk ids are non-empty and its own"));
+            return Err(fail(
+                "it holds a chunk, and the ids in its chunk set are its own",
+            ));
         }
         if chunk_ids
             .iter()
-            .filter_map(|id| chunks.get(id))
-            .any(|s| s.chunk.row_id_range().1 > *max_row_id)
+            .filter_map(|id| chunks.get(id).map(|s| &s.chunk))
+            .chain(buffered.chunks())
+            .any(|chunk| chunk.row_id_range().1 > *max_row_id)
         {
             return Err(fail("max_row_id bounds the row ids of its chunks"));
         }
-        check_component_types(path, element_types, chunk_ids, chunks)?;
+        let held = chunk_ids
+            .iter()
+            .filter_map(|id| chunks.get(id).map(|s| &s.chunk))
+            .chain(buffered.chunks());
+        check_component_types(path, element_types, held)?;
         pending.sanity_check(path, chunks, config)?;
         check_static_winners(path, static_winners, static_chunks, chunks)?;
         for per_component in temporal_per_timeline_per_component.values() {
@@ -523,15 +532,15 @@ fn check_rewrite_mark(
 
 /// Each component an entity knows has the type of its chunks' columns and is counted once
 /// per chunk that has its column; no other is known (part of the entity's sanity check).
-fn check_component_types(
+/// `held` are all the entity's chunks.
+fn check_component_types<'a>(
     path: &EntityPath,
     element_types: &BTreeMap<ComponentName, ComponentType>,
-    chunk_ids: &ahash::HashSet<ChunkId>,
-    chunks: &ahash::HashMap<ChunkId, StoredChunk>,
+    held: impl Iterator<Item = &'a Arc<Chunk>>,
 ) -> Result<(), SanityError> {
     let mut columns_per_component: BTreeMap<&ComponentName, (&DataType, usize)> = BTreeMap::new();
-    for stored in chunk_ids.iter().filter_map(|id| chunks.get(id)) {
-        for column in stored.chunk.components() {
+    for chunk in held {
+        for column in chunk.components() {
             let counted = columns_per_component
                 .entry(column.name())
                 .or_insert_with(|| (column.element_type(), 0));
