@@ -386,9 +386,10 @@ impl EntityIndex {
             let waiting = chunks
                 .get(&chunk.id())
                 .is_some_and(|s| Arc::ptr_eq(&s.chunk, chunk) && !s.in_global_orders && s.buffered);
-            if chunk_ids.contains(&chunk.id()) || !waiting {
+            if chunk_ids.contains(&chunk.id()) || !waiting || chunk.entity_path() != path {
                 return Err(fail(
-                    "a buffered chunk is the store's, waiting, marked buffered, in no chunk set",
+                    "a buffered chunk is the entity's, the store's, waiting, marked buffered, \
+                     in no chunk set",
                 )
                 .at(format_args!("{path}: {}", chunk.id())));
             }
