@@ -87,12 +87,7 @@ impl ChunkStore {
             // A row without cells is in no index: only a scan finds where it is held.
             let bounds = first.time_range();
             let (min, max) = (bounds.min(), bounds.max());
-            let held = entity
-                .chunk_ids
-                .iter()
-                .filter_map(|id| self.chunks.get(id).map(|stored| &stored.chunk))
-                .chain(view.buffered.chunks());
-            for held in held {
+            for held in entity.held_chunks(view, &self.chunks) {
                 let overlaps = held.time_columns().first().is_some_and(|held| {
                     let bounds = held.time_range();
                     let (lo, hi) = (bounds.min(), bounds.max());

@@ -81,12 +81,10 @@ impl ChunkStore {
     pub fn drop_entity(&mut self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {
         let mut targets: Vec<ChunkId> = Vec::new();
         for (path, index) in &self.entities {
-            if path == entity || (recursive && entity.is_ancestor_of(path)) {
-                targets.extend(index.chunk_ids.iter().copied());
-                // The write buffer's chunks are in no chunk set.
-                if let Some(view) = self.view.entities.at(index.slot) {
-                    targets.extend(view.buffered.chunks().map(|chunk| chunk.id()));
-                }
+            if (path == entity || (recursive && entity.is_ancestor_of(path)))
+                && let Some(view) = self.view.entities.at(index.slot)
+            {
+                targets.extend(index.held_chunks(view, &self.chunks).map(|c| c.id()));
             }
         }
         targets.sort_unstable();

@@ -117,17 +117,12 @@ impl ChunkStore {
         let mut temporal: Vec<&Arc<Chunk>> = Vec::new();
         for (_, entity) in entities {
             temporal.clear();
-            temporal.extend(
-                entity
-                    .chunk_ids
-                    .iter()
-                    .filter_map(|id| self.chunks.get(id))
-                    .map(|stored| &stored.chunk)
-                    .filter(|chunk| !chunk.is_static()),
-            );
-            // The write buffer's chunks are in no chunk set.
             if let Some(view) = self.view.entities.at(entity.slot) {
-                temporal.extend(view.buffered.chunks());
+                temporal.extend(
+                    entity
+                        .held_chunks(view, &self.chunks)
+                        .filter(|chunk| !chunk.is_static()),
+                );
             }
             // Ids are unique, so an unstable sort is deterministic.
             temporal.sort_unstable_by_key(|c| (c.time_columns()[0].time_range().min(), c.id()));

@@ -52,6 +52,22 @@ pub(crate) struct EntityIndex {
     pub ledger: BufferLedger,
 }
 
+impl EntityIndex {
+    /// Every chunk the store holds of this entity: those of its chunk set (found in the
+    /// store's `chunks`) and those of its write buffer (`view.buffered`), which are in no
+    /// set. The one definition of an entity's chunks, for whatever must list them all.
+    pub(crate) fn held_chunks<'a>(
+        &'a self,
+        view: &'a EntityView,
+        chunks: &'a ahash::HashMap<ChunkId, super::StoredChunk>,
+    ) -> impl Iterator<Item = &'a Arc<Chunk>> + 'a {
+        self.chunk_ids
+            .iter()
+            .filter_map(|id| chunks.get(id).map(|stored| &stored.chunk))
+            .chain(view.buffered.chunks())
+    }
+}
+
 /// A component's type at one entity, and how many of the entity's chunks have its column.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct ComponentType {

@@ -424,19 +424,13 @@ impl EntityIndex {
                 "it holds a chunk, and the ids in its chunk set are its own",
             ));
         }
-        if chunk_ids
-            .iter()
-            .filter_map(|id| chunks.get(id).map(|s| &s.chunk))
-            .chain(buffered.chunks())
+        if self
+            .held_chunks(view, chunks)
             .any(|chunk| chunk.row_id_range().1 > *max_row_id)
         {
             return Err(fail("max_row_id bounds the row ids of its chunks"));
         }
-        let held = chunk_ids
-            .iter()
-            .filter_map(|id| chunks.get(id).map(|s| &s.chunk))
-            .chain(buffered.chunks());
-        check_component_types(path, element_types, held)?;
+        check_component_types(path, element_types, self.held_chunks(view, chunks))?;
         pending.sanity_check(path, chunks, config)?;
         check_static_winners(path, static_winners, static_chunks, chunks)?;
         for per_component in temporal_per_timeline_per_component.values() {
