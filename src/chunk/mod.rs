@@ -9,6 +9,7 @@ mod error;
 pub(crate) mod memory;
 mod metadata;
 mod rewrite;
+mod row_columns;
 mod time_column;
 mod transport;
 
@@ -28,6 +29,7 @@ use metadata::Metadata;
 #[cfg(feature = "ipc")]
 pub(crate) use metadata::str_entries;
 pub(crate) use rewrite::RowSource;
+pub(crate) use row_columns::RowColumns;
 pub use time_column::TimeColumn;
 use time_column::{RawTimeColumn, RawTimes};
 #[cfg(feature = "rrd")]

@@ -133,7 +133,7 @@ impl Chunk {
 
 impl super::TimeColumn {
     /// This column's timeline, type and metadata around other times.
-    fn rebuilt(&self, times: ScalarBuffer<i64>) -> RawTimeColumn {
+    pub(super) fn rebuilt(&self, times: ScalarBuffer<i64>) -> RawTimeColumn {
         RawTimeColumn {
             timeline: self.timeline.clone(),
             times: RawTimes::Copied {
@@ -147,7 +147,7 @@ impl super::TimeColumn {
 
 impl super::ComponentColumn {
     /// This column's descriptor and field around other cells.
-    fn rebuilt(&self, array: ArrayRef) -> RawComponentColumn {
+    pub(super) fn rebuilt(&self, array: ArrayRef) -> RawComponentColumn {
         RawComponentColumn {
             descriptor: self.descriptor.clone(),
             array,
@@ -244,7 +244,7 @@ fn gather_leaf<T: ArrowNativeType>(
 
 /// A list column of one instance per cell (`offsets` are `0, 1, .., n`), its items'
 /// primitive values in `values` (see [`gather_single_values`]).
-fn single_values_list(
+pub(super) fn single_values_list(
     item_field: &FieldRef,
     leaf_type: &DataType,
     fixed_size: Option<usize>,

@@ -8,6 +8,7 @@
 
 use std::sync::Arc;
 
+use crate::chunk::RowColumns;
 use crate::store::{Joining, SettledRun, StoreConfig};
 use crate::{Chunk, ChunkStore, EntityPath, StoreEvent};
 
@@ -58,9 +59,9 @@ impl ChunkStore {
         // operations a row), and one that does not is done.
         if waits && config.level(chunk.num_rows()) == 0 {
             if let Some(fan) = self.buffer_chunk(chunk, events)
-                && let Some(path) = fan.first().map(|c| c.entity_path().clone())
+                && let Some(path) = fan.chunks.first().map(|c| c.entity_path().clone())
             {
-                self.merge_fans(&path, fan, events);
+                self.merge_fans(&path, fan.chunks, fan.columns, events);
             }
             return;
         }
@@ -86,25 +87,33 @@ impl ChunkStore {
         let (group, level) = entity.pending.push(member, &config);
         // The entity just found answers the first question (most pushes complete no fan).
         if let Some(fan) = entity.pending.take_full_fan(group, level, &config) {
-            self.merge_fans(&path, fan, events);
+            self.merge_fans(&path, fan, None, events);
         }
     }
 
     /// Merges a full fan of waiting chunks of the entity at `path` (out of their groups or
-    /// write buffer already), then every full fan the result completes, level after level.
+    /// write buffer already; a write buffer's fan may come with its rows in `columns`),
+    /// then every full fan the result completes, level after level.
     fn merge_fans(
         &mut self,
         path: &EntityPath,
         fan: Vec<Arc<Chunk>>,
+        columns: Option<RowColumns>,
         events: &mut Vec<StoreEvent>,
     ) {
         let config = self.config;
         let mut full_fan = Some(fan);
+        let mut columns = columns;
         while let Some(fan) = full_fan.take() {
             // The merge's events at once: growing one push at a time reallocated the
             // vector four times per merge.
             events.reserve(fan.len() + 1);
-            let Some(pieces) = self.rewrite_held(&fan, "merging a fan of waiting chunks") else {
+            let from_columns = columns
+                .take()
+                .and_then(|columns| self.merge_from_columns(columns, &fan));
+            let Some(pieces) =
+                from_columns.or_else(|| self.rewrite_held(&fan, "merging a fan of waiting chunks"))
+            else {
                 // The fan stays in the store as it is, no longer waiting.
                 for chunk in &fan {
                     self.settle_in_global_orders(chunk.id());
@@ -270,6 +279,38 @@ mod tests {
             .iter()
             .filter_map(|row| row.time().map(TimeInt::as_i64))
             .collect()
+    }
+
+    /// A row leaving the write buffer other than in a full fan (a range drop) leaves the
+    /// writer's columns to be made again: the next fan merges exactly the rows held, from
+    /// columns again, in time order whatever the arrival order.
+    #[test]
+    fn a_fan_merges_the_rows_held_after_a_buffered_row_is_dropped() {
+        let entity = EntityPath::parse("e").unwrap();
+        let config = crate::StoreConfig::DEFAULT.with_merge_fanout(4);
+        let mut store = ChunkStore::with_config(config).unwrap();
+        for frame in [3, 1, 2] {
+            store.insert(one_row(&entity, frame)).unwrap();
+        }
+        store.drop_time_range("frame", TimeRange::new(t(2), t(2)));
+        store.sanity_check().unwrap();
+        for frame in [5, 0] {
+            store.insert(one_row(&entity, frame)).unwrap();
+        }
+        store.sanity_check().unwrap();
+        assert_eq!(store.num_chunks(), 1, "the fan of four merged");
+        assert_eq!(range_times(&store, &entity, 0, 10), vec![0, 1, 3, 5]);
+        let merged = &store.chunks()[0];
+        assert_eq!(merged.time_columns()[0].times(), [0, 1, 3, 5]);
+        // A fan that never saw a removal is built from the columns as well.
+        for frame in [9, 8, 7, 6] {
+            store.insert(one_row(&entity, frame)).unwrap();
+        }
+        store.sanity_check().unwrap();
+        assert_eq!(
+            range_times(&store, &entity, 0, 10),
+            vec![0, 1, 3, 5, 6, 7, 8, 9]
+        );
     }
 
     /// An entity's chunks are its chunk set and its write buffer together (the buffer's

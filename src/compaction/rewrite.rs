@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use crate::ChunkError;
-use crate::chunk::RowSource;
+use crate::chunk::{RowColumns, RowSource};
 use crate::store::StoreConfig;
 use crate::{Chunk, ChunkStore, StoreStats};
 
@@ -23,6 +23,38 @@ impl ChunkStore {
                 None
             }
         }
+    }
+}
+
+impl ChunkStore {
+    /// The merge of a write buffer's full fan, built from the rows its group copied into
+    /// `columns` as they arrived: one chunk, the same rows in the same order as
+    /// [`rewrite`] gives, without reading the chunks again. `None` where the merge must
+    /// gather instead: the result would exceed a threshold (`rewrite` then cuts pieces in
+    /// bounded blocks), or, were the columns ever not the fan's rows, they are not used
+    /// (a debug build says so).
+    pub(super) fn merge_from_columns(
+        &mut self,
+        columns: RowColumns,
+        fan: &[Arc<Chunk>],
+    ) -> Option<Vec<Chunk>> {
+        let rows: usize = fan.iter().map(|chunk| chunk.num_rows()).sum();
+        let merged = match fan.first().and_then(|layout| columns.build(layout)) {
+            Some(Ok(merged)) if merged.num_rows() == rows => merged,
+            built => {
+                debug_assert!(
+                    false,
+                    "a write buffer's columns are not its fan's rows: {built:?}"
+                );
+                return None;
+            }
+        };
+        if self.config.is_oversized(&merged) {
+            return None;
+        }
+        self.view.stats.rows_copied_by_compaction += merged.num_rows() as u64;
+        self.view.stats.payload_bytes_copied_by_compaction += merged.payload_bytes();
+        Some(vec![merged])
     }
 }
 

@@ -12,12 +12,18 @@
 //! inside the group's span looks at its chunks. Without the summary, a latest-at at a
 //! streaming entity read every buffered chunk's columns, each a cold allocation: 130 →
 //! 310 ns a query on 100 entities of 15 buffered chunks each.
+//!
+//! The writer keeps, beside each group, its chunks' rows in growing columns
+//! ([`BufferColumns`], where the shape allows), so that the merge of a full fan builds its
+//! chunk from them rather than gathering from every chunk again. They are the writer's
+//! alone (`EntityIndex`, not the view): a snapshot never needs them, so a write under one
+//! copies none of them.
 
 use std::sync::Arc;
 
 use smallvec::SmallVec;
 
-use crate::chunk::ComponentTimeBounds;
+use crate::chunk::{ComponentTimeBounds, RowColumns};
 use crate::sanity::{SanityError, Structure};
 use crate::{Chunk, ChunkId, EntityPath, TimeInt};
 
@@ -41,6 +47,126 @@ struct BufferGroup {
     /// Has a chunk left since the summary was made? [`WriteBuffer::refresh`] remakes it
     /// once a removal is done (a seal takes a whole group out one chunk at a time).
     stale: bool,
+}
+
+/// What [`WriteBuffer::push`] did with a chunk.
+#[derive(Debug)]
+pub(crate) enum Pushed {
+    /// It opened a new group, the last.
+    Opened,
+    /// It joined the group at this position.
+    Joined(usize),
+    /// It filled the group at this position, which was taken out whole (`swap_remove`):
+    /// a full fan for compaction to merge, oldest first.
+    Filled(usize, Vec<Arc<Chunk>>),
+}
+
+/// A full fan of a write buffer's group, taken out for compaction to merge: its chunks,
+/// oldest first, and their rows in columns if the writer kept them.
+#[derive(Debug)]
+pub(crate) struct Fan {
+    pub chunks: Vec<Arc<Chunk>>,
+    pub columns: Option<RowColumns>,
+}
+
+/// The writer's columns of its entity's write buffer: per group of the buffer (same
+/// positions), the group's rows in [`RowColumns`], or `None` where a chunk's shape is not
+/// kept. Not in the store's figures, like the buffer's own structures: at most a fan's
+/// rows per group.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct BufferColumns {
+    groups: Vec<Option<RowColumns>>,
+    /// Did a chunk leave the buffer other than in a full fan (a collection, a drop)? The
+    /// positions may have moved: the columns are made again before their next use.
+    stale: bool,
+}
+
+impl BufferColumns {
+    /// Follows a push into `buffer` (already made): copies `chunk`'s rows into its group's
+    /// columns, and returns a filled group's columns with its fan.
+    pub fn follow(&mut self, buffer: &WriteBuffer, pushed: Pushed, chunk: &Chunk) -> Option<Fan> {
+        if self.stale {
+            // Made again from the groups as they are, the pushed chunk included.
+            *self = Self::of(buffer);
+            return match pushed {
+                Pushed::Filled(_, chunks) => Some(Fan {
+                    columns: columns_of(&chunks, chunks.len()),
+                    chunks,
+                }),
+                Pushed::Opened | Pushed::Joined(_) => None,
+            };
+        }
+        match pushed {
+            Pushed::Opened => {
+                let room = buffer.groups.last().map_or(0, |g| g.chunks.capacity());
+                self.groups.push(RowColumns::start(
+                    chunk,
+                    room.saturating_mul(chunk.num_rows()),
+                ));
+                None
+            }
+            Pushed::Joined(g) => {
+                if let Some(slot) = self.groups.get_mut(g)
+                    && let Some(columns) = slot
+                    && !columns.append(chunk)
+                {
+                    *slot = None;
+                }
+                None
+            }
+            Pushed::Filled(g, chunks) => {
+                let mut columns = (g < self.groups.len())
+                    .then(|| self.groups.swap_remove(g))
+                    .flatten();
+                if let Some(kept) = &mut columns
+                    && !kept.append(chunk)
+                {
+                    columns = None;
+                }
+                Some(Fan { chunks, columns })
+            }
+        }
+    }
+
+    /// A chunk left `buffer` other than in a full fan: see `stale`.
+    pub fn invalidate(&mut self) {
+        self.stale = true;
+    }
+
+    /// The columns of every group of `buffer`, made from its chunks.
+    fn of(buffer: &WriteBuffer) -> Self {
+        Self {
+            groups: buffer
+                .groups
+                .iter()
+                .map(|g| columns_of(&g.chunks, g.chunks.capacity()))
+                .collect(),
+            stale: false,
+        }
+    }
+
+    /// Unless stale, the columns are each group's chunks' rows, as made from them.
+    pub fn sanity_check(&self, buffer: &WriteBuffer, path: &EntityPath) -> Result<(), SanityError> {
+        if !self.stale && *self != Self::of(buffer) {
+            return Err(SanityError::new(
+                Structure::Entity,
+                "the write buffer's columns hold each group's rows, in order",
+            )
+            .at(path));
+        }
+        Ok(())
+    }
+}
+
+/// The rows of `chunks` (one layout) in columns, with room for `room` chunks like the
+/// first, if every chunk's shape is kept.
+fn columns_of(chunks: &[Arc<Chunk>], room: usize) -> Option<RowColumns> {
+    let (first, rest) = chunks.split_first()?;
+    let room = room.saturating_mul(first.num_rows());
+    let mut columns = RowColumns::start(first, room)?;
+    rest.iter()
+        .all(|chunk| columns.append(chunk))
+        .then_some(columns)
 }
 
 /// Most room a new group reserves: a full fan with the default fanout, not a million
@@ -208,7 +334,7 @@ impl WriteBuffer {
     /// Buffers a temporal chunk (once: the store adds a chunk id once). If its layout's
     /// group then holds `fanout` chunks, takes them all out and returns them, oldest
     /// first: a full fan for compaction to merge.
-    pub fn push(&mut self, chunk: &Arc<Chunk>, fanout: usize) -> Option<Vec<Arc<Chunk>>> {
+    pub fn push(&mut self, chunk: &Arc<Chunk>, fanout: usize) -> Pushed {
         let Some(g) = self.groups.iter().position(|g| {
             g.chunks
                 .first()
@@ -216,17 +342,17 @@ impl WriteBuffer {
         }) else {
             debug_assert!(fanout >= 2, "StoreConfig::validate");
             self.groups.push(BufferGroup::new(chunk, fanout));
-            return None;
+            return Pushed::Opened;
         };
         let group = &mut self.groups[g];
         if group.chunks.len() + 1 >= fanout {
             let mut fan = self.groups.swap_remove(g).chunks;
             fan.push(Arc::clone(chunk));
-            return Some(fan);
+            return Pushed::Filled(g, fan);
         }
         group.chunks.push(Arc::clone(chunk));
         group.add_to_summary(group.chunks.len() - 1);
-        None
+        Pushed::Joined(g)
     }
 
     /// Takes a chunk out; returns whether it was buffered. The group's summary is stale
@@ -405,7 +531,10 @@ mod tests {
         let other = chunk("y", &[1]);
         let mut buffer = WriteBuffer::default();
         for chunk in [&a, &b, &c, &other] {
-            assert!(buffer.push(chunk, 16).is_none());
+            assert!(matches!(
+                buffer.push(chunk, 16),
+                super::Pushed::Opened | super::Pushed::Joined(_)
+            ));
         }
         buffer.sanity_check(&path).unwrap();
         assert_eq!(buffer.len(), 4);

@@ -50,6 +50,9 @@ pub(crate) struct EntityIndex {
     /// ([`EntityView::extra_index_heap_bytes`] recounts it).
     pub large_index_bytes: u64,
     pub ledger: BufferLedger,
+    /// The rows of the view's write buffer, group by group, in columns
+    /// (`store/buffer.rs`): the writer's alone, so a write under a snapshot copies none.
+    pub buffer_columns: super::BufferColumns,
 }
 
 impl EntityIndex {
@@ -249,6 +252,7 @@ impl EntityMut<'_> {
         if still_buffered {
             let removed = self.view.buffered.remove(id);
             debug_assert!(removed, "{id} is buffered");
+            self.index.buffer_columns.invalidate();
         }
     }
 
@@ -310,6 +314,7 @@ impl EntityMut<'_> {
                 self.index.pending = super::pending::PendingGroups::default();
             }
             self.view.buffered = super::buffer::WriteBuffer::default();
+            self.index.buffer_columns = super::BufferColumns::default();
             self.view.unindexed.clear();
             self.view.temporal_per_timeline_per_component = SmallMap::default();
             let freed = i64::try_from(self.index.large_index_bytes).unwrap_or(i64::MAX);

@@ -43,7 +43,7 @@ impl ChunkStore {
         &mut self,
         chunk: Arc<Chunk>,
         events: &mut Vec<StoreEvent>,
-    ) -> Option<Vec<Arc<Chunk>>> {
+    ) -> Option<super::Fan> {
         self.join(chunk, Joining::Buffered, events)
     }
 
@@ -54,7 +54,7 @@ impl ChunkStore {
         chunk: Arc<Chunk>,
         joining: Joining,
         events: &mut Vec<StoreEvent>,
-    ) -> Option<Vec<Arc<Chunk>>> {
+    ) -> Option<super::Fan> {
         let in_global_orders = joining == Joining::Settled;
         let ledgered = !chunk.owns_all_buffers();
         let mut entity = super::entity_mut(
@@ -115,7 +115,12 @@ impl ChunkStore {
         } else {
             let buffered = joining == Joining::Buffered;
             let extra = if buffered {
-                full_fan = entity.view.buffered.push(&chunk, self.config.merge_fanout);
+                let pushed = entity.view.buffered.push(&chunk, self.config.merge_fanout);
+                full_fan =
+                    entity
+                        .index
+                        .buffer_columns
+                        .follow(&entity.view.buffered, pushed, &chunk);
                 0
             } else {
                 entity.insert_temporal(&chunk)

@@ -7,6 +7,8 @@
 //! in step; [`sanity`] checks that they did.
 
 mod buffer;
+use buffer::BufferColumns;
+pub(crate) use buffer::Fan;
 mod config;
 mod entity;
 mod entity_table;

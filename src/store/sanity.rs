@@ -357,6 +357,7 @@ impl EntityIndex {
             pending,
             large_index_bytes,
             ledger: _, // recounted by the store (`check_entities`)
+            buffer_columns,
         } = self;
         // The view's own invariants were checked with the view; here, what it must agree
         // with: the writer's part and the chunks.
@@ -382,6 +383,7 @@ impl EntityIndex {
         if unindexed.iter().any(|c| !chunk_ids.contains(&c.id())) {
             return Err(fail("an unindexed chunk is the store's"));
         }
+        buffer_columns.sanity_check(buffered, path)?;
         for chunk in buffered.chunks() {
             let waiting = chunks
                 .get(&chunk.id())
