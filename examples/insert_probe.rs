@@ -10,14 +10,14 @@
 //!     target/release/examples/insert_probe MODE
 //! ```
 //!
-//! `MODE` is `stream` (`insert_streaming`'s 1,000,000 rows over 100 entities), `ooo`
-//! (`out_of_order`'s 100,000 rows of one entity, frames a permutation), or `level1`
+//! `MODE` is `stream` (the 1,000,000 rows of `insert_streaming`'s shape: 100 entities,
+//! one frame of each in turn), `ooo` (`out_of_order`'s 100,000 rows of one entity,
+//! frames a permutation), or `level1`
 //! (160,000 streamed rows with chunks of at most 16 rows, so that every merge is a write
 //! buffer's fan of one-row chunks). It prints the wall time per row (noisy; judge with
 //! the counts), the chunks, the rows compaction copied and the store's heap.
 #![allow(
     clippy::cast_precision_loss,
-    clippy::cast_possible_wrap,
     reason = "benchmark arithmetic on small counts"
 )]
 #![allow(
@@ -31,7 +31,7 @@ mod common;
 use std::sync::Arc;
 
 use chunkstore::{Chunk, ChunkStore, StoreConfig};
-use common::{RowIds, SplitMix64, entities, scalars, temporal_chunk};
+use common::{RowIds, SplitMix64, entities, interleaved_streams, scalar_series};
 
 #[inline(never)]
 fn probe_inserts(store: &mut ChunkStore, chunks: &[Arc<Chunk>]) {
@@ -40,45 +40,25 @@ fn probe_inserts(store: &mut ChunkStore, chunks: &[Arc<Chunk>]) {
     }
 }
 
-/// `rows` one-row chunks round-robin over 100 entities, frame `k / 100`, as
-/// `insert_streaming` makes them.
-fn streamed(ids: &mut RowIds, rows: usize) -> Vec<Arc<Chunk>> {
+/// `frames` one-row chunks of each of 100 entities, one frame of each in turn.
+fn streamed(ids: &mut RowIds, frames: usize) -> Vec<Arc<Chunk>> {
     let paths = entities(100, |e| format!("stream/{e:03}"));
-    (0..rows)
-        .map(|k| {
-            temporal_chunk(
-                ids,
-                &paths[k % paths.len()],
-                vec![(k / paths.len()) as i64],
-                vec![("scalar", scalars(vec![(k % 1000) as f64]))],
-            )
-        })
-        .collect()
+    interleaved_streams(ids, &paths, frames)
 }
 
 fn main() {
     let mode = std::env::args().nth(1).unwrap_or_else(|| "stream".into());
     let mut ids = RowIds::new();
     let (chunks, config) = match mode.as_str() {
-        "stream" => (streamed(&mut ids, 1_000_000), StoreConfig::DEFAULT),
+        "stream" => (streamed(&mut ids, 10_000), StoreConfig::DEFAULT),
         "level1" => (
-            streamed(&mut ids, 160_000),
+            streamed(&mut ids, 1_600),
             StoreConfig::DEFAULT.with_max_rows(16),
         ),
         "ooo" => {
             let paths = entities(1, |_| "ooo".to_owned());
-            let chunks = SplitMix64::new()
-                .permutation(100_000)
-                .into_iter()
-                .map(|f| {
-                    temporal_chunk(
-                        &mut ids,
-                        &paths[0],
-                        vec![f],
-                        vec![("scalar", scalars(vec![f as f64]))],
-                    )
-                })
-                .collect();
+            let frames = SplitMix64::new().permutation(100_000);
+            let chunks = scalar_series(&mut ids, &paths[0], &frames, 1);
             (chunks, StoreConfig::DEFAULT)
         }
         other => panic!("MODE is stream, ooo or level1, not {other:?}"),

@@ -202,12 +202,10 @@ pub(super) fn gather_single_values(
             .map(|&(c, r)| columns.get(c).is_some_and(|column| column.list.is_valid(r)))
             .collect::<NullBuffer>()
     });
-    // `0, 1, .., n` (list offsets are `i32`s; a merge's piece is far smaller): ascending by
-    // construction, and Arrow still checks it, in one pass.
-    let end = i32::try_from(rows.len()).ok()?;
-    let offsets = OffsetBuffer::new((0..=end).collect::<ScalarBuffer<i32>>());
+    // List offsets are `i32`s; a merge's piece is far smaller.
+    let num_cells = i32::try_from(rows.len()).ok()?;
     Some(single_values_list(
-        item_field, leaf_type, fixed_size, offsets, values, nulls,
+        item_field, leaf_type, fixed_size, num_cells, values, nulls,
     ))
 }
 
@@ -242,16 +240,18 @@ fn gather_leaf<T: ArrowNativeType>(
     Some(Buffer::from_vec(values))
 }
 
-/// A list column of one instance per cell (`offsets` are `0, 1, .., n`), its items'
-/// primitive values in `values` (see [`gather_single_values`]).
+/// A list column of `num_cells` cells of one instance each, its items' primitive values in
+/// `values` (see [`gather_single_values`] and the write buffer's columns).
 pub(super) fn single_values_list(
     item_field: &FieldRef,
     leaf_type: &DataType,
     fixed_size: Option<usize>,
-    offsets: OffsetBuffer<i32>,
+    num_cells: i32,
     values: Buffer,
     nulls: Option<NullBuffer>,
 ) -> Result<ArrayRef, ChunkError> {
+    // `0, 1, .., n`: ascending by construction, and Arrow still checks it, in one pass.
+    let offsets = OffsetBuffer::new((0..=num_cells).collect::<ScalarBuffer<i32>>());
     let num_cells = offsets.len() - 1;
     // Checked against `values` by Arrow: a wrong length is an error, not a misread.
     let leaf_len = num_cells.saturating_mul(fixed_size.unwrap_or(1));

@@ -16,7 +16,7 @@
 //! Chunks of any other shape leave their group without columns, and the merge gathers.
 
 use arrow_array::Array;
-use arrow_buffer::{MutableBuffer, NullBuffer, OffsetBuffer, ScalarBuffer};
+use arrow_buffer::{MutableBuffer, NullBuffer, ScalarBuffer};
 use arrow_schema::DataType;
 use smallvec::SmallVec;
 
@@ -50,9 +50,8 @@ struct CellColumn {
     valid: Option<Vec<bool>>,
 }
 
-/// A snapshot shares the write buffer, so the writer's next push copies the group, and
-/// then pushes a row: the copy keeps each column's room (a copy of exactly the rows held
-/// made every push under a `SharedStore` publishing per insert a reallocation per column).
+/// A copy (a store's clone copies the writer's part of every entity) keeps each column's
+/// room, so that the copy's next push does not reallocate every column.
 impl Clone for RowColumns {
     fn clone(&self) -> Self {
         fn with_room<T: Copy>(values: &[T], room: usize) -> Vec<T> {
@@ -286,14 +285,13 @@ impl RowColumns {
                     .map(|p| valid[pick(p)])
                     .collect::<NullBuffer>()
             });
-            // `0, 1, .., n`: list offsets are `i32`s, and a write buffer's fan far smaller.
-            let end = i32::try_from(num_rows).ok()?;
-            let offsets = OffsetBuffer::new((0..=end).collect::<ScalarBuffer<i32>>());
+            // List offsets are `i32`s, and a write buffer's fan far smaller.
+            let num_cells = i32::try_from(num_rows).ok()?;
             let array = single_values_list(
                 item_field,
                 leaf_type,
                 fixed_size,
-                offsets,
+                num_cells,
                 values.into(),
                 nulls,
             );
