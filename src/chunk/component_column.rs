@@ -39,16 +39,13 @@ impl ComponentTimeBounds {
 
 /// One component's column in a chunk.
 #[derive(Debug)]
+// What reading a cell touches first (the list's offsets and validity, the shape flag, the
+// leaf's values), then the name, what transport reads and the bounds (last: their row
+// ids align to 16 bytes). Rust's own layout put the list, the flag and the leaf over four
+// lines of the column's 288 bytes.
+#[repr(C)]
 pub struct ComponentColumn {
-    pub(super) descriptor: ComponentDescriptor,
     pub(super) list: ListArray,
-    /// The column's field as given (its name and metadata), for lossless transport; `None`
-    /// for a column built through the API, whose field is named after the component and
-    /// carries no metadata (derived when needed rather than allocated per chunk).
-    pub(super) field: Option<FieldRef>,
-    /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
-    /// every cell is null.
-    pub(super) bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 1]>,
     /// For every chunk: the row of the non-null cell with the greatest row id, or
     /// [`NO_ROW`] if every cell is null. It is the static winner of a static chunk. (A
     /// sentinel rather than an `Option`, so that the flag below fits in the same word.)
@@ -58,6 +55,14 @@ pub struct ComponentColumn {
     pub(super) one_instance_per_row: bool,
     /// The primitive values beneath the items, when there are such; see [`PrimitiveLeaf`].
     pub(super) leaf: Option<PrimitiveLeaf>,
+    pub(super) descriptor: ComponentDescriptor,
+    /// The column's field as given (its name and metadata), for lossless transport; `None`
+    /// for a column built through the API, whose field is named after the component and
+    /// carries no metadata (derived when needed rather than allocated per chunk).
+    pub(super) field: Option<FieldRef>,
+    /// Per time column of the chunk (same order): bounds of the non-null cells, `None` when
+    /// every cell is null.
+    pub(super) bounds_per_timeline: SmallVec<[Option<ComponentTimeBounds>; 1]>,
 }
 
 /// The primitive values beneath a column's items, when the items are primitive values or
@@ -300,13 +305,13 @@ impl ComponentColumn {
             .collect();
 
         Ok(Self {
-            descriptor,
             list,
-            field,
-            bounds_per_timeline,
             best_cell_row,
             one_instance_per_row,
             leaf,
+            descriptor,
+            field,
+            bounds_per_timeline,
         })
     }
 

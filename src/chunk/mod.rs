@@ -61,13 +61,21 @@ pub(crate) use transport::row_id_field;
 /// assert!(!chunk.time_column("frame").unwrap().is_sorted());
 /// ```
 #[derive(Debug)]
+// Fields in the order a query reads them, so that its reads share cache lines: behind
+// the `Arc`'s counts (which a query's answer touches anyway), the component columns, the
+// row ids, the flags and the first time column's times, range and order fill the first
+// 128 bytes; what only inserts, removals and transport read comes after. Rust's own
+// layout spread these over four or five lines of the chunk's 352 bytes
+// (`docs/performance-log.md`).
+#[repr(C)]
 pub struct Chunk {
-    id: ChunkId,
-    entity_path: EntityPath,
+    components: Vec<ComponentColumn>,
     row_ids: Box<[RowId]>,
+    /// Row of the greatest row id (a position, not an id: a quarter of the bytes).
+    max_row_id_row: u32,
     is_sorted_by_row_id: bool,
     /// Is one of the components [`crate::ComponentName::CLEAR_IS_RECURSIVE`]? Kept so that
-    /// removal and GC need not compare every component's name (a cold string per chunk).
+    /// removal, GC and a query's check of its answer need not compare a component's name.
     has_clears: bool,
     /// Did the chunk alone hold its Arrow buffers when it was built? Then a store need not
     /// read every buffer's shared reference count (a cold cache line each) on insert.
@@ -75,15 +83,14 @@ pub struct Chunk {
     /// Inline room for one: most chunks have one timeline, and a streamed row's chunk is
     /// small enough that a second inline column would be a tenth of it.
     time_columns: SmallVec<[TimeColumn; 1]>,
-    components: Vec<ComponentColumn>,
-    /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
-    /// transport.
-    extra_metadata: Metadata,
+    id: ChunkId,
     /// The least row id, kept here because garbage collection and removal key chunks by
     /// it (reading it from the row ids would cost a cache miss per chunk).
     min_row_id: RowId,
-    /// Row of the greatest row id (a position, not an id: a quarter of the bytes).
-    max_row_id_row: u32,
+    entity_path: EntityPath,
+    /// Schema metadata other than `rerun:id` and `rerun:entity_path`, kept for lossless
+    /// transport.
+    extra_metadata: Metadata,
     /// Heap the chunk and its Arrow buffers occupy; see [`memory`].
     memory: memory::ChunkMemory,
 }
@@ -386,6 +393,12 @@ impl Chunk {
     /// Heap of [`Chunk::buffers`], each counted once (read without touching them).
     pub(crate) fn buffer_bytes(&self) -> u64 {
         self.memory.buffer_bytes
+    }
+
+    /// Does the chunk have a Clear column? Read from the chunk's first cache line, where
+    /// asking a column its name reads the column and the name.
+    pub(crate) fn has_clears(&self) -> bool {
+        self.has_clears
     }
 
     /// The Clear column ([`crate::ComponentName::CLEAR_IS_RECURSIVE`]), if the chunk has

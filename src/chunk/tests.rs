@@ -650,3 +650,52 @@ proptest::proptest! {
         chunk.sanity_check().unwrap();
     }
 }
+
+/// A query's reads of a chunk (its columns, row ids, flags and first time column's times,
+/// range and order) stay in the first 128 bytes of the chunk's `Arc` allocation, and a
+/// cell's read of its column (the list, the shape flag, the leaf) in the column's first
+/// 152: a field added in front of them would cost every query another cache miss.
+#[test]
+fn a_query_reads_the_front_of_a_chunk_and_of_its_columns() {
+    use std::mem::offset_of;
+
+    use super::{ComponentColumn, TimeColumn};
+
+    let chunk = chunk_of(ListArray::new(
+        Arc::new(arrow_schema::Field::new_list_field(DataType::Float64, true)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1].into()),
+        Arc::new(arrow_array::Float64Array::from(vec![1.0])),
+        None,
+    ));
+    let arc_counts = 2 * size_of::<usize>();
+    let start = std::ptr::from_ref(&chunk) as usize;
+    let first_time_column = chunk.time_columns.as_ptr() as usize - start;
+    let hot_chunk_end = arc_counts
+        + first_time_column
+        + [
+            offset_of!(TimeColumn, times) + size_of::<arrow_buffer::ScalarBuffer<i64>>(),
+            offset_of!(TimeColumn, time_range) + size_of::<crate::TimeRange>(),
+            offset_of!(TimeColumn, index_order) + size_of::<Option<Box<[u32]>>>(),
+        ]
+        .into_iter()
+        .max()
+        .unwrap();
+    assert!(hot_chunk_end <= 128, "{hot_chunk_end}");
+    for end in [
+        offset_of!(Chunk, components) + size_of::<Vec<ComponentColumn>>(),
+        offset_of!(Chunk, row_ids) + size_of::<Box<[RowId]>>(),
+        offset_of!(Chunk, has_clears) + 1,
+    ] {
+        assert!(arc_counts + end <= 64, "{end}");
+    }
+    let hot_column_end = [
+        offset_of!(ComponentColumn, list) + size_of::<ListArray>(),
+        offset_of!(ComponentColumn, one_instance_per_row) + 1,
+        offset_of!(ComponentColumn, leaf)
+            + size_of::<Option<super::component_column::PrimitiveLeaf>>(),
+    ]
+    .into_iter()
+    .max()
+    .unwrap();
+    assert!(hot_column_end <= 152, "{hot_column_end}");
+}

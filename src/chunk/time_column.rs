@@ -12,17 +12,20 @@ use crate::{RowId, TimeInt, TimeRange, Timeline};
 
 /// One timeline's times in a chunk.
 #[derive(Debug)]
+// What a query's search reads first (the times, their range and order), so that it shares
+// the chunk's first cache lines with the component columns (see `Chunk`'s layout).
+#[repr(C)]
 pub struct TimeColumn {
-    pub(super) timeline: Timeline,
     pub(super) times: ScalarBuffer<i64>,
+    pub(super) time_range: TimeRange,
+    /// Row positions in ascending `(time, row id)` order; `None` when the rows already are.
+    pub(super) index_order: Option<Box<[u32]>>,
+    pub(super) timeline: Timeline,
     /// The column's Arrow type as given (a timestamp may carry a timezone).
     pub(super) data_type: DataType,
     /// Field metadata as given, for lossless transport.
     pub(super) field_metadata: Metadata,
     pub(super) is_sorted: bool,
-    /// Row positions in ascending `(time, row id)` order; `None` when the rows already are.
-    pub(super) index_order: Option<Box<[u32]>>,
-    pub(super) time_range: TimeRange,
 }
 
 pub(super) struct RawTimeColumn {

@@ -104,8 +104,11 @@ impl StoreView {
         component: &str,
     ) -> Option<QueryCell> {
         let answer = self.latest_at_unfiltered(query, entity, component)?;
+        // The chunk's flag first: it shares the answer's first cache line, where the
+        // column's name is two lines further.
+        let answers_a_clear = answer.chunk.has_clears() && answer.column().name().is_clear();
         let hidden = !self.clears.is_empty()
-            && !answer.column().name().is_clear()
+            && !answers_a_clear
             && self.clears.is_hidden(
                 entity,
                 query.timeline(),
