@@ -104,11 +104,8 @@ impl StoreView {
         component: &str,
     ) -> Option<QueryCell> {
         let answer = self.latest_at_unfiltered(query, entity, component)?;
-        // The chunk's flag first: it shares the answer's first cache line, where the
-        // column's name is two lines further.
-        let answers_a_clear = answer.chunk.has_clears() && answer.column().name().is_clear();
         let hidden = !self.clears.is_empty()
-            && !answers_a_clear
+            && !is_a_clear(&answer)
             && self.clears.is_hidden(
                 entity,
                 query.timeline(),
@@ -184,6 +181,12 @@ fn latest_in_index(index: &TemporalComponentIndex, at: TimeInt) -> Option<Candid
         keep_latest(&mut best, candidate);
     });
     best
+}
+
+/// Is the cell one of the Clear column's? The chunk's flag first: it shares the answer's
+/// first cache line, where the column's name is two lines further.
+fn is_a_clear(cell: &QueryCell) -> bool {
+    cell.chunk.has_clears() && cell.column().name().is_clear()
 }
 
 /// The non-null cell with the greatest index at or before `at` inside one chunk.
