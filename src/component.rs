@@ -11,8 +11,11 @@ pub struct ComponentName(Arc<str>);
 // Equal names are usually one shared allocation (see `ComponentName::new`): equality and
 // order compare the pointers first (`crate::interner::same_name`); the hash is the text's.
 impl PartialEq for ComponentName {
+    #[inline]
     fn eq(&self, other: &Self) -> bool {
-        crate::interner::same_name(&self.0, &other.0)
+        // The usual case (one interned copy) decided here, inline; the text compared only
+        // for names from elsewhere.
+        Arc::ptr_eq(&self.0, &other.0) || crate::interner::same_name(&self.0, &other.0)
     }
 }
 

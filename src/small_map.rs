@@ -53,6 +53,8 @@ impl SmallMapKey for std::sync::Arc<str> {
 /// Its equality already compares with [`crate::text::same_text`].
 impl SmallMapKey for crate::ComponentName {}
 
+impl SmallMapKey for crate::ChunkId {}
+
 #[cfg(test)]
 impl SmallMapKey for String {}
 

@@ -36,10 +36,10 @@ pub(crate) fn add_index_bytes(stats: &mut StoreStats, entity: &mut EntityStats, 
 /// Estimated heap of one entity's own bookkeeping, whatever its chunks: its slot in the
 /// entity map, its path, and its small maps (element types, chunk set, timelines,
 /// components, compaction groups). Measured with the counting allocator of
-/// `tests/memory.rs` on its many-entity shapes (about 1,800 bytes an entity in both, since
-/// the small maps keep their first entry inline); counted in `heap_bytes` and the entity's
-/// figure, in neither kind's.
-pub(crate) const ENTITY_BYTES: u64 = 1_800;
+/// `tests/memory.rs` on its many-entity shapes (about 920 bytes an entity, since the small
+/// maps keep their first entry inline; 1,800 while the component types were B-trees);
+/// counted in `heap_bytes` and the entity's figure, in neither kind's.
+pub(crate) const ENTITY_BYTES: u64 = 920;
 
 /// Estimated heap of the store's bookkeeping per chunk: its slot in the chunk map, in the
 /// entity's chunk set and in the garbage collector's row-id order.
@@ -47,8 +47,8 @@ const INDEX_BYTES_PER_CHUNK: u64 = 80;
 /// Estimated heap per timeline of a chunk: its slots in the per-timeline time orders.
 const INDEX_BYTES_PER_TIMELINE: u64 = 100;
 /// Estimated heap of one component entry of a static chunk (its static winner slot and
-/// chunk record).
-const STATIC_BYTES_PER_ENTRY: u64 = 490;
+/// chunk record; 490 while an entity's static chunks were a hash map).
+const STATIC_BYTES_PER_ENTRY: u64 = 340;
 
 /// Totals, kept up to date by every mutation, O(1) to read.
 ///

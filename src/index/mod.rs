@@ -147,6 +147,11 @@ impl TemporalComponentIndex {
                 let Err(position) = entries.binary_search_by_key(&key, min_time_key) else {
                     return; // already indexed: a store never inserts a chunk id twice
                 };
+                // Most indices of a many-entity store hold one chunk: a first push would
+                // make room for four (320 bytes, 240 of them never used).
+                if entries.capacity() == 0 {
+                    entries.reserve_exact(1);
+                }
                 entries.insert(position, entry);
                 if entries.len() > SMALL_INDEX_MAX_CHUNKS {
                     *self = Self::from_sorted(std::mem::take(entries));

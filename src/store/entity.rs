@@ -4,7 +4,6 @@
 //! [`EntityView`] (its static winners and temporal indices). Together they own the
 //! invariant that each index holds exactly the entity's chunks with cells there.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use arrow_schema::DataType;
@@ -30,10 +29,16 @@ pub(crate) struct EntityIndex {
     /// a component is forgotten with the last of them, so that what the store accepts
     /// depends only on what it holds (not on whether compaction rewrote the chunks that
     /// held a component's first data).
-    pub element_types: BTreeMap<ComponentName, ComponentType>,
+    ///
+    /// A small map, not a B-tree: a B-tree's first node is 544 bytes for one or two
+    /// components, a third of an entity's bookkeeping in a store of many small entities.
+    pub element_types: SmallMap<ComponentName, ComponentType>,
     /// How many components each static chunk of this entity answers for; a chunk that
     /// answers for none is invisible and leaves the store.
-    pub static_chunks: ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
+    ///
+    /// A small map: an entity usually has one static chunk or none, which then costs no
+    /// allocation (a hash map's first table is 148 bytes).
+    pub static_chunks: SmallMap<ChunkId, (Arc<Chunk>, usize)>,
     /// Every chunk of the entity the store holds outside its write buffer (unordered:
     /// `drop_entity` sorts them). The buffered ones are the view's `buffered`: a row
     /// streamed one at a time passes through the buffer and into a merge without entering

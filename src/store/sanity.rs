@@ -10,6 +10,7 @@ use super::view::{EntityView, StaticWinner};
 use super::{ChunkStore, RewriteMark, StoreConfig, StoredChunk, TimelineChunks};
 use crate::ordered::OrderedSet;
 use crate::sanity::{SanityError, Structure, ensure};
+use crate::small_map::SmallMap;
 use crate::stats::{BufferLedger, EntityStats, StoreLedgers, StoreStats};
 use crate::{Chunk, ChunkId, ComponentName, EntityPath, RowId};
 
@@ -456,7 +457,7 @@ impl EntityIndex {
 fn check_static_winners(
     path: &EntityPath,
     static_winners: &crate::small_map::SmallMap<ComponentName, StaticWinner>,
-    static_chunks: &ahash::HashMap<ChunkId, (Arc<Chunk>, usize)>,
+    static_chunks: &SmallMap<ChunkId, (Arc<Chunk>, usize)>,
     chunks: &ahash::HashMap<ChunkId, StoredChunk>,
 ) -> Result<(), SanityError> {
     let fail = |invariant| SanityError::new(Structure::Entity, invariant).at(path);
@@ -488,7 +489,7 @@ fn check_static_winners(
             }
         }
     }
-    for (id, (chunk, num_won)) in static_chunks {
+    for (id, (chunk, num_won)) in static_chunks.iter() {
         if wins.get(id).copied().unwrap_or(0) != *num_won || *num_won == 0 {
             return Err(
                 fail("a static chunk answers for the components it is counted for")
@@ -532,7 +533,7 @@ fn check_rewrite_mark(
 /// `held` are all the entity's chunks.
 fn check_component_types<'a>(
     path: &EntityPath,
-    element_types: &BTreeMap<ComponentName, ComponentType>,
+    element_types: &SmallMap<ComponentName, ComponentType>,
     held: impl Iterator<Item = &'a Arc<Chunk>>,
 ) -> Result<(), SanityError> {
     let mut columns_per_component: BTreeMap<&ComponentName, (&DataType, usize)> = BTreeMap::new();
@@ -553,7 +554,7 @@ fn check_component_types<'a>(
                         element_type,
                         num_chunks,
                     } = known;
-                    num_chunks == count && element_type.equals_datatype(data_type)
+                    *num_chunks == *count && element_type.equals_datatype(data_type)
                 })
             });
     if types_match {

@@ -13,7 +13,6 @@
 //! entity table's path to the entity's slot.
 //! A store nobody snapshots owns every piece, so its writes copy nothing.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use arrow_schema::DataType;
@@ -45,7 +44,9 @@ pub(crate) struct StaticWinner {
 pub(crate) struct EntityView {
     /// The element type of each component the entity holds chunks of (static or
     /// temporal). Behind an `Arc`: it changes only when a component appears or goes.
-    pub component_types: Arc<BTreeMap<ComponentName, DataType>>,
+    ///
+    /// A small map (see [`EntityIndex`](super::entity::EntityIndex)'s `element_types`).
+    pub component_types: Arc<SmallMap<ComponentName, DataType>>,
     pub static_winners: SmallMap<ComponentName, StaticWinner>,
     /// Each index inline (a query reaches its entries in as many steps as in a store
     /// without snapshots): a small index is one vector, copied with the view; a sequence
@@ -161,7 +162,15 @@ impl StoreView {
     pub fn component_names(&self, entity: &EntityPath) -> Vec<ComponentName> {
         self.entities
             .get(entity)
-            .map(|e| e.component_types.keys().cloned().collect())
+            .map(|e| {
+                let mut names: Vec<ComponentName> = e
+                    .component_types
+                    .iter()
+                    .map(|(name, _)| name.clone())
+                    .collect();
+                names.sort();
+                names
+            })
             .unwrap_or_default()
     }
 
@@ -310,7 +319,7 @@ impl EntityView {
             per_component.sanity_check()?;
             for (component, index) in per_component.iter() {
                 index.sanity_check()?;
-                if !component_types.contains_key(component) || index.is_empty() {
+                if component_types.get(component).is_none() || index.is_empty() {
                     return Err(fail("a temporal index is typed and non-empty")
                         .at(format_args!("{path}: {component} on {timeline}")));
                 }
