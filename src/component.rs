@@ -13,9 +13,7 @@ pub struct ComponentName(Arc<str>);
 impl PartialEq for ComponentName {
     #[inline]
     fn eq(&self, other: &Self) -> bool {
-        // The usual case (one interned copy) decided here, inline; the text compared only
-        // for names from elsewhere.
-        Arc::ptr_eq(&self.0, &other.0) || crate::interner::same_name(&self.0, &other.0)
+        crate::interner::same_name(&self.0, &other.0)
     }
 }
 

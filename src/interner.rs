@@ -282,7 +282,9 @@ pub(crate) fn is_shared_field(field: &FieldRef) -> bool {
 /// compares the bytes).
 #[inline]
 pub(crate) fn same_name(a: &Arc<str>, b: &Arc<str>) -> bool {
-    crate::text::same_text(a, b)
+    // The shared copy decided here, inline in every caller; the text (lengths first) only
+    // for names from elsewhere.
+    Arc::ptr_eq(a, b) || crate::text::same_text(a, b)
 }
 
 /// Orders two names by their text, with the same shortcut as [`same_name`].
