@@ -2,8 +2,8 @@
 //! a few of: `str`'s own equality calls `memcmp` whatever the length, and the call costs
 //! more than comparing a name of a few bytes.
 
-/// Are `a` and `b` the same text? Same address first (names are often one shared copy),
-/// then lengths, then the bytes: a name of up to 16 bytes as two overlapping words.
+/// Are `a` and `b` the same text? Lengths first, then the same address (names are often
+/// one shared copy), then the bytes: a name of up to 16 bytes as two overlapping words.
 #[inline]
 pub(crate) fn same_text(a: &str, b: &str) -> bool {
     let (a, b) = (a.as_bytes(), b.as_bytes());
