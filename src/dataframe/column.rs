@@ -93,34 +93,26 @@ impl TemporalColumn {
         merge(out);
     }
 
-    /// Is every coming time of the column (rows and Clears) that is at most `last`
-    /// `known`? Then merging them into a batch that knows them would add nothing: what
-    /// [`Self::coming_times`] gathers, checked without gathering it.
+    /// Is every coming time of the column (rows and Clears) that is at most `last` one of
+    /// the batch's ascending `times` (`known` tells it for one time)? Then merging them
+    /// into the batch would add nothing: what [`Self::coming_times`] gathers, checked
+    /// without gathering it ([`RangeCursor::times_ahead_known`]).
     pub(super) fn coming_times_known(
         &self,
         last: TimeInt,
+        times: &[TimeInt],
         mut known: impl FnMut(TimeInt) -> bool,
     ) -> bool {
-        let mut unknown = false;
-        // Stops (`false`) at the first time past `last` or not known; once one is not
-        // known, every later call stops at once.
-        let mut check = |time: TimeInt| {
-            if unknown || time > last {
-                return false;
-            }
-            unknown = !known(time);
-            !unknown
-        };
-        if let Some(cursor) = &self.cursor {
-            cursor.times_ahead(&mut check);
+        if let Some(cursor) = &self.cursor
+            && !cursor.times_ahead_known(last, times, &mut known)
+        {
+            return false;
         }
         let clears = self.clears.get(self.next_clear..).unwrap_or_default();
-        for &(time, _) in clears {
-            if !check(time) {
-                break;
-            }
-        }
-        !unknown
+        clears
+            .iter()
+            .take_while(|&&(time, _)| time <= last)
+            .all(|&(time, _)| known(time))
     }
 
     /// The Clears still to come at or before `last`.
@@ -174,6 +166,17 @@ impl TemporalColumn {
                     },
                 );
             }
+        }
+    }
+
+    /// Consumes every event (row or Clear) at or before `last` without looking at it: for
+    /// a column whose cells the batch does not build and whose rows raise no other index
+    /// column, only its times mattered, and the batch's row times already hold them.
+    pub(super) fn skip_through(&mut self, last: TimeInt) {
+        let clears = self.clears.get(self.next_clear..).unwrap_or_default();
+        self.next_clear += clears.partition_point(|&(time, _)| time <= last);
+        if let Some(cursor) = &mut self.cursor {
+            cursor.skip_through(last);
         }
     }
 

@@ -209,8 +209,9 @@ impl<'a> DataframeStream<'a> {
                             set_is_current = true;
                         }
                         if known.is_some_and(|known| column.same_times_ahead(known, last))
-                            || column
-                                .coming_times_known(last, |time| time_set.contains(times, time))
+                            || column.coming_times_known(last, times, |time| {
+                                time_set.contains(times, time)
+                            })
                         {
                             known = Some(column);
                             continue;
@@ -248,6 +249,12 @@ impl<'a> DataframeStream<'a> {
                 let Some(&last) = self.times.last() else {
                     return Ok(());
                 };
+                if !selected && self.index_values.len() <= 1 {
+                    // Its times are in the batch's already, and it builds and raises
+                    // nothing: a projection's other columns cost a search per run.
+                    column.skip_through(last);
+                    return Ok(());
+                }
                 let mut from = 0;
                 let times = &self.times;
                 let sources = &state.sources;

@@ -571,6 +571,135 @@ impl RangeCursor {
         }
     }
 
+    /// Is the time of every row still to come, up to `last`, one of the ascending distinct
+    /// `times` (`known` tells it for one time)? Where a run's rows are a slice of its
+    /// chunk's row-ordered times without a null cell (an entity logging at every tick),
+    /// the slice is compared with the run of `times` it starts at: one comparison of
+    /// slices rather than a look-up per row. A slice that does not match is looked up
+    /// time by time, so the answer is the same either way.
+    pub fn times_ahead_known(
+        &self,
+        last: TimeInt,
+        times: &[TimeInt],
+        mut known: impl FnMut(TimeInt) -> bool,
+    ) -> bool {
+        for row in &self.block[self.next..] {
+            if row.time > last {
+                return true;
+            }
+            if !known(row.time) {
+                return false;
+            }
+        }
+        let mut position = self.position;
+        // Where the previous run's matched times ended (the next run may start with its
+        // last time, duplicated across chunks).
+        let mut from = 0;
+        for run in self.result.runs.get(self.run..).unwrap_or_default() {
+            let start = position.max(run.start) as usize;
+            position = 0;
+            let source = &self.result.sources[run.source as usize];
+            let Some(time_column) = source.time_column else {
+                continue;
+            };
+            let column = &source.chunk.components()[source.component_column as usize];
+            let time_column = &source.chunk.time_columns()[time_column as usize];
+            let values = time_column.times();
+            let end = run.end as usize;
+            if time_column.index_order().is_none() && column.list_array().null_count() == 0 {
+                let run_times = values.get(start..end).unwrap_or_default();
+                let due = run_times.partition_point(|&v| TimeInt::saturating(v) <= last);
+                if let Some(&first) = run_times.first().filter(|_| due > 0) {
+                    let first = TimeInt::saturating(first);
+                    let at = from + times[from.min(times.len())..].partition_point(|&t| t < first);
+                    let same = times.get(at..at + due).is_some_and(|known_run| {
+                        known_run
+                            .iter()
+                            .zip(&run_times[..due])
+                            .all(|(t, &v)| t.as_i64() == v)
+                    });
+                    if same {
+                        from = at + due - 1;
+                    } else if !run_times[..due]
+                        .iter()
+                        .all(|&v| known(TimeInt::saturating(v)))
+                    {
+                        return false;
+                    }
+                }
+                if due < run_times.len() {
+                    return true;
+                }
+                continue;
+            }
+            for pos in start..end {
+                let row = time_column.row_at(pos);
+                if !column.is_valid_in_bounds(row) {
+                    continue;
+                }
+                let time = TimeInt::saturating(values[row]);
+                if time > last {
+                    return true;
+                }
+                if !known(time) {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+
+    /// Moves past every row at or before `last`, without decoding them: a column that
+    /// only decides which rows a table has (one left out of its projection) skips whole
+    /// runs by their last time and finds the first later row of a run by a binary search.
+    /// The cursor ends where [`Self::advance`] would have left it.
+    #[expect(
+        clippy::cast_possible_truncation,
+        reason = "rows < 2^32, checked in Chunk::from_raw"
+    )]
+    pub fn skip_through(&mut self, last: TimeInt) {
+        let ahead = &self.block[self.next..];
+        let at_or_before = ahead.partition_point(|row| row.time <= last);
+        if at_or_before < ahead.len() {
+            self.next += at_or_before;
+            return;
+        }
+        // Everything decoded is at or before `last`: `position` is the first row not
+        // decoded. Runs are in global order and a run's positions in its own, so the rows
+        // at or before `last` are a prefix of what is left.
+        while let Some(run) = self.result.runs.get(self.run).copied() {
+            let start = self.position.max(run.start);
+            let source = &self.result.sources[run.source as usize];
+            let later = source.time_column.map_or(run.end as usize, |time_column| {
+                let times = &source.chunk.time_columns()[time_column as usize];
+                let values = times.times();
+                let time_at = |pos: usize| TimeInt::saturating(values[times.row_at(pos)]);
+                let (mut low, mut high) = (start as usize, run.end as usize);
+                if high > low && time_at(high - 1) <= last {
+                    return high; // the whole run: one look at its last row
+                }
+                while low < high {
+                    let middle = low + (high - low) / 2;
+                    if time_at(middle) <= last {
+                        low = middle + 1;
+                    } else {
+                        high = middle;
+                    }
+                }
+                low
+            });
+            if later < run.end as usize {
+                self.position = later as u32;
+                break;
+            }
+            self.run += 1;
+            if let Some(next) = self.result.runs.get(self.run) {
+                self.position = next.start;
+            }
+        }
+        self.refill();
+    }
+
     /// How many chunks the result's rows come from.
     #[expect(clippy::cast_possible_truncation, reason = "one source per chunk")]
     pub fn num_sources(&self) -> u32 {
@@ -629,6 +758,129 @@ impl RangeCursor {
                 }
             }
             self.position = end;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use arrow_array::{ArrayRef, Float64Array};
+
+    use super::{CursorRow, RangeCursor, RangeQuery};
+    use crate::{ChunkBuilder, ChunkId, ChunkStore, EntityPath, RowId, StoreConfig, TimeInt};
+    use crate::{TimeRange, Timeline};
+
+    /// One entity's `x` over chunks of every shape a run can have: sorted and not, a null
+    /// cell, a time shared across chunks, overlapping chunks (merged runs), and more rows
+    /// than a cursor decodes at once.
+    fn cursor() -> RangeCursor {
+        let entity = EntityPath::parse("e").unwrap();
+        let mut store = ChunkStore::with_config(StoreConfig::COMPACTION_OFF).unwrap();
+        let value = || Arc::new(Float64Array::from(vec![1.0])) as ArrayRef;
+        let chunks: [&[i64]; 7] = [
+            &[1, 2, 3, 4],
+            &[4, 6, 5, 8],
+            &[9, 10, 11, 12],
+            &[12, 13],
+            &[20, 21, 22],
+            &[
+                30, 31, 32, 33, 34, 35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46, 47, 48, 49,
+            ],
+            &[
+                40, 41, 42, 43, 44, 45, 46, 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59,
+            ],
+        ];
+        for frames in chunks {
+            let mut builder = ChunkBuilder::new(ChunkId::new(), entity.clone());
+            for &frame in frames {
+                // Frame 10 has no `x`: a null cell the cursor skips.
+                let component = if frame == 10 { "y" } else { "x" };
+                builder = builder.with_row(
+                    RowId::new(),
+                    [(Timeline::sequence("frame"), frame)],
+                    [(component, value())],
+                );
+            }
+            store.insert(builder.build().unwrap()).unwrap();
+        }
+        let query = RangeQuery::new("frame", TimeRange::EVERYTHING);
+        RangeCursor::new(store.range(&query, &entity, "x"))
+    }
+
+    fn rest(mut cursor: RangeCursor) -> Vec<CursorRow> {
+        let mut rows = Vec::new();
+        while let Some(row) = cursor.peek() {
+            rows.push(row);
+            cursor.advance();
+        }
+        rows
+    }
+
+    fn t(time: i64) -> TimeInt {
+        TimeInt::new(time).unwrap()
+    }
+
+    /// From any row, skipping through any time leaves the cursor where advancing row by
+    /// row past that time does.
+    #[test]
+    fn skipping_through_a_time_ends_where_advancing_does() {
+        let all = rest(cursor());
+        assert!(all.len() > super::CURSOR_BLOCK, "runs past a decoded block");
+        assert!(
+            all.iter().all(|row| row.time != t(10)),
+            "the null cell is no row"
+        );
+        for start in 0..=all.len() {
+            for last in -1..62 {
+                let mut skipping = cursor();
+                for _ in 0..start {
+                    skipping.advance();
+                }
+                skipping.skip_through(t(last));
+                let expected: Vec<CursorRow> = all[start..]
+                    .iter()
+                    .copied()
+                    .filter(|row| row.time > t(last))
+                    .collect();
+                assert_eq!(rest(skipping), expected, "from row {start} through {last}");
+            }
+        }
+    }
+
+    /// Whether the coming times are known is answered as a look-up per time answers it,
+    /// for batches holding all of them, all but one, and more.
+    #[test]
+    fn coming_times_known_by_runs_as_by_looking_each_up() {
+        let all = rest(cursor());
+        let mut distinct: Vec<TimeInt> = all.iter().map(|row| row.time).collect();
+        distinct.dedup();
+        let mut batches = vec![distinct.clone(), (0..70).map(t).collect()];
+        for missing in 0..distinct.len() {
+            let mut batch = distinct.clone();
+            batch.remove(missing);
+            batches.push(batch);
+        }
+        for batch in &batches {
+            for start in [0, 1, 5, 30, 40, all.len()] {
+                for last in -1..62 {
+                    let mut cursor = cursor();
+                    for _ in 0..start {
+                        cursor.advance();
+                    }
+                    let known = |time: TimeInt| batch.binary_search(&time).is_ok();
+                    let expected = all[start..]
+                        .iter()
+                        .filter(|row| row.time <= t(last))
+                        .all(|row| known(row.time));
+                    assert_eq!(
+                        cursor.times_ahead_known(t(last), batch, known),
+                        expected,
+                        "from row {start} through {last}, batch {batch:?}"
+                    );
+                }
+            }
         }
     }
 }
