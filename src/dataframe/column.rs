@@ -173,8 +173,7 @@ impl TemporalColumn {
     /// a column whose cells the batch does not build and whose rows raise no other index
     /// column, only its times mattered, and the batch's row times already hold them.
     pub(super) fn skip_through(&mut self, last: TimeInt) {
-        let clears = self.clears.get(self.next_clear..).unwrap_or_default();
-        self.next_clear += clears.partition_point(|&(time, _)| time <= last);
+        self.next_clear += self.clears_through(last).len();
         if let Some(cursor) = &mut self.cursor {
             cursor.skip_through(last);
         }

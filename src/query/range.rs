@@ -650,8 +650,8 @@ impl RangeCursor {
     }
 
     /// Moves past every row at or before `last`, without decoding them: a column that
-    /// only decides which rows a table has (one left out of its projection) skips whole
-    /// runs by their last time and finds the first later row of a run by a binary search.
+    /// only decides which rows a table has (one left out of its projection) finds the
+    /// first later row of each run by a search of its chunk's time column.
     /// The cursor ends where [`Self::advance`] would have left it.
     #[expect(
         clippy::cast_possible_truncation,
@@ -670,23 +670,13 @@ impl RangeCursor {
         while let Some(run) = self.result.runs.get(self.run).copied() {
             let start = self.position.max(run.start);
             let source = &self.result.sources[run.source as usize];
+            // A run is a range of its chunk's positions, in which times ascend: the
+            // column's own partition point, kept inside the run.
             let later = source.time_column.map_or(run.end as usize, |time_column| {
-                let times = &source.chunk.time_columns()[time_column as usize];
-                let values = times.times();
-                let time_at = |pos: usize| TimeInt::saturating(values[times.row_at(pos)]);
-                let (mut low, mut high) = (start as usize, run.end as usize);
-                if high > low && time_at(high - 1) <= last {
-                    return high; // the whole run: one look at its last row
-                }
-                while low < high {
-                    let middle = low + (high - low) / 2;
-                    if time_at(middle) <= last {
-                        low = middle + 1;
-                    } else {
-                        high = middle;
-                    }
-                }
-                low
+                source.chunk.time_columns()[time_column as usize]
+                    .num_positions_at_or_before(last.as_i64())
+                    .max(start as usize)
+                    .min(run.end as usize)
             });
             if later < run.end as usize {
                 self.position = later as u32;
