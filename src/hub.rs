@@ -510,7 +510,7 @@ mod tests {
         let recordings = hub.recordings();
         let ids: Vec<_> = recordings
             .iter()
-            .map(|r| r.info.store_id.recording_id.as_str())
+            .map(|r| &*r.info.store_id.recording_id)
             .collect();
         assert_eq!(ids, ["a", "b", "c"]);
         assert!(

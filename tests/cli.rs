@@ -992,8 +992,8 @@ fn written_identity(path: &Path) -> Vec<(String, String)> {
         .map(|i| {
             assert_eq!(i.store_id.kind, recording, "{i:?}");
             (
-                i.store_id.application_id.clone(),
-                i.store_id.recording_id.clone(),
+                i.store_id.application_id.to_string(),
+                i.store_id.recording_id.to_string(),
             )
         })
         .collect()

@@ -17,7 +17,7 @@ fn rows(hub: &StoreHub) -> Vec<(String, u64)> {
         .iter()
         .map(|r| {
             (
-                r.info.store_id.recording_id.clone(),
+                r.info.store_id.recording_id.to_string(),
                 r.snapshot.stats().num_rows(),
             )
         })

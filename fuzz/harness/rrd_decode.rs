@@ -113,7 +113,7 @@ pub fn rrd_decode(bytes: &[u8]) {
             let chosen =
                 LazyRecording::from_reader_recording(std::io::Cursor::new(bytes), Some(id));
             if let Ok(Some(chosen)) = chosen {
-                assert_eq!(chosen.manifest().store_id.recording_id, *id);
+                assert_eq!(*chosen.manifest().store_id.recording_id, **id);
             }
         }
     }

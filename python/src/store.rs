@@ -616,7 +616,7 @@ impl NativeStore {
                     StoreInfo::new(StoreId::recording(application_id, recording))
                 });
                 if let Some(recording_id) = recording_id {
-                    info.store_id.recording_id = recording_id;
+                    info.store_id.recording_id = recording_id.into();
                 }
                 chunkstore::rrd::write_rrd_file(&path, &info, snapshot.export_chunks(), |_| {})
                     .map_err(|e| rrd_error(&path, e))

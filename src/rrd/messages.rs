@@ -4,6 +4,7 @@
 //! kept as bytes so that a file written back says what the original said.
 
 use std::cell::RefCell;
+use std::sync::Arc;
 
 use super::error::RrdErrorKind;
 use super::protobuf::{FieldReader, FieldWriter, WireError};
@@ -39,19 +40,33 @@ impl StoreKind {
 }
 
 /// Which store a message belongs to.
+///
+/// Every message of a stream names its store, and a reader hands the id out with each
+/// chunk: the texts are shared (`Arc<str>`), so a copy costs two reference counts, not
+/// two allocations.
+///
+/// ```
+/// # use chunkstore::rrd::StoreId;
+/// let id = StoreId::recording("rerun_example_robot", "run-7");
+/// assert_eq!(&*id.recording_id, "run-7");
+/// assert_eq!(id.clone(), id);
+/// ```
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct StoreId {
     /// Recording or blueprint.
     pub kind: StoreKind,
     /// The application that logged it (e.g. `rerun_example_robot_scene`).
-    pub application_id: String,
+    pub application_id: Arc<str>,
     /// The recording's id (often a UUID).
-    pub recording_id: String,
+    pub recording_id: Arc<str>,
 }
 
 impl StoreId {
     /// A recording store's id.
-    pub fn recording(application_id: impl Into<String>, recording_id: impl Into<String>) -> Self {
+    pub fn recording(
+        application_id: impl Into<Arc<str>>,
+        recording_id: impl Into<Arc<str>>,
+    ) -> Self {
         Self {
             kind: StoreKind::Recording,
             application_id: application_id.into(),
@@ -88,25 +103,27 @@ impl StoreId {
     }
 
     fn decode_fields(bytes: &[u8]) -> Result<Self, WireError> {
-        let mut id = Self {
-            kind: StoreKind::Other(0),
-            application_id: String::new(),
-            recording_id: String::new(),
-        };
+        let mut kind = StoreKind::Other(0);
+        let mut application_id = None;
+        let mut recording_id = None;
         let mut fields = FieldReader::new(bytes);
         while let Some(field) = fields.next_field()? {
             match field.number {
-                1 => id.kind = StoreKind::from_u64(field.varint("StoreId")?),
-                2 => id.recording_id = field.string("StoreId")?,
+                1 => kind = StoreKind::from_u64(field.varint("StoreId")?),
+                2 => recording_id = Some(field.string("StoreId")?),
                 3 => {
                     if let Some(app) = field.nested("StoreId", decode_application_id)? {
-                        id.application_id = app;
+                        application_id = Some(app);
                     }
                 }
                 _ => {}
             }
         }
-        Ok(id)
+        Ok(Self {
+            kind,
+            application_id: application_id.unwrap_or_default().into(),
+            recording_id: recording_id.unwrap_or_default().into(),
+        })
     }
 
     pub(crate) fn encode(&self, out: &mut FieldWriter) {
@@ -192,7 +209,7 @@ impl StoreInfo {
         if store_id.application_id.is_empty()
             && let Some(app) = legacy_application_id
         {
-            store_id.application_id = app;
+            store_id.application_id = app.into();
         }
         Ok(Self {
             store_id,

@@ -890,7 +890,7 @@ mod tests {
             contents
                 .chunks
                 .iter()
-                .map(|(store, chunk)| (store.recording_id.clone(), chunk.id()))
+                .map(|(store, chunk)| (store.recording_id.to_string(), chunk.id()))
                 .collect(),
             contents
                 .errors

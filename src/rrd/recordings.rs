@@ -81,7 +81,7 @@ impl RecordingSelector {
         }
         self.note_seen(store);
         if let Some(wanted) = &self.wanted {
-            if &store.recording_id != wanted {
+            if *store.recording_id != **wanted {
                 return Ok(false);
             }
             self.chosen.get_or_insert_with(|| store.clone());
@@ -107,8 +107,8 @@ impl RecordingSelector {
     pub fn recording_ids(&self) -> Vec<String> {
         let mut ids: Vec<String> = Vec::new();
         for store in &self.seen {
-            if !ids.contains(&store.recording_id) {
-                ids.push(store.recording_id.clone());
+            if !ids.iter().any(|id| **id == *store.recording_id) {
+                ids.push(store.recording_id.to_string());
             }
         }
         ids
@@ -122,7 +122,7 @@ impl RecordingSelector {
             (None, Some(wanted)) => self
                 .infos
                 .iter()
-                .find(|i| &i.store_id.recording_id == wanted),
+                .find(|i| *i.store_id.recording_id == **wanted),
             (None, None) => self.infos.first(),
         }
     }
@@ -177,8 +177,8 @@ mod tests {
     fn info(kind: StoreKind, id: &str) -> StoreInfo {
         StoreInfo::new(StoreId {
             kind,
-            application_id: "app".to_owned(),
-            recording_id: id.to_owned(),
+            application_id: "app".into(),
+            recording_id: id.into(),
         })
     }
 
@@ -195,7 +195,7 @@ mod tests {
                 .unwrap()
         );
         let chosen = selector.finish().unwrap().unwrap();
-        assert_eq!(chosen.store_id.recording_id, "rec");
+        assert_eq!(&*chosen.store_id.recording_id, "rec");
         assert_eq!(chosen.store_id.kind, StoreKind::Recording);
     }
 

@@ -45,9 +45,9 @@ fn the_robot_recording_decodes_to_its_chunk_files() {
     same_chunks(&chunks, &chunk_files());
     let info = &contents.store_infos[0];
     assert_eq!(info.store_id.kind, StoreKind::Recording);
-    assert_eq!(info.store_id.application_id, "rerun_example_robot_scene");
+    assert_eq!(&*info.store_id.application_id, "rerun_example_robot_scene");
     assert_eq!(
-        info.store_id.recording_id,
+        &*info.store_id.recording_id,
         "a0000000-0000-4000-8000-00000000000a"
     );
     assert_eq!(contents.skipped_blueprint_messages, 0);

@@ -461,7 +461,12 @@ fn preloaded_sources_are_served_beside_live_recordings() {
     )
     .unwrap();
     let rows = i64::try_from(expected.store.stats().num_rows()).unwrap();
-    let recording_id = expected.store_info.unwrap().store_id.recording_id;
+    let recording_id = expected
+        .store_info
+        .unwrap()
+        .store_id
+        .recording_id
+        .to_string();
     let rt = runtime();
     let server = Server::start(&dir, &[rrd.to_str().unwrap()]);
     rt.block_on(async {

@@ -54,7 +54,7 @@ impl SqlService {
             .hub
             .recordings()
             .into_iter()
-            .map(|r| (r.info.store_id.recording_id.clone(), r.snapshot))
+            .map(|r| (r.info.store_id.recording_id.to_string(), r.snapshot))
             .collect();
         chunkstore::sql::register_segments(&ctx, &segments).map_err(query_error)?;
         Ok(ctx)
