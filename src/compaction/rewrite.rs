@@ -29,7 +29,7 @@ impl ChunkStore {
 impl ChunkStore {
     /// The merge of a write buffer's full fan, built from the rows its group copied into
     /// `columns` as they arrived: one chunk, the same rows in the same order as
-    /// [`rewrite`] gives, without reading the chunks again. `None` where the merge must
+    /// [`rewrite`] gives, without reading the chunks again. `None` where the rewrite must
     /// gather instead: the result would exceed a threshold (`rewrite` then cuts pieces in
     /// bounded blocks), or, were the columns ever not the fan's rows, they are not used
     /// (a debug build says so).
@@ -248,6 +248,45 @@ mod tests {
         assert_eq!(times, (0..num_rows).collect::<Vec<_>>());
         assert!(pieces.iter().all(|p| !config.is_oversized(p)));
         pieces
+    }
+
+    #[test]
+    fn rows_of_unsorted_chunks_merge_in_time_then_row_id_order() {
+        // Three chunks, two with rows out of time order, sharing times: the rewrite must
+        // order by time, then row id, across chunks (a stable sort of keys made in row order).
+        let ids: Vec<RowId> = (0..9).map(|_| RowId::new()).collect();
+        let chunk = |rows: &[(i64, usize)]| {
+            let mut builder = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("e").unwrap());
+            for &(frame, id) in rows {
+                builder = builder.with_row(
+                    ids[id],
+                    [(Timeline::sequence("frame"), frame)],
+                    [(
+                        "x",
+                        Arc::new(Float64Array::from(vec![id as f64])) as ArrayRef,
+                    )],
+                );
+            }
+            builder.build().unwrap()
+        };
+        let chunks = [
+            chunk(&[(3, 0), (1, 4), (2, 2)]),
+            chunk(&[(1, 1), (2, 3), (3, 5)]),
+            chunk(&[(2, 8), (1, 6), (3, 7)]),
+        ];
+        let inputs: Vec<&Chunk> = chunks.iter().collect();
+        let pieces = rewrite(&inputs, &StoreConfig::DEFAULT, &mut StoreStats::default()).unwrap();
+        assert_eq!(pieces.len(), 1);
+        let values = pieces[0].components()[0].list_array().values().clone();
+        let values = values.as_any().downcast_ref::<Float64Array>().unwrap();
+        assert_eq!(
+            values.values().to_vec(),
+            [1.0, 4.0, 6.0, 2.0, 3.0, 8.0, 0.0, 5.0, 7.0]
+        );
+        assert_eq!(
+            pieces[0].time_columns()[0].times(),
+            [1, 1, 1, 2, 2, 2, 3, 3, 3]
+        );
     }
 
     #[test]
