@@ -190,9 +190,9 @@ pub(crate) fn fixed_bytes(chunk: &Chunk) -> u64 {
         + entries
 }
 
-/// Adds (`sign` = 1) or removes (`sign` = -1) a chunk to or from the figures of the store
-/// and of its entity. `ledgered` says whether the chunk's buffers go through the ledgers
-/// (see the module docs); it must be the same on removal as it was on addition.
+/// Adds (`acquire`) or removes a chunk to or from the figures of the store and of its
+/// entity. `ledgered` says whether the chunk's buffers go through the ledgers (see the
+/// module docs); it must be the same on removal as it was on addition.
 pub(crate) fn account(
     chunk: &Chunk,
     ledgered: bool,
@@ -202,52 +202,106 @@ pub(crate) fn account(
     entity_stats: &mut EntityStats,
     entity_ledger: &mut BufferLedger,
 ) {
-    let fixed = fixed_bytes(chunk);
-    let (mut all, mut kind, mut entity) = (fixed, fixed, fixed);
-    let kind_ledger = if chunk.is_static() {
-        &mut ledgers.static_
-    } else {
-        &mut ledgers.temporal
-    };
-    if ledgered {
-        for buffer in chunk.buffers() {
-            if acquire {
-                all += ledgers.all.acquire(buffer);
-                kind += kind_ledger.acquire(buffer);
-                entity += entity_ledger.acquire(buffer);
+    let mut change = FigureChange::default();
+    change.count(chunk, ledgered, acquire, ledgers, entity_ledger);
+    change.apply(acquire, stats, entity_stats);
+}
+
+/// What chunks of one entity add to or take from the figures, summed
+/// ([`FigureChange::count`]) and then applied once ([`FigureChange::apply`]): a merge
+/// takes a whole fan out of the figures with one update of each, not one per chunk.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct FigureChange {
+    heap_bytes: u64,
+    entity_heap_bytes: u64,
+    static_heap_bytes: u64,
+    temporal_heap_bytes: u64,
+    num_static_chunks: u64,
+    num_static_rows: u64,
+    num_temporal_chunks: u64,
+    num_temporal_rows: u64,
+}
+
+impl FigureChange {
+    /// Counts `chunk` (of the entity whose ledger is `entity_ledger`), acquiring or
+    /// releasing its buffers in the ledgers now if it is `ledgered`.
+    #[inline]
+    pub fn count(
+        &mut self,
+        chunk: &Chunk,
+        ledgered: bool,
+        acquire: bool,
+        ledgers: &mut StoreLedgers,
+        entity_ledger: &mut BufferLedger,
+    ) {
+        let fixed = fixed_bytes(chunk);
+        let (mut all, mut kind, mut entity) = (fixed, fixed, fixed);
+        if ledgered {
+            let kind_ledger = if chunk.is_static() {
+                &mut ledgers.static_
             } else {
-                all += ledgers.all.release(buffer);
-                kind += kind_ledger.release(buffer);
-                entity += entity_ledger.release(buffer);
+                &mut ledgers.temporal
+            };
+            for buffer in chunk.buffers() {
+                if acquire {
+                    all += ledgers.all.acquire(buffer);
+                    kind += kind_ledger.acquire(buffer);
+                    entity += entity_ledger.acquire(buffer);
+                } else {
+                    all += ledgers.all.release(buffer);
+                    kind += kind_ledger.release(buffer);
+                    entity += entity_ledger.release(buffer);
+                }
             }
-        }
-    } else {
-        let bytes = chunk.buffer_bytes();
-        all += bytes;
-        kind += bytes;
-        entity += bytes;
-    }
-    let rows = chunk.num_rows() as u64;
-    let apply = |total: &mut u64, amount: u64| {
-        *total = if acquire {
-            *total + amount
         } else {
-            total.saturating_sub(amount)
+            let bytes = chunk.buffer_bytes();
+            all += bytes;
+            kind += bytes;
+            entity += bytes;
+        }
+        let rows = chunk.num_rows() as u64;
+        self.heap_bytes += all;
+        self.entity_heap_bytes += entity;
+        if chunk.is_static() {
+            self.static_heap_bytes += kind;
+            self.num_static_chunks += 1;
+            self.num_static_rows += rows;
+        } else {
+            self.temporal_heap_bytes += kind;
+            self.num_temporal_chunks += 1;
+            self.num_temporal_rows += rows;
+        }
+    }
+
+    /// Adds (`acquire`) or removes what was counted to or from the figures of the store
+    /// and of the entity.
+    #[inline]
+    pub fn apply(self, acquire: bool, stats: &mut StoreStats, entity_stats: &mut EntityStats) {
+        let apply = |total: &mut u64, amount: u64| {
+            *total = if acquire {
+                *total + amount
+            } else {
+                total.saturating_sub(amount)
+            };
         };
-    };
-    apply(&mut stats.heap_bytes, all);
-    apply(&mut entity_stats.heap_bytes, entity);
-    if chunk.is_static() {
-        apply(&mut stats.num_static_chunks, 1);
-        apply(&mut stats.num_static_rows, rows);
-        apply(&mut stats.static_heap_bytes, kind);
-        apply(&mut entity_stats.num_static_chunks, 1);
-        apply(&mut entity_stats.num_static_rows, rows);
-    } else {
-        apply(&mut stats.num_temporal_chunks, 1);
-        apply(&mut stats.num_temporal_rows, rows);
-        apply(&mut stats.temporal_heap_bytes, kind);
-        apply(&mut entity_stats.num_temporal_chunks, 1);
-        apply(&mut entity_stats.num_temporal_rows, rows);
+        apply(&mut stats.heap_bytes, self.heap_bytes);
+        apply(&mut entity_stats.heap_bytes, self.entity_heap_bytes);
+        if self.num_static_chunks > 0 {
+            apply(&mut stats.num_static_chunks, self.num_static_chunks);
+            apply(&mut stats.num_static_rows, self.num_static_rows);
+            apply(&mut stats.static_heap_bytes, self.static_heap_bytes);
+            apply(&mut entity_stats.num_static_chunks, self.num_static_chunks);
+            apply(&mut entity_stats.num_static_rows, self.num_static_rows);
+        }
+        if self.num_temporal_chunks > 0 {
+            apply(&mut stats.num_temporal_chunks, self.num_temporal_chunks);
+            apply(&mut stats.num_temporal_rows, self.num_temporal_rows);
+            apply(&mut stats.temporal_heap_bytes, self.temporal_heap_bytes);
+            apply(
+                &mut entity_stats.num_temporal_chunks,
+                self.num_temporal_chunks,
+            );
+            apply(&mut entity_stats.num_temporal_rows, self.num_temporal_rows);
+        }
     }
 }

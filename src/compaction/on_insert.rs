@@ -115,9 +115,7 @@ impl ChunkStore {
                 from_columns.or_else(|| self.rewrite_held(&fan, "merging a fan of waiting chunks"))
             else {
                 // The fan stays in the store as it is, no longer waiting.
-                for chunk in &fan {
-                    self.settle_in_global_orders(chunk.id());
-                }
+                self.settle_fan(&fan);
                 return;
             };
             // Remove before adding: the result covers the fan's times, so adding it first

@@ -355,22 +355,29 @@ impl WriteBuffer {
         Pushed::Joined(g)
     }
 
-    /// Takes a chunk out; returns whether it was buffered. The group's summary is stale
-    /// until [`WriteBuffer::refresh`], which the removal's caller must call before any
-    /// query reads the buffer.
-    pub fn remove(&mut self, id: ChunkId) -> bool {
+    /// Takes a chunk out; returns `None` if it was not buffered, else whether its group
+    /// went with it (it was the group's last chunk). The group's summary is stale until
+    /// [`WriteBuffer::refresh`], which the removal's caller must call before any query
+    /// reads the buffer.
+    pub fn remove(&mut self, id: ChunkId) -> Option<bool> {
         for (g, group) in self.groups.iter_mut().enumerate() {
             if let Some(position) = group.chunks.iter().position(|c| c.id() == id) {
                 group.chunks.remove(position);
-                if group.chunks.is_empty() {
+                let emptied = group.chunks.is_empty();
+                if emptied {
                     self.groups.swap_remove(g);
                 } else {
                     group.stale = true;
                 }
-                return true;
+                return Some(emptied);
             }
         }
-        false
+        None
+    }
+
+    /// The first chunk of each group: one chunk of each layout the buffer holds.
+    pub fn group_firsts(&self) -> impl Iterator<Item = &Arc<Chunk>> + '_ {
+        self.groups.iter().filter_map(|g| g.chunks.first())
     }
 
     /// Remakes the summaries removals left stale.
@@ -545,12 +552,21 @@ mod tests {
         assert_eq!(candidates(&buffer, "x", 6), all);
         assert_eq!(candidates(&buffer, "y", 100), vec![other.id()]);
 
-        assert!(buffer.remove(c.id()));
+        assert_eq!(
+            buffer.remove(c.id()),
+            Some(false),
+            "x's group keeps a and b"
+        );
         assert!(buffer.sanity_check(&path).is_err(), "stale until refreshed");
         buffer.refresh();
         buffer.sanity_check(&path).unwrap();
         assert_eq!(candidates(&buffer, "x", 100), vec![a.id()]);
-        assert!(buffer.remove(other.id()) && !buffer.remove(other.id()));
+        assert_eq!(
+            buffer.remove(other.id()),
+            Some(true),
+            "y's group goes with it"
+        );
+        assert_eq!(buffer.remove(other.id()), None);
         buffer.refresh();
         assert_eq!(candidates(&buffer, "y", 100), vec![]);
         buffer.sanity_check(&path).unwrap();

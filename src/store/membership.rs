@@ -68,8 +68,8 @@ impl ChunkStore {
         if new_entity {
             entity.view.stats.heap_bytes += crate::stats::ENTITY_BYTES;
         }
-        entity.add_components(&chunk);
         if joining != Joining::Buffered {
+            entity.add_components(&chunk);
             entity.index.chunk_ids.insert(chunk.id());
         }
         entity.index.max_row_id = entity.index.max_row_id.max(chunk.row_id_range().1);
@@ -116,6 +116,10 @@ impl ChunkStore {
             let buffered = joining == Joining::Buffered;
             let extra = if buffered {
                 let pushed = entity.view.buffered.push(&chunk, self.config.merge_fanout);
+                // A group counts once among the components (`ComponentType::num_chunks`).
+                if matches!(pushed, super::buffer::Pushed::Opened) {
+                    entity.add_components(&chunk);
+                }
                 full_fan =
                     entity
                         .index
@@ -232,9 +236,34 @@ impl ChunkStore {
                 false,
             )
         {
+            entity.add_components(&chunk);
             entity.index.chunk_ids.insert(chunk.id());
             let extra = entity.insert_temporal(&chunk);
             crate::stats::add_index_bytes(&mut self.view.stats, &mut entity.view.stats, extra);
+        }
+    }
+
+    /// Settles every chunk of a full fan whose merge failed
+    /// ([`ChunkStore::settle_in_global_orders`]). A write buffer's fan was one group,
+    /// counted once among its entity's components, and is now that many settled chunks,
+    /// each counted.
+    pub(crate) fn settle_fan(&mut self, fan: &[Arc<Chunk>]) {
+        let Some(first) = fan.first() else {
+            return;
+        };
+        let was_buffered = self.chunks.get(&first.id()).is_some_and(|s| s.buffered);
+        for chunk in fan {
+            self.settle_in_global_orders(chunk.id());
+        }
+        if was_buffered
+            && let Some(mut entity) = super::entity_mut(
+                &mut self.entities,
+                &mut self.view.entities,
+                first.entity_path(),
+                false,
+            )
+        {
+            entity.remove_components(first);
         }
     }
 
@@ -414,9 +443,16 @@ impl ChunkStore {
         // as a full fan), and in nothing else an entity holds.
         let mut num_buffered = 0;
         if unindex && let Some(entity) = entity.as_mut() {
-            for stored in stored.iter().filter(|stored| stored.buffered) {
-                entity.unbuffer(stored.chunk.id(), still_grouped);
+            let mut buffered = stored.iter().filter(|stored| stored.buffered);
+            for stored in buffered.clone() {
+                entity.unbuffer(&stored.chunk, still_grouped);
                 num_buffered += 1;
+            }
+            // Chunks compaction took out of the buffer are one full fan: one group, which
+            // counted once among the components.
+            if !still_grouped && let Some(first) = buffered.next() {
+                debug_assert!(buffered.all(|s| s.chunk.has_same_layout(&first.chunk)));
+                entity.remove_components(&first.chunk);
             }
         }
         // The indices and compaction groups all at once where a rewrite or a collection
@@ -435,6 +471,8 @@ impl ChunkStore {
             let extra = entity.remove_temporal_many(&temporal, still_grouped);
             crate::stats::add_index_bytes(&mut store_stats, &mut entity.view.stats, extra);
         }
+        // The figures once for all the chunks (a merge's fan is sixteen).
+        let mut figures = crate::stats::FigureChange::default();
         for stored in stored {
             if unindex && !stored.chunk.is_static() {
                 ClearIndex::remove_chunk(&mut self.view.clears, &stored.chunk);
@@ -464,21 +502,20 @@ impl ChunkStore {
                 }
                 if !buffered {
                     entity.index.chunk_ids.remove(&id);
+                    entity.remove_components(&chunk);
                 }
-                entity.remove_components(&chunk);
-                crate::stats::account(
+                figures.count(
                     &chunk,
                     ledgered,
                     false,
-                    &mut store_stats,
                     &mut self.ledgers,
-                    &mut entity.view.stats,
                     &mut entity.index.ledger,
                 );
             }
             events.push(StoreEvent::Deletion { chunk, reason });
         }
         if let Some(entity) = entity.as_mut() {
+            figures.apply(false, &mut store_stats, &mut entity.view.stats);
             entity.view.buffered.refresh();
         }
         // Nothing left: the entity is forgotten, as if never inserted (its component types

@@ -433,7 +433,12 @@ impl EntityIndex {
         {
             return Err(fail("max_row_id bounds the row ids of its chunks"));
         }
-        check_component_types(path, element_types, self.held_chunks(view, chunks))?;
+        // A write buffer's group counts once (`ComponentType::num_chunks`).
+        let counted = chunk_ids
+            .iter()
+            .filter_map(|id| chunks.get(id).map(|stored| &stored.chunk))
+            .chain(buffered.group_firsts());
+        check_component_types(path, element_types, counted)?;
         pending.sanity_check(path, chunks, config)?;
         check_static_winners(path, static_winners, static_chunks, chunks)?;
         for per_component in temporal_per_timeline_per_component.values() {
@@ -530,7 +535,8 @@ fn check_rewrite_mark(
 
 /// Each component an entity knows has the type of its chunks' columns and is counted once
 /// per chunk that has its column; no other is known (part of the entity's sanity check).
-/// `held` are all the entity's chunks.
+/// `held` are the entity's chunks outside its write buffer and one chunk of each group of
+/// its buffer.
 fn check_component_types<'a>(
     path: &EntityPath,
     element_types: &SmallMap<ComponentName, ComponentType>,
