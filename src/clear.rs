@@ -216,13 +216,23 @@ impl ClearIndex {
 
     /// Indexes every Clear row of `chunk`; a chunk without any is not touched (nor is
     /// the tree copied).
+    ///
+    /// Inlined to the test of the chunk's flag: every chunk joining or leaving the store
+    /// passes here, and almost none holds a Clear (a call each way was 0.9% of
+    /// `insert_streaming`'s instructions).
+    #[inline]
     pub fn insert_chunk(index: &mut Arc<Self>, chunk: &Chunk) {
-        Self::update_chunk(index, chunk, true);
+        if chunk.has_clears() {
+            Self::update_chunk(index, chunk, true);
+        }
     }
 
     /// Forgets every Clear row of `chunk` (the mirror of [`ClearIndex::insert_chunk`]).
+    #[inline]
     pub fn remove_chunk(index: &mut Arc<Self>, chunk: &Chunk) {
-        Self::update_chunk(index, chunk, false);
+        if chunk.has_clears() {
+            Self::update_chunk(index, chunk, false);
+        }
     }
 
     fn update_chunk(index: &mut Arc<Self>, chunk: &Chunk, insert: bool) {

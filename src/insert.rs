@@ -95,9 +95,10 @@ impl ChunkStore {
         if !timelines_known {
             for column in chunk.time_columns() {
                 let timeline = column.timeline();
-                Arc::make_mut(&mut self.view.time_types)
-                    .entry(Arc::clone(timeline.name_arc()))
-                    .or_insert_with(|| timeline.time_type());
+                if self.view.time_types.get(timeline.name()).is_none() {
+                    Arc::make_mut(&mut self.view.time_types)
+                        .insert(Arc::clone(timeline.name_arc()), timeline.time_type());
+                }
             }
         }
         self.view.stats.rows_inserted += chunk.num_rows() as u64;
@@ -139,7 +140,7 @@ impl ChunkStore {
             if let Some(existing) = entity
                 .and_then(|e| e.element_types.get(column.name()))
                 .map(|known| &known.element_type)
-                && !existing.equals_datatype(incoming)
+                && !crate::chunk::equal_element_types(existing, incoming)
             {
                 return Err(InsertError::ComponentTypeConflict {
                     chunk_id: chunk.id(),

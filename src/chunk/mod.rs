@@ -22,8 +22,8 @@ use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeInt, Timeline};
 
 pub use builder::ChunkBuilder;
 pub use component_column::ComponentColumn;
-pub(crate) use component_column::ComponentTimeBounds;
 use component_column::RawComponentColumn;
+pub(crate) use component_column::{ComponentTimeBounds, equal_element_types};
 pub use error::ChunkError;
 use metadata::Metadata;
 #[cfg(feature = "ipc")]
@@ -397,6 +397,7 @@ impl Chunk {
 
     /// Does the chunk have a Clear column? Read from the chunk's first cache line, where
     /// asking a column its name reads the column and the name.
+    #[inline]
     pub(crate) fn has_clears(&self) -> bool {
         self.has_clears
     }

@@ -699,3 +699,50 @@ fn a_query_reads_the_front_of_a_chunk_and_of_its_columns() {
     .unwrap();
     assert!(hot_column_end <= 152, "{hot_column_end}");
 }
+
+/// The inline type comparisons agree with `DataType`'s: variants alone decide only for
+/// types without parameters; a list's field shared by pointer is equal.
+#[test]
+fn inline_type_comparisons_agree_with_data_types() {
+    use arrow_schema::{Field, TimeUnit};
+
+    use super::component_column::same_data_type;
+    let item = Arc::new(Field::new("item", DataType::Float32, true));
+    let types = [
+        DataType::Null,
+        DataType::Boolean,
+        DataType::Int32,
+        DataType::Int64,
+        DataType::UInt8,
+        DataType::Float32,
+        DataType::Float64,
+        DataType::Utf8,
+        DataType::LargeUtf8,
+        DataType::Binary,
+        DataType::Date32,
+        DataType::Timestamp(TimeUnit::Nanosecond, None),
+        DataType::Timestamp(TimeUnit::Millisecond, None),
+        DataType::Timestamp(TimeUnit::Nanosecond, Some("UTC".into())),
+        DataType::FixedSizeBinary(16),
+        DataType::FixedSizeBinary(8),
+        DataType::List(Arc::clone(&item)),
+        DataType::List(Arc::new(Field::new("item", DataType::Float32, true))),
+        DataType::List(Arc::new(Field::new("item", DataType::Float64, true))),
+        // Equal to the lists of `item` but for the field's name and nullability.
+        DataType::List(Arc::new(Field::new("element", DataType::Float32, false))),
+        DataType::FixedSizeList(Arc::clone(&item), 3),
+        DataType::FixedSizeList(Arc::clone(&item), 2),
+    ];
+    for a in &types {
+        for b in &types {
+            assert_eq!(same_data_type(a, b), a == b, "{a} against {b}");
+            assert_eq!(
+                equal_element_types(a, b),
+                a.equals_datatype(b),
+                "{a} against {b}"
+            );
+        }
+    }
+    let shared = DataType::List(Arc::clone(&item));
+    assert!(same_data_type(&shared, &DataType::List(item)));
+}

@@ -94,7 +94,9 @@ pub(crate) struct EntityView {
 pub struct StoreView {
     pub(crate) entities: EntityViews,
     pub(crate) clears: Arc<ClearIndex>,
-    pub(crate) time_types: Arc<ahash::HashMap<Arc<str>, TimeType>>,
+    /// A small map: a store has a few timelines, whose names every insert and many
+    /// queries look up (hashing the name was 1.1% of `insert_streaming`'s instructions).
+    pub(crate) time_types: Arc<SmallMap<Arc<str>, TimeType>>,
     pub(crate) stats: StoreStats,
 }
 
@@ -236,9 +238,10 @@ impl StoreView {
         let Self {
             entities,
             clears,
-            time_types: _, // checked against the chunks by the store
-            stats: _,      // recounted by the store
+            time_types, // and against the chunks by the store
+            stats: _,   // recounted by the store
         } = self;
+        time_types.sanity_check()?;
         entities.sanity_check()?;
         for (path, entity) in entities.iter() {
             entity.sanity_check(path)?;
