@@ -255,15 +255,15 @@ mod tests {
         // Three chunks, two with rows out of time order, sharing times: the rewrite must
         // order by time, then row id, across chunks (a stable sort of keys made in row order).
         let ids: Vec<RowId> = (0..9).map(|_| RowId::new()).collect();
-        let chunk = |rows: &[(i64, usize)]| {
+        let chunk = |rows: &[(i64, u8)]| {
             let mut builder = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("e").unwrap());
             for &(frame, id) in rows {
                 builder = builder.with_row(
-                    ids[id],
+                    ids[usize::from(id)],
                     [(Timeline::sequence("frame"), frame)],
                     [(
                         "x",
-                        Arc::new(Float64Array::from(vec![id as f64])) as ArrayRef,
+                        Arc::new(Float64Array::from(vec![f64::from(id)])) as ArrayRef,
                     )],
                 );
             }
