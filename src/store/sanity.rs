@@ -534,7 +534,8 @@ fn check_rewrite_mark(
 }
 
 /// Each component an entity knows has the type of its chunks' columns and is counted once
-/// per chunk that has its column; no other is known (part of the entity's sanity check).
+/// per chunk in `held` that has its column; no other is known (part of the entity's
+/// sanity check).
 /// `held` are the entity's chunks outside its write buffer and one chunk of each group of
 /// its buffer.
 fn check_component_types<'a>(
@@ -568,7 +569,8 @@ fn check_component_types<'a>(
     } else {
         Err(SanityError::new(
             Structure::Entity,
-            "the component types are those of its chunks' columns, each counted once per chunk",
+            "the component types are those of its chunks' columns, each counted once per chunk \
+             outside the write buffer and once per buffer group",
         )
         .at(path))
     }
