@@ -29,7 +29,7 @@ impl ChunkStore {
 impl ChunkStore {
     /// The merge of a write buffer's full fan, built from the rows its group copied into
     /// `columns` as they arrived: one chunk, the same rows in the same order as
-    /// [`rewrite`] gives, without reading the chunks again. `None` where the rewrite must
+    /// [`rewrite`] gives, without reading the chunks again. `None` where the merge must
     /// gather instead: the result would exceed a threshold (`rewrite` then cuts pieces in
     /// bounded blocks), or, were the columns ever not the fan's rows, they are not used
     /// (a debug build says so).

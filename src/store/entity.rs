@@ -69,10 +69,18 @@ impl EntityIndex {
         view: &'a EntityView,
         chunks: &'a ahash::HashMap<ChunkId, super::StoredChunk>,
     ) -> impl Iterator<Item = &'a Arc<Chunk>> + 'a {
+        self.set_chunks(chunks).chain(view.buffered.chunks())
+    }
+
+    /// The chunks of the entity's chunk set (all it holds outside its write buffer), found
+    /// in the store's `chunks`.
+    pub(crate) fn set_chunks<'a>(
+        &'a self,
+        chunks: &'a ahash::HashMap<ChunkId, super::StoredChunk>,
+    ) -> impl Iterator<Item = &'a Arc<Chunk>> + 'a {
         self.chunk_ids
             .iter()
             .filter_map(|id| chunks.get(id).map(|stored| &stored.chunk))
-            .chain(view.buffered.chunks())
     }
 }
 

@@ -434,10 +434,7 @@ impl EntityIndex {
             return Err(fail("max_row_id bounds the row ids of its chunks"));
         }
         // A write buffer's group counts once (`ComponentType::num_chunks`).
-        let counted = chunk_ids
-            .iter()
-            .filter_map(|id| chunks.get(id).map(|stored| &stored.chunk))
-            .chain(buffered.group_firsts());
+        let counted = self.set_chunks(chunks).chain(buffered.group_firsts());
         check_component_types(path, element_types, counted)?;
         pending.sanity_check(path, chunks, config)?;
         check_static_winners(path, static_winners, static_chunks, chunks)?;
