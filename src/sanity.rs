@@ -39,6 +39,8 @@ pub enum Structure {
     SmallMap,
     /// A process-wide set of shared names or fields.
     SharedSet,
+    /// The dataframe view rows a snapshot keeps between queries.
+    KeptRows,
 }
 
 impl fmt::Display for Structure {
@@ -59,6 +61,7 @@ impl fmt::Display for Structure {
             Self::OrderedSet => "ordered set",
             Self::SmallMap => "small map",
             Self::SharedSet => "shared set",
+            Self::KeptRows => "kept dataframe rows",
         };
         f.write_str(name)
     }

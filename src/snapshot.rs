@@ -13,6 +13,7 @@
 //! `arc-swap` and the standard channel, each a well-kept primitive, so no model checker
 //! (loom) is run on this protocol; `tests/core/snapshot.rs` stress-tests what it promises.
 
+use std::any::Any;
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::{Arc, LazyLock};
 
@@ -22,12 +23,14 @@ use parking_lot::Mutex;
 use crate::store::StoreView;
 use crate::{Chunk, ChunkStore, InsertError, StoreEvent};
 
-/// What a snapshot holds: the view, the version it was taken at, and, for a shared
-/// store's snapshot, where its last holder hands it back to the writer.
+/// What a snapshot holds: the view, the version it was taken at, what readers derived from
+/// it for later readers, and, for a shared store's snapshot, where its last holder hands
+/// it back to the writer.
 #[derive(Debug)]
 struct Frozen {
     view: StoreView,
     version: u64,
+    derived: Derived,
     graveyard: Option<Sender<Arc<Frozen>>>,
 }
 
@@ -36,8 +39,24 @@ impl Frozen {
         Arc::new(Self {
             view,
             version,
+            derived: Derived::default(),
             graveyard,
         })
+    }
+}
+
+/// Values the layers above work out from a frozen view and keep for its later readers
+/// (a dataframe view's rows), one per type, made on first use. Typed by the layer that
+/// owns each, so that this one knows none of them; a snapshot never changes, so nothing
+/// here goes stale.
+#[derive(Default)]
+struct Derived(Mutex<Vec<Arc<dyn Any + Send + Sync>>>);
+
+impl std::fmt::Debug for Derived {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Derived")
+            .field("values", &self.0.lock().len())
+            .finish()
     }
 }
 
@@ -109,6 +128,21 @@ impl Snapshot {
     /// The frozen view (also reachable by dereferencing the snapshot).
     pub fn view(&self) -> &StoreView {
         &self.0.view
+    }
+
+    /// The value of type `T` this snapshot keeps for its readers (see `Derived`), made
+    /// empty on first use. Every clone of the snapshot shares it, as do all readers of a
+    /// shared store's version.
+    pub(crate) fn derived<T: Any + Default + Send + Sync>(&self) -> Arc<T> {
+        let mut values = self.0.derived.0.lock();
+        for value in values.iter() {
+            if let Ok(value) = Arc::clone(value).downcast::<T>() {
+                return value;
+            }
+        }
+        let value = Arc::new(T::default());
+        values.push(Arc::clone(&value) as Arc<dyn Any + Send + Sync>);
+        value
     }
 }
 

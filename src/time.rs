@@ -160,6 +160,19 @@ impl TimeType {
         }
     }
 
+    /// A column of this type holding `times`, none null: one pass over them, where
+    /// [`Self::array`] builds its nulls cell by cell.
+    pub fn array_of_times(self, times: &[TimeInt]) -> arrow_array::ArrayRef {
+        use arrow_array::PrimitiveArray;
+        use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
+        let values: Vec<i64> = times.iter().map(|time| time.as_i64()).collect();
+        match self {
+            Self::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
+            Self::DurationNs => Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values)),
+            Self::TimestampNs => Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(values)),
+        }
+    }
+
     /// A time column of this type ([`Self::to_arrow`]) holding `values`, nulls where a row
     /// has no time.
     pub fn array(self, values: Vec<Option<i64>>) -> arrow_array::ArrayRef {

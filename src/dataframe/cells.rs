@@ -547,6 +547,42 @@ impl ListColumnBuilder {
         );
     }
 
+    /// Rows `start..end` of source `source`, none of them null (a stretch of a column
+    /// without null cells): their offsets shifted at once, their values one stretch, an
+    /// exception noted only for an empty list (valid, where its length says null).
+    #[expect(clippy::cast_possible_truncation, reason = "a batch holds < 2^32 rows")]
+    pub fn push_rows(&mut self, sources: &Sources, source: u32, start: u32, end: u32) {
+        let list = &sources.arrays[source as usize].list;
+        let Some(offsets) = list.value_offsets().get(start as usize..=end as usize) else {
+            return;
+        };
+        let (values_start, values_end) = (offsets[0], offsets[offsets.len() - 1]);
+        let previous_end = self.offsets.last().copied().unwrap_or(0);
+        if previous_end
+            .checked_add(values_end - values_start)
+            .is_none()
+        {
+            self.overflow = true;
+            return;
+        }
+        let cell = self.len();
+        self.offsets.extend(
+            offsets[1..]
+                .iter()
+                .map(|&offset| previous_end + (offset - values_start)),
+        );
+        for (i, pair) in offsets.windows(2).enumerate() {
+            if pair[0] == pair[1] {
+                self.exceptions.push((cell + i) as u32);
+            }
+        }
+        self.take_values(
+            source,
+            values_start.unsigned_abs() as usize,
+            values_end.unsigned_abs() as usize,
+        );
+    }
+
     /// Rows `start..end` of source `source` (consecutive rows take one stretch of values).
     fn rows(&mut self, sources: &Sources, source: u32, start: u32, end: u32) {
         for row in start..end {

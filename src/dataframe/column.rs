@@ -25,6 +25,24 @@ pub(super) enum Kind {
     Temporal(TemporalColumn),
 }
 
+/// Fewer rows than this go one at a time even where they form a stretch.
+const MIN_STRETCH: usize = 2;
+
+/// Where [`TemporalColumn::take_rows_through`] hands the rows it takes.
+pub(super) trait RowSink {
+    /// The row `cell` shows at `time`.
+    fn row(&mut self, time: TimeInt, cell: Cell);
+
+    /// How many of `times` (a chunk's next rows, in order) show, one for one, on the
+    /// batch's next rows from where the first goes: the rows a following
+    /// [`Self::stretch`] will take. `0` where the sink takes no stretches.
+    fn lead(&mut self, times: &[i64]) -> usize;
+
+    /// Rows `rows` of source `source`, as many as the last [`Self::lead`] counted or
+    /// fewer, each the cell of the next of those batch rows.
+    fn stretch(&mut self, source: u32, rows: std::ops::Range<u32>);
+}
+
 pub(super) struct TemporalColumn {
     /// The column's rows in the range, in `(time, row id)` order (merge mode only). Its
     /// source chunks are registered first among the column's [`Sources`], in the same
@@ -135,15 +153,12 @@ impl TemporalColumn {
 
     /// Consumes the column's rows up to `last` when no Clear applies to them (none in
     /// the range up to `last`, no static one): the common case, where every event is a
-    /// row and shows itself. Calls `visit` with each time and the row it shows (of the
-    /// rows at one time, the greatest row id's). Consumes nothing when a Clear applies:
+    /// row and shows itself. Hands `sink` each time and the row it shows (of the rows at
+    /// one time, the greatest row id's), or, where the sink takes them, a stretch of a
+    /// chunk's rows at once. Consumes nothing when a Clear applies:
     /// [`Self::take_events_at`] handles those.
     #[inline]
-    pub(super) fn take_rows_through(
-        &mut self,
-        last: TimeInt,
-        mut visit: impl FnMut(TimeInt, Cell),
-    ) {
+    pub(super) fn take_rows_through(&mut self, last: TimeInt, sink: &mut impl RowSink) {
         let clear_due = self
             .clears
             .get(self.next_clear)
@@ -154,11 +169,34 @@ impl TemporalColumn {
         let Some(cursor) = &mut self.cursor else {
             return;
         };
+        // Rows to take one by one before looking for a stretch again: a column whose
+        // rows are not the batch's next ones looks once per decoded block.
+        let mut before_stretch = 0;
         while let Some(row) = cursor.peek().filter(|row| row.time <= last) {
+            if before_stretch == 0 {
+                if let Some((source, first, times)) = cursor.dense_ahead() {
+                    // The run's last row may tie with the next run's first (the later
+                    // row id shows): it is taken alone.
+                    let candidates = &times[..times.len() - 1];
+                    let mut n = sink.lead(candidates);
+                    // Within a chunk, of rows tied on a time the last shows.
+                    if n > 0 && times[n] == times[n - 1] {
+                        n -= 1;
+                    }
+                    if n >= MIN_STRETCH {
+                        let n32 = u32::try_from(n).unwrap_or(u32::MAX);
+                        sink.stretch(source, first..first.saturating_add(n32));
+                        cursor.skip_dense(n);
+                        continue;
+                    }
+                }
+                before_stretch = crate::query::CURSOR_BLOCK;
+            }
+            before_stretch -= 1;
             cursor.advance();
             // Rows at one time come in row id order: the last of them shows.
             if cursor.peek().is_none_or(|next| next.time != row.time) {
-                visit(
+                sink.row(
                     row.time,
                     Cell::Row {
                         source: row.source,

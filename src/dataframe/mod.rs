@@ -14,11 +14,17 @@
 //! chunks' own arrays (usually one zero-copy slice per batch), repeated fill cells of one
 //! chunk with one `take`. One column's state, sources and output are all that a pass
 //! touches, so a table of thousands of columns does not miss the cache on every cell.
+//!
+//! A stream that owns a snapshot ([`Snapshot::into_dataframe`], as SQL's scans and the
+//! Python package read) leaves the rows it gathered with the snapshot when it ends
+//! ([`kept_rows`]); a later query of the same view over that range or a part of it takes
+//! its rows from there and reads only the columns it outputs.
 
 mod cells;
 mod chunk_table;
 mod column;
 mod filter;
+mod kept_rows;
 mod schema;
 mod stream;
 

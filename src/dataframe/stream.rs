@@ -5,10 +5,11 @@ use std::sync::Arc;
 use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
-use super::cells::{Cell, ListColumnBuilder};
+use super::cells::{Cell, ListColumnBuilder, Sources};
 use super::column::{
-    ColumnState, Kind, TemporalColumn, column_state, exact_cell, row_bytes, visible_cell,
+    ColumnState, Kind, RowSink, TemporalColumn, column_state, exact_cell, row_bytes, visible_cell,
 };
+use super::kept_rows::{GivenRows, KeptRows, RowsKey, budget_times};
 use super::schema::{Selection, TablePlan};
 use super::{DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::{LatestAtQuery, Snapshot, StoreView, TimeInt, TimeRange};
@@ -33,11 +34,14 @@ pub struct DataframeStream<'a> {
     coming: Vec<TimeInt>,
     merged: Vec<TimeInt>,
     time_set: TimeSet,
-    /// Per index column, this batch's values: the index itself, and on every other
-    /// index column the greatest time among each row's cells.
+    /// Per index column other than the index (whose values are `times`), this batch's
+    /// values: the greatest time among each row's cells.
     index_values: Vec<Vec<Option<i64>>>,
     /// One column's cells while the batch builds it (columns are built one at a time).
     cells: ListColumnBuilder,
+    /// Is an index column other than the index itself in the output? Then every column's
+    /// cells raise its values, built or not.
+    raises: bool,
     /// Set once the stream has ended (its last batch, or an error, was handed out).
     done: bool,
 }
@@ -70,14 +74,30 @@ impl std::fmt::Debug for DataframeStream<'_> {
 
 /// Where rows come from.
 enum Rows {
-    /// A row per distinct index value any column has an event at.
-    Merge { fill: bool },
+    /// A row per distinct index value any column has an event at: kept by an earlier
+    /// query of the snapshot (`given`), or gathered from the columns and, if the stream
+    /// owns a snapshot, recorded to be kept when the stream ends.
+    Merge {
+        fill: bool,
+        given: Option<GivenRows>,
+        recording: Option<Recording>,
+    },
     /// A row per sampled value; `exact`: only what the sparse view has at that time.
     Sample {
         values: Arc<[TimeInt]>,
         next: usize,
         exact: bool,
     },
+}
+
+/// The rows a stream over a snapshot has gathered so far, to keep once it has them all.
+struct Recording {
+    kept: Arc<KeptRows>,
+    key: RowsKey,
+    range: TimeRange,
+    times: Vec<TimeInt>,
+    /// Past this many, the rows will not be kept: recording stops.
+    budget: usize,
 }
 
 impl<'a> DataframeStream<'a> {
@@ -93,10 +113,47 @@ impl<'a> DataframeStream<'a> {
         } else {
             query.range
         };
+        // A snapshot keeps its views' rows between queries (`kept_rows`).
+        let (given, recording) = match (&store, &sampling) {
+            (ViewRef::Owned(snapshot), None) => {
+                let kept = snapshot.derived::<KeptRows>();
+                let key = RowsKey::of(query);
+                match kept.rows(&key, range) {
+                    Some(given) => (Some(given), None),
+                    None => (
+                        None,
+                        Some(Recording {
+                            kept,
+                            key,
+                            range,
+                            times: Vec::new(),
+                            budget: budget_times(snapshot.stats().heap_bytes),
+                        }),
+                    ),
+                }
+            }
+            _ => (None, None),
+        };
+        let raises = selection
+            .index
+            .iter()
+            .enumerate()
+            .any(|(position, &selected)| selected && position != plan.index_position);
         let columns = plan
             .columns
             .iter()
-            .map(|column| column_state(&store, &plan, column, range, query, sampling.is_none()))
+            .zip(&selection.data)
+            .map(|(column, &selected)| {
+                if given.is_some() && !selected && !raises {
+                    // The kept rows hold its times, and it builds and raises nothing:
+                    // it is not read at all.
+                    return Ok(ColumnState {
+                        sources: Sources::new(Arc::clone(&column.item_field)),
+                        kind: Kind::Static(None),
+                    });
+                }
+                column_state(&store, &plan, column, range, query, sampling.is_none())
+            })
             .collect::<Result<Vec<_>, _>>()?;
         let rows = match sampling {
             Some(values) => Rows::Sample {
@@ -106,6 +163,8 @@ impl<'a> DataframeStream<'a> {
             },
             None => Rows::Merge {
                 fill: query.fill_latest_at,
+                given,
+                recording,
             },
         };
         let batch_rows = query.batch_rows.unwrap_or_else(|| {
@@ -130,6 +189,7 @@ impl<'a> DataframeStream<'a> {
             time_set: TimeSet::default(),
             index_values: vec![Vec::new(); plan.index_columns.len()],
             cells: ListColumnBuilder::default(),
+            raises,
             plan,
             selection,
             columns,
@@ -149,7 +209,9 @@ impl<'a> DataframeStream<'a> {
     /// How many distinct chunks the stream reads: those of its columns that overlap the
     /// range (their times decide the rows; the selected columns' cells are copied from
     /// them), plus, when filling or sampling, the chunks of latest-at answers found so
-    /// far. A query the index can narrow (a short range, a few entities) reads few.
+    /// far. A query the index can narrow (a short range, a few entities) reads few. Over
+    /// a snapshot whose earlier query kept the view's rows, the columns left out of the
+    /// output are not read (unless another index column is in it: their cells raise it).
     pub fn num_chunks_read(&self) -> usize {
         let mut ids: Vec<crate::ChunkId> = self
             .columns
@@ -178,23 +240,29 @@ impl<'a> DataframeStream<'a> {
     /// Sets `times` to the next batch's row times: when merging, the first `batch_rows`
     /// distinct times at which any column (selected or not: every planned column's times
     /// decide the rows) has a row or a Clear still to come, gathered column by column
-    /// without consuming anything; when sampling, the next sampled values.
+    /// without consuming anything (or the next of the rows the snapshot kept); when
+    /// sampling, the next sampled values.
     fn next_times(&mut self) {
         self.times.clear();
         let cap = self.batch_rows;
-        match &mut self.rows {
-            Rows::Merge { .. } => {
-                let Self {
-                    times,
-                    coming,
-                    merged,
-                    time_set,
-                    ..
-                } = self;
+        let Self {
+            times,
+            coming,
+            merged,
+            time_set,
+            columns,
+            rows,
+            ..
+        } = self;
+        match rows {
+            Rows::Merge {
+                given: Some(given), ..
+            } => given.take(cap, times),
+            Rows::Merge { recording, .. } => {
                 let mut set_is_current = false;
                 // The last column found to add nothing to the batch as it is.
                 let mut known: Option<&TemporalColumn> = None;
-                for state in &self.columns {
+                for state in columns.iter() {
                     let Kind::Temporal(column) = &state.kind else {
                         continue;
                     };
@@ -222,11 +290,17 @@ impl<'a> DataframeStream<'a> {
                         set_is_current &= !merge_times(times, new, cap, merged);
                     });
                 }
+                if let Some(record) = recording {
+                    if record.times.len() + times.len() > record.budget {
+                        *recording = None;
+                    } else {
+                        record.times.extend_from_slice(times);
+                    }
+                }
             }
             Rows::Sample { values, next, .. } => {
                 let end = values.len().min(next.saturating_add(cap));
-                self.times
-                    .extend_from_slice(values.get(*next..end).unwrap_or_default());
+                times.extend_from_slice(values.get(*next..end).unwrap_or_default());
                 *next = end;
             }
         }
@@ -249,35 +323,31 @@ impl<'a> DataframeStream<'a> {
                 let Some(&last) = self.times.last() else {
                     return Ok(());
                 };
-                if !selected && self.index_values.len() <= 1 {
+                if !selected && !self.raises {
                     // Its times are in the batch's already, and it builds and raises
                     // nothing: a projection's other columns cost a search per run.
                     column.skip_through(last);
                     return Ok(());
                 }
-                let mut from = 0;
-                let times = &self.times;
-                let sources = &state.sources;
-                let index_values = &mut self.index_values;
-                let mut fill_cell = column.fill;
-                // With the table's index its only index column, no cell raises another.
-                let raises = index_values.len() > 1;
-                column.take_rows_through(last, |time, cell| {
-                    let row = position_from(times, from, time);
-                    from = row + 1;
-                    if raises {
-                        sources.raise_times(cell, row, index_values);
-                    }
-                    if selected {
-                        cells.pad_and_push(
-                            sources,
-                            if fill { fill_cell } else { None },
-                            row,
-                            Some(cell),
-                        );
-                    }
-                    fill_cell = Some(cell);
-                });
+                let mut sink = MergeSink {
+                    times: &self.times,
+                    from: 0,
+                    at: 0,
+                    sources: &state.sources,
+                    index_values: &mut self.index_values,
+                    cells,
+                    // With no other index column in the output, no cell raises one.
+                    raises: self.raises,
+                    selected,
+                    fill,
+                    fill_cell: column.fill,
+                };
+                column.take_rows_through(last, &mut sink);
+                let MergeSink {
+                    mut from,
+                    fill_cell,
+                    ..
+                } = sink;
                 column.fill = fill_cell;
                 while let Some(time) = column.next_time().filter(|&time| time <= last) {
                     // Events come in ascending time, each on a later row.
@@ -387,18 +457,26 @@ impl<'a> DataframeStream<'a> {
         self.next_times();
         let num_rows = self.times.len();
         if num_rows == 0 {
+            // Every row was gathered: the snapshot keeps them for its later queries.
+            if let Rows::Merge { recording, .. } = &mut self.rows
+                && let Some(record) = recording.take()
+            {
+                record
+                    .kept
+                    .keep(record.key, record.range, record.times, record.budget);
+            }
             return Ok(None);
         }
         for (i, values) in self.index_values.iter_mut().enumerate() {
             values.clear();
-            if i == self.plan.index_position {
-                values.extend(self.times.iter().map(|time| Some(time.as_i64())));
-            } else {
+            // The index's own column is the batch's times (built from them below); no
+            // cell raises it.
+            if i != self.plan.index_position {
                 values.resize(num_rows, None);
             }
         }
         match &self.rows {
-            Rows::Merge { fill } => {
+            Rows::Merge { fill, .. } => {
                 let fill = *fill;
                 for number in 0..self.columns.len() {
                     self.merge_column(number, fill)?;
@@ -419,16 +497,22 @@ impl<'a> DataframeStream<'a> {
         }
         let data = self.cells.finish_batch()?;
         let mut arrays: Vec<ArrayRef> = Vec::with_capacity(self.selection.schema.fields().len());
-        for ((timeline, values), &selected) in self
+        for (i, ((timeline, values), &selected)) in self
             .plan
             .index_columns
             .iter()
             .zip(&mut self.index_values)
             .zip(&self.selection.index)
+            .enumerate()
         {
-            if selected {
-                arrays.push(timeline.time_type().array(std::mem::take(values)));
+            if !selected {
+                continue;
             }
+            arrays.push(if i == self.plan.index_position {
+                timeline.time_type().array_of_times(&self.times)
+            } else {
+                timeline.time_type().array(std::mem::take(values))
+            });
         }
         arrays.extend(data);
         // With no column kept, the batch still says how many rows it stands for.
@@ -436,6 +520,103 @@ impl<'a> DataframeStream<'a> {
         RecordBatch::try_new_with_options(Arc::clone(&self.selection.schema), arrays, &options)
             .map(Some)
     }
+}
+
+/// A column's rows as [`TemporalColumn::take_rows_through`] hands them, put on the batch's
+/// rows: each at its time's row (the rows before it padded), raising the other index
+/// columns in the output, its cell built if the column is selected.
+struct MergeSink<'s> {
+    times: &'s [TimeInt],
+    /// The batch row after the last row taken.
+    from: usize,
+    /// Where the last `lead` found its first time.
+    at: usize,
+    sources: &'s Sources,
+    index_values: &'s mut Vec<Vec<Option<i64>>>,
+    cells: &'s mut ListColumnBuilder,
+    raises: bool,
+    selected: bool,
+    fill: bool,
+    /// The last cell taken (what fills the rows after it).
+    fill_cell: Option<Cell>,
+}
+
+impl RowSink for MergeSink<'_> {
+    #[inline]
+    fn row(&mut self, time: TimeInt, cell: Cell) {
+        let row = position_from(self.times, self.from, time);
+        self.from = row + 1;
+        if self.raises {
+            self.sources.raise_times(cell, row, self.index_values);
+        }
+        if self.selected {
+            let pad = if self.fill { self.fill_cell } else { None };
+            self.cells.pad_and_push(self.sources, pad, row, Some(cell));
+        }
+        self.fill_cell = Some(cell);
+    }
+
+    fn lead(&mut self, times: &[i64]) -> usize {
+        // A stretch is built at once; its cells would raise other index columns one by one.
+        if !self.selected || self.raises {
+            return 0;
+        }
+        let Some(&first) = times.first() else {
+            return 0;
+        };
+        self.at = position_from(self.times, self.from, TimeInt::saturating(first));
+        let ahead = self.times.get(self.at..).unwrap_or_default();
+        leading_equal(ahead, times)
+    }
+
+    fn stretch(&mut self, source: u32, rows: std::ops::Range<u32>) {
+        let pad = if self.fill { self.fill_cell } else { None };
+        self.cells.pad(self.sources, pad, self.at);
+        self.from = self.at + rows.len();
+        if let Some(last) = rows.end.checked_sub(1) {
+            self.fill_cell = Some(Cell::Row { source, row: last });
+        }
+        self.cells
+            .push_rows(self.sources, source, rows.start, rows.end);
+    }
+}
+
+/// How many of `times` lead `values` one for one. Compared a block at a time without a
+/// branch per element (the compiler makes vector compares of it), then the first block
+/// that differs element by element.
+fn leading_equal(times: &[TimeInt], values: &[i64]) -> usize {
+    const BLOCK: usize = 64;
+    /// Compared one by one first: a column with a row every few of the batch's differs
+    /// at its second time, and is told so in a few instructions.
+    const FIRST: usize = 4;
+    let len = times.len().min(values.len());
+    let (times, values) = (&times[..len], &values[..len]);
+    let first = times
+        .iter()
+        .zip(values)
+        .take(FIRST)
+        .take_while(|&(time, &value)| time.as_i64() == value)
+        .count();
+    if first < FIRST.min(len) {
+        return first;
+    }
+    let mut equal = 0;
+    for (times, values) in times.chunks(BLOCK).zip(values.chunks(BLOCK)) {
+        let all = times
+            .iter()
+            .zip(values)
+            .fold(true, |all, (time, &value)| all & (time.as_i64() == value));
+        if !all {
+            return equal
+                + times
+                    .iter()
+                    .zip(values)
+                    .take_while(|&(time, &value)| time.as_i64() == value)
+                    .count();
+        }
+        equal += times.len();
+    }
+    equal
 }
 
 /// Where `time` is, or would go, in the ascending `times`, searching from `from` on: a

@@ -11,7 +11,7 @@ use arrow_array::ArrayRef;
 use crate::{Chunk, ChunkId, ComponentColumn, RowId, TimeInt};
 
 pub use latest_at::LatestAtQuery;
-pub(crate) use range::RangeCursor;
+pub(crate) use range::{CURSOR_BLOCK, RangeCursor};
 pub use range::{RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 
 /// One cell a query answered with: the chunk and row it lives in, and its index.

@@ -708,6 +708,164 @@ fn a_snapshot_streams_the_same_table_from_another_thread_while_the_store_changes
     assert!(matches!(unknown, Err(DataframeError::UnknownIndex { .. })));
 }
 
+/// A chunk sorted on the index whose column has no null cell is taken a stretch of rows
+/// at a time where its rows are the batch's next ones: the table is the one its rows
+/// give one by one. Rows tied on a time inside the chunk (the greater row id shows) and
+/// across chunks, an empty list (valid, not null), a stretch that ends a batch, and a
+/// column that fills the rows after its stretch with its last row.
+#[test]
+fn stretches_of_a_sorted_chunk_show_as_their_rows_one_by_one() {
+    let rows = |frames: &[i64], first_row_id: u128| -> Vec<(i64, u128, Option<Vec<f64>>)> {
+        frames
+            .iter()
+            .zip(first_row_id..)
+            .map(|(&frame, row_id)| (frame, row_id, Some(vec![row_id as f64])))
+            .collect()
+    };
+    let mut b = rows(&(0..=16).collect::<Vec<_>>(), 200);
+    b[3].2 = Some(vec![]);
+    let store = store_of([
+        scalars(
+            "/a",
+            "x",
+            &rows(&[0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9, 10, 11], 1),
+        ),
+        scalars("/a", "x", &rows(&[11, 12, 13, 14, 15, 16], 100)),
+        scalars("/b", "x", &b),
+        // A stretch (0 to 5) ended by a gap: the rows after it fill with its last.
+        scalars("/d", "x", &rows(&[0, 1, 2, 3, 4, 5, 9], 300)),
+        scalars("/d", "x", &rows(&[16], 316)),
+    ]);
+    let sparse = lines(&[
+        "0 | [1] | [200] | [300]",
+        "1 | [2] | [201] | [301]",
+        "2 | [3] | [202] | [302]",
+        "3 | [4] | [] | [303]",
+        "4 | [5] | [204] | [304]",
+        "5 | [7] | [205] | [305]",
+        "6 | [8] | [206] | null",
+        "7 | [9] | [207] | null",
+        "8 | [10] | [208] | null",
+        "9 | [11] | [209] | [306]",
+        "10 | [12] | [210] | null",
+        "11 | [100] | [211] | null",
+        "12 | [101] | [212] | null",
+        "13 | [102] | [213] | null",
+        "14 | [103] | [214] | null",
+        "15 | [104] | [215] | null",
+        "16 | [105] | [216] | [316]",
+    ]);
+    let filled: Vec<String> = sparse
+        .iter()
+        .enumerate()
+        .map(|(frame, l)| l.replace("null", if frame < 9 { "[305]" } else { "[306]" }))
+        .collect();
+    for batch_rows in [1, 2, 3, 5, 7, 100] {
+        for (fill, expected) in [(false, &sparse), (true, &filled)] {
+            let query = frame()
+                .with_batch_rows(batch_rows)
+                .with_fill_latest_at(fill);
+            assert_eq!(&render(&store, &query).1, expected, "{batch_rows} {fill}");
+        }
+    }
+}
+
+/// A stream over a snapshot that reads its view to the end leaves the view's rows with the
+/// snapshot: a later query of the same view (index, contents, kept kinds of column) over
+/// that range or a part of it takes its rows from there and reads only the columns it
+/// outputs, with the same answer as a store that keeps nothing. A query the kept rows do
+/// not cover, another view, or a fresh snapshot gathers its rows again.
+#[test]
+fn a_snapshot_keeps_a_views_rows_and_later_queries_read_only_their_columns() {
+    let mut chunks = Vec::new();
+    for entity in 0..5_i64 {
+        // Entity i logs every (i + 1)th frame: the rows are the union of their times.
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..60)
+            .filter(|frame| frame % (entity + 1) == 0)
+            .map(|frame| {
+                let row = (frame * 10 + entity) as u128 + 1;
+                (frame, row, Some(vec![(frame * 100 + entity) as f64]))
+            })
+            .collect();
+        // In chunks of a few rows, so that a column's chunks can be counted.
+        for part in rows.chunks(4) {
+            chunks.push(scalars(&format!("/e/{entity}"), "x", part));
+        }
+    }
+    chunks.push(clear("/e/2", Some(31), 5_000, false));
+    chunks.push(static_scalar("/s", "y", 6_000, 7.0));
+    let store = store_of(chunks);
+    let expected = |query: &DataframeQuery| -> Vec<RecordBatch> {
+        store
+            .dataframe(query)
+            .unwrap()
+            .map(Result::unwrap)
+            .collect()
+    };
+    let range = |min: i64, max: i64| TimeRange::new(t(min), t(max));
+    let one_column = |query: DataframeQuery| query.with_columns(["frame", "/e/3:x"]);
+
+    let snapshot = store.snapshot();
+    // Read in two parts, as SQL's scans build a range: the parts' rows join.
+    for part in [range(30, i64::MAX), range(i64::MIN + 1, 29)] {
+        let query = frame().with_range(part).with_batch_rows(7);
+        let read: Vec<RecordBatch> = snapshot
+            .clone()
+            .into_dataframe(&query)
+            .unwrap()
+            .map(Result::unwrap)
+            .collect();
+        assert_eq!(read, expected(&query));
+    }
+    let queries = [
+        one_column(frame()),
+        one_column(frame().with_range(range(10, 40))).with_batch_rows(3),
+        one_column(frame().with_fill_latest_at(true).with_range(range(31, 50))),
+        frame().with_columns(["/e/2:x"]).with_fill_latest_at(true),
+        frame().with_range(range(5, 55)),
+    ];
+    for query in &queries {
+        let kept = snapshot.clone().into_dataframe(query).unwrap();
+        let fresh = store.snapshot().into_dataframe(query).unwrap();
+        let (kept_chunks, fresh_chunks) = (kept.num_chunks_read(), fresh.num_chunks_read());
+        let built: Vec<RecordBatch> = kept.map(Result::unwrap).collect();
+        assert_eq!(built, expected(query), "{query:?}");
+        if query.columns().is_some() {
+            // One entity's chunks (and the static one, which every row shows) against
+            // every entity's.
+            assert!(
+                kept_chunks < fresh_chunks / 2,
+                "{kept_chunks} of {fresh_chunks}"
+            );
+        } else {
+            assert_eq!(kept_chunks, fresh_chunks);
+        }
+    }
+    // Not covered by the kept rows (past the timeline's end is covered: the parts were
+    // open-ended), another view: every column's times read again.
+    let other_view = one_column(frame().with_contents(EntityPathFilter::parse(["/e/**"]).unwrap()));
+    let other = snapshot.clone().into_dataframe(&other_view).unwrap();
+    assert_eq!(
+        other.num_chunks_read(),
+        store
+            .snapshot()
+            .into_dataframe(&other_view)
+            .unwrap()
+            .num_chunks_read()
+    );
+    assert_eq!(
+        other.map(Result::unwrap).collect::<Vec<_>>(),
+        expected(&other_view)
+    );
+    let sampled = one_column(frame().with_index_values([t(3), t(31)]));
+    let read: Vec<RecordBatch> = snapshot
+        .into_dataframe(&sampled)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    assert_eq!(read, expected(&sampled));
+}
+
 /// `ChunkTableQuery::with_columns` builds exactly the whole table's columns it names, in
 /// the table's order, with the same rows; no column at all keeps the row count; an unknown
 /// name is refused.

@@ -22,8 +22,8 @@ pub(crate) struct DataframeOp {
     pub(crate) contents: Option<(usize, bool)>,
     pub(crate) batch_rows: usize,
     /// `Some(mask)`: only the data columns whose position in the full view has its bit
-    /// set (`DataframeQuery::with_columns`; the index columns stay); the rows stay the
-    /// full view's.
+    /// set (`DataframeQuery::with_columns`; the index column stays, and the other index
+    /// columns unless bit 63 is set); the rows stay the full view's.
     pub(crate) columns: Option<u64>,
     /// `DataframeQuery::with_tombstone_columns` and `with_semantically_empty_columns`.
     pub(crate) tombstones: bool,
@@ -426,7 +426,10 @@ pub(crate) fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<T
             .iter()
             .filter(|f| {
                 if !f.name().contains(':') {
-                    return true; // index columns
+                    // The index column; the others unless the mask's top bit is set (no
+                    // cell then raises them, and a sorted chunk's rows may go at once).
+                    return f.name() == TIMELINES[op.timeline].0
+                        || op.columns.is_some_and(|mask| mask >> 63 == 0);
                 }
                 data += 1;
                 op.keeps(data - 1)
@@ -436,9 +439,26 @@ pub(crate) fn dataframe_answer(store: &ChunkStore, op: &DataframeOp) -> Option<T
         query = query.with_columns(kept);
     }
     // Half the queries read through a stream that owns its snapshot (as the Python
-    // package's readers do): the same table either way.
+    // package's readers do): the same table either way. Half of those first read the
+    // same view in two open-ended parts split inside the range, as SQL's scans do: the
+    // snapshot keeps those rows, and the query takes its own from them.
     let stream = if op.batch_rows % 2 == 1 {
-        store.snapshot().into_dataframe(&query)
+        let snapshot = store.snapshot();
+        if op.batch_rows == 3 && op.sample.is_none() {
+            let split = t(op.min);
+            for part in [
+                TimeRange::new(split, TimeInt::MAX),
+                TimeRange::new(TimeInt::MIN, TimeInt::saturating(op.min - 1)),
+            ] {
+                if let Ok(stream) = snapshot
+                    .clone()
+                    .into_dataframe(&query.clone().with_range(part))
+                {
+                    stream.for_each(|batch| drop(batch.unwrap()));
+                }
+            }
+        }
+        snapshot.into_dataframe(&query)
     } else {
         store.dataframe(&query)
     };
