@@ -566,7 +566,7 @@ impl RowSink for MergeSink<'_> {
         };
         self.at = position_from(self.times, self.from, TimeInt::saturating(first));
         let ahead = self.times.get(self.at..).unwrap_or_default();
-        leading_equal(ahead, times)
+        crate::time::leading_equal(ahead, times)
     }
 
     fn stretch(&mut self, source: u32, rows: std::ops::Range<u32>) {
@@ -579,44 +579,6 @@ impl RowSink for MergeSink<'_> {
         self.cells
             .push_rows(self.sources, source, rows.start, rows.end);
     }
-}
-
-/// How many of `times` lead `values` one for one. Compared a block at a time without a
-/// branch per element (the compiler makes vector compares of it), then the first block
-/// that differs element by element.
-fn leading_equal(times: &[TimeInt], values: &[i64]) -> usize {
-    const BLOCK: usize = 64;
-    /// Compared one by one first: a column with a row every few of the batch's differs
-    /// at its second time, and is told so in a few instructions.
-    const FIRST: usize = 4;
-    let len = times.len().min(values.len());
-    let (times, values) = (&times[..len], &values[..len]);
-    let first = times
-        .iter()
-        .zip(values)
-        .take(FIRST)
-        .take_while(|&(time, &value)| time.as_i64() == value)
-        .count();
-    if first < FIRST.min(len) {
-        return first;
-    }
-    let mut equal = 0;
-    for (times, values) in times.chunks(BLOCK).zip(values.chunks(BLOCK)) {
-        let all = times
-            .iter()
-            .zip(values)
-            .fold(true, |all, (time, &value)| all & (time.as_i64() == value));
-        if !all {
-            return equal
-                + times
-                    .iter()
-                    .zip(values)
-                    .take_while(|&(time, &value)| time.as_i64() == value)
-                    .count();
-        }
-        equal += times.len();
-    }
-    equal
 }
 
 /// Where `time` is, or would go, in the ascending `times`, searching from `from` on: a

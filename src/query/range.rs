@@ -619,10 +619,7 @@ impl RangeCursor {
                     let first = TimeInt::saturating(first);
                     let at = from + times[from.min(times.len())..].partition_point(|&t| t < first);
                     let same = times.get(at..at + due).is_some_and(|known_run| {
-                        known_run
-                            .iter()
-                            .zip(&run_times[..due])
-                            .all(|(t, &v)| t.as_i64() == v)
+                        crate::time::leading_equal(known_run, &run_times[..due]) == due
                     });
                     if same {
                         from = at + due - 1;
