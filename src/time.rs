@@ -160,12 +160,11 @@ impl TimeType {
         }
     }
 
-    /// A column of this type holding `times`, none null: one pass over them, where
-    /// [`Self::array`] builds its nulls cell by cell.
-    pub fn array_of_times(self, times: &[TimeInt]) -> arrow_array::ArrayRef {
+    /// A time column of this type holding `values`, none null: the buffer taken as it
+    /// is, where [`Self::array`] builds its nulls cell by cell.
+    pub fn dense_array(self, values: Vec<i64>) -> arrow_array::ArrayRef {
         use arrow_array::PrimitiveArray;
         use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
-        let values: Vec<i64> = times.iter().map(|time| time.as_i64()).collect();
         match self {
             Self::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(values)),
             Self::DurationNs => Arc::new(PrimitiveArray::<DurationNanosecondType>::from(values)),
@@ -194,15 +193,19 @@ pub(crate) fn leading_equal(times: &[TimeInt], values: &[i64]) -> usize {
     /// Compared one by one first: a column with a row every few of the batch's differs
     /// at its second time, and is told so in a few instructions.
     const FIRST: usize = 4;
+    /// Counted one by one, up to the first difference.
+    fn equal_prefix(times: &[TimeInt], values: &[i64]) -> usize {
+        times
+            .iter()
+            .zip(values)
+            .take_while(|&(time, &value)| time.as_i64() == value)
+            .count()
+    }
     let len = times.len().min(values.len());
     let (times, values) = (&times[..len], &values[..len]);
-    let first = times
-        .iter()
-        .zip(values)
-        .take(FIRST)
-        .take_while(|&(time, &value)| time.as_i64() == value)
-        .count();
-    if first < FIRST.min(len) {
+    let head = FIRST.min(len);
+    let first = equal_prefix(&times[..head], &values[..head]);
+    if first < head {
         return first;
     }
     let mut equal = 0;
@@ -212,12 +215,7 @@ pub(crate) fn leading_equal(times: &[TimeInt], values: &[i64]) -> usize {
             .zip(values)
             .fold(true, |all, (time, &value)| all & (time.as_i64() == value));
         if !all {
-            return equal
-                + times
-                    .iter()
-                    .zip(values)
-                    .take_while(|&(time, &value)| time.as_i64() == value)
-                    .count();
+            return equal + equal_prefix(times, values);
         }
         equal += times.len();
     }

@@ -2,14 +2,13 @@
 
 use std::sync::Arc;
 
-use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
-use arrow_array::{Array, ArrayRef, ListArray, PrimitiveArray};
+use arrow_array::{Array, ArrayRef, ListArray};
 use arrow_buffer::{NullBuffer, OffsetBuffer};
 use arrow_schema::{DataType, Field};
 
 use super::Chunk;
 use crate::ChunkError;
-use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, TimeType, Timeline};
+use crate::{ChunkId, ComponentDescriptor, ComponentName, EntityPath, RowId, Timeline};
 
 /// Builds a [`Chunk`] one row at a time.
 ///
@@ -173,7 +172,7 @@ impl ChunkBuilder {
                     });
                 }
                 let times: Vec<i64> = times.into_iter().flatten().collect();
-                let array = time_array(timeline.time_type(), times);
+                let array = timeline.time_type().dense_array(times);
                 Ok((timeline, array))
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -186,15 +185,6 @@ impl ChunkBuilder {
             })
             .collect::<Result<Vec<_>, ChunkError>>()?;
         Chunk::try_new(id, entity_path, row_ids, time_columns, components)
-    }
-}
-
-/// An Arrow time column of the given type.
-pub(crate) fn time_array(time_type: TimeType, times: Vec<i64>) -> ArrayRef {
-    match time_type {
-        TimeType::Sequence => Arc::new(PrimitiveArray::<Int64Type>::from(times)),
-        TimeType::DurationNs => Arc::new(PrimitiveArray::<DurationNanosecondType>::from(times)),
-        TimeType::TimestampNs => Arc::new(PrimitiveArray::<TimestampNanosecondType>::from(times)),
     }
 }
 

@@ -509,7 +509,9 @@ impl<'a> DataframeStream<'a> {
                 continue;
             }
             arrays.push(if i == self.plan.index_position {
-                timeline.time_type().array_of_times(&self.times)
+                timeline
+                    .time_type()
+                    .dense_array(self.times.iter().map(|time| time.as_i64()).collect())
             } else {
                 timeline.time_type().array(std::mem::take(values))
             });
