@@ -53,6 +53,11 @@ pub struct ComponentColumn {
     /// Does every cell span exactly one instance? See
     /// [`ComponentColumn::has_one_instance_per_row`].
     pub(super) one_instance_per_row: bool,
+    /// Do neither the items nor (for fixed-size lists) their values hold a null instance?
+    /// Then a cell's leaf values are the whole cell ([`ComponentColumn::null_free_leaf`]).
+    /// Kept, in the flag's word, because a write buffer's copy of every streamed row asked
+    /// Arrow for two null counts through its array handles.
+    pub(super) leaf_null_free: bool,
     /// The primitive values beneath the items, when there are such; see [`PrimitiveLeaf`].
     pub(super) leaf: Option<PrimitiveLeaf>,
     pub(super) descriptor: ComponentDescriptor,
@@ -104,6 +109,17 @@ impl PrimitiveLeaf {
     pub(super) fn is_the_same(&self, other: &Self) -> bool {
         (self.values.as_ptr(), self.values.len()) == (other.values.as_ptr(), other.values.len())
     }
+}
+
+/// Do neither `list`'s items nor, for fixed-size lists, their values hold a null
+/// instance? (Of a list whose leaf is primitive: see [`ComponentColumn::leaf_null_free`].)
+fn has_null_free_items(list: &ListArray) -> bool {
+    let items = list.values();
+    let leaf_nulls = match items.as_fixed_size_list_opt() {
+        Some(fixed) => fixed.values().null_count(),
+        None => 0,
+    };
+    items.null_count() + leaf_nulls == 0
 }
 
 /// The leaf type of a list type whose items are primitives or fixed-size lists of them,
@@ -338,6 +354,7 @@ impl ComponentColumn {
         let best_cell_row = best_cell_row(&list, row_ids, sorted_by_row_id);
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
+        let leaf_null_free = leaf.is_some() && has_null_free_items(&list);
         if leaf.is_none() && !from_accepted_cells {
             // Primitive items (and fixed-size lists of them) take bytes per value.
             check_backed_values(&list, name)?;
@@ -351,6 +368,7 @@ impl ComponentColumn {
             list,
             best_cell_row,
             one_instance_per_row,
+            leaf_null_free,
             leaf,
             descriptor,
             field,
@@ -472,13 +490,7 @@ impl ComponentColumn {
     /// hold a null instance: then a cell's leaf values are the whole cell, since a null
     /// instance would hide whatever its slot holds.
     pub(super) fn null_free_leaf(&self) -> Option<&PrimitiveLeaf> {
-        let leaf = self.leaf.as_ref()?;
-        let items = self.list.values();
-        let leaf_nulls = match leaf_shape(self.list.data_type())?.1 {
-            Some(_) => items.as_fixed_size_list_opt()?.values().null_count(),
-            None => 0,
-        };
-        (items.null_count() + leaf_nulls == 0).then_some(leaf)
+        self.leaf.as_ref().filter(|_| self.leaf_null_free)
     }
 
     /// Where the cell at `row` lies in `leaf`, in units of `width` leaf elements or bytes
@@ -650,6 +662,7 @@ impl ComponentColumn {
             bounds_per_timeline,
             best_cell_row: best_row,
             one_instance_per_row,
+            leaf_null_free,
             leaf,
         } = self;
         let fail = |invariant| {
@@ -677,6 +690,9 @@ impl ComponentColumn {
         }
         if *one_instance_per_row != has_one_instance_per_row(list) {
             return fail("the one-instance flag matches the offsets");
+        }
+        if *leaf_null_free != (leaf.is_some() && has_null_free_items(list)) {
+            return fail("the null-free flag matches the items' nulls");
         }
         let leaf_matches = match (leaf, &PrimitiveLeaf::of(list)) {
             (Some(kept), Some(fresh)) => kept.is_the_same(fresh),
