@@ -58,6 +58,10 @@ pub struct ComponentColumn {
     /// Kept, in the flag's word, because a write buffer's copy of every streamed row asked
     /// Arrow for two null counts through its array handles.
     pub(super) leaf_null_free: bool,
+    /// Bytes of one cell's leaf values, with one instance per row and a primitive leaf
+    /// whose cells take fewer than 2^16 bytes; 0 otherwise. What
+    /// [`ComponentColumn::touch_cell`] reads by, kept in the flags' word.
+    pub(super) cell_bytes: u16,
     /// The primitive values beneath the items, when there are such; see [`PrimitiveLeaf`].
     pub(super) leaf: Option<PrimitiveLeaf>,
     pub(super) descriptor: ComponentDescriptor,
@@ -108,6 +112,20 @@ impl PrimitiveLeaf {
     /// The same values: the very same bytes, not equal ones.
     pub(super) fn is_the_same(&self, other: &Self) -> bool {
         (self.values.as_ptr(), self.values.len()) == (other.values.as_ptr(), other.values.len())
+    }
+}
+
+/// [`ComponentColumn::cell_bytes`] of `list`.
+fn touchable_cell_bytes(list: &ListArray, has_leaf: bool, one_instance_per_row: bool) -> u16 {
+    let width = || {
+        let (leaf_type, fixed_size) = leaf_shape(list.data_type())?;
+        leaf_type
+            .primitive_width()?
+            .checked_mul(fixed_size.unwrap_or(1))
+    };
+    match (has_leaf && one_instance_per_row).then(width).flatten() {
+        Some(bytes) => u16::try_from(bytes).unwrap_or(0),
+        None => 0,
     }
 }
 
@@ -355,6 +373,7 @@ impl ComponentColumn {
         let one_instance_per_row = has_one_instance_per_row(&list);
         let leaf = PrimitiveLeaf::of(&list);
         let leaf_null_free = leaf.is_some() && has_null_free_items(&list);
+        let cell_bytes = touchable_cell_bytes(&list, leaf.is_some(), one_instance_per_row);
         if leaf.is_none() && !from_accepted_cells {
             // Primitive items (and fixed-size lists of them) take bytes per value.
             check_backed_values(&list, name)?;
@@ -369,6 +388,7 @@ impl ComponentColumn {
             best_cell_row,
             one_instance_per_row,
             leaf_null_free,
+            cell_bytes,
             leaf,
             descriptor,
             field,
@@ -514,6 +534,29 @@ impl ComponentColumn {
     #[inline]
     pub fn is_valid(&self, row: usize) -> bool {
         self.is_valid_row(row)
+    }
+
+    /// Reads, and discards, what reading the cell at `row` will need: the column's list
+    /// type (a line of the column a cell's read goes through) and, with one instance per
+    /// row and a primitive leaf, a byte of the cell's values. A latest-at calls this with the row its
+    /// time search will probe first (`TimeColumn::num_positions_at_or_before_touching`),
+    /// so that those lines are on their way while the search waits for the times, where
+    /// each was a dependent cache miss after it: `latest_at_mono` 15% faster in wall time
+    /// for 25 instructions more a query, with as many misses in all (callgrind's cache
+    /// model over the whole run; `docs/performance-log.md`). (Reading the cell's validity
+    /// too was slower.)
+    #[inline]
+    pub(crate) fn touch_cell(&self, row: usize) {
+        std::hint::black_box(matches!(self.list.data_type(), DataType::List(_)));
+        if self.cell_bytes != 0
+            && let Some(leaf) = &self.leaf
+        {
+            let at = leaf
+                .first_item
+                .wrapping_add(row)
+                .wrapping_mul(usize::from(self.cell_bytes));
+            std::hint::black_box(leaf.values.as_slice().get(at).copied());
+        }
     }
 
     /// [`ComponentColumn::is_valid`] for a row known to be in bounds (the queries' rows
@@ -663,6 +706,7 @@ impl ComponentColumn {
             best_cell_row: best_row,
             one_instance_per_row,
             leaf_null_free,
+            cell_bytes,
             leaf,
         } = self;
         let fail = |invariant| {
@@ -693,6 +737,9 @@ impl ComponentColumn {
         }
         if *leaf_null_free != (leaf.is_some() && has_null_free_items(list)) {
             return fail("the null-free flag matches the items' nulls");
+        }
+        if *cell_bytes != touchable_cell_bytes(list, leaf.is_some(), *one_instance_per_row) {
+            return fail("the cell width matches the leaf's shape");
         }
         let leaf_matches = match (leaf, &PrimitiveLeaf::of(list)) {
             (Some(kept), Some(fresh)) => kept.is_the_same(fresh),

@@ -52,6 +52,60 @@ fn one_instance_per_row_follows_the_offsets() {
     );
 }
 
+/// A column knows the bytes of one cell where a latest-at touches cells before reading
+/// them (one instance a row of a primitive leaf: scalars, fixed-size lists), and 0 where it
+/// touches none; a touch at any row, in the chunk or past it, reads nothing it should not.
+#[test]
+fn cell_bytes_follow_the_leaf_and_the_offsets() {
+    use arrow_array::{FixedSizeListArray, Float32Array, StringArray};
+    use arrow_schema::Field;
+
+    let scalars = |offsets: Vec<i32>| {
+        let len = usize::try_from(*offsets.last().unwrap()).unwrap();
+        ListArray::new(
+            Arc::new(Field::new_list_field(DataType::Float64, true)),
+            arrow_buffer::OffsetBuffer::new(offsets.into()),
+            Arc::new(arrow_array::Float64Array::from(vec![1.0; len])),
+            None,
+        )
+    };
+    let positions = {
+        let item = Arc::new(Field::new_list_field(DataType::Float32, false));
+        let points = FixedSizeListArray::new(
+            Arc::clone(&item),
+            3,
+            Arc::new(Float32Array::from(vec![0.5_f32; 6])),
+            None,
+        );
+        ListArray::new(
+            Arc::new(Field::new_list_field(points.data_type().clone(), true)),
+            arrow_buffer::OffsetBuffer::new(vec![0, 1, 2].into()),
+            Arc::new(points),
+            None,
+        )
+    };
+    let texts = ListArray::new(
+        Arc::new(Field::new_list_field(DataType::Utf8, true)),
+        arrow_buffer::OffsetBuffer::new(vec![0, 1].into()),
+        Arc::new(StringArray::from(vec!["a"])),
+        None,
+    );
+    for (list, bytes) in [
+        (scalars(vec![0, 1, 2]), 8),
+        (positions, 12),
+        (scalars(vec![0, 2]), 0),
+        (texts, 0),
+    ] {
+        let chunk = chunk_of(list);
+        let column = &chunk.components()[0];
+        assert_eq!(column.cell_bytes, bytes, "{:?}", column.list.data_type());
+        for row in [0, 1, 2, 1_000, usize::MAX] {
+            column.touch_cell(row);
+        }
+        chunk.sanity_check().unwrap();
+    }
+}
+
 /// Scalars and fixed-size lists read as slices of the right cells, through slicing at
 /// every level; nulls, other types and other widths read as `None`.
 #[test]
@@ -419,7 +473,7 @@ fn guided_partition_point_agrees_with_a_binary_search() {
                     }
                 };
                 assert_eq!(
-                    guided_partition_point(times.len(), range, target, |p| times[p], holds),
+                    guided_partition_point(times.len(), range, target, |p| times[p], holds, |_| {}),
                     times.partition_point(|&time| holds(time)),
                     "target {target}, strict {strict}"
                 );

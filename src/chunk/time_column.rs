@@ -244,17 +244,34 @@ impl TimeColumn {
 
     /// Number of positions whose time is `<= t` (a partition point in index order).
     pub(crate) fn num_positions_at_or_before(&self, t: i64) -> usize {
-        self.partition_point(t, |time| time <= t)
+        self.partition_point(t, |time| time <= t, |_| {})
+    }
+
+    /// [`TimeColumn::num_positions_at_or_before`], calling `first_probe` with the row the
+    /// search reads first, before it reads it (a guided search's guess: see
+    /// [`guided_partition_point`]), so that the caller can start loading what it will read
+    /// of that row while the search waits for its times.
+    pub(crate) fn num_positions_at_or_before_touching(
+        &self,
+        t: i64,
+        first_probe: impl FnOnce(usize),
+    ) -> usize {
+        self.partition_point(t, |time| time <= t, first_probe)
     }
 
     /// Number of positions whose time is `< t`.
     pub(crate) fn num_positions_before(&self, t: i64) -> usize {
-        self.partition_point(t, |time| time < t)
+        self.partition_point(t, |time| time < t, |_| {})
     }
 
     /// The number of leading positions (in index order) whose time `holds`, where `holds`
     /// is true up to around `t` and false after.
-    pub(super) fn partition_point(&self, t: i64, holds: impl Fn(i64) -> bool) -> usize {
+    pub(super) fn partition_point(
+        &self,
+        t: i64,
+        holds: impl Fn(i64) -> bool,
+        first_probe: impl FnOnce(usize),
+    ) -> usize {
         let (min, max) = (self.time_range.min(), self.time_range.max());
         match &self.index_order {
             Some(order) => guided_partition_point(
@@ -263,10 +280,16 @@ impl TimeColumn {
                 t,
                 |p| self.times[order[p] as usize],
                 holds,
+                |p| first_probe(order[p] as usize),
             ),
-            None => {
-                guided_partition_point(self.times.len(), (min, max), t, |p| self.times[p], holds)
-            }
+            None => guided_partition_point(
+                self.times.len(),
+                (min, max),
+                t,
+                |p| self.times[p],
+                holds,
+                first_probe,
+            ),
         }
     }
 }
@@ -285,6 +308,7 @@ pub(super) fn guided_partition_point(
     t: i64,
     time_at: impl Fn(usize) -> i64,
     holds: impl Fn(i64) -> bool,
+    first_probe: impl FnOnce(usize),
 ) -> usize {
     let binary = |mut low: usize, mut high: usize| {
         while low < high {
@@ -304,6 +328,7 @@ pub(super) fn guided_partition_point(
     let offset = (i128::from(t) - i128::from(min.as_i64())).clamp(0, span);
     let last = i128::try_from(n - 1).unwrap_or(i128::MAX);
     let guess = usize::try_from(offset * last / span).map_or(n - 1, |g| g.min(n - 1));
+    first_probe(guess);
     let mut step = 1;
     if holds(time_at(guess)) {
         // The answer is past `guess`: gallop up to the first position that fails.

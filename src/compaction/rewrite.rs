@@ -120,7 +120,7 @@ pub(super) fn rewrite(
                         .map(|(r, &time)| (time, source_u32(c), source_u32(r))),
                 ),
                 Some(order) => {
-                    keyed.extend(order.iter().map(|&r| (times[r as usize], source_u32(c), r)))
+                    keyed.extend(order.iter().map(|&r| (times[r as usize], source_u32(c), r)));
                 }
             }
             run_ends.push(keyed.len());

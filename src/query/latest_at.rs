@@ -202,7 +202,7 @@ fn latest_in_chunk(
 ) -> Option<Candidate<'_>> {
     let times = &chunk.time_columns()[time_column as usize];
     let column = &chunk.components()[component_column as usize];
-    let end = times.num_positions_at_or_before(at.as_i64());
+    let end = times.num_positions_at_or_before_touching(at.as_i64(), |row| column.touch_cell(row));
     (0..end)
         .rev()
         .map(|pos| times.row_at(pos))
