@@ -57,6 +57,7 @@ impl ChunkStore {
     /// unchanged.
     pub fn insert(&mut self, chunk: impl Into<Arc<Chunk>>) -> Result<Vec<StoreEvent>, InsertError> {
         let chunk = chunk.into();
+        chunk.touch_for_insert();
         if let Some(held) = self.chunks.get(&chunk.id()) {
             if Arc::ptr_eq(&held.chunk, &chunk) || held.chunk.has_same_contents(&chunk) {
                 return Ok(Vec::new());
