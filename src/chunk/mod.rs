@@ -376,10 +376,17 @@ impl Chunk {
     /// alternating runs each; `docs/performance-log.md`). A chunk of one
     /// row (a streamed row, usually built just before) is left alone: the 45 instructions
     /// bought nothing on `out_of_order`'s inserts.
+    #[inline]
     pub(crate) fn touch_for_insert(&self) {
-        if self.row_ids.len() < 2 {
-            return;
+        if self.row_ids.len() >= 2 {
+            self.touch_lines();
         }
+    }
+
+    /// The reads of [`Chunk::touch_for_insert`], out of line: a streamed row's insert pays
+    /// only the check above.
+    #[inline(never)]
+    fn touch_lines(&self) {
         std::hint::black_box((self.id, self.memory.own_bytes, self.row_id_range().1));
         if let Some(column) = self.components.first() {
             std::hint::black_box((
