@@ -538,13 +538,14 @@ impl ComponentColumn {
 
     /// Reads, and discards, what reading the cell at `row` will need: the column's list
     /// type (a line of the column a cell's read goes through) and, with one instance per
-    /// row and a primitive leaf, a byte of the cell's values. A latest-at calls this with the row its
-    /// time search will probe first (`TimeColumn::num_positions_at_or_before_touching`),
-    /// so that those lines are on their way while the search waits for the times, where
-    /// each was a dependent cache miss after it: `latest_at_mono` 15% faster in wall time
-    /// for 25 instructions more a query, with as many misses in all (callgrind's cache
-    /// model over the whole run; `docs/performance-log.md`). (Reading the cell's validity
-    /// too was slower.)
+    /// row and a primitive leaf, a byte of the cell's values. A latest-at calls this with
+    /// the row its time search will probe first
+    /// (`TimeColumn::num_positions_at_or_before_touching`), so that those lines are on
+    /// their way while the search waits for the times, where each was a dependent cache
+    /// miss after it: `latest_at_mono` 14% faster in wall time for 26 instructions more a
+    /// query, with as many misses in all (callgrind's cache model over the whole run); a
+    /// store in cache pays the instructions for nothing (`clear_recursive` +4%). See
+    /// `docs/performance-log.md`. (Reading the cell's validity too was slower.)
     #[inline]
     pub(crate) fn touch_cell(&self, row: usize) {
         std::hint::black_box(matches!(self.list.data_type(), DataType::List(_)));
