@@ -117,12 +117,7 @@ impl PrimitiveLeaf {
 
 /// [`ComponentColumn::cell_bytes`] of `list`.
 fn touchable_cell_bytes(list: &ListArray, has_leaf: bool, one_instance_per_row: bool) -> u16 {
-    let width = || {
-        let (leaf_type, fixed_size) = leaf_shape(list.data_type())?;
-        leaf_type
-            .primitive_width()?
-            .checked_mul(fixed_size.unwrap_or(1))
-    };
+    let width = || instance_bytes(list.data_type());
     match (has_leaf && one_instance_per_row).then(width).flatten() {
         Some(bytes) => u16::try_from(bytes).unwrap_or(0),
         None => 0,
@@ -138,6 +133,15 @@ fn has_null_free_items(list: &ListArray) -> bool {
         None => 0,
     };
     items.null_count() + leaf_nulls == 0
+}
+
+/// Bytes of one item's leaf values in a list type whose items are primitives or
+/// fixed-size lists of them (a scalar's 8, a 3D position's 12); `None` for other types.
+pub(super) fn instance_bytes(list_type: &DataType) -> Option<usize> {
+    let (leaf_type, fixed_size) = leaf_shape(list_type)?;
+    leaf_type
+        .primitive_width()?
+        .checked_mul(fixed_size.unwrap_or(1))
 }
 
 /// The leaf type of a list type whose items are primitives or fixed-size lists of them,
@@ -497,11 +501,10 @@ impl ComponentColumn {
     /// instance would hide whatever its slot holds). `None` otherwise, or for a null cell.
     pub(crate) fn leaf_bytes(&self, row: usize) -> Option<&[u8]> {
         let leaf = self.null_free_leaf()?;
-        let (leaf_type, fixed_size) = leaf_shape(self.list.data_type())?;
+        let width = instance_bytes(self.list.data_type())?;
         if !self.is_valid_row(row) {
             return None;
         }
-        let width = leaf_type.primitive_width()? * fixed_size.unwrap_or(1);
         let (start, end) = self.leaf_span(leaf, row, width)?;
         leaf.values.as_slice().get(start..end)
     }

@@ -20,7 +20,7 @@ use arrow_buffer::{MutableBuffer, NullBuffer, ScalarBuffer};
 use arrow_schema::DataType;
 use smallvec::SmallVec;
 
-use super::component_column::leaf_shape;
+use super::component_column::{instance_bytes, leaf_shape};
 use super::rewrite::single_values_list;
 use super::{Buffers, Chunk, ChunkError, RawComponentColumns, RawTimeColumns};
 use crate::{ChunkId, RowId};
@@ -103,10 +103,7 @@ impl RowColumns {
         let rows = rows.max(chunk.num_rows());
         let mut cells = SmallVec::with_capacity(chunk.components.len());
         for column in &chunk.components {
-            let (leaf_type, fixed_size) = leaf_shape(column.list.data_type())?;
-            let width = leaf_type
-                .primitive_width()?
-                .checked_mul(fixed_size.unwrap_or(1))?;
+            let width = instance_bytes(column.list.data_type())?;
             cells.push(CellColumn {
                 width,
                 bytes: MutableBuffer::with_capacity(rows.checked_mul(width)?),
