@@ -10,7 +10,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::store::{DeletionReason, StoredChunk};
+use crate::store::{DeletionReason, EntityIndex, EntityView, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
 use std::fmt;
 
@@ -263,10 +263,19 @@ impl ChunkStore {
             let Some(stored) = self.chunks.get(&id) else {
                 continue;
             };
-            if self.is_gc_protected(&stored.chunk, options) {
+            // The entity found once, by its path in the writer's map, and its view by the
+            // slot found there: three searches by path a candidate were a tenth of a plan.
+            let entity = self
+                .entities
+                .get(stored.chunk.entity_path())
+                .and_then(|index| {
+                    let view = self.view.entities.at(index.slot)?;
+                    Some((index, &**view))
+                });
+            if self.is_gc_protected(&stored.chunk, entity.map(|(_, view)| view), options) {
                 continue;
             }
-            plan.bytes_to_free += self.bytes_freed_by(stored, &mut released);
+            plan.bytes_to_free += self.bytes_freed_by(stored, entity, &mut released);
             plan.chunk_ids.push(id);
         }
         plan
@@ -393,7 +402,12 @@ impl ChunkStore {
     }
 
     /// Is the chunk kept by `options`' protections?
-    fn is_gc_protected(&self, chunk: &Chunk, options: &GcOptions) -> bool {
+    fn is_gc_protected(
+        &self,
+        chunk: &Chunk,
+        entity: Option<&EntityView>,
+        options: &GcOptions,
+    ) -> bool {
         if chunk.is_static() {
             return true;
         }
@@ -411,7 +425,7 @@ impl ChunkStore {
         if n == 0 {
             return false;
         }
-        let Some(entity) = self.view.entities.get(chunk.entity_path()) else {
+        let Some(entity) = entity else {
             return false;
         };
         if entity.is_among_latest(chunk, n) {
@@ -423,22 +437,19 @@ impl ChunkStore {
                 .is_among_latest(chunk.entity_path(), chunk.id(), n)
     }
 
-    /// Heap bytes dropping `stored` frees, given the shared references the plan already
-    /// drops (`released`, updated).
+    /// Heap bytes dropping `stored` (of `entity`) frees, given the shared references the
+    /// plan already drops (`released`, updated).
     fn bytes_freed_by(
         &self,
         stored: &StoredChunk,
+        entity: Option<(&EntityIndex, &EntityView)>,
         released: &mut ahash::HashMap<usize, u32>,
     ) -> u64 {
         let chunk = &stored.chunk;
         let mut bytes = crate::stats::fixed_bytes(chunk)
-            + self
-                .entities
-                .get(chunk.entity_path())
-                .zip(self.view.entities.get(chunk.entity_path()))
-                .map_or(0, |(entity, view)| {
-                    entity.extra_index_heap_bytes_of(view, chunk)
-                });
+            + entity.map_or(0, |(index, view)| {
+                index.extra_index_heap_bytes_of(view, chunk)
+            });
         if !stored.ledgered {
             return bytes + chunk.buffer_bytes();
         }
