@@ -14,6 +14,8 @@ use crate::store::{DeletionReason, EntityIndex, EntityView, StoredChunk};
 use crate::{Chunk, ChunkId, ChunkStore, StoreEvent, TimeInt, TimeRange};
 use std::fmt;
 
+use smallvec::SmallVec;
+
 /// How much garbage collection should free.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[non_exhaustive]
@@ -248,7 +250,9 @@ impl ChunkStore {
         let mut plan = GcPlan::default();
         // Per shared allocation: references the plan already drops.
         let mut released: ahash::HashMap<usize, u32> = ahash::HashMap::default();
-        for id in self.gc_candidates(&options.order) {
+        let mut candidates = self.gc_candidates(&options.order);
+        let mut ahead = Lookahead::default();
+        while let Some(candidate) = ahead.next(&mut candidates, &self.chunks) {
             if plan.bytes_to_free >= target {
                 break;
             }
@@ -260,7 +264,7 @@ impl ChunkStore {
                 break;
             }
             plan.num_considered += 1;
-            let Some(stored) = self.chunks.get(&id) else {
+            let Candidate::Held(stored) = candidate else {
                 continue;
             };
             // The entity found once, by its path in the writer's map, and its view by the
@@ -276,7 +280,7 @@ impl ChunkStore {
                 continue;
             }
             plan.bytes_to_free += self.bytes_freed_by(stored, entity, &mut released);
-            plan.chunk_ids.push(id);
+            plan.chunk_ids.push(stored.chunk.id());
         }
         plan
     }
@@ -463,6 +467,60 @@ impl ChunkStore {
         }
         bytes
     }
+}
+
+/// How many candidates a GC plan looks up in the chunk map at once. A plan reads, per
+/// candidate, the chunk map's slot, then the chunk's struct, then its first column, each
+/// found through the one before and each a cache miss in a store larger than the cache.
+/// Judging a candidate takes a few hundred instructions, more than a core holds in flight
+/// while it waits for a load: looked up one at a time, each candidate's misses followed the
+/// previous one's. A batch takes each step for all of its candidates back to back (a
+/// handful of instructions apart), so that their misses overlap.
+const PLAN_BATCH: usize = 8;
+
+/// The candidates a plan has looked up ahead of the one it judges: see [`PLAN_BATCH`].
+#[derive(Default)]
+struct Lookahead<'a> {
+    batch: SmallVec<[Option<&'a StoredChunk>; PLAN_BATCH]>,
+    /// The next candidate's position in `batch`.
+    next: usize,
+}
+
+impl<'a> Lookahead<'a> {
+    /// The next candidate; once the batch looked up is judged, the next batch is looked up
+    /// and its chunks' lines loaded.
+    fn next(
+        &mut self,
+        candidates: &mut dyn Iterator<Item = ChunkId>,
+        chunks: &'a ahash::HashMap<ChunkId, StoredChunk>,
+    ) -> Option<Candidate<'a>> {
+        if self.next == self.batch.len() {
+            self.batch.clear();
+            self.next = 0;
+            self.batch
+                .extend(candidates.take(PLAN_BATCH).map(|id| chunks.get(&id)));
+            for stored in self.batch.iter().flatten() {
+                stored.chunk.touch_struct();
+            }
+            for stored in self.batch.iter().flatten() {
+                stored.chunk.touch_first_column();
+            }
+        }
+        let candidate = self.batch.get(self.next).map(|stored| match stored {
+            Some(stored) => Candidate::Held(stored),
+            None => Candidate::Gone,
+        });
+        self.next += 1;
+        candidate
+    }
+}
+
+/// A chunk a GC plan considers.
+enum Candidate<'a> {
+    /// The store holds it.
+    Held(&'a StoredChunk),
+    /// The orders named it, but the chunk map does not hold it.
+    Gone,
 }
 
 /// Merges `extra` into `ordered`, both sorted by `first` (`first(a, b)`: `a` goes before

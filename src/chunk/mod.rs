@@ -396,6 +396,30 @@ impl Chunk {
         }
     }
 
+    /// Reads, and discards, a word on each line of the chunk's struct that a garbage
+    /// collection's plan reads (its columns' address, id, path, time bounds and figures),
+    /// so that they load while the plan judges earlier candidates (`gc.rs`,
+    /// `PLAN_LOOKAHEAD`).
+    #[inline]
+    pub(crate) fn touch_struct(&self) {
+        std::hint::black_box((
+            self.components.len(),
+            self.id,
+            self.entity_path.num_parts(),
+            self.memory.own_bytes,
+            self.time_columns.first().map(TimeColumn::time_range),
+        ));
+    }
+
+    /// Reads, and discards, the first column's bounds, found through the struct's first
+    /// line: the second step of [`Chunk::touch_struct`].
+    #[inline]
+    pub(crate) fn touch_first_column(&self) {
+        if let Some(column) = self.components.first() {
+            std::hint::black_box(column.bounds(0));
+        }
+    }
+
     /// Least and greatest row id of the chunk's rows.
     pub fn row_id_range(&self) -> (RowId, RowId) {
         (self.min_row_id, self.row_ids[self.max_row_id_row as usize])
