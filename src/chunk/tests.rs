@@ -5,7 +5,7 @@ use std::sync::Arc;
 use arrow_array::{ArrayRef, ListArray};
 use arrow_schema::DataType;
 
-use super::time_column::guided_partition_point;
+use super::time_column::{guided_partition_point, interpolate};
 use super::*;
 use crate::ChunkError;
 
@@ -476,6 +476,38 @@ fn guided_partition_point_agrees_with_a_binary_search() {
                     guided_partition_point(times.len(), range, target, |p| times[p], holds, |_| {}),
                     times.partition_point(|&time| holds(time)),
                     "target {target}, strict {strict}"
+                );
+            }
+        }
+    }
+}
+
+/// The guided search's guess is `offset * last / span` rounded down, exactly, whether the
+/// product fits in 64 bits (one division instruction) or not (128-bit arithmetic): spans
+/// and offsets at every edge of the two, the greatest row counts and the widest times.
+#[test]
+fn the_guess_is_the_exact_quotient_on_both_sides_of_64_bits() {
+    let wide = |offset: i128, last: usize, span: i128| {
+        usize::try_from(offset * i128::try_from(last).unwrap() / span).unwrap()
+    };
+    let spans = [
+        1_i128,
+        2,
+        999,
+        i128::from(u32::MAX),
+        i128::from(u32::MAX) + 1,
+        i128::from(u64::MAX / 3),
+        i128::from(i64::MAX),
+        i128::from(u64::MAX),
+    ];
+    let lasts = [0_usize, 1, 31, 99, 65_535, u32::MAX as usize];
+    for span in spans {
+        for last in lasts {
+            for offset in [0, 1, span / 3, span / 2, span - 1, span] {
+                assert_eq!(
+                    interpolate(offset, last, span),
+                    wide(offset, last, span),
+                    "offset {offset}, last {last}, span {span}"
                 );
             }
         }

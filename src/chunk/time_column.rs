@@ -297,6 +297,24 @@ impl TimeColumn {
 /// Below this many positions a plain binary search is as good as a guided one.
 pub(super) const GUIDED_SEARCH_MIN_POSITIONS: usize = 32;
 
+/// `offset * last / span` (`0 ≤ offset ≤ span`, `span > 0`), rounded down: in 64-bit
+/// arithmetic where the product fits (every span under 2^32 times, and most others), which
+/// is one division instruction where 128-bit arithmetic calls a routine of several dozen
+/// (`__divti3`), on the path of every guided search's first probe.
+pub(super) fn interpolate(offset: i128, last: usize, span: i128) -> usize {
+    let exact = u64::try_from(offset)
+        .ok()
+        .zip(u64::try_from(last).ok())
+        .and_then(|(offset, last)| offset.checked_mul(last))
+        .zip(u64::try_from(span).ok())
+        .map(|(product, span)| product / span);
+    if let Some(guess) = exact {
+        return usize::try_from(guess).unwrap_or(last);
+    }
+    let last_wide = i128::try_from(last).unwrap_or(i128::MAX);
+    usize::try_from(offset * last_wide / span).unwrap_or(last)
+}
+
 /// The partition point of `holds` over `time_at(0..n)`, times ascending with the position
 /// between `min` and `max`. The first probe goes where `t` would be if the times were
 /// evenly spread, then the search gallops outward from there: a series logged at a steady
@@ -326,8 +344,7 @@ pub(super) fn guided_partition_point(
         return binary(0, n);
     }
     let offset = (i128::from(t) - i128::from(min.as_i64())).clamp(0, span);
-    let last = i128::try_from(n - 1).unwrap_or(i128::MAX);
-    let guess = usize::try_from(offset * last / span).map_or(n - 1, |g| g.min(n - 1));
+    let guess = interpolate(offset, n - 1, span).min(n - 1);
     first_probe(guess);
     let mut step = 1;
     if holds(time_at(guess)) {
