@@ -472,10 +472,11 @@ impl ChunkStore {
 /// How many candidates a GC plan looks up in the chunk map at once. A plan reads, per
 /// candidate, the chunk map's slot, then the chunk's struct, then its first column, each
 /// found through the one before and each a cache miss in a store larger than the cache.
-/// Judging a candidate takes a few hundred instructions, more than a core holds in flight
-/// while it waits for a load: looked up one at a time, each candidate's misses followed the
-/// previous one's. A batch takes each step for all of its candidates back to back (a
-/// handful of instructions apart), so that their misses overlap.
+/// Judging a candidate takes a few hundred instructions, about as many as a core keeps in
+/// flight behind a load it waits for: looked up one at a time (even a few candidates
+/// ahead), each candidate's misses followed the previous one's. A batch takes each step
+/// for all of its candidates back to back (a handful of instructions apart), so that
+/// their misses overlap.
 const PLAN_BATCH: usize = 8;
 
 /// The candidates a plan has looked up ahead of the one it judges: see [`PLAN_BATCH`].

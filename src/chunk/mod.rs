@@ -398,8 +398,7 @@ impl Chunk {
 
     /// Reads, and discards, a word on each line of the chunk's struct that a garbage
     /// collection's plan reads (its columns' address, id, path, time bounds and figures),
-    /// so that they load while the plan judges earlier candidates (`gc.rs`,
-    /// `PLAN_LOOKAHEAD`).
+    /// so that the misses of a batch of candidates overlap (`gc.rs`, `PLAN_BATCH`).
     #[inline]
     pub(crate) fn touch_struct(&self) {
         std::hint::black_box((
