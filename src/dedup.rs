@@ -38,10 +38,7 @@ impl ChunkStore {
     /// ([`EntityIndex::max_row_id`]): rows logged after everything the entity holds, the
     /// common case, are new.
     pub(crate) fn new_rows(&self, chunk: &Chunk) -> NewRows {
-        let Some(entity) = self.entities.get(chunk.entity_path()) else {
-            return NewRows::All;
-        };
-        let Some(view) = self.view.entities.get(chunk.entity_path()) else {
+        let Some((entity, view)) = self.entity(chunk.entity_path()) else {
             return NewRows::All;
         };
         let candidates = self.chunks_that_may_hold_rows_of(entity, view, chunk);

@@ -251,8 +251,8 @@ impl ChunkStore {
         // Per shared allocation: references the plan already drops.
         let mut released: ahash::HashMap<usize, u32> = ahash::HashMap::default();
         let mut candidates = self.gc_candidates(&options.order);
-        let mut ahead = Lookahead::default();
-        while let Some(candidate) = ahead.next(&mut candidates, &self.chunks) {
+        let mut batch = CandidateBatch::default();
+        while let Some(candidate) = batch.next(&mut candidates, &self.chunks) {
             if plan.bytes_to_free >= target {
                 break;
             }
@@ -267,15 +267,9 @@ impl ChunkStore {
             let Candidate::Held(stored) = candidate else {
                 continue;
             };
-            // The entity found once, by its path in the writer's map, and its view by the
-            // slot found there: three searches by path a candidate were a tenth of a plan.
-            let entity = self
-                .entities
-                .get(stored.chunk.entity_path())
-                .and_then(|index| {
-                    let view = self.view.entities.at(index.slot)?;
-                    Some((index, &**view))
-                });
+            // The entity found once: three searches by path a candidate were a tenth of a
+            // plan.
+            let entity = self.entity(stored.chunk.entity_path());
             if self.is_gc_protected(&stored.chunk, entity.map(|(_, view)| view), options) {
                 continue;
             }
@@ -479,15 +473,16 @@ impl ChunkStore {
 /// their misses overlap.
 const PLAN_BATCH: usize = 8;
 
-/// The candidates a plan has looked up ahead of the one it judges: see [`PLAN_BATCH`].
+/// The batch of candidates a plan has looked up, the one it judges among them: see
+/// [`PLAN_BATCH`].
 #[derive(Default)]
-struct Lookahead<'a> {
+struct CandidateBatch<'a> {
     batch: SmallVec<[Option<&'a StoredChunk>; PLAN_BATCH]>,
     /// The next candidate's position in `batch`.
     next: usize,
 }
 
-impl<'a> Lookahead<'a> {
+impl<'a> CandidateBatch<'a> {
     /// The next candidate; once the batch looked up is judged, the next batch is looked up
     /// and its chunks' lines loaded.
     fn next(
