@@ -107,7 +107,8 @@
 //! - `ipc` (default): [`ipc`], reading chunks from Arrow IPC files and streams and writing
 //!   them. Needs `arrow-ipc`.
 //! - `rrd` (default): [`rrd`], Rerun `.rrd` files in and out, and lazy opening; and
-//!   [`recording`], the one door to a recording of any source. Needs
+//!   [`recording`], the one door to a recording of any source; and [`dataset`], many
+//!   `.rrd` recordings queried as one table. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
 //! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files, and
 //!   `hive_export`, Hive-partitioned datasets of them. Needs `parquet` (Snappy only).
@@ -125,6 +126,8 @@ mod clear;
 mod compaction;
 mod component;
 mod dataframe;
+#[cfg(feature = "rrd")]
+pub mod dataset;
 mod dedup;
 mod drop;
 mod entity_path;
@@ -166,7 +169,7 @@ pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};
 pub use dataframe::{
     ChunkTableQuery, ChunkTableStream, DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeError,
-    DataframeQuery, DataframeStream, EntityPathFilter, EntityPathFilterError,
+    DataframeQuery, DataframeStream, EntityPathFilter, EntityPathFilterError, SEGMENT_ID_COLUMN,
 };
 pub use entity_path::{EntityPath, EntityPathError};
 pub use gc::{GcFraction, GcOptions, GcOptionsError, GcOrder, GcPlan, GcTarget};

@@ -39,6 +39,10 @@ pub use chunk_table::{ChunkTableQuery, ChunkTableStream};
 pub use filter::{EntityPathFilter, EntityPathFilterError};
 pub use stream::DataframeStream;
 
+/// The name of the column that says which recording a row comes from, in a table of
+/// several (a dataset's, SQL over several recordings): the name Rerun's catalog gives it.
+pub const SEGMENT_ID_COLUMN: &str = "rerun_segment_id";
+
 /// Cells per batch when [`DataframeQuery::with_batch_rows`] is not given: a batch holds
 /// about this many cells, whatever the number of columns (at least one row, at most 65,536).
 pub const DEFAULT_BATCH_CELLS: usize = 1 << 20;
@@ -214,6 +218,13 @@ impl DataframeQuery {
     #[must_use]
     pub fn with_columns<S: Into<String>>(mut self, columns: impl IntoIterator<Item = S>) -> Self {
         self.columns = Some(columns.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// The same query over every column (a dataset asks each segment for its own).
+    #[cfg(feature = "rrd")]
+    pub(crate) fn without_columns(mut self) -> Self {
+        self.columns = None;
         self
     }
 

@@ -18,9 +18,7 @@ use super::tables::{ChunksTable, TimelineTable};
 use super::{CHUNKS_TABLE, replace_table};
 use crate::{EntityPathFilter, Snapshot, Timeline};
 
-/// The name of the column that says which recording a row comes from (the name Rerun's
-/// catalog gives it).
-pub const SEGMENT_ID_COLUMN: &str = "rerun_segment_id";
+pub use crate::dataframe::SEGMENT_ID_COLUMN;
 
 /// Registers the tables of several recordings (`(segment id, snapshot)`, usually the
 /// recording id) in `ctx`: a table per timeline any of them has, `chunks`, and

@@ -20,6 +20,7 @@ mod harness;
 mod bad_input;
 mod dataframe;
 mod dataframe_oracle;
+mod dataset;
 mod docs;
 mod fuzz_corpus;
 mod index_shapes;
