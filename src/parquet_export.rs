@@ -48,7 +48,7 @@ pub const DEFAULT_ROW_GROUP_BYTES: usize = 128 << 20;
 pub struct ParquetOptions {
     row_group_rows: Option<usize>,
     row_group_bytes: Option<usize>,
-    sorted_by: Option<Arc<str>>,
+    sorted_by: Vec<Arc<str>>,
 }
 
 impl ParquetOptions {
@@ -69,12 +69,13 @@ impl ParquetOptions {
         self
     }
 
-    /// Records in the file's metadata that rows ascend by this (top-level, primitive)
-    /// column, as a dataframe's rows ascend by its index: engines that read the sort order
-    /// skip sorting. The column must come before any list column.
+    /// Records in the file's metadata that rows ascend by this (top-level, primitive or
+    /// text) column, as a dataframe's rows ascend by its index: engines that read the sort
+    /// order skip sorting. Called again, rows ascend by the first column, then the next
+    /// (a dataset's by segment, then index). Each column must come before any nested one.
     #[must_use]
     pub fn with_sorted_by(mut self, column: impl Into<Arc<str>>) -> Self {
-        self.sorted_by = Some(column.into());
+        self.sorted_by.push(column.into());
         self
     }
 }
@@ -151,9 +152,11 @@ pub fn write_parquet_file(
     options: &ParquetOptions,
 ) -> Result<ParquetSummary, ParquetExportError> {
     let schema = reader.schema();
-    let sorting = match &options.sorted_by {
-        None => None,
-        Some(column) => {
+    let sorting = if options.sorted_by.is_empty() {
+        None
+    } else {
+        let mut sorting = Vec::with_capacity(options.sorted_by.len());
+        for column in &options.sorted_by {
             let position = schema
                 .fields()
                 .iter()
@@ -161,17 +164,18 @@ pub fn write_parquet_file(
                 .filter(|&p| {
                     schema.fields()[..=p]
                         .iter()
-                        .all(|f| f.data_type().is_primitive())
+                        .all(|f| !f.data_type().is_nested())
                 })
                 .ok_or_else(|| ParquetExportError::SortColumn {
                     column: column.to_string(),
                 })?;
-            Some(vec![SortingColumn {
+            sorting.push(SortingColumn {
                 column_idx: i32::try_from(position).unwrap_or(i32::MAX),
                 descending: false,
                 nulls_first: true,
-            }])
+            });
         }
+        Some(sorting)
     };
     let row_group_rows = options.row_group_rows.unwrap_or_else(|| {
         (DEFAULT_ROW_GROUP_CELLS / schema.fields().len().max(1)).clamp(1 << 10, 1 << 20)

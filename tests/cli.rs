@@ -1519,3 +1519,212 @@ fn selections_and_standard_input() {
     assert!(output.status.success());
     assert_eq!(String::from_utf8(output.stdout).unwrap(), all);
 }
+
+/// The batches of an Arrow IPC file, as one batch.
+fn read_arrow_file(path: &Path) -> arrow_array::RecordBatch {
+    let reader =
+        arrow_ipc::reader::FileReader::try_new(std::fs::File::open(path).unwrap(), None).unwrap();
+    let schema = reader.schema();
+    let batches: Vec<_> = reader.map(Result::unwrap).collect();
+    arrow_select::concat::concat_batches(&schema, &batches).unwrap()
+}
+
+/// A dataset directory of two segments: the robot recording, and the same chunks under
+/// another recording id (written by `convert` from chunk files without a store info).
+fn robot_dataset(name: &str) -> ScratchDir {
+    let dir = scratch_dir(name);
+    std::fs::copy(recording_rrd(), dir.join("one.rrd")).unwrap();
+    let chunks = dir.join("chunks-without-info");
+    std::fs::create_dir(&chunks).unwrap();
+    for file in chunk_files() {
+        std::fs::copy(&file, chunks.join(file.file_name().unwrap())).unwrap();
+    }
+    let two = dir.join("two.rrd");
+    ok(&[
+        chunks.as_os_str(),
+        OsStr::new("convert"),
+        two.as_os_str(),
+        OsStr::new("--recording-id"),
+        OsStr::new("second"),
+    ]);
+    std::fs::remove_dir_all(&chunks).unwrap();
+    dir
+}
+
+/// Issue 36: a directory of `.rrd` files is a dataset. `stats` lists its segments from
+/// their footers; `dataframe` is each segment's own table in turn, under the segment id;
+/// `latest-at --segment` reads one segment as its file would.
+#[test]
+fn a_directory_of_rrd_files_is_a_dataset() {
+    let dir = robot_dataset("dataset");
+    let (stats, _) = ok(&[dir.as_os_str(), OsStr::new("stats")]);
+    let stats: serde_json::Value = serde_json::from_str(&stats).unwrap();
+    let ids: Vec<&str> = stats["segments"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["id"].as_str().unwrap())
+        .collect();
+    let robot_id = "a0000000-0000-4000-8000-00000000000a";
+    assert_eq!(ids, [robot_id, "second"]);
+    assert_eq!(stats["num_segments"], 2);
+    let (one, _) = ok(&[dir.join("one.rrd").as_os_str(), OsStr::new("stats")]);
+    let one: serde_json::Value = serde_json::from_str(&one).unwrap();
+    assert_eq!(stats["segments"][0]["num_rows"], one["num_rows"]);
+    assert_eq!(stats["timelines"], one["timelines"]);
+
+    let out = dir.join("table.arrow");
+    ok(&[
+        dir.as_os_str(),
+        OsStr::new("dataframe"),
+        OsStr::new("frame_id"),
+        OsStr::new("--fill-latest-at"),
+        OsStr::new("--out"),
+        out.as_os_str(),
+    ]);
+    let table = read_arrow_file(&out);
+    let own_out = dir.join("own.arrow");
+    std::fs::remove_file(&out).unwrap();
+    ok(&[
+        dir.join("one.rrd").as_os_str(),
+        OsStr::new("dataframe"),
+        OsStr::new("frame_id"),
+        OsStr::new("--fill-latest-at"),
+        OsStr::new("--out"),
+        own_out.as_os_str(),
+    ]);
+    let own = read_arrow_file(&own_out);
+    std::fs::remove_file(&own_out).unwrap();
+    assert_eq!(table.num_rows(), 2 * own.num_rows());
+    assert_eq!(table.schema().field(0).name(), "rerun_segment_id");
+    assert_eq!(
+        table.num_columns(),
+        own.num_columns() + 1,
+        "the same columns, and the segment's"
+    );
+    let segments = table
+        .column(0)
+        .as_any()
+        .downcast_ref::<arrow_array::StringArray>()
+        .unwrap();
+    for (half, id) in [(0, robot_id), (1, "second")] {
+        let part = table.slice(half * own.num_rows(), own.num_rows());
+        assert!(
+            (half * own.num_rows()..(half + 1) * own.num_rows())
+                .all(|row| segments.value(row) == id)
+        );
+        for field in own.schema().fields() {
+            assert_eq!(
+                part.column_by_name(field.name()).unwrap().to_data(),
+                own.column_by_name(field.name()).unwrap().to_data(),
+                "{id} {}",
+                field.name()
+            );
+        }
+    }
+
+    let latest = |source: &Path, segment: Option<&str>| {
+        let mut args: Vec<&OsStr> = Vec::new();
+        if let Some(segment) = segment {
+            args.extend([OsStr::new("--segment"), OsStr::new(segment)]);
+        }
+        args.extend([
+            source.as_os_str(),
+            OsStr::new("latest-at"),
+            OsStr::new("frame_id"),
+            OsStr::new("30"),
+        ]);
+        ok(&args).0
+    };
+    let answer = latest(&dir, Some("second"));
+    assert!(!answer.is_empty());
+    assert_eq!(answer, latest(&dir.join("two.rrd"), None));
+}
+
+/// Issue 36: what a dataset does not do, or is not asked right, is one line on stderr;
+/// a corrupt segment is named, and `--skip-bad` skips it with one warning.
+#[test]
+fn a_dataset_names_what_it_cannot_do() {
+    let dir = robot_dataset("dataset-errors");
+    let missing = fails(&[
+        dir.as_os_str(),
+        OsStr::new("latest-at"),
+        OsStr::new("frame_id"),
+        OsStr::new("3"),
+    ]);
+    assert!(
+        missing.contains("--segment ID") && missing.contains("second"),
+        "{missing}"
+    );
+    let unknown = fails(&[
+        OsStr::new("--segment"),
+        OsStr::new("third"),
+        dir.as_os_str(),
+        OsStr::new("range"),
+        OsStr::new("frame_id"),
+        OsStr::new("0"),
+        OsStr::new("9"),
+    ]);
+    assert!(unknown.contains("no segment \"third\""), "{unknown}");
+    let not_a_dataset = fails(&[
+        OsStr::new("--segment"),
+        OsStr::new("second"),
+        recording_rrd().as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    assert!(
+        not_a_dataset.contains("is not a dataset"),
+        "{not_a_dataset}"
+    );
+    let index = fails(&[dir.as_os_str(), OsStr::new("dataframe"), OsStr::new("tick")]);
+    assert!(
+        index.contains("no segment has the index") && index.contains("frame_id"),
+        "{index}"
+    );
+    let sql = fails(&[dir.as_os_str(), OsStr::new("sql"), OsStr::new("SELECT 1")]);
+    assert!(sql.contains("not this command yet"), "{sql}");
+    let reversed = fails(&[
+        dir.as_os_str(),
+        OsStr::new("dataframe"),
+        OsStr::new("frame_id"),
+        OsStr::new("--range"),
+        OsStr::new("9"),
+        OsStr::new("3"),
+    ]);
+    assert!(reversed.contains("MIN is greater than MAX"), "{reversed}");
+    let clobber = fails(&[
+        dir.as_os_str(),
+        OsStr::new("dataframe"),
+        OsStr::new("frame_id"),
+        OsStr::new("--out"),
+        dir.join("two.rrd").as_os_str(),
+    ]);
+    assert!(clobber.contains("would overwrite segment"), "{clobber}");
+    assert!(dir.join("two.rrd").exists());
+
+    // A corrupt segment is named; --skip-bad skips it with a warning and answers.
+    std::fs::write(dir.join("broken.rrd"), b"RRF2garbage").unwrap();
+    let broken = fails(&[dir.as_os_str(), OsStr::new("stats")]);
+    assert!(
+        broken.contains("broken.rrd") && broken.contains("--skip-bad"),
+        "{broken}"
+    );
+    let (stats, warnings) = ok(&[
+        OsStr::new("--skip-bad"),
+        dir.as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    assert!(warnings.contains("broken.rrd"), "{warnings}");
+    assert_eq!(warnings.lines().count(), 1, "{warnings}");
+    let stats: serde_json::Value = serde_json::from_str(&stats).unwrap();
+    assert_eq!(stats["num_segments"], 2);
+}
+
+/// A directory with neither kind of file says what it looked for.
+#[test]
+fn a_directory_without_recordings_names_both_kinds() {
+    let dir = scratch_dir("empty-dataset");
+    std::fs::write(dir.join("readme.txt"), "nothing here").unwrap();
+    let error = fails(&[dir.as_os_str(), OsStr::new("stats")]);
+    assert!(error.contains("no .rrd files"), "{error}");
+}

@@ -211,7 +211,7 @@ impl fmt::Display for OpenError {
             ),
             Self::NoChunkFiles { dir } => write!(
                 f,
-                "{}: no Arrow IPC files (.{})",
+                "{}: no Arrow IPC files (.{}) for a recording, and no .rrd files for a dataset",
                 dir.display(),
                 crate::ipc::IPC_EXTENSIONS.join(", .")
             ),

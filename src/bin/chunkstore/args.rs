@@ -18,7 +18,9 @@ Examples:
   chunkstore recording.rrd print --json
   chunkstore --compact recording.rrd convert optimized.rrd
   chunkstore recording.rrd dataframe frame_id --fill-latest-at --out robot.parquet
-  chunkstore recording.rrd sql 'SELECT count(*) FROM frame_id WHERE frame_id < 100'";
+  chunkstore recording.rrd sql 'SELECT count(*) FROM frame_id WHERE frame_id < 100'
+  chunkstore episodes/ dataframe frame_id --out episodes.parquet
+  chunkstore --segment episode_17 episodes/ latest-at frame_id 30";
 
 /// Look inside recordings: latest-at and range queries, statistics, a chunk listing,
 /// conversion between `.rrd` files and directories of Arrow IPC chunk files, and
@@ -31,7 +33,8 @@ pub struct Cli {
 
     /// An `.rrd` file, a directory of Arrow IPC chunk files, or one such file (told apart
     /// by their contents, not their names); `-` reads either kind of file from standard
-    /// input.
+    /// input. A directory of `.rrd` files is a dataset: each file a segment, named by its
+    /// recording id (`dataframe`, `stats`, and `latest-at` and `range` with `--segment`).
     pub source: PathBuf,
 
     #[command(subcommand)]
@@ -65,6 +68,10 @@ pub struct LoadArgs {
     /// an error naming them.
     #[arg(long, global = true, value_name = "ID")]
     pub recording: Option<String>,
+    /// Of a dataset SOURCE (a directory of `.rrd` files, each a segment named by its
+    /// recording id): the segment `latest-at` and `range` read.
+    #[arg(long, global = true, value_name = "ID")]
+    pub segment: Option<String>,
     /// Decode a whole `.rrd` before answering, even where its footer would let a query
     /// decode only the chunks it needs.
     #[arg(long, global = true)]

@@ -19,32 +19,7 @@ use crate::load::{self, Options};
 pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
     // Arguments first: a bad one is named before a long load (times that are integers
     // are checked now; the others once the index's type is known).
-    let mut query = DataframeQuery::new(args.index.as_str())
-        .with_fill_latest_at(args.fill_latest_at)
-        .with_tombstone_columns(!args.without_tombstones)
-        .with_semantically_empty_columns(!args.without_empty_columns)
-        .with_exact_index_values(args.exact);
-    let range = match args.range.as_deref() {
-        None => None,
-        Some([min, max]) => {
-            if let (Some(a), Some(b)) = (min.integer(), max.integer())
-                && a > b
-            {
-                return Err(reversed(min, max));
-            }
-            Some((min, max))
-        }
-        Some(_) => return Err("--range takes two values, MIN and MAX".to_owned().into()),
-    };
-    if args.index_values.is_some() && args.range.is_some() {
-        eprintln!("warning: --range plays no part with --index-values (one row per value)");
-    }
-    let mut filter = None;
-    if !args.contents.is_empty() {
-        let parsed = EntityPathFilter::parse(&args.contents).map_err(|e| e.to_string())?;
-        query = query.with_contents(parsed.clone());
-        filter = Some(parsed);
-    }
+    let asked = Asked::of(args)?;
     if let Some(out) = &args.out
         && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
         && a == b
@@ -54,30 +29,87 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
 
     let loaded = load::load(source, options)?;
     let store = &loaded.store;
+    let mut query = asked.query.clone();
     // The times, on the index's own type (an unknown index is named by the query below).
     if let Some(time_type) = store.time_type(&args.index) {
-        query = with_times(query, time_type, range, args.index_values.as_deref())?;
+        query = asked.with_times(query, time_type)?;
     }
     let stream = store.dataframe(&query).map_err(|e| e.to_string())?;
-    if let Some(filter) = &filter {
-        selects_something(filter, store, &args.contents, source)?;
+    if let Some(filter) = &asked.filter {
+        selects_something(filter, &store.entity_paths(), &args.contents, source)?;
     }
-    let index_position = stream.schema().index_of(&args.index).ok();
-    let bar = match (&args.index_values, store.time_range(&args.index)) {
-        (Some(values), _) => Progress::new(values.len() as u64, None),
-        (None, Some(range)) => {
-            let (min, max) = (
-                range.min().max(query.range().min()),
-                range.max().min(query.range().max()),
-            );
-            let span = max.as_i64().abs_diff(min.as_i64()).saturating_add(1);
-            Progress::new(span, Some(min.as_i64()))
+    let bar = Progress::over(args, store.time_range(&args.index), &query);
+    write_table(stream, args, &[args.index.as_str()], &bar)
+}
+
+/// What the arguments of `dataframe` ask for, checked before anything is loaded.
+pub struct Asked<'a> {
+    /// The query without its times (read once the index's type is known).
+    pub query: DataframeQuery,
+    range: Option<(&'a TimeArg, &'a TimeArg)>,
+    values: Option<&'a [TimeArg]>,
+    /// `--contents`, parsed.
+    pub filter: Option<EntityPathFilter>,
+}
+
+impl<'a> Asked<'a> {
+    pub fn of(args: &'a DataframeArgs) -> Result<Self, Failure> {
+        let mut query = DataframeQuery::new(args.index.as_str())
+            .with_fill_latest_at(args.fill_latest_at)
+            .with_tombstone_columns(!args.without_tombstones)
+            .with_semantically_empty_columns(!args.without_empty_columns)
+            .with_exact_index_values(args.exact);
+        let range = match args.range.as_deref() {
+            None => None,
+            Some([min, max]) => {
+                if let (Some(a), Some(b)) = (min.integer(), max.integer())
+                    && a > b
+                {
+                    return Err(reversed(min, max));
+                }
+                Some((min, max))
+            }
+            Some(_) => return Err("--range takes two values, MIN and MAX".to_owned().into()),
+        };
+        if args.index_values.is_some() && args.range.is_some() {
+            eprintln!("warning: --range plays no part with --index-values (one row per value)");
         }
-        (None, None) => Progress::new(0, None),
-    };
+        let mut filter = None;
+        if !args.contents.is_empty() {
+            let parsed = EntityPathFilter::parse(&args.contents).map_err(|e| e.to_string())?;
+            query = query.with_contents(parsed.clone());
+            filter = Some(parsed);
+        }
+        Ok(Self {
+            query,
+            range,
+            values: args.index_values.as_deref(),
+            filter,
+        })
+    }
+
+    /// `query` with the range and sampled values asked for, read on the index's type.
+    pub fn with_times(
+        &self,
+        query: DataframeQuery,
+        time_type: TimeType,
+    ) -> Result<DataframeQuery, Failure> {
+        with_times(query, time_type, self.range, self.values)
+    }
+}
+
+/// Writes the table where `args` says: `--out` (Parquet or Arrow IPC, atomically), a
+/// terminal (the first rows as text) or a pipe (an Arrow IPC stream).
+pub fn write_table(
+    stream: impl RecordBatchReader,
+    args: &DataframeArgs,
+    sorted_by: &[&str],
+    bar: &Progress,
+) -> Result<(), Failure> {
+    let index_position = stream.schema().index_of(&args.index).ok();
     let reader = WithProgress {
         inner: stream,
-        bar: &bar,
+        bar,
         index_position,
     };
     let result = if let Some(out) = &args.out {
@@ -86,11 +118,12 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
         if is_parquet {
             // A sampled table's rows follow the values given, not the index.
-            let options = if args.index_values.is_some() {
-                ParquetOptions::default()
-            } else {
-                ParquetOptions::default().with_sorted_by(args.index.as_str())
-            };
+            let mut options = ParquetOptions::default();
+            if args.index_values.is_none() {
+                for column in sorted_by {
+                    options = options.with_sorted_by(*column);
+                }
+            }
             write_parquet_file(out, reader, &options)
                 .map(drop)
                 .map_err(|e| crate::about_path(out, e).into())
@@ -143,13 +176,12 @@ fn with_times(
 }
 
 /// A filter that selects nothing is a mistake (a typo'd path), not an empty table.
-fn selects_something(
+pub fn selects_something(
     filter: &EntityPathFilter,
-    store: &chunkstore::ChunkStore,
+    entities: &[chunkstore::EntityPath],
     contents: &[String],
     source: &Path,
 ) -> Result<(), Failure> {
-    let entities = store.entity_paths();
     if entities.iter().any(|entity| filter.matches(entity)) {
         return Ok(());
     }
@@ -276,11 +308,33 @@ fn last_time(column: &dyn Array) -> Option<i64> {
 
 /// A progress bar over the index values (or the sampled values), when stderr is a
 /// terminal.
-struct Progress(ProgressBar, Option<i64>);
+pub struct Progress(ProgressBar, Option<i64>);
 
 impl Progress {
     fn new(len: u64, start: Option<i64>) -> Self {
         Self(load::progress(len, "writing", false), start)
+    }
+
+    /// Over about `rows` rows (moved by each batch's rows).
+    pub fn rows(rows: u64) -> Self {
+        Self::new(rows, None)
+    }
+
+    /// Over the sampled values, or the index's times `span` (of the data) within the
+    /// query's range.
+    pub fn over(args: &DataframeArgs, span: Option<TimeRange>, query: &DataframeQuery) -> Self {
+        match (&args.index_values, span) {
+            (Some(values), _) => Self::new(values.len() as u64, None),
+            (None, Some(range)) => {
+                let (min, max) = (
+                    range.min().max(query.range().min()),
+                    range.max().min(query.range().max()),
+                );
+                let span = max.as_i64().abs_diff(min.as_i64()).saturating_add(1);
+                Self::new(span, Some(min.as_i64()))
+            }
+            (None, None) => Self::new(0, None),
+        }
     }
 }
 

@@ -23,6 +23,7 @@
 mod args;
 mod convert;
 mod dataframe;
+mod dataset;
 mod load;
 mod output;
 #[cfg(feature = "server")]
@@ -224,39 +225,40 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     let source = stdin_copy
         .as_ref()
         .map_or(cli.source.as_path(), StdinCopy::path);
+    if source.is_dir() && chunkstore::dataset::is_dataset_dir(source) {
+        return dataset::run(cli, source, &options);
+    }
+    if let Some(segment) = &cli.load.segment {
+        return Err(format!(
+            "--segment {segment}: {} is not a dataset (a directory of .rrd files)",
+            source.display()
+        )
+        .into());
+    }
     match &cli.command {
         Command::LatestAt {
             timeline,
             time,
             select,
-        } => {
-            let mut recording = load::open_for_queries(source, &options, cli.load.eager)?;
-            let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
-            output::latest_at(&mut recording, timeline, time.on(time_type)?, select)
-        }
+        } => latest_at(
+            || load::open_for_queries(source, &options, cli.load.eager),
+            source,
+            timeline,
+            time,
+            select,
+        ),
         Command::Range {
             timeline,
             min,
             max,
             select,
-        } => {
-            // The same rule as `dataframe --range`, SQL and Python: a reversed range is a
-            // mistake to name, not an empty answer that looks like success (named before
-            // loading where the times are integers).
-            let reversed = || format!("range {min} {max}: MIN is greater than MAX");
-            if let (Some(a), Some(b)) = (min.integer(), max.integer())
-                && a > b
-            {
-                return Err(reversed().into());
-            }
-            let mut recording = load::open_for_queries(source, &options, cli.load.eager)?;
-            let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
-            let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
-            if lo > hi {
-                return Err(reversed().into());
-            }
-            output::range(&mut recording, timeline, TimeRange::new(lo, hi), select)
-        }
+        } => range(
+            || load::open_for_queries(source, &options, cli.load.eager),
+            source,
+            timeline,
+            (min, max),
+            select,
+        ),
         Command::Stats => {
             let loaded = load::load(source, &options)?;
             output::stats(&loaded.store)
@@ -277,4 +279,43 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         Command::Sql(args) => sql::sql(source, args, &options),
         Command::Hive(args) => dataframe::hive(source, args, &options),
     }
+}
+
+/// `latest-at` on the recording `open` opens (`source` names it in errors).
+pub(crate) fn latest_at(
+    open: impl FnOnce() -> Result<chunkstore::recording::Recording, String>,
+    source: &std::path::Path,
+    timeline: &str,
+    time: &args::TimeArg,
+    select: &args::Select,
+) -> Result<(), Failure> {
+    let mut recording = open()?;
+    let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
+    output::latest_at(&mut recording, timeline, time.on(time_type)?, select)
+}
+
+/// `range` on the recording `open` opens.
+pub(crate) fn range(
+    open: impl FnOnce() -> Result<chunkstore::recording::Recording, String>,
+    source: &std::path::Path,
+    timeline: &str,
+    (min, max): (&args::TimeArg, &args::TimeArg),
+    select: &args::Select,
+) -> Result<(), Failure> {
+    // The same rule as `dataframe --range`, SQL and Python: a reversed range is a mistake
+    // to name, not an empty answer that looks like success (named before loading where
+    // the times are integers).
+    let reversed = || format!("range {min} {max}: MIN is greater than MAX");
+    if let (Some(a), Some(b)) = (min.integer(), max.integer())
+        && a > b
+    {
+        return Err(reversed().into());
+    }
+    let mut recording = open()?;
+    let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
+    let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
+    if lo > hi {
+        return Err(reversed().into());
+    }
+    output::range(&mut recording, timeline, TimeRange::new(lo, hi), select)
 }

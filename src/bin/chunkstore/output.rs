@@ -18,17 +18,17 @@ use crate::args::Select;
 use crate::load;
 use crate::{Failure, one_line};
 
-type Out<'a> = std::io::BufWriter<std::io::StdoutLock<'a>>;
+pub(crate) type Out<'a> = std::io::BufWriter<std::io::StdoutLock<'a>>;
 
-fn stdout() -> Out<'static> {
+pub(crate) fn stdout() -> Out<'static> {
     std::io::BufWriter::new(std::io::stdout().lock())
 }
 
-fn write_line(out: &mut Out<'_>, line: &str) -> Result<(), Failure> {
+pub(crate) fn write_line(out: &mut Out<'_>, line: &str) -> Result<(), Failure> {
     writeln!(out, "{line}").map_err(|e| stdout_failure(&e))
 }
 
-fn flush(out: &mut Out<'_>) -> Result<(), Failure> {
+pub(crate) fn flush(out: &mut Out<'_>) -> Result<(), Failure> {
     out.flush().map_err(|e| stdout_failure(&e))
 }
 
@@ -201,7 +201,7 @@ pub fn range(
     flush(&mut out)
 }
 
-fn type_name(time_type: TimeType) -> &'static str {
+pub(crate) fn type_name(time_type: TimeType) -> &'static str {
     match time_type {
         TimeType::Sequence => "sequence",
         TimeType::DurationNs => "duration_ns",
