@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CorruptFileError",
+    "Dataset",
     "Error",
     "InvalidInputError",
     "Store",
@@ -43,6 +44,7 @@ __all__ = [
     "UnknownTimelineError",
     "__version__",
     "open",
+    "open_dataset",
 ]
 
 Time = Union[int, _dt.datetime, _dt.timedelta, Any]
@@ -442,3 +444,119 @@ def open(path: Union[str, os.PathLike], *, lazy: bool = True, recording: Optiona
     :class:`CorruptFileError` for a file that does not parse.
     """
     return Store(_native=_chunkstore.open(os.fspath(path), lazy, recording))
+
+
+class Segment(NamedTuple):
+    """One recording of a :class:`Dataset`: its recording id (the segment's name), the
+    application that logged it, its file, its rows and chunks, and its timelines."""
+
+    id: str
+    application_id: str
+    path: str
+    num_rows: int
+    num_chunks: int
+    timelines: list
+
+
+class Dataset:
+    """Many recordings, one ``.rrd`` file each, queried as one table with a
+    ``rerun_segment_id`` column first (``docs/SEMANTICS.md`` section 15), as Rerun's
+    catalog serves a dataset. Made by :func:`open_dataset`."""
+
+    __slots__ = ("_native",)
+
+    def __init__(self, *, _native: Any) -> None:
+        self._native = _native
+
+    def segments(self) -> list:
+        """The segments, sorted by recording id."""
+        return [
+            Segment(id, app, os.fspath(path), rows, chunks, [Timeline(*t) for t in timelines])
+            for (id, app, path, rows, chunks, timelines) in self._native.segments()
+        ]
+
+    def timelines(self) -> list:
+        """Every timeline of any segment, sorted by name, with its span over all of them."""
+        return [Timeline(*t) for t in self._native.timelines()]
+
+    def take_warnings(self) -> list:
+        """What was skipped so far (``skip_bad``), each once."""
+        return self._native.take_warnings()
+
+    def __len__(self) -> int:
+        """Segments."""
+        return len(self._native.segments())
+
+    def __repr__(self) -> str:
+        return f"<chunkstore.Dataset: {len(self)} segments>"
+
+    def dataframe(
+        self,
+        index: str,
+        contents: Union[None, str, Iterable[str]] = None,
+        range: Optional[tuple] = None,
+        index_values: Optional[Iterable[Time]] = None,
+        fill_latest_at: bool = False,
+        batch_rows: Optional[int] = None,
+        *,
+        include_tombstone_columns: bool = True,
+        include_semantically_empty_columns: bool = True,
+        exact_index_values: bool = False,
+    ) -> "pyarrow.RecordBatchReader":
+        """Every segment's table on timeline ``index`` (each exactly what
+        :meth:`Store.dataframe` gives on that recording, filled within it), one after
+        another in segment order, in the union of their columns: ``rerun_segment_id``,
+        the timelines, then every segment's data columns (null where a segment lacks
+        one). A segment without data on ``index`` gives no rows; an index no segment has
+        raises :class:`UnknownTimelineError`. The arguments are
+        :meth:`Store.dataframe`'s."""
+        range, index_values = Store._view_times(self, index, range, index_values)  # type: ignore[arg-type]
+        return self._native.dataframe(
+            index,
+            _contents(contents),
+            range,
+            index_values,
+            fill_latest_at,
+            _positive(batch_rows, "batch_rows"),
+            include_tombstone_columns,
+            include_semantically_empty_columns,
+            exact_index_values,
+        )
+
+    def _time_type(self, timeline: str) -> str:
+        if not isinstance(timeline, str):
+            raise InvalidInputError(f"timeline: expected a name (str), got {type(timeline).__name__}")
+        time_type = self._native.time_type(timeline)
+        if time_type is None:
+            known = ", ".join(t.name for t in self.timelines()) or "none"
+            raise UnknownTimelineError(
+                f"no segment has the index: unknown timeline {timeline!r} (the timelines are: {known})"
+            )
+        return time_type
+
+
+def open_dataset(
+    path: Union[str, os.PathLike],
+    *,
+    skip_bad: bool = False,
+    memory_budget: Optional[int] = None,
+) -> Dataset:
+    """Opens a dataset: a directory's regular ``.rrd`` files (or one ``.rrd`` file),
+    each a segment named by its recording id, reading their footers only.
+
+    ``skip_bad``: skip a file that cannot be read (see :meth:`Dataset.take_warnings`)
+    rather than raise. ``memory_budget``: bytes of loaded segments kept between uses (by
+    default a quarter of the machine's memory).
+
+    Raises :class:`CorruptFileError` for a file that does not parse (or a directory
+    without ``.rrd`` files), :class:`InvalidInputError` for two files of one recording.
+    """
+    return Dataset(_native=_chunkstore.open_dataset(os.fspath(path), skip_bad, _positive_or_zero(memory_budget)))
+
+
+def _positive_or_zero(value: Optional[int]) -> Optional[int]:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise InvalidInputError(f"memory_budget: expected a number of bytes >= 0, got {value!r}")
+    return value

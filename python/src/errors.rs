@@ -120,3 +120,20 @@ pub fn no_panic<T>(work: impl FnOnce() -> Result<T, PyErr>) -> Result<T, PyErr> 
         )))
     })
 }
+
+/// A dataset that could not be opened or queried: a file's fault as `CorruptFileError`
+/// (the file system's own as `OSError`), an unknown index as `UnknownTimelineError`,
+/// anything else the caller asked for as `InvalidInputError`.
+pub fn dataset_error(error: chunkstore::dataset::DatasetError) -> PyErr {
+    use chunkstore::dataset::DatasetError;
+    match error {
+        DatasetError::Io { path, source } => os_error(&path, source),
+        DatasetError::Open(error) => open_error(*error),
+        DatasetError::UnknownIndex(unknown) => unknown_timeline(&unknown),
+        DatasetError::Dataframe { error, .. } => dataframe_error(error),
+        error @ (DatasetError::NotRrd { .. }
+        | DatasetError::NoRecordingId { .. }
+        | DatasetError::NoRrdFiles { .. }) => CorruptFileError::new_err(error.to_string()),
+        other => invalid(other.to_string()),
+    }
+}

@@ -15,6 +15,7 @@
 //! `OSError` subclass. A panic inside the store (a bug) is caught at the boundary and
 //! raised as `chunkstore.Error` naming it as one.
 
+mod dataset;
 mod errors;
 mod open;
 mod store;
@@ -28,5 +29,7 @@ fn _chunkstore(module: &Bound<'_, PyModule>) -> PyResult<()> {
     module.add("__version__", env!("CARGO_PKG_VERSION"))?;
     module.add_class::<store::NativeStore>()?;
     module.add_function(wrap_pyfunction!(open::open, module)?)?;
+    module.add_class::<dataset::NativeDataset>()?;
+    module.add_function(wrap_pyfunction!(dataset::open_dataset, module)?)?;
     Ok(())
 }

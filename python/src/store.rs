@@ -251,10 +251,10 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
 /// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
 /// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/performance-log.md`). Narrower
 /// tables already have batches this long.
-const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
+pub(crate) const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
 
 /// A dataframe query from the Python arguments.
-fn dataframe_query(
+pub(crate) fn dataframe_query(
     index: &str,
     contents: Option<Vec<String>>,
     range: Option<(i64, i64)>,
@@ -282,7 +282,7 @@ fn dataframe_query(
     Ok(query)
 }
 
-fn time_type_name(time_type: TimeType) -> &'static str {
+pub(crate) fn time_type_name(time_type: TimeType) -> &'static str {
     match time_type {
         TimeType::Sequence => "sequence",
         TimeType::DurationNs => "duration",

@@ -1,0 +1,157 @@
+//! `chunkstore.open_dataset(path)`: a directory of `.rrd` files (or one file) as one table
+//! with a segment column (`chunkstore::dataset`, SEMANTICS.md section 15).
+
+use std::path::PathBuf;
+
+use arrow_array::RecordBatchReader;
+use arrow_pyarrow::PyArrowType;
+use chunkstore::dataset::{Dataset, DatasetOptions};
+use pyo3::prelude::*;
+
+use crate::errors::{dataset_error, no_panic};
+use crate::store::{PYTHON_MIN_BATCH_ROWS, dataframe_query, time_type_name};
+
+/// A dataset: see the module docs.
+#[pyclass(frozen, module = "chunkstore._chunkstore")]
+pub struct NativeDataset {
+    dataset: Dataset,
+}
+
+/// Opens a dataset: see the module docs.
+#[pyfunction]
+#[pyo3(signature = (path, skip_bad = false, memory_budget = None))]
+pub fn open_dataset(
+    py: Python<'_>,
+    path: PathBuf,
+    skip_bad: bool,
+    memory_budget: Option<u64>,
+) -> PyResult<NativeDataset> {
+    py.detach(|| {
+        no_panic(|| {
+            let mut options = DatasetOptions {
+                skip_bad,
+                ..DatasetOptions::default()
+            };
+            if let Some(budget) = memory_budget {
+                options.memory_budget = budget;
+            }
+            let dataset = Dataset::open(&path, &options).map_err(dataset_error)?;
+            Ok(NativeDataset { dataset })
+        })
+    })
+}
+
+/// A segment as Python sees it.
+type SegmentTuple = (
+    String,
+    String,
+    PathBuf,
+    u64,
+    u64,
+    Vec<(String, String, i64, i64)>,
+);
+
+#[pymethods]
+impl NativeDataset {
+    /// `(id, application id, path, rows, chunks, [(timeline, type, min, max)])` per
+    /// segment, by id.
+    fn segments(&self) -> Vec<SegmentTuple> {
+        self.dataset
+            .segments()
+            .iter()
+            .map(|s| {
+                let timelines = s
+                    .timelines
+                    .iter()
+                    .map(|(t, r)| {
+                        (
+                            t.name().to_owned(),
+                            time_type_name(t.time_type()).to_owned(),
+                            r.min().as_i64(),
+                            r.max().as_i64(),
+                        )
+                    })
+                    .collect();
+                (
+                    s.id.clone(),
+                    s.application_id.clone(),
+                    s.path.clone(),
+                    s.num_rows,
+                    s.num_chunks,
+                    timelines,
+                )
+            })
+            .collect()
+    }
+
+    /// `(name, type, min, max)` per timeline of any segment.
+    fn timelines(&self) -> Vec<(String, String, Option<i64>, Option<i64>)> {
+        self.dataset
+            .timelines()
+            .iter()
+            .map(|t| {
+                let range = self.dataset.time_range(t.name());
+                (
+                    t.name().to_owned(),
+                    time_type_name(t.time_type()).to_owned(),
+                    range.map(|r| r.min().as_i64()),
+                    range.map(|r| r.max().as_i64()),
+                )
+            })
+            .collect()
+    }
+
+    /// The type of `timeline`'s times, `None` if no segment has it.
+    fn time_type(&self, timeline: &str) -> Option<&'static str> {
+        self.dataset.time_type(timeline).map(time_type_name)
+    }
+
+    /// What was skipped so far (`skip_bad`), each once.
+    fn take_warnings(&self) -> Vec<String> {
+        self.dataset.take_warnings()
+    }
+
+    /// The dataset's table: see `chunkstore.Dataset.dataframe`.
+    #[pyo3(signature = (index, contents, range, index_values, fill_latest_at, batch_rows, include_tombstone_columns, include_semantically_empty_columns, exact_index_values))]
+    #[allow(
+        clippy::too_many_arguments,
+        clippy::fn_params_excessive_bools,
+        reason = "Python's keyword arguments, one each"
+    )]
+    fn dataframe(
+        &self,
+        py: Python<'_>,
+        index: &str,
+        contents: Option<Vec<String>>,
+        range: Option<(i64, i64)>,
+        index_values: Option<Vec<i64>>,
+        fill_latest_at: bool,
+        batch_rows: Option<usize>,
+        include_tombstone_columns: bool,
+        include_semantically_empty_columns: bool,
+        exact_index_values: bool,
+    ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
+        let mut query = dataframe_query(
+            index,
+            contents,
+            range,
+            index_values,
+            fill_latest_at,
+            batch_rows,
+        )?
+        .with_tombstone_columns(include_tombstone_columns)
+        .with_semantically_empty_columns(include_semantically_empty_columns)
+        .with_exact_index_values(exact_index_values);
+        if batch_rows.is_none() {
+            query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
+        }
+        py.detach(|| {
+            no_panic(|| {
+                let stream = self.dataset.dataframe(&query).map_err(dataset_error)?;
+                Ok(PyArrowType(
+                    Box::new(stream) as Box<dyn RecordBatchReader + Send>
+                ))
+            })
+        })
+    }
+}

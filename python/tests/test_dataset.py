@@ -1,0 +1,73 @@
+"""Datasets from Python (SEMANTICS.md section 15): a directory of .rrd files as one table,
+each segment's own dataframe under its recording id, in segment order."""
+
+import pyarrow as pa
+import pytest
+
+import chunkstore
+
+from conftest import CHUNKS, RRD
+
+
+@pytest.fixture
+def episodes(tmp_path):
+    """A dataset of two segments: the robot recording, and its chunks under another id."""
+    (tmp_path / "one.rrd").write_bytes(RRD.read_bytes())
+    chunkstore.open(CHUNKS).write_rrd(tmp_path / "two.rrd", recording_id="second")
+    (tmp_path / "notes.txt").write_text("not a segment")
+    return tmp_path
+
+
+def test_a_dataset_is_each_segments_table_in_turn(episodes):
+    dataset = chunkstore.open_dataset(episodes)
+    segments = dataset.segments()
+    assert [s.id for s in segments] == ["a0000000-0000-4000-8000-00000000000a", "second"]
+    assert len(dataset) == 2
+    assert {t.name for t in dataset.timelines()} == {"frame_id", "log_time", "sim_time"}
+    for fill in (False, True):
+        table = dataset.dataframe("frame_id", fill_latest_at=fill).read_all()
+        assert table.schema.names[0] == "rerun_segment_id"
+        own = [
+            chunkstore.open(episodes / name).dataframe("frame_id", fill_latest_at=fill).read_all()
+            for name in ("one.rrd", "two.rrd")
+        ]
+        assert table.num_rows == sum(t.num_rows for t in own)
+        start = 0
+        for segment, part in zip(segments, own):
+            piece = table.slice(start, part.num_rows)
+            assert set(piece.column("rerun_segment_id").to_pylist()) == {segment.id}
+            for name in part.schema.names:
+                assert piece.column(name).combine_chunks().equals(part.column(name).combine_chunks()), name
+            start += part.num_rows
+
+
+def test_a_dataset_takes_times_and_contents_as_a_store_does(episodes):
+    dataset = chunkstore.open_dataset(episodes)
+    table = dataset.dataframe("frame_id", contents="/world/**", range=(10, 19)).read_all()
+    assert table.num_rows == 20
+    assert all(name.startswith("/world") for name in table.schema.names[4:])
+    with pytest.raises(chunkstore.UnknownTimelineError, match="frame_idd"):
+        dataset.dataframe("frame_idd")
+    with pytest.raises(chunkstore.InvalidInputError):
+        chunkstore.open_dataset(episodes, memory_budget=-1)
+
+
+def test_bad_datasets_raise_naming_the_file(tmp_path, episodes):
+    with pytest.raises(chunkstore.CorruptFileError, match="no .rrd file"):
+        chunkstore.open_dataset(_empty(tmp_path))
+    (episodes / "broken.rrd").write_bytes(b"RRF2" + bytes(50))
+    with pytest.raises(chunkstore.CorruptFileError, match="broken.rrd"):
+        chunkstore.open_dataset(episodes)
+    dataset = chunkstore.open_dataset(episodes, skip_bad=True)
+    assert len(dataset) == 2
+    warnings = dataset.take_warnings()
+    assert len(warnings) == 1 and "broken.rrd" in warnings[0]
+    (episodes / "copy.rrd").write_bytes(RRD.read_bytes())
+    with pytest.raises(chunkstore.InvalidInputError, match="two files"):
+        chunkstore.open_dataset(episodes, skip_bad=True)
+
+
+def _empty(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    return empty
