@@ -221,6 +221,13 @@ impl DataframeQuery {
         self
     }
 
+    /// Does it keep the columns whose every cell is null or empty (which only every chunk
+    /// of a column can tell)?
+    #[cfg(feature = "rrd")]
+    pub(crate) fn keeps_semantically_empty_columns(&self) -> bool {
+        self.kept.semantically_empty
+    }
+
     /// The same query over every column (a dataset asks each segment for its own).
     #[cfg(feature = "rrd")]
     pub(crate) fn without_columns(mut self) -> Self {

@@ -24,6 +24,7 @@
 
 mod cache;
 mod error;
+mod prune;
 mod stream;
 
 use std::path::{Path, PathBuf};
@@ -144,6 +145,19 @@ struct Inner {
     options: DatasetOptions,
     cache: Mutex<SegmentCache>,
     warnings: Mutex<Vec<String>>,
+    read: Mutex<ReadStats>,
+}
+
+/// What a dataset's queries have read from its files so far ([`Dataset::read_stats`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ReadStats {
+    /// Times a segment was read from its file (whole, or the chunks a query needed).
+    pub segment_reads: u64,
+    /// Chunks decoded.
+    pub chunks_decoded: u64,
+    /// Bytes read from the files.
+    pub bytes_read: u64,
 }
 
 /// One file opened: its segment, and its store if it had to be read whole.
@@ -226,6 +240,7 @@ impl Dataset {
                 options: options.clone(),
                 cache: Mutex::new(cache),
                 warnings,
+                read: Mutex::new(ReadStats::default()),
             }),
         })
     }
@@ -319,6 +334,18 @@ impl Dataset {
         }
     }
 
+    /// What queries have read from the files so far (opening aside).
+    pub fn read_stats(&self) -> ReadStats {
+        *self.inner.read.lock()
+    }
+
+    fn count_read(&self, chunks: u64, bytes: u64) {
+        let mut read = self.inner.read.lock();
+        read.segment_reads += 1;
+        read.chunks_decoded += chunks;
+        read.bytes_read += bytes;
+    }
+
     /// The warnings of what was skipped so far ([`DatasetOptions::skip_bad`]), each once.
     pub fn take_warnings(&self) -> Vec<String> {
         std::mem::take(&mut *self.inner.warnings.lock())
@@ -345,9 +372,44 @@ impl Dataset {
         };
         let mut observer = Warnings(&self.inner.warnings);
         let loaded = LoadedRecording::load(&segment.path, &options, &mut observer)?;
+        self.count_read(segment.num_chunks, segment.file_bytes);
         let snapshot = loaded.store.snapshot();
         self.inner.cache.lock().insert(number, snapshot.clone());
         Ok(snapshot)
+    }
+
+    /// What segment number `number` holds that `query` needs: the whole segment if it is
+    /// kept, else, through its footer, only the chunks the query needs (`prune.rs`; not
+    /// kept, they are the query's); the whole segment where that cannot be told.
+    pub(crate) fn segment_for(
+        &self,
+        number: usize,
+        query: &crate::DataframeQuery,
+    ) -> Result<Snapshot, DatasetError> {
+        if let Some(snapshot) = self.inner.cache.lock().get(number) {
+            return Ok(snapshot);
+        }
+        let segment = &self.inner.segments[number];
+        // With `skip_bad` a bad chunk is skipped, which only a whole load does.
+        if segment.from_footer && !self.inner.options.skip_bad && prune::prunable(query) {
+            let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
+                .map_err(|error| OpenError::rrd(&segment.path, error))?;
+            if let Some(mut lazy) = lazy {
+                let needed = prune::needed(lazy.manifest(), query);
+                let store = lazy
+                    .load_where(|entry| needed.contains(&entry.chunk_id))
+                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
+                let snapshot = store.snapshot();
+                let stats = lazy.stats();
+                self.count_read(stats.chunks_decoded as u64, stats.bytes_read);
+                // Where none of the chunks it needs is on the index, the segment's own
+                // view (its columns, which other timelines give) needs the whole segment.
+                if snapshot.time_type(query.index()).is_some() {
+                    return Ok(snapshot);
+                }
+            }
+        }
+        self.loaded_segment(number)
     }
 }
 
@@ -390,7 +452,7 @@ pub fn is_dataset_dir(dir: &Path) -> bool {
 }
 
 /// `f` of every item on up to `threads` threads, the results in the items' order.
-fn in_parallel<T: Sync, R: Send>(
+pub(super) fn in_parallel<T: Sync, R: Send>(
     items: &[T],
     threads: usize,
     f: impl Fn(&T) -> R + Sync,

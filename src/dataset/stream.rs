@@ -10,8 +10,10 @@
 //! without it gives no rows, as a dataframe of it would be refused, and is never loaded);
 //! the segment cache keeps what fits for the rows' pass.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::thread::JoinHandle;
 
 use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader, StringArray, new_null_array};
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
@@ -42,15 +44,17 @@ impl Dataset {
             )));
         }
         let full = query.clone().without_columns();
-        let mut union = SchemaUnion::default();
-        let mut planned = Vec::with_capacity(with_index.len());
-        for number in with_index {
-            let segment_id = self.segments()[number].id.clone();
-            let snapshot = match self.loaded_segment(number) {
+        // Segments are planned on several threads; what planning read is kept for the
+        // rows' pass while it fits the budget.
+        let kept_bytes = AtomicU64::new(0);
+        let budget = self.options().memory_budget;
+        let plans = super::in_parallel(&with_index, self.options().threads, |&number| {
+            let segment_id = &self.segments()[number].id;
+            let snapshot = match self.segment_for(number, &full) {
                 Ok(snapshot) => snapshot,
                 Err(error) if self.options().skip_bad => {
                     self.warn(format!("skipped segment {segment_id:?}: {error}"));
-                    continue;
+                    return Ok(None);
                 }
                 Err(error) => return Err(error),
             };
@@ -61,8 +65,21 @@ impl Dataset {
                         segment: segment_id.clone(),
                         error,
                     })?;
-            union.add(&segment_id, &schema)?;
-            planned.push((number, schema));
+            let bytes = snapshot.stats().heap_bytes;
+            let fits = kept_bytes
+                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |kept| {
+                    (kept + bytes <= budget).then_some(kept + bytes)
+                })
+                .is_ok();
+            Ok(Some((number, schema, fits.then_some(snapshot))))
+        });
+        let mut union = SchemaUnion::default();
+        let mut planned = Vec::with_capacity(plans.len());
+        for plan in plans {
+            if let Some((number, schema, kept)) = plan? {
+                union.add(&self.segments()[number].id, &schema)?;
+                planned.push((number, schema, kept));
+            }
         }
         let table = union.schema();
         let schema = match query.columns() {
@@ -73,7 +90,7 @@ impl Dataset {
         // whole view's).
         let segments = planned
             .into_iter()
-            .map(|(number, own)| {
+            .map(|(number, own, kept)| {
                 let columns: Vec<String> = schema
                     .fields()
                     .iter()
@@ -81,7 +98,7 @@ impl Dataset {
                     .filter(|f| own.field_with_name(f.name()).is_ok())
                     .map(|f| f.name().clone())
                     .collect();
-                (number, full.clone().with_columns(columns))
+                (number, full.clone().with_columns(columns), kept)
             })
             .collect();
         Ok(DatasetStream {
@@ -90,6 +107,7 @@ impl Dataset {
             segments,
             next: 0,
             current: None,
+            ahead: VecDeque::new(),
         })
     }
 
@@ -210,11 +228,24 @@ fn project(table: &SchemaRef, names: &[String]) -> Result<SchemaRef, DatasetErro
 pub struct DatasetStream {
     dataset: Dataset,
     schema: SchemaRef,
-    /// The segments that give rows (by number), with each one's own query.
-    segments: Vec<(usize, DataframeQuery)>,
+    /// The segments that give rows (by number), with each one's own query, and what
+    /// planning read of it if that was kept.
+    segments: Vec<(usize, DataframeQuery, Option<crate::Snapshot>)>,
     next: usize,
     /// The segment being streamed: its id as a column value, and its stream.
     current: Option<(Arc<str>, DataframeStream<'static>)>,
+    /// The next segments' loads, on threads of their own while this one streams (one fewer
+    /// than [`DatasetOptions::threads`](super::DatasetOptions::threads)), by position.
+    ahead: VecDeque<(usize, JoinHandle<Result<crate::Snapshot, DatasetError>>)>,
+}
+
+/// The segment a load ahead read, or its error; a panic (a bug) goes on in this thread.
+fn joined(
+    handle: JoinHandle<Result<crate::Snapshot, DatasetError>>,
+) -> Result<crate::Snapshot, DatasetError> {
+    handle
+        .join()
+        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
 }
 
 impl std::fmt::Debug for DatasetStream {
@@ -237,15 +268,45 @@ impl DatasetStream {
         self.segments.len()
     }
 
+    /// Starts loading, on threads of their own, the segments after `position` that
+    /// planning did not keep, up to one fewer than the dataset's threads.
+    fn load_ahead(&mut self, position: usize) {
+        let threads = self.dataset.options().threads.max(1);
+        let end = (position + threads).min(self.segments.len());
+        for ahead in position + 1..end {
+            let (number, query, kept) = &self.segments[ahead];
+            if kept.is_some() || self.ahead.iter().any(|(p, _)| *p == ahead) {
+                continue;
+            }
+            let (dataset, number, query) = (self.dataset.clone(), *number, query.clone());
+            let handle = std::thread::spawn(move || dataset.segment_for(number, &query));
+            self.ahead.push_back((ahead, handle));
+        }
+    }
+
     /// Starts the next segment's stream; `Ok(false)` when there is none.
     fn start_next(&mut self) -> Result<bool, DatasetError> {
         loop {
-            let Some((number, query)) = self.segments.get(self.next) else {
+            let position = self.next;
+            if position >= self.segments.len() {
                 return Ok(false);
-            };
+            }
             self.next += 1;
-            let id = self.dataset.segments()[*number].id.clone();
-            let started = self.dataset.loaded_segment(*number).and_then(|snapshot| {
+            self.load_ahead(position);
+            let loaded_ahead = match self.ahead.front() {
+                Some((p, _)) if *p == position => self.ahead.pop_front().map(|(_, h)| h),
+                _ => None,
+            };
+            let (number, query, kept) = &mut self.segments[position];
+            let number = *number;
+            let id = self.dataset.segments()[number].id.clone();
+            let snapshot = match (kept.take(), loaded_ahead) {
+                (Some(snapshot), _) => Ok(snapshot),
+                (None, Some(handle)) => joined(handle),
+                (None, None) => self.dataset.segment_for(number, query),
+            };
+            let query = &self.segments[position].1;
+            let started = snapshot.and_then(|snapshot| {
                 snapshot
                     .into_dataframe(query)
                     .map_err(|error| DatasetError::Dataframe {

@@ -358,6 +358,23 @@ impl<R: Read + Seek> LazyRecording<R> {
         Ok(self.store.range(query, entity, component))
     }
 
+    /// Decodes the chunks whose manifest entries `keep` picks (those not decoded yet), and
+    /// returns the store of every chunk decoded so far: for a caller that knows from the
+    /// manifest which chunks its reads need (a dataset's dataframe over a range).
+    ///
+    /// # Errors
+    /// As [`LazyRecording::latest_at`].
+    pub fn load_where(
+        &mut self,
+        mut keep: impl FnMut(&ManifestEntry) -> bool,
+    ) -> Result<&ChunkStore, RrdError> {
+        let picked: Vec<usize> = (0..self.manifest.entries.len())
+            .filter(|&i| keep(&self.manifest.entries[i]))
+            .collect();
+        self.load(&picked)?;
+        Ok(&self.store)
+    }
+
     /// Decodes every chunk not decoded yet: the whole recording, in its store.
     ///
     /// # Errors
