@@ -18,16 +18,14 @@
     reason = "generated data is valid and small; a failure should stop the run loudly"
 )]
 
+#[path = "../benches/common/mod.rs"]
+mod common;
+
 use std::sync::Arc;
 use std::time::Instant;
 
-use arrow_array::{
-    Array, ArrayRef, FixedSizeListArray, Float32Array, Float64Array, Int64Array, ListArray,
-};
-use arrow_buffer::OffsetBuffer;
-use arrow_schema::{DataType, Field};
 use chunkstore::rrd::{LazyRecording, RrdItem, RrdReader, RrdWriter, StoreId};
-use chunkstore::{Chunk, ChunkId, ChunkStore, EntityPath, LatestAtQuery, RowId, TimeInt, Timeline};
+use chunkstore::{ChunkStore, EntityPath, LatestAtQuery, TimeInt};
 
 const ENTITIES: usize = 400;
 const ROWS: usize = 512;
@@ -52,54 +50,6 @@ fn entity(i: usize) -> EntityPath {
     EntityPath::parse(&format!("/robot{}/sensor{}", i / 20, i % 20)).expect("a valid path")
 }
 
-/// A small xorshift: reproducible noise.
-fn noise(state: &mut u64) -> f32 {
-    *state ^= *state << 13;
-    *state ^= *state >> 7;
-    *state ^= *state << 17;
-    #[expect(clippy::cast_precision_loss, reason = "noise")]
-    let unit = (*state >> 40) as f32 / (1u64 << 24) as f32;
-    unit
-}
-
-fn chunk(entity: &EntityPath, first_frame: i64, seed: &mut u64) -> Chunk {
-    let frames: Vec<i64> = (first_frame..).take(ROWS).collect();
-    let scalars = Float64Array::from_iter_values((0..ROWS).map(|_| f64::from(noise(seed))));
-    let scalars = ListArray::new(
-        Arc::new(Field::new_list_field(DataType::Float64, true)),
-        OffsetBuffer::from_lengths(std::iter::repeat_n(1, ROWS)),
-        Arc::new(scalars),
-        None,
-    );
-    let xyz = Float32Array::from_iter_values((0..ROWS * POINTS * 3).map(|_| noise(seed)));
-    let points = FixedSizeListArray::new(
-        Arc::new(Field::new_list_field(DataType::Float32, false)),
-        3,
-        Arc::new(xyz),
-        None,
-    );
-    let positions = ListArray::new(
-        Arc::new(Field::new_list_field(points.data_type().clone(), true)),
-        OffsetBuffer::from_lengths(std::iter::repeat_n(POINTS, ROWS)),
-        Arc::new(points),
-        None,
-    );
-    Chunk::try_new(
-        ChunkId::new(),
-        entity.clone(),
-        (0..ROWS).map(|_| RowId::new()).collect(),
-        vec![(
-            Timeline::sequence("frame"),
-            Arc::new(Int64Array::from(frames)) as ArrayRef,
-        )],
-        vec![
-            ("scalar".into(), Arc::new(scalars) as ArrayRef),
-            ("position3d".into(), Arc::new(positions) as ArrayRef),
-        ],
-    )
-    .expect("valid columns")
-}
-
 fn generate(path: &str, mib: u64) -> Result<(), Box<dyn std::error::Error>> {
     let started = Instant::now();
     let file = std::io::BufWriter::new(std::fs::File::create(path)?);
@@ -110,7 +60,13 @@ fn generate(path: &str, mib: u64) -> Result<(), Box<dyn std::error::Error>> {
     let mut round = 0i64;
     while writer.position() < mib << 20 {
         for entity in &entities {
-            writer.write_chunk(&Arc::new(chunk(entity, round * ROWS as i64, &mut seed)))?;
+            writer.write_chunk(&Arc::new(common::sensor_chunk(
+                entity,
+                round * ROWS as i64,
+                ROWS,
+                POINTS,
+                &mut seed,
+            )))?;
             chunks += 1;
         }
         round += 1;
@@ -124,23 +80,12 @@ fn generate(path: &str, mib: u64) -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// Peak resident memory of this process so far, in bytes.
-fn peak_rss() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|status| {
-            let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-            line.split_whitespace().nth(1)?.parse::<u64>().ok()
-        })
-        .map_or(0, |kib| kib * 1024)
-}
-
 fn lazy(path: &str) -> Result<(), Box<dyn std::error::Error>> {
     let started = Instant::now();
     let mut recording = LazyRecording::open(path.as_ref())?.ok_or("the file has no footer")?;
     let opened = started.elapsed();
     let after_open = recording.stats();
-    let rss_open = peak_rss();
+    let rss_open = common::peak_rss();
     let last = recording
         .time_range("frame")
         .ok_or("no frame timeline")?
@@ -170,7 +115,7 @@ fn lazy(path: &str) -> Result<(), Box<dyn std::error::Error>> {
         stats.chunks_decoded,
         latest.time().map_or(-1, TimeInt::as_i64),
         middle_answer.time().map_or(-1, TimeInt::as_i64),
-        peak_rss()
+        common::peak_rss()
     );
     Ok(())
 }
@@ -200,7 +145,7 @@ fn eager(path: &str) -> Result<(), Box<dyn std::error::Error>> {
     }
     let loaded = started.elapsed();
     let stats = store.stats();
-    let rss = peak_rss();
+    let rss = common::peak_rss();
     #[expect(clippy::cast_precision_loss, reason = "a ratio")]
     let ratio = rss as f64 / decompressed as f64;
     println!(

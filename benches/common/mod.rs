@@ -451,3 +451,71 @@ pub fn stream_dataframe(store: &ChunkStore, query: &DataframeQuery) -> (u64, u64
     }
     (rows, columns, non_null)
 }
+
+/// A small xorshift step: reproducible sensor noise in `[0, 1)` (LZ4 barely compresses it),
+/// for the generators of large files (`examples/rrd_scale.rs`, `examples/dataset_bench.rs`).
+pub fn noise(state: &mut u64) -> f32 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    #[expect(clippy::cast_precision_loss, reason = "noise")]
+    let unit = (*state >> 40) as f32 / (1u64 << 24) as f32;
+    unit
+}
+
+/// A sensor's chunk of `rows` rows from `first_frame` on `frame`: each row a `scalar` and
+/// `points` `position3d` points, all noise.
+pub fn sensor_chunk(
+    entity: &EntityPath,
+    first_frame: i64,
+    rows: usize,
+    points: usize,
+    seed: &mut u64,
+) -> Chunk {
+    let frames: Vec<i64> = (first_frame..).take(rows).collect();
+    let scalars = Float64Array::from_iter_values((0..rows).map(|_| f64::from(noise(seed))));
+    let scalars = ListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float64, true)),
+        OffsetBuffer::from_lengths(std::iter::repeat_n(1, rows)),
+        Arc::new(scalars),
+        None,
+    );
+    let xyz = Float32Array::from_iter_values((0..rows * points * 3).map(|_| noise(seed)));
+    let xyz = FixedSizeListArray::new(
+        Arc::new(Field::new_list_field(DataType::Float32, false)),
+        3,
+        Arc::new(xyz),
+        None,
+    );
+    let positions = ListArray::new(
+        Arc::new(Field::new_list_field(xyz.data_type().clone(), true)),
+        OffsetBuffer::from_lengths(std::iter::repeat_n(points, rows)),
+        Arc::new(xyz),
+        None,
+    );
+    Chunk::try_new(
+        ChunkId::new(),
+        entity.clone(),
+        (0..rows).map(|_| RowId::new()).collect(),
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(frames)) as ArrayRef,
+        )],
+        vec![
+            ("scalar".into(), Arc::new(scalars) as ArrayRef),
+            ("position3d".into(), Arc::new(positions) as ArrayRef),
+        ],
+    )
+    .expect("valid columns")
+}
+
+/// Peak resident memory of this process so far, in bytes (`VmHWM`, Linux; 0 elsewhere).
+pub fn peak_rss() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|status| {
+            let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+            line.split_whitespace().nth(1)?.parse::<u64>().ok()
+        })
+        .map_or(0, |kib| kib * 1024)
+}
