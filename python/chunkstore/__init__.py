@@ -362,18 +362,8 @@ class Store:
         ``.read_all()`` gives a ``pyarrow.Table``; ``polars.from_arrow(reader)`` a Polars
         frame; ``reader.read_pandas()`` a pandas one.
         """
-        range, index_values = self._view_times(index, range, index_values)
-        return self._native.dataframe(
-            index,
-            _contents(contents),
-            range,
-            index_values,
-            fill_latest_at,
-            _positive(batch_rows, "batch_rows"),
-            include_tombstone_columns,
-            include_semantically_empty_columns,
-            exact_index_values,
-        )
+        return _reader(self, index, contents, range, index_values, fill_latest_at, batch_rows,
+                       include_tombstone_columns, include_semantically_empty_columns, exact_index_values)
 
     def _view_times(self, index: str, range: Optional[tuple], index_values: Optional[Iterable[Time]]) -> tuple:
         """A view's range and sampled values as integers on timeline ``index``."""
@@ -430,6 +420,24 @@ class Store:
             fill_latest_at,
             _positive(row_group_rows, "row_group_rows"),
         )
+
+
+def _reader(owner: Any, index: str, contents: Any, range: Any, index_values: Any, fill_latest_at: bool,
+            batch_rows: Optional[int], tombstones: bool, semantically_empty: bool, exact: bool) -> Any:
+    """A store's or a dataset's ``dataframe``: the arguments checked and read on the index's
+    type, then the native reader."""
+    range, index_values = Store._view_times(owner, index, range, index_values)
+    return owner._native.dataframe(
+        index,
+        _contents(contents),
+        range,
+        index_values,
+        fill_latest_at,
+        _positive(batch_rows, "batch_rows"),
+        tombstones,
+        semantically_empty,
+        exact,
+    )
 
 
 def open(path: Union[str, os.PathLike], *, lazy: bool = True, recording: Optional[str] = None) -> Store:
@@ -510,18 +518,8 @@ class Dataset:
         one). A segment without data on ``index`` gives no rows; an index no segment has
         raises :class:`UnknownTimelineError`. The arguments are
         :meth:`Store.dataframe`'s."""
-        range, index_values = Store._view_times(self, index, range, index_values)  # type: ignore[arg-type]
-        return self._native.dataframe(
-            index,
-            _contents(contents),
-            range,
-            index_values,
-            fill_latest_at,
-            _positive(batch_rows, "batch_rows"),
-            include_tombstone_columns,
-            include_semantically_empty_columns,
-            exact_index_values,
-        )
+        return _reader(self, index, contents, range, index_values, fill_latest_at, batch_rows,
+                       include_tombstone_columns, include_semantically_empty_columns, exact_index_values)
 
     def _time_type(self, timeline: str) -> str:
         if not isinstance(timeline, str):

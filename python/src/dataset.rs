@@ -9,7 +9,7 @@ use chunkstore::dataset::{Dataset, DatasetOptions};
 use pyo3::prelude::*;
 
 use crate::errors::{dataset_error, no_panic};
-use crate::store::{PYTHON_MIN_BATCH_ROWS, dataframe_query, time_type_name};
+use crate::store::{reader_query, time_type_name};
 
 /// A dataset: see the module docs.
 #[pyclass(frozen, module = "chunkstore._chunkstore")]
@@ -131,20 +131,19 @@ impl NativeDataset {
         include_semantically_empty_columns: bool,
         exact_index_values: bool,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let mut query = dataframe_query(
+        let query = reader_query(
             index,
             contents,
             range,
             index_values,
             fill_latest_at,
             batch_rows,
-        )?
-        .with_tombstone_columns(include_tombstone_columns)
-        .with_semantically_empty_columns(include_semantically_empty_columns)
-        .with_exact_index_values(exact_index_values);
-        if batch_rows.is_none() {
-            query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
-        }
+            [
+                include_tombstone_columns,
+                include_semantically_empty_columns,
+                exact_index_values,
+            ],
+        )?;
         py.detach(|| {
             no_panic(|| {
                 let stream = self.dataset.dataframe(&query).map_err(dataset_error)?;

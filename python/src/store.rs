@@ -251,10 +251,10 @@ fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathF
 /// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
 /// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/performance-log.md`). Narrower
 /// tables already have batches this long.
-pub(crate) const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
+const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
 
 /// A dataframe query from the Python arguments.
-pub(crate) fn dataframe_query(
+fn dataframe_query(
     index: &str,
     contents: Option<Vec<String>>,
     range: Option<(i64, i64)>,
@@ -278,6 +278,36 @@ pub(crate) fn dataframe_query(
             return Err(invalid("batch_rows must be at least 1"));
         }
         query = query.with_batch_rows(rows);
+    }
+    Ok(query)
+}
+
+/// The query of a `dataframe` reader from the Python arguments (`kept`: include tombstone
+/// columns, include semantically empty columns, exact index values), its batches sized
+/// for the crossing into pyarrow.
+pub(crate) fn reader_query(
+    index: &str,
+    contents: Option<Vec<String>>,
+    range: Option<(i64, i64)>,
+    index_values: Option<Vec<i64>>,
+    fill_latest_at: bool,
+    batch_rows: Option<usize>,
+    [tombstones, semantically_empty, exact]: [bool; 3],
+) -> PyResult<DataframeQuery> {
+    let mut query = dataframe_query(
+        index,
+        contents,
+        range,
+        index_values,
+        fill_latest_at,
+        batch_rows,
+    )?
+    .with_tombstone_columns(tombstones)
+    .with_semantically_empty_columns(semantically_empty)
+    .with_exact_index_values(exact);
+    if batch_rows.is_none() {
+        // The batches cross into pyarrow (to_parquet's never leave Rust).
+        query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
     }
     Ok(query)
 }
@@ -526,21 +556,19 @@ impl NativeStore {
         include_semantically_empty_columns: bool,
         exact_index_values: bool,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let mut query = dataframe_query(
+        let query = reader_query(
             index,
             contents,
             range,
             index_values,
             fill_latest_at,
             batch_rows,
-        )?
-        .with_tombstone_columns(include_tombstone_columns)
-        .with_semantically_empty_columns(include_semantically_empty_columns)
-        .with_exact_index_values(exact_index_values);
-        if batch_rows.is_none() {
-            // The batches cross into pyarrow (to_parquet's never leave Rust).
-            query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
-        }
+            [
+                include_tombstone_columns,
+                include_semantically_empty_columns,
+                exact_index_values,
+            ],
+        )?;
         py.detach(|| {
             no_panic(|| {
                 let stream = self
