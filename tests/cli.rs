@@ -1681,6 +1681,13 @@ fn a_dataset_names_what_it_cannot_do() {
         index.contains("no segment has the index") && index.contains("frame_id"),
         "{index}"
     );
+    let recording = fails(&[
+        OsStr::new("--recording"),
+        OsStr::new("second"),
+        dir.as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    assert!(recording.contains("--segment ID"), "{recording}");
     let sql = fails(&[dir.as_os_str(), OsStr::new("sql"), OsStr::new("SELECT 1")]);
     assert!(sql.contains("not this command yet"), "{sql}");
     let reversed = fails(&[

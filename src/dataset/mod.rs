@@ -29,6 +29,7 @@ mod stream;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use parking_lot::Mutex;
 
@@ -380,14 +381,35 @@ impl Dataset {
 
     /// What segment number `number` holds that `query` needs: the whole segment if it is
     /// kept, else, through its footer, only the chunks the query needs (`prune.rs`; not
-    /// kept, they are the query's); the whole segment where that cannot be told.
+    /// kept in the cache, they are the query's); the whole segment where that cannot be
+    /// told.
+    ///
+    /// For planning (`plan_room`: the bytes the query may still keep until it reads its
+    /// rows), the rows' chunks are read too if they fit in that room, which they then
+    /// take; otherwise only the columns' chunks. Without a room, for the rows, only the
+    /// rows' chunks: the store may lack columns (and the index) the segment has, which
+    /// hold nothing in the rows. Returns whether what was read is kept for the rows
+    /// (always `false` without a room).
     pub(crate) fn segment_for(
         &self,
         number: usize,
         query: &crate::DataframeQuery,
-    ) -> Result<Snapshot, DatasetError> {
+        plan_room: Option<&AtomicU64>,
+    ) -> Result<(Snapshot, bool), DatasetError> {
+        let reserve = |bytes: u64| {
+            plan_room.is_some_and(|room| {
+                room.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |left| {
+                    left.checked_sub(bytes)
+                })
+                .is_ok()
+            })
+        };
+        let whole = |snapshot: Snapshot| {
+            let keep = reserve(snapshot.stats().heap_bytes);
+            (snapshot, keep)
+        };
         if let Some(snapshot) = self.inner.cache.lock().get(number) {
-            return Ok(snapshot);
+            return Ok(whole(snapshot));
         }
         let segment = &self.inner.segments[number];
         // With `skip_bad` a bad chunk is skipped, which only a whole load does.
@@ -395,21 +417,40 @@ impl Dataset {
             let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
                 .map_err(|error| OpenError::rrd(&segment.path, error))?;
             if let Some(mut lazy) = lazy {
-                let needed = prune::needed(lazy.manifest(), query);
+                let mut keep = false;
+                let needed = if plan_room.is_some() {
+                    let both = prune::needed(lazy.manifest(), query, prune::Needs::Both);
+                    let bytes = lazy
+                        .manifest()
+                        .entries
+                        .iter()
+                        .filter(|e| both.contains(&e.chunk_id))
+                        .map(|e| e.uncompressed_size)
+                        .sum();
+                    keep = reserve(bytes);
+                    if keep {
+                        both
+                    } else {
+                        prune::needed(lazy.manifest(), query, prune::Needs::Columns)
+                    }
+                } else {
+                    prune::needed(lazy.manifest(), query, prune::Needs::Rows)
+                };
                 let store = lazy
                     .load_where(|entry| needed.contains(&entry.chunk_id))
                     .map_err(|error| OpenError::rrd(&segment.path, error))?;
                 let snapshot = store.snapshot();
                 let stats = lazy.stats();
                 self.count_read(stats.chunks_decoded as u64, stats.bytes_read);
-                // Where none of the chunks it needs is on the index, the segment's own
-                // view (its columns, which other timelines give) needs the whole segment.
-                if snapshot.time_type(query.index()).is_some() {
-                    return Ok(snapshot);
+                // For the rows, a store without the index holds none. For planning, where
+                // none of the chunks it needs is on the index, the segment's own view (its
+                // columns, which other timelines give) needs the whole segment.
+                if plan_room.is_none() || snapshot.time_type(query.index()).is_some() {
+                    return Ok((snapshot, keep));
                 }
             }
         }
-        self.loaded_segment(number)
+        self.loaded_segment(number).map(whole)
     }
 }
 

@@ -32,8 +32,38 @@ pub(super) fn prunable(query: &DataframeQuery) -> bool {
     query.index_values().is_none() && query.keeps_semantically_empty_columns()
 }
 
-/// The chunks of the manifest `query` needs: see the module docs.
-pub(super) fn needed(manifest: &Manifest, query: &DataframeQuery) -> HashSet<ChunkId> {
+/// What a read is for: a query's planning (its columns), its rows, or both (planning that
+/// keeps what it read for the rows).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Needs {
+    Columns,
+    Rows,
+    Both,
+}
+
+/// The chunks of the manifest `query` needs: see the module docs. Its columns need the
+/// Clears, the static chunks and one chunk of each (entity, component, timeline); its rows
+/// the Clears, the static chunks, the range's chunks, with fill the candidates at the
+/// range's start, and the columns of every entity a Clear may mark: a column none of those
+/// holds has no cell in the range, and is null there.
+pub(super) fn needed(
+    manifest: &Manifest,
+    query: &DataframeQuery,
+    needs: Needs,
+) -> HashSet<ChunkId> {
+    let rows = needs != Needs::Columns;
+    let columns = needs != Needs::Rows;
+    // A Clear marks its time in every column of its entity (and, recursive, of those
+    // below): those columns are needed for the rows too, whatever their chunks hold.
+    let cleared: HashSet<&EntityPath> = manifest
+        .entries
+        .iter()
+        .filter(|e| e.components.iter().any(|c| c.name.is_clear()))
+        .map(|e| &e.entity_path)
+        .collect();
+    let under_clear = |entity: &EntityPath| {
+        cleared.contains(entity) || entity.ancestors().any(|a| cleared.contains(&a))
+    };
     let (index, range) = (query.index(), query.range());
     let mut needed = HashSet::new();
     let mut planned: HashSet<(&EntityPath, &ComponentName, &str)> = HashSet::new();
@@ -58,12 +88,19 @@ pub(super) fn needed(manifest: &Manifest, query: &DataframeQuery) -> HashSet<Chu
         if in_range {
             needed.insert(id);
         }
+        let columns_here = columns || under_clear(&entry.entity_path);
         for component in &entry.components {
             for r in &component.ranges {
-                if planned.insert((&entry.entity_path, &component.name, r.timeline.name())) {
+                if columns_here
+                    && planned.insert((&entry.entity_path, &component.name, r.timeline.name()))
+                {
                     needed.insert(id);
                 }
-                if query.fill_latest_at() && r.timeline.name() == index && r.min <= range.min() {
+                if rows
+                    && query.fill_latest_at()
+                    && r.timeline.name() == index
+                    && r.min <= range.min()
+                {
                     before
                         .entry((&entry.entity_path, &component.name))
                         .or_default()

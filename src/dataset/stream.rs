@@ -12,7 +12,7 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::AtomicU64;
 use std::thread::JoinHandle;
 
 use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader, StringArray, new_null_array};
@@ -45,13 +45,12 @@ impl Dataset {
         }
         let full = query.clone().without_columns();
         // Segments are planned on several threads; what planning read is kept for the
-        // rows' pass while it fits the budget.
-        let kept_bytes = AtomicU64::new(0);
-        let budget = self.options().memory_budget;
+        // rows' pass while it fits the budget (`Dataset::segment_for`).
+        let room = AtomicU64::new(self.options().memory_budget);
         let plans = super::in_parallel(&with_index, self.options().threads, |&number| {
             let segment_id = &self.segments()[number].id;
-            let snapshot = match self.segment_for(number, &full) {
-                Ok(snapshot) => snapshot,
+            let (snapshot, keep) = match self.segment_for(number, &full, Some(&room)) {
+                Ok(read) => read,
                 Err(error) if self.options().skip_bad => {
                     self.warn(format!("skipped segment {segment_id:?}: {error}"));
                     return Ok(None);
@@ -65,13 +64,7 @@ impl Dataset {
                         segment: segment_id.clone(),
                         error,
                     })?;
-            let bytes = snapshot.stats().heap_bytes;
-            let fits = kept_bytes
-                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |kept| {
-                    (kept + bytes <= budget).then_some(kept + bytes)
-                })
-                .is_ok();
-            Ok(Some((number, schema, fits.then_some(snapshot))))
+            Ok(Some((number, schema, keep.then_some(snapshot))))
         });
         let mut union = SchemaUnion::default();
         let mut planned = Vec::with_capacity(plans.len());
@@ -239,6 +232,37 @@ pub struct DatasetStream {
     ahead: VecDeque<(usize, JoinHandle<Result<crate::Snapshot, DatasetError>>)>,
 }
 
+/// The stream of `query`'s rows in what was read of segment `segment`: of the columns
+/// `query` names, those the store holds (what was read for the rows alone may lack a
+/// column, which holds no cell in the rows); `None` if it holds nothing on the index.
+fn rows_of(
+    snapshot: crate::Snapshot,
+    query: &DataframeQuery,
+    segment: &str,
+) -> Result<Option<DataframeStream<'static>>, DatasetError> {
+    let failed = |error| DatasetError::Dataframe {
+        segment: segment.to_owned(),
+        error,
+    };
+    let every_column = query.clone().without_columns();
+    let own = match snapshot.dataframe_schema(&every_column) {
+        Ok(own) => own,
+        Err(crate::DataframeError::UnknownIndex(_)) => return Ok(None),
+        Err(error) => return Err(failed(error)),
+    };
+    let present: Vec<String> = query
+        .columns()
+        .unwrap_or_default()
+        .iter()
+        .filter(|name| own.field_with_name(name).is_ok())
+        .cloned()
+        .collect();
+    snapshot
+        .into_dataframe(&every_column.with_columns(present))
+        .map(Some)
+        .map_err(failed)
+}
+
 /// The segment a load ahead read, or its error; a panic (a bug) goes on in this thread.
 fn joined(
     handle: JoinHandle<Result<crate::Snapshot, DatasetError>>,
@@ -279,7 +303,11 @@ impl DatasetStream {
                 continue;
             }
             let (dataset, number, query) = (self.dataset.clone(), *number, query.clone());
-            let handle = std::thread::spawn(move || dataset.segment_for(number, &query));
+            let handle = std::thread::spawn(move || {
+                dataset
+                    .segment_for(number, &query, None)
+                    .map(|(snapshot, _)| snapshot)
+            });
             self.ahead.push_back((ahead, handle));
         }
     }
@@ -303,22 +331,19 @@ impl DatasetStream {
             let snapshot = match (kept.take(), loaded_ahead) {
                 (Some(snapshot), _) => Ok(snapshot),
                 (None, Some(handle)) => joined(handle),
-                (None, None) => self.dataset.segment_for(number, query),
+                (None, None) => self
+                    .dataset
+                    .segment_for(number, query, None)
+                    .map(|(snapshot, _)| snapshot),
             };
             let query = &self.segments[position].1;
-            let started = snapshot.and_then(|snapshot| {
-                snapshot
-                    .into_dataframe(query)
-                    .map_err(|error| DatasetError::Dataframe {
-                        segment: id.clone(),
-                        error,
-                    })
-            });
+            let started = snapshot.and_then(|snapshot| rows_of(snapshot, query, &id));
             match started {
-                Ok(stream) => {
+                Ok(Some(stream)) => {
                     self.current = Some((id.into(), stream));
                     return Ok(true);
                 }
+                Ok(None) => {} // nothing on the index: no rows
                 Err(error) if self.dataset.options().skip_bad => {
                     self.dataset
                         .warn(format!("skipped segment {id:?}: {error}"));

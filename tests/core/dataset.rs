@@ -277,9 +277,15 @@ fn a_dataset_query_reads_only_what_it_needs_and_answers_alike() {
                     query = query
                         .with_contents(chunkstore::EntityPathFilter::parse([contents]).unwrap());
                 }
-                let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
-                let table = read_all(dataset.dataframe(&query).unwrap());
-                equals_own_tables(&table, &files, &query);
+                for memory_budget in [0, DatasetOptions::default().memory_budget] {
+                    let options = DatasetOptions {
+                        memory_budget,
+                        ..DatasetOptions::default()
+                    };
+                    let dataset = Dataset::open(&dir, &options).unwrap();
+                    let table = read_all(dataset.dataframe(&query).unwrap());
+                    equals_own_tables(&table, &files, &query);
+                }
             }
         }
     }
@@ -564,9 +570,14 @@ mod pruning_model {
             if let Some(rule) = [None, Some("/e/**"), Some("/f")][contents] {
                 query = query.with_contents(EntityPathFilter::parse([rule]).unwrap());
             }
-            let dataset = Dataset::open(&file, &DatasetOptions::default()).unwrap();
-            let table = read_all(dataset.dataframe(&query).unwrap());
-            equals_own_tables(&table, &[("model", file.clone())], &query);
+            // A budget of nothing: planning reads the columns' chunks alone, the rows'
+            // pass the rest.
+            for memory_budget in [0, DatasetOptions::default().memory_budget] {
+                let options = DatasetOptions { memory_budget, ..DatasetOptions::default() };
+                let dataset = Dataset::open(&file, &options).unwrap();
+                let table = read_all(dataset.dataframe(&query).unwrap());
+                equals_own_tables(&table, &[("model", file.clone())], &query);
+            }
         }
     }
 }

@@ -22,6 +22,13 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
         )
         .into());
     }
+    if let Some(recording) = &cli.load.recording {
+        return Err(format!(
+            "--recording {recording}: a dataset's recordings are its segments (--segment ID \
+             reads one)"
+        )
+        .into());
+    }
     let dataset_options = DatasetOptions {
         config: options.config,
         skip_bad: options.skip_bad,
