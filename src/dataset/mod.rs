@@ -25,6 +25,7 @@
 mod cache;
 mod error;
 mod prune;
+mod schema;
 mod stream;
 
 use std::path::{Path, PathBuf};
@@ -34,6 +35,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use parking_lot::Mutex;
 
 pub use error::DatasetError;
+pub use schema::DatasetTables;
+#[cfg(feature = "datafusion")]
+pub(crate) use schema::place;
 pub use stream::DatasetStream;
 
 use crate::recording::{
@@ -147,6 +151,8 @@ struct Inner {
     cache: Mutex<SegmentCache>,
     warnings: Mutex<Vec<String>>,
     read: Mutex<ReadStats>,
+    /// The tables' columns, once planned ([`Dataset::tables`]).
+    tables: Mutex<Option<Arc<DatasetTables>>>,
 }
 
 /// What a dataset's queries have read from its files so far ([`Dataset::read_stats`]).
@@ -159,6 +165,25 @@ pub struct ReadStats {
     pub chunks_decoded: u64,
     /// Bytes read from the files.
     pub bytes_read: u64,
+}
+
+impl ReadStats {
+    /// Adds `other`'s counts to these.
+    pub fn add(&mut self, other: Self) {
+        self.segment_reads += other.segment_reads;
+        self.chunks_decoded += other.chunks_decoded;
+        self.bytes_read += other.bytes_read;
+    }
+}
+
+/// What a query read of one segment.
+pub(crate) struct SegmentRead {
+    /// The store of what was read: the whole segment, or the chunks the query needs.
+    pub snapshot: Snapshot,
+    /// Is it kept for the rows' pass (see [`Dataset::segment_for`])?
+    pub keep: bool,
+    /// What was read from the file for it (nothing when the cache had it).
+    pub read: ReadStats,
 }
 
 /// One file opened: its segment, and its store if it had to be read whole.
@@ -242,6 +267,7 @@ impl Dataset {
                 cache: Mutex::new(cache),
                 warnings,
                 read: Mutex::new(ReadStats::default()),
+                tables: Mutex::new(None),
             }),
         })
     }
@@ -340,11 +366,15 @@ impl Dataset {
         *self.inner.read.lock()
     }
 
-    fn count_read(&self, chunks: u64, bytes: u64) {
-        let mut read = self.inner.read.lock();
-        read.segment_reads += 1;
-        read.chunks_decoded += chunks;
-        read.bytes_read += bytes;
+    /// Counts a read in the dataset's stats; returns it alone.
+    fn count_read(&self, chunks: u64, bytes: u64) -> ReadStats {
+        let this = ReadStats {
+            segment_reads: 1,
+            chunks_decoded: chunks,
+            bytes_read: bytes,
+        };
+        self.inner.read.lock().add(this);
+        this
     }
 
     /// The warnings of what was skipped so far ([`DatasetOptions::skip_bad`]), each once.
@@ -362,9 +392,12 @@ impl Dataset {
     }
 
     /// Segment number `number` loaded whole, from the cache or from its file.
-    pub(crate) fn loaded_segment(&self, number: usize) -> Result<Snapshot, DatasetError> {
+    pub(crate) fn loaded_segment(
+        &self,
+        number: usize,
+    ) -> Result<(Snapshot, ReadStats), DatasetError> {
         if let Some(snapshot) = self.inner.cache.lock().get(number) {
-            return Ok(snapshot);
+            return Ok((snapshot, ReadStats::default()));
         }
         let segment = &self.inner.segments[number];
         let options = OpenOptions {
@@ -373,10 +406,115 @@ impl Dataset {
         };
         let mut observer = Warnings(&self.inner.warnings);
         let loaded = LoadedRecording::load(&segment.path, &options, &mut observer)?;
-        self.count_read(segment.num_chunks, segment.file_bytes);
+        let read = self.count_read(segment.num_chunks, segment.file_bytes);
         let snapshot = loaded.store.snapshot();
         self.inner.cache.lock().insert(number, snapshot.clone());
-        Ok(snapshot)
+        Ok((snapshot, read))
+    }
+
+    /// Can segment number `number` be read in part, through its footer's manifest? Not
+    /// without a footer, nor with `skip_bad` (a bad chunk is skipped, which only a whole
+    /// load does).
+    fn reads_in_part(&self, number: usize) -> bool {
+        self.inner.segments[number].from_footer && !self.inner.options.skip_bad
+    }
+
+    /// The chunks of segment number `number` that `pick` picks from its manifest, read
+    /// through its footer; `None` when the file has no footer to read them by.
+    fn read_part(
+        &self,
+        number: usize,
+        pick: impl FnOnce(&crate::rrd::Manifest) -> PickedChunks,
+    ) -> Result<Option<(Snapshot, ReadStats, PickedChunks)>, DatasetError> {
+        let segment = &self.inner.segments[number];
+        let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
+            .map_err(|error| OpenError::rrd(&segment.path, error))?;
+        let Some(mut lazy) = lazy else {
+            return Ok(None);
+        };
+        let picked = pick(lazy.manifest());
+        let store = lazy
+            .load_where(|entry| picked.chunks.contains(&entry.chunk_id))
+            .map_err(|error| OpenError::rrd(&segment.path, error))?;
+        let snapshot = store.snapshot();
+        let stats = lazy.stats();
+        let read = self.count_read(stats.chunks_decoded as u64, stats.bytes_read);
+        Ok(Some((snapshot, read, picked)))
+    }
+
+    /// The chunks of segment number `number` that `pick` picks from its manifest (the
+    /// whole segment where it cannot be read in part, or is kept).
+    pub(crate) fn segment_chunks(
+        &self,
+        number: usize,
+        pick: impl FnOnce(&crate::rrd::Manifest) -> std::collections::HashSet<crate::ChunkId>,
+    ) -> Result<(Snapshot, ReadStats), DatasetError> {
+        if let Some(snapshot) = self.inner.cache.lock().get(number) {
+            return Ok((snapshot, ReadStats::default()));
+        }
+        if self.reads_in_part(number) {
+            let part = self.read_part(number, |manifest| PickedChunks {
+                chunks: pick(manifest),
+                kept: false,
+            })?;
+            if let Some((snapshot, read, _)) = part {
+                return Ok((snapshot, read));
+            }
+        }
+        self.loaded_segment(number)
+    }
+
+    #[cfg(feature = "datafusion")]
+    /// How many chunks of these segments (by number) reads for `query`'s rows decode: each
+    /// manifest's count, read from its footer (the whole segment's where it is read
+    /// whole), on the dataset's threads.
+    ///
+    /// # Errors
+    /// A footer that cannot be read (its file changed since the dataset opened).
+    pub(crate) fn chunks_for_rows(
+        &self,
+        numbers: &[usize],
+        query: &crate::DataframeQuery,
+    ) -> Result<u64, DatasetError> {
+        let counts = in_parallel(numbers, self.inner.options.threads, |&number| {
+            let segment = &self.inner.segments[number];
+            if self.reads_in_part(number) && prune::prunable(query) {
+                let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
+                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
+                if let Some(lazy) = lazy {
+                    let needed = prune::needed(lazy.manifest(), query, prune::Needs::Rows);
+                    return Ok(needed.len() as u64);
+                }
+            }
+            Ok::<_, DatasetError>(segment.num_chunks)
+        });
+        counts.into_iter().sum()
+    }
+
+    #[cfg(feature = "datafusion")]
+    /// How many chunks of these segments (by number) `keep` keeps of their manifests (the
+    /// whole segment's where it is read whole), on the dataset's threads.
+    ///
+    /// # Errors
+    /// A footer that cannot be read (its file changed since the dataset opened).
+    pub(crate) fn chunks_picked(
+        &self,
+        numbers: &[usize],
+        keep: impl Fn(&crate::rrd::ManifestEntry) -> bool + Sync,
+    ) -> Result<u64, DatasetError> {
+        let counts = in_parallel(numbers, self.inner.options.threads, |&number| {
+            let segment = &self.inner.segments[number];
+            if self.reads_in_part(number) {
+                let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
+                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
+                if let Some(lazy) = lazy {
+                    let kept = lazy.manifest().entries.iter().filter(|e| keep(e)).count();
+                    return Ok(kept as u64);
+                }
+            }
+            Ok::<_, DatasetError>(segment.num_chunks)
+        });
+        counts.into_iter().sum()
     }
 
     /// What segment number `number` holds that `query` needs: the whole segment if it is
@@ -388,14 +526,14 @@ impl Dataset {
     /// rows), the rows' chunks are read too if they fit in that room, which they then
     /// take; otherwise only the columns' chunks. Without a room, for the rows, only the
     /// rows' chunks: the store may lack columns (and the index) the segment has, which
-    /// hold nothing in the rows. Returns whether what was read is kept for the rows
-    /// (always `false` without a room).
+    /// hold nothing in the rows. Says whether what was read is kept for the rows (never
+    /// without a room).
     pub(crate) fn segment_for(
         &self,
         number: usize,
         query: &crate::DataframeQuery,
         plan_room: Option<&AtomicU64>,
-    ) -> Result<(Snapshot, bool), DatasetError> {
+    ) -> Result<SegmentRead, DatasetError> {
         let reserve = |bytes: u64| {
             plan_room.is_some_and(|room| {
                 room.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |left| {
@@ -404,54 +542,65 @@ impl Dataset {
                 .is_ok()
             })
         };
-        let whole = |snapshot: Snapshot| {
+        let whole = |(snapshot, read): (Snapshot, ReadStats)| {
             let keep = reserve(snapshot.stats().heap_bytes);
-            (snapshot, keep)
+            SegmentRead {
+                snapshot,
+                keep,
+                read,
+            }
         };
         if let Some(snapshot) = self.inner.cache.lock().get(number) {
-            return Ok(whole(snapshot));
+            return Ok(whole((snapshot, ReadStats::default())));
         }
-        let segment = &self.inner.segments[number];
-        // With `skip_bad` a bad chunk is skipped, which only a whole load does.
-        if segment.from_footer && !self.inner.options.skip_bad && prune::prunable(query) {
-            let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
-                .map_err(|error| OpenError::rrd(&segment.path, error))?;
-            if let Some(mut lazy) = lazy {
-                let mut keep = false;
-                let needed = if plan_room.is_some() {
-                    let both = prune::needed(lazy.manifest(), query, prune::Needs::Both);
-                    let bytes = lazy
-                        .manifest()
-                        .entries
-                        .iter()
-                        .filter(|e| both.contains(&e.chunk_id))
-                        .map(|e| e.uncompressed_size)
-                        .sum();
-                    keep = reserve(bytes);
-                    if keep {
-                        both
-                    } else {
-                        prune::needed(lazy.manifest(), query, prune::Needs::Columns)
+        if self.reads_in_part(number) && prune::prunable(query) {
+            let part = self.read_part(number, |manifest| {
+                if plan_room.is_none() {
+                    return PickedChunks {
+                        chunks: prune::needed(manifest, query, prune::Needs::Rows),
+                        kept: false,
+                    };
+                }
+                let both = prune::needed(manifest, query, prune::Needs::Both);
+                let bytes = manifest
+                    .entries
+                    .iter()
+                    .filter(|e| both.contains(&e.chunk_id))
+                    .map(|e| e.uncompressed_size)
+                    .sum();
+                if reserve(bytes) {
+                    PickedChunks {
+                        chunks: both,
+                        kept: true,
                     }
                 } else {
-                    prune::needed(lazy.manifest(), query, prune::Needs::Rows)
-                };
-                let store = lazy
-                    .load_where(|entry| needed.contains(&entry.chunk_id))
-                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
-                let snapshot = store.snapshot();
-                let stats = lazy.stats();
-                self.count_read(stats.chunks_decoded as u64, stats.bytes_read);
+                    PickedChunks {
+                        chunks: prune::needed(manifest, query, prune::Needs::Columns),
+                        kept: false,
+                    }
+                }
+            })?;
+            if let Some((snapshot, read, picked)) = part {
                 // For the rows, a store without the index holds none. For planning, where
                 // none of the chunks it needs is on the index, the segment's own view (its
                 // columns, which other timelines give) needs the whole segment.
                 if plan_room.is_none() || snapshot.time_type(query.index()).is_some() {
-                    return Ok((snapshot, keep));
+                    return Ok(SegmentRead {
+                        snapshot,
+                        keep: picked.kept,
+                        read,
+                    });
                 }
             }
         }
         self.loaded_segment(number).map(whole)
     }
+}
+
+/// The chunks a read of part of a segment picked, and whether they are kept for the rows.
+pub(crate) struct PickedChunks {
+    chunks: std::collections::HashSet<crate::ChunkId>,
+    kept: bool,
 }
 
 /// Passes the faults a load skips to the dataset's warnings.

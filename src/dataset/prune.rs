@@ -32,6 +32,13 @@ pub(super) fn prunable(query: &DataframeQuery) -> bool {
     query.index_values().is_none() && query.keeps_semantically_empty_columns()
 }
 
+/// The chunks that give every column of every table of the manifest's recording: its
+/// Clears, its static chunks, and one chunk of each (entity, component, timeline).
+pub(super) fn columns(manifest: &Manifest) -> HashSet<ChunkId> {
+    // Without rows, the index and the range choose nothing.
+    needed(manifest, &DataframeQuery::new(""), Needs::Columns)
+}
+
 /// What a read is for: a query's planning (its columns), its rows, or both (planning that
 /// keeps what it read for the rows).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -85,7 +92,7 @@ pub(super) fn needed(
             .ranges
             .iter()
             .any(|r| r.timeline.name() == index && TimeRange::new(r.min, r.max).intersects(range));
-        if in_range {
+        if rows && in_range {
             needed.insert(id);
         }
         let columns_here = columns || under_clear(&entry.entity_path);

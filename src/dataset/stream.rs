@@ -10,18 +10,17 @@
 //! without it gives no rows, as a dataframe of it would be refused, and is never loaded);
 //! the segment cache keeps what fits for the rows' pass.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::thread::JoinHandle;
 
-use arrow_array::{ArrayRef, RecordBatch, RecordBatchReader, StringArray, new_null_array};
-use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
+use arrow_array::{RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, SchemaRef};
 
-use super::{Dataset, DatasetError};
-use crate::{
-    ComponentName, DataframeQuery, DataframeStream, EntityPath, SEGMENT_ID_COLUMN, UnknownTimeline,
-};
+use super::schema::{SchemaUnion, project};
+use super::{Dataset, DatasetError, ReadStats};
+use crate::{DataframeQuery, DataframeStream, UnknownTimeline};
 
 impl Dataset {
     /// The dataframe of every segment on `query`'s index, as one table: see the module
@@ -49,14 +48,15 @@ impl Dataset {
         let room = AtomicU64::new(self.options().memory_budget);
         let plans = super::in_parallel(&with_index, self.options().threads, |&number| {
             let segment_id = &self.segments()[number].id;
-            let (snapshot, keep) = match self.segment_for(number, &full, Some(&room)) {
-                Ok(read) => read,
-                Err(error) if self.options().skip_bad => {
-                    self.warn(format!("skipped segment {segment_id:?}: {error}"));
-                    return Ok(None);
-                }
-                Err(error) => return Err(error),
-            };
+            let super::SegmentRead { snapshot, keep, .. } =
+                match self.segment_for(number, &full, Some(&room)) {
+                    Ok(read) => read,
+                    Err(error) if self.options().skip_bad => {
+                        self.warn(format!("skipped segment {segment_id:?}: {error}"));
+                        return Ok(None);
+                    }
+                    Err(error) => return Err(error),
+                };
             let schema =
                 snapshot
                     .dataframe_schema(&full)
@@ -94,124 +94,33 @@ impl Dataset {
                 (number, full.clone().with_columns(columns), kept)
             })
             .collect();
-        Ok(DatasetStream {
+        Ok(self.stream_segments(schema, segments, self.options().threads))
+    }
+
+    /// The rows of these segments (by number, each with its own query, and what planning
+    /// kept of it) in `schema` (the segment id first, then columns of the dataset's
+    /// table), loading up to `threads` segments at once.
+    pub(crate) fn stream_segments(
+        &self,
+        schema: SchemaRef,
+        segments: Vec<(usize, DataframeQuery, Option<crate::Snapshot>)>,
+        threads: usize,
+    ) -> DatasetStream {
+        DatasetStream {
             dataset: self.clone(),
             schema,
             segments,
+            threads: threads.max(1),
             next: 0,
             current: None,
             ahead: VecDeque::new(),
-        })
+            read: ReadStats::default(),
+        }
     }
 
-    fn warn(&self, warning: String) {
+    pub(super) fn warn(&self, warning: String) {
         self.inner.warnings.lock().push(warning);
     }
-}
-
-/// The union of the segments' dataframe schemas, each column's field from the first
-/// segment (in id order) that has it.
-#[derive(Default)]
-struct SchemaUnion {
-    /// Index columns by name, with the segment that gave each.
-    index: HashMap<String, (FieldRef, String)>,
-    /// Data columns by name, with their (entity, component) and the segment that gave each.
-    data: HashMap<String, (FieldRef, EntityPath, ComponentName, String)>,
-}
-
-impl SchemaUnion {
-    fn add(&mut self, segment: &str, schema: &Schema) -> Result<(), DatasetError> {
-        for field in schema.fields() {
-            let metadata = field.metadata();
-            let conflict = |first: &str| DatasetError::ColumnTypeConflict {
-                column: field.name().clone(),
-                first: first.to_owned(),
-                second: segment.to_owned(),
-            };
-            if metadata.get("rerun:kind").map(String::as_str) == Some("index") {
-                match self.index.get(field.name()) {
-                    Some((held, first)) if held.data_type() != field.data_type() => {
-                        return Err(conflict(first));
-                    }
-                    Some(_) => {}
-                    None => {
-                        self.index.insert(
-                            field.name().clone(),
-                            (Arc::clone(field), segment.to_owned()),
-                        );
-                    }
-                }
-                continue;
-            }
-            match self.data.get(field.name()) {
-                Some((held, .., first)) if held.data_type() != field.data_type() => {
-                    return Err(conflict(first));
-                }
-                Some(_) => {}
-                None => {
-                    let entity = metadata
-                        .get("rerun:entity_path")
-                        .and_then(|path| EntityPath::parse(path).ok())
-                        .unwrap_or_else(EntityPath::root);
-                    let component = ComponentName::new(
-                        metadata
-                            .get("rerun:component")
-                            .map_or_else(|| field.name().as_str(), String::as_str),
-                    );
-                    self.data.insert(
-                        field.name().clone(),
-                        (Arc::clone(field), entity, component, segment.to_owned()),
-                    );
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The segment id, the index columns by name, the data columns as a dataframe orders
-    /// them (entity part by part in natural order, then component).
-    fn schema(self) -> SchemaRef {
-        let mut index: Vec<FieldRef> = self.index.into_values().map(|(f, _)| f).collect();
-        index.sort_by(|a, b| a.name().cmp(b.name()));
-        let mut data: Vec<(FieldRef, EntityPath, ComponentName)> = self
-            .data
-            .into_values()
-            .map(|(f, e, c, _)| (f, e, c))
-            .collect();
-        data.sort_by(|a, b| a.1.cmp_natural(&b.1).then_with(|| a.2.cmp(&b.2)));
-        let mut fields: Vec<FieldRef> = vec![Arc::new(Field::new(
-            SEGMENT_ID_COLUMN,
-            DataType::Utf8,
-            false,
-        ))];
-        fields.extend(index);
-        fields.extend(data.into_iter().map(|(f, ..)| f));
-        Arc::new(Schema::new(fields))
-    }
-}
-
-/// `table` with only the columns `names` names (and the segment id, always first), in
-/// the table's order.
-fn project(table: &SchemaRef, names: &[String]) -> Result<SchemaRef, DatasetError> {
-    if let Some(missing) = names
-        .iter()
-        .find(|name| table.field_with_name(name).is_err())
-    {
-        return Err(DatasetError::UnknownColumn {
-            name: missing.clone(),
-            num_columns: table.fields().len(),
-        });
-    }
-    let kept: Vec<usize> = (0..table.fields().len())
-        .filter(|&i| i == 0 || names.contains(table.field(i).name()))
-        .collect();
-    let projected = table
-        .project(&kept)
-        .map_err(|_| DatasetError::UnknownColumn {
-            name: names.join(", "),
-            num_columns: table.fields().len(),
-        })?;
-    Ok(Arc::new(projected))
 }
 
 /// The rows of a [`Dataset::dataframe`]: record batches of one segment each, in segment
@@ -224,13 +133,20 @@ pub struct DatasetStream {
     /// The segments that give rows (by number), with each one's own query, and what
     /// planning read of it if that was kept.
     segments: Vec<(usize, DataframeQuery, Option<crate::Snapshot>)>,
+    /// Segments loaded at once: the one streamed and those loaded ahead.
+    threads: usize,
     next: usize,
     /// The segment being streamed: its id as a column value, and its stream.
     current: Option<(Arc<str>, DataframeStream<'static>)>,
     /// The next segments' loads, on threads of their own while this one streams (one fewer
-    /// than [`DatasetOptions::threads`](super::DatasetOptions::threads)), by position.
-    ahead: VecDeque<(usize, JoinHandle<Result<crate::Snapshot, DatasetError>>)>,
+    /// than `threads`), by position.
+    ahead: VecDeque<(usize, JoinHandle<Loaded>)>,
+    /// What its loads read from the files.
+    read: ReadStats,
 }
+
+/// A segment's store for the rows, and what reading it read.
+type Loaded = Result<(crate::Snapshot, ReadStats), DatasetError>;
 
 /// The stream of `query`'s rows in what was read of segment `segment`: of the columns
 /// `query` names, those the store holds (what was read for the rows alone may lack a
@@ -264,9 +180,7 @@ fn rows_of(
 }
 
 /// The segment a load ahead read, or its error; a panic (a bug) goes on in this thread.
-fn joined(
-    handle: JoinHandle<Result<crate::Snapshot, DatasetError>>,
-) -> Result<crate::Snapshot, DatasetError> {
+fn joined(handle: JoinHandle<Loaded>) -> Loaded {
     handle
         .join()
         .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
@@ -292,11 +206,15 @@ impl DatasetStream {
         self.segments.len()
     }
 
+    /// What the stream has read from the dataset's files so far.
+    pub fn read_stats(&self) -> ReadStats {
+        self.read
+    }
+
     /// Starts loading, on threads of their own, the segments after `position` that
     /// planning did not keep, up to one fewer than the dataset's threads.
     fn load_ahead(&mut self, position: usize) {
-        let threads = self.dataset.options().threads.max(1);
-        let end = (position + threads).min(self.segments.len());
+        let end = (position + self.threads).min(self.segments.len());
         for ahead in position + 1..end {
             let (number, query, kept) = &self.segments[ahead];
             if kept.is_some() || self.ahead.iter().any(|(p, _)| *p == ahead) {
@@ -306,7 +224,7 @@ impl DatasetStream {
             let handle = std::thread::spawn(move || {
                 dataset
                     .segment_for(number, &query, None)
-                    .map(|(snapshot, _)| snapshot)
+                    .map(|read| (read.snapshot, read.read))
             });
             self.ahead.push_back((ahead, handle));
         }
@@ -328,14 +246,18 @@ impl DatasetStream {
             let (number, query, kept) = &mut self.segments[position];
             let number = *number;
             let id = self.dataset.segments()[number].id.clone();
-            let snapshot = match (kept.take(), loaded_ahead) {
-                (Some(snapshot), _) => Ok(snapshot),
+            let loaded = match (kept.take(), loaded_ahead) {
+                (Some(snapshot), _) => Ok((snapshot, ReadStats::default())),
                 (None, Some(handle)) => joined(handle),
                 (None, None) => self
                     .dataset
                     .segment_for(number, query, None)
-                    .map(|(snapshot, _)| snapshot),
+                    .map(|read| (read.snapshot, read.read)),
             };
+            let snapshot = loaded.map(|(snapshot, read)| {
+                self.read.add(read);
+                snapshot
+            });
             let query = &self.segments[position].1;
             let started = snapshot.and_then(|snapshot| rows_of(snapshot, query, &id));
             match started {
@@ -352,22 +274,6 @@ impl DatasetStream {
             }
         }
     }
-
-    /// A segment's batch in the table's schema.
-    fn place(&self, segment: &str, batch: &RecordBatch) -> Result<RecordBatch, ArrowError> {
-        let rows = batch.num_rows();
-        let mut columns: Vec<ArrayRef> = Vec::with_capacity(self.schema.fields().len());
-        columns.push(Arc::new(StringArray::from_iter_values(
-            std::iter::repeat_n(segment, rows),
-        )));
-        for field in self.schema.fields().iter().skip(1) {
-            columns.push(match batch.column_by_name(field.name()) {
-                Some(column) => Arc::clone(column),
-                None => new_null_array(field.data_type(), rows),
-            });
-        }
-        RecordBatch::try_new(Arc::clone(&self.schema), columns)
-    }
 }
 
 impl Iterator for DatasetStream {
@@ -379,7 +285,7 @@ impl Iterator for DatasetStream {
                 match stream.next() {
                     Some(Ok(batch)) => {
                         let segment = Arc::clone(segment);
-                        return Some(self.place(&segment, &batch));
+                        return Some(super::schema::place(&self.schema, &segment, &batch));
                     }
                     Some(Err(error)) => return Some(Err(error)),
                     None => self.current = None,

@@ -41,6 +41,8 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+#[cfg(feature = "rrd")]
+mod dataset;
 mod integer_times;
 mod latest_at;
 mod pushdown;
@@ -56,6 +58,8 @@ use datafusion::prelude::SessionContext;
 
 use crate::{EntityPathFilter, Snapshot};
 
+#[cfg(feature = "rrd")]
+pub use dataset::{DatasetChunksTable, DatasetScanExec, DatasetTimelineTable, register_dataset};
 pub use latest_at::{LatestAtFunction, asof_join};
 pub use scan::StoreScanExec;
 pub use segments::{SEGMENT_ID_COLUMN, register_segments};

@@ -15,7 +15,7 @@ use datafusion::common::ScalarValue;
 use datafusion::logical_expr::expr::{Between, BinaryExpr, InList, Like, ScalarFunction};
 use datafusion::logical_expr::{Expr, Operator, TableProviderFilterPushDown};
 
-use crate::{EntityPath, TimeInt, TimeRange, TimeType};
+use crate::{TimeInt, TimeRange, TimeType, Timeline};
 
 /// What a filter on a time column asks: rows at times in `range`. `exact` when the range
 /// is all the filter says (so the scan alone answers it).
@@ -115,6 +115,36 @@ pub(crate) fn time_filter(expr: &Expr, column: &str, time_type: TimeType) -> Opt
     }
 }
 
+/// The first of `timelines` a filter on its column asks a time range of, with that range.
+pub(crate) fn timeline_filter<'a>(
+    filter: &Expr,
+    timelines: &'a [Timeline],
+) -> Option<(&'a Timeline, TimeFilter)> {
+    timelines.iter().find_map(|timeline| {
+        time_filter(filter, timeline.name(), timeline.time_type()).map(|f| (timeline, f))
+    })
+}
+
+/// The range of one timeline that `filters` ask (the first timeline filtered on, every
+/// filter on it intersected), so that a chunk table scan reads only the chunks
+/// overlapping it: DataFusion filters their rows again.
+pub(crate) fn chunks_overlapping<'a>(
+    filters: &[Expr],
+    timelines: &'a [Timeline],
+) -> Option<(&'a Timeline, TimeRange)> {
+    let mut overlapping: Option<(&Timeline, TimeRange)> = None;
+    for (timeline, filter) in filters.iter().filter_map(|f| timeline_filter(f, timelines)) {
+        match &mut overlapping {
+            Some((first, range)) if *first == timeline => {
+                *range = intersect(*range, filter.range);
+            }
+            Some(_) => {}
+            None => overlapping = Some((timeline, filter.range)),
+        }
+    }
+    overlapping
+}
+
 /// `range` on `column` as `EXPLAIN` shows it: `frame in [3, 9]`, `frame <= 9`,
 /// `frame >= 3`, `frame empty`.
 pub(crate) fn describe(column: &str, range: TimeRange) -> String {
@@ -200,14 +230,16 @@ fn is_column(expr: &Expr, name: &str) -> bool {
     matches!(expr, Expr::Column(column) if column.name == name)
 }
 
-/// The entities (among `known`) a filter on the `entity_path` column keeps, or `None` if
-/// the filter is not one the scan answers. Always exact when `Some`.
-pub(crate) fn entity_filter(
+/// The items (among `known`, each with its text) a filter on the text column `column`
+/// keeps (`=`, `IN`, `LIKE`, `starts_with`, and `OR`s of them), or `None` if the filter is
+/// not one the scan answers: the `entity_path` column's entities, a dataset's segments by
+/// id. Always exact when `Some`.
+pub(crate) fn text_filter<K: Ord + Clone>(
     expr: &Expr,
     column: &str,
-    known: &[(EntityPath, String)],
-) -> Option<BTreeSet<EntityPath>> {
-    let keep = |test: &dyn Fn(&str) -> bool| -> BTreeSet<EntityPath> {
+    known: &[(K, String)],
+) -> Option<BTreeSet<K>> {
+    let keep = |test: &dyn Fn(&str) -> bool| -> BTreeSet<K> {
         known
             .iter()
             .filter(|(_, text)| test(text))
@@ -220,8 +252,8 @@ pub(crate) fn entity_filter(
             op: Operator::Or,
             right,
         }) => {
-            let mut either = entity_filter(left, column, known)?;
-            either.extend(entity_filter(right, column, known)?);
+            let mut either = text_filter(left, column, known)?;
+            either.extend(text_filter(right, column, known)?);
             Some(either)
         }
         Expr::BinaryExpr(BinaryExpr {
@@ -436,16 +468,16 @@ mod tests {
 
     #[test]
     fn entity_filters_select_among_the_known_paths() {
-        let known: Vec<(EntityPath, String)> = ["/a", "/a/b", "/c"]
+        let known: Vec<(crate::EntityPath, String)> = ["/a", "/a/b", "/c"]
             .iter()
             .map(|p| {
-                let path = EntityPath::parse(p).unwrap();
+                let path = crate::EntityPath::parse(p).unwrap();
                 let text = path.to_string();
                 (path, text)
             })
             .collect();
         let kept = |e: Expr| {
-            entity_filter(&e, "entity_path", &known)
+            text_filter(&e, "entity_path", &known)
                 .map(|set| set.iter().map(ToString::to_string).collect::<Vec<_>>())
         };
         assert_eq!(

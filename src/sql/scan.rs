@@ -307,10 +307,24 @@ impl Iterator for CountedDataframe {
 
 /// At most `remaining` rows (all of them when `None`), the last batch cut short; the
 /// source is not asked for more once the limit is reached.
-struct Limited {
+pub(super) struct Limited {
     batches: Box<dyn Iterator<Item = Result<RecordBatch, ArrowError>> + Send>,
     remaining: Option<usize>,
     rows_built: Count,
+}
+
+impl Limited {
+    pub(super) fn new(
+        batches: Box<dyn Iterator<Item = Result<RecordBatch, ArrowError>> + Send>,
+        remaining: Option<usize>,
+        rows_built: Count,
+    ) -> Self {
+        Self {
+            batches,
+            remaining,
+            rows_built,
+        }
+    }
 }
 
 impl Iterator for Limited {

@@ -20,7 +20,7 @@ use crate::{
 };
 
 /// The name of the chunk table's entity path column.
-const ENTITY_PATH: &str = "entity_path";
+pub(super) const ENTITY_PATH: &str = "entity_path";
 
 /// Batches no longer than this when a small `LIMIT` is pushed down (a longer limit keeps
 /// the view's own batch size).
@@ -369,14 +369,11 @@ impl ChunksTable {
     }
 
     fn entity_filter(&self, filter: &Expr) -> Option<BTreeSet<EntityPath>> {
-        pushdown::entity_filter(filter, ENTITY_PATH, &self.entities)
+        pushdown::text_filter(filter, ENTITY_PATH, &self.entities)
     }
 
     fn time_filter(&self, filter: &Expr) -> Option<(&Timeline, TimeFilter)> {
-        self.timelines.iter().find_map(|timeline| {
-            pushdown::time_filter(filter, timeline.name(), timeline.time_type())
-                .map(|f| (timeline, f))
-        })
+        pushdown::timeline_filter(filter, &self.timelines)
     }
 }
 
@@ -431,16 +428,7 @@ impl TableProvider for ChunksTable {
         }
         // One timeline's range narrows the chunks read; DataFusion applies every filter
         // on times again.
-        let mut overlapping: Option<(&Timeline, TimeRange)> = None;
-        for (timeline, filter) in filters.iter().filter_map(|f| self.time_filter(f)) {
-            match &mut overlapping {
-                Some((first, range)) if *first == timeline => {
-                    *range = pushdown::intersect(*range, filter.range);
-                }
-                Some(_) => {}
-                None => overlapping = Some((timeline, filter.range)),
-            }
-        }
+        let overlapping = pushdown::chunks_overlapping(filters, &self.timelines);
         if let Some((timeline, range)) = overlapping {
             pushed_down.push(format!(
                 "chunks overlapping {}",

@@ -13,6 +13,20 @@ use arrow_array::builder::{BooleanBuilder, Float64Builder, ListBuilder};
 use arrow_array::{Array, ArrayRef, Float64Array, Int64Array};
 use chunkstore::{Chunk, ChunkId, ComponentName, EntityPath, RowId, TimeInt, Timeline};
 
+/// Writes `chunks` as recording `id` (application `app`) to `dir/name`, with a footer.
+pub fn write_recording(
+    dir: &std::path::Path,
+    name: &str,
+    id: &str,
+    chunks: Vec<Chunk>,
+) -> std::path::PathBuf {
+    use chunkstore::rrd::{StoreId, StoreInfo, write_rrd_file};
+    let path = dir.join(name);
+    let info = StoreInfo::new(StoreId::recording("app", id));
+    write_rrd_file(&path, &info, chunks.into_iter().map(Arc::new), |_| {}).unwrap();
+    path
+}
+
 pub fn path(text: &str) -> EntityPath {
     EntityPath::parse(text).unwrap()
 }

@@ -14,18 +14,10 @@ use std::sync::Arc;
 use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch, StringArray};
 use arrow_select::concat::concat_batches;
 use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions, SEGMENT_ID_COLUMN};
-use chunkstore::rrd::{RrdWriter, StoreId, StoreInfo, write_rrd_file};
+use chunkstore::rrd::{RrdWriter, StoreId, StoreInfo};
 use chunkstore::{Chunk, ChunkId, ChunkStore, DataframeQuery, LatestAtQuery, TimeInt, Timeline};
 
-use crate::common::{ScratchDir, clear, scalars, static_scalar};
-
-/// Writes `chunks` as recording `id` to `dir/name`, with a footer.
-fn write(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) -> PathBuf {
-    let path = dir.join(name);
-    let info = StoreInfo::new(StoreId::recording("app", id));
-    write_rrd_file(&path, &info, chunks.into_iter().map(Arc::new), |_| {}).unwrap();
-    path
-}
+use crate::common::{ScratchDir, clear, scalars, static_scalar, write_recording};
 
 /// Writes `chunks` as recording `id` without a footer (a stream cut before its end).
 fn write_without_footer(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) -> PathBuf {
@@ -46,7 +38,7 @@ fn write_without_footer(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) ->
 /// static data, one without the `frame` timeline's data (static only), one without a
 /// footer.
 fn episodes(dir: &Path) {
-    write(
+    write_recording(
         dir,
         "first.rrd",
         "rec-b",
@@ -60,7 +52,7 @@ fn episodes(dir: &Path) {
             static_scalar("/robot", "mass", 4, 70.0),
         ],
     );
-    write(
+    write_recording(
         dir,
         "second.rrd",
         "rec-a",
@@ -74,7 +66,7 @@ fn episodes(dir: &Path) {
             clear("/robot", Some(6), 13, true),
         ],
     );
-    write(
+    write_recording(
         dir,
         "static_only.rrd",
         "rec-s",
@@ -88,7 +80,7 @@ fn episodes(dir: &Path) {
     );
     // Not segments: a subdirectory and a file of another kind.
     std::fs::create_dir_all(dir.join("nested")).unwrap();
-    write(
+    write_recording(
         &dir.join("nested"),
         "deep.rrd",
         "rec-deep",
@@ -222,7 +214,7 @@ fn a_dataset_query_reads_only_what_it_needs_and_answers_alike() {
     episodes(&dir);
     // Where a filled cell comes from a chunk before the range that is not its column's
     // first: `/a` in three chunks, `/b`'s rows later.
-    write(
+    write_recording(
         &dir,
         "fill.rrd",
         "rec-f",
@@ -351,13 +343,13 @@ fn bad_datasets_are_named_errors() {
     assert!(matches!(&error, DatasetError::NoRrdFiles { .. }), "{error}");
     assert!(error.to_string().contains("no .rrd file"), "{error}");
 
-    let a = write(
+    let a = write_recording(
         &dir,
         "a.rrd",
         "same",
         vec![scalars("/e", "x", &[(1, 1, Some(vec![1.0]))])],
     );
-    let b = write(
+    let b = write_recording(
         &dir,
         "b.rrd",
         "same",
@@ -380,7 +372,7 @@ fn bad_datasets_are_named_errors() {
     );
 
     // The same column as a list of booleans elsewhere.
-    write(&dir, "c.rrd", "other", vec![clear("/e", Some(3), 3, false)]);
+    write_recording(&dir, "c.rrd", "other", vec![clear("/e", Some(3), 3, false)]);
     let booleans = Chunk::try_new(
         ChunkId::new(),
         crate::common::path("/e"),
@@ -392,7 +384,7 @@ fn bad_datasets_are_named_errors() {
         vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
     )
     .unwrap();
-    write(&dir, "d.rrd", "third", vec![booleans]);
+    write_recording(&dir, "d.rrd", "third", vec![booleans]);
     let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
     let error = dataset
         .dataframe(&DataframeQuery::new("frame"))
@@ -432,13 +424,13 @@ fn bad_datasets_are_named_errors() {
         ..DatasetOptions::default()
     };
     let dir2 = ScratchDir::new("dataset-vanish");
-    let kept = write(
+    let kept = write_recording(
         &dir2,
         "kept.rrd",
         "kept",
         vec![scalars("/e", "x", &[(1, 1, Some(vec![1.0]))])],
     );
-    let gone = write(
+    let gone = write_recording(
         &dir2,
         "gone.rrd",
         "gone",
@@ -505,8 +497,8 @@ mod pruning_model {
 
     use proptest::prelude::*;
 
-    use super::{equals_own_tables, read_all, write};
-    use crate::common::{ScratchDir, clear, scalars, static_scalar};
+    use super::{equals_own_tables, read_all};
+    use crate::common::{ScratchDir, clear, scalars, static_scalar, write_recording};
     use chunkstore::dataset::{Dataset, DatasetOptions};
     use chunkstore::{DataframeQuery, EntityPathFilter, TimeInt, TimeRange};
 
@@ -560,7 +552,7 @@ mod pruning_model {
             for &(entity, component) in &statics {
                 chunks.push(static_scalar(ENTITIES[entity], COMPONENTS[component], next_row(), -1.0));
             }
-            let file = write(&dir, "segment.rrd", "model", chunks);
+            let file = write_recording(&dir, "segment.rrd", "model", chunks);
             let mut query = DataframeQuery::new("frame")
                 .with_range(TimeRange::new(
                     TimeInt::new(lo).unwrap(),

@@ -27,6 +27,7 @@ use proptest::prelude::*;
 
 #[path = "../common/mod.rs"]
 mod common;
+mod dataset;
 #[cfg(feature = "server")]
 mod server;
 

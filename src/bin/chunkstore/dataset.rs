@@ -64,17 +64,29 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
             let (id, path) = segment(cli, &dataset)?;
             crate::range(|| open(&dataset, &id), &path, timeline, (min, max), select)
         }
-        Command::Print { .. } | Command::Convert { .. } | Command::Sql(_) | Command::Hive(_) => {
-            Err(format!(
-                "{}: a dataset answers dataframe, stats, and latest-at and range with \
+        Command::Sql(args) => sql(&dataset, args),
+        Command::Print { .. } | Command::Convert { .. } | Command::Hive(_) => Err(format!(
+            "{}: a dataset answers dataframe, sql, stats, and latest-at and range with \
                  --segment ID; not this command yet",
-                dir.display()
-            )
-            .into())
-        }
+            dir.display()
+        )
+        .into()),
     };
     warn(&dataset);
     result
+}
+
+#[cfg(feature = "datafusion")]
+fn sql(dataset: &Dataset, args: &crate::args::SqlArgs) -> Result<(), Failure> {
+    crate::sql::sql_dataset(dataset, args)
+}
+
+#[cfg(not(feature = "datafusion"))]
+fn sql(_dataset: &Dataset, _args: &crate::args::SqlArgs) -> Result<(), Failure> {
+    Err("this chunkstore was built without SQL: build it with \
+         `cargo build --release --features cli,datafusion`"
+        .to_owned()
+        .into())
 }
 
 /// One warning line per thing skipped (`--skip-bad`).
@@ -125,13 +137,9 @@ fn open(dataset: &Dataset, id: &str) -> Result<chunkstore::recording::Recording,
     dataset.recording(id).map_err(|e| message(&e))
 }
 
-fn dataframe(
-    dataset: &Dataset,
-    dir: &Path,
-    args: &DataframeArgs,
-    asked: &Asked<'_>,
-) -> Result<(), Failure> {
-    if let Some(out) = &args.out
+/// An error if `out` is one of the dataset's segments.
+pub fn refuse_to_overwrite(dataset: &Dataset, out: Option<&Path>) -> Result<(), Failure> {
+    if let Some(out) = out
         && let Ok(out) = out.canonicalize()
         && let Some(segment) = dataset
             .segments()
@@ -145,6 +153,16 @@ fn dataframe(
         )
         .into());
     }
+    Ok(())
+}
+
+fn dataframe(
+    dataset: &Dataset,
+    dir: &Path,
+    args: &DataframeArgs,
+    asked: &Asked<'_>,
+) -> Result<(), Failure> {
+    refuse_to_overwrite(dataset, args.out.as_deref())?;
     let mut query = asked.query.clone();
     if let Some(time_type) = dataset.time_type(&args.index) {
         query = asked.with_times(query, time_type)?;

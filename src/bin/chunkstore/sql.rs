@@ -17,11 +17,6 @@ pub fn sql(_source: &Path, _args: &SqlArgs, _options: &Options) -> Result<(), Fa
 
 #[cfg(feature = "datafusion")]
 pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failure> {
-    use std::io::{IsTerminal as _, Write};
-
-    use arrow_array::RecordBatch;
-    use datafusion::prelude::{SessionConfig, SessionContext};
-
     if let Some(out) = &args.out
         && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
         && a == b
@@ -30,31 +25,61 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     }
     let loaded = crate::load::load(source, options)?;
     let snapshot = loaded.store.snapshot();
+    let ctx = context();
+    chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
+    run(&ctx, args)
+}
+
+/// `sql` over a dataset (a directory of `.rrd` files): its tables, with the segment id.
+#[cfg(feature = "datafusion")]
+pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Result<(), Failure> {
+    crate::dataset::refuse_to_overwrite(dataset, args.out.as_deref())?;
+    let ctx = context();
+    chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
+    run(&ctx, args)
+}
+
+#[cfg(feature = "datafusion")]
+fn context() -> datafusion::prelude::SessionContext {
+    use datafusion::prelude::{SessionConfig, SessionContext};
     // `SHOW TABLES` and `SHOW COLUMNS` need the information schema. A timeline table's
     // scan builds its range on every core and yields the rows in index order; spreading
     // its batches over partitions for a filter (DataFusion's round-robin repartition)
     // would interleave them for no gain, so the rows printed keep the table's order.
-    let ctx = SessionContext::new_with_config(
+    SessionContext::new_with_config(
         SessionConfig::new()
             .with_information_schema(true)
             .with_round_robin_repartition(false),
-    );
-    chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
+    )
+}
+
+/// Runs the query in `ctx` and writes its answer as `args` asks.
+#[cfg(feature = "datafusion")]
+fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
+    use std::io::{IsTerminal as _, Write};
+
+    use arrow_array::RecordBatch;
+
     // A worker per core for DataFusion's own partitions (hash aggregates and joins); a
     // timeline table's scan builds its parts on threads of its own.
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .build()
         .map_err(|e| format!("starting the query runtime: {e}"))?;
-    let (schema, batches): (_, Vec<RecordBatch>) = runtime
-        .block_on(async {
-            let frame = ctx.sql(&args.query).await?;
-            let schema = frame.schema().inner().clone();
-            let batches = frame.collect().await?;
-            Ok::<_, datafusion::error::DataFusionError>((schema, batches))
-        })
+    let frame = runtime
+        .block_on(ctx.sql(&args.query))
         .map_err(|e| e.to_string())?;
+    let schema = frame.schema().inner().clone();
     if let Some(out) = &args.out {
-        let reader = arrow_array::RecordBatchIterator::new(batches.into_iter().map(Ok), schema);
+        // Streamed to the file batch by batch: a dataset's table may be far larger than
+        // memory.
+        let stream = runtime
+            .block_on(frame.execute_stream())
+            .map_err(|e| e.to_string())?;
+        let reader = Blocking {
+            runtime: &runtime,
+            stream,
+            schema,
+        };
         let is_parquet = out
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
@@ -73,6 +98,9 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
         };
         return written.map_err(|e| crate::about_path(out, e).into());
     }
+    let batches: Vec<RecordBatch> = runtime
+        .block_on(frame.collect())
+        .map_err(|e| e.to_string())?;
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
     let written = if args.json {
         let mut writer = arrow_json::LineDelimitedWriter::new(&mut stdout);
@@ -120,5 +148,32 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
             Err(Failure::BrokenPipe)
         }
         Err(e) => Err(format!("stdout: {e}").into()),
+    }
+}
+
+/// A query's stream read batch by batch on the query runtime, as a reader for the file
+/// writers.
+#[cfg(feature = "datafusion")]
+struct Blocking<'a> {
+    runtime: &'a tokio::runtime::Runtime,
+    stream: datafusion::physical_plan::SendableRecordBatchStream,
+    schema: arrow_schema::SchemaRef,
+}
+
+#[cfg(feature = "datafusion")]
+impl Iterator for Blocking<'_> {
+    type Item = Result<arrow_array::RecordBatch, arrow_schema::ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        use futures::StreamExt as _;
+        let next = self.runtime.block_on(self.stream.next())?;
+        Some(next.map_err(|e| arrow_schema::ArrowError::ExternalError(Box::new(e))))
+    }
+}
+
+#[cfg(feature = "datafusion")]
+impl arrow_array::RecordBatchReader for Blocking<'_> {
+    fn schema(&self) -> arrow_schema::SchemaRef {
+        std::sync::Arc::clone(&self.schema)
     }
 }
