@@ -9,9 +9,9 @@ use std::sync::Arc;
 use arrow_array::{Array, Int64Array, RecordBatch, StringArray};
 use arrow_schema::SchemaRef;
 use arrow_select::concat::concat_batches;
+use chunkstore::DataframeQuery;
 use chunkstore::dataset::{Dataset, DatasetOptions};
 use chunkstore::sql::DatasetScanExec;
-use chunkstore::DataframeQuery;
 use datafusion::physical_plan::{ExecutionPlan, collect};
 use datafusion::prelude::{SessionConfig, SessionContext};
 

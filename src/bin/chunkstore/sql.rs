@@ -98,21 +98,32 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
         };
         return written.map_err(|e| crate::about_path(out, e).into());
     }
-    let batches: Vec<RecordBatch> = runtime
-        .block_on(frame.collect())
-        .map_err(|e| e.to_string())?;
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
-    let written = if args.json {
+    if args.json {
+        // Streamed line by line, as `--out` is.
+        let stream = runtime
+            .block_on(frame.execute_stream())
+            .map_err(|e| e.to_string())?;
+        let batches = Blocking {
+            runtime: &runtime,
+            stream,
+            schema,
+        };
         let mut writer = arrow_json::LineDelimitedWriter::new(&mut stdout);
-        let mut result = Ok(());
-        for batch in &batches {
-            if let Err(e) = writer.write(batch) {
-                result = Err(e);
+        let mut written = Ok(());
+        for batch in batches {
+            if let Err(e) = batch.and_then(|batch| writer.write(&batch)) {
+                written = Err(e);
                 break;
             }
         }
-        result.and_then(|()| writer.finish())
-    } else if std::io::stdout().is_terminal() && !args.full {
+        let written = written.and_then(|()| writer.finish());
+        return finish_stdout(written, stdout);
+    }
+    let batches: Vec<RecordBatch> = runtime
+        .block_on(frame.collect())
+        .map_err(|e| e.to_string())?;
+    let written = if std::io::stdout().is_terminal() && !args.full {
         // A person reading: the first rows, each cell cut to a width (a wide result took
         // seconds to print whole); the rest is counted.
         crate::table::write(
@@ -136,6 +147,16 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
                     .map_err(|e| arrow_schema::ArrowError::IoError(e.to_string(), e))
             })
     };
+    finish_stdout(written, stdout)
+}
+
+/// Flushes what was written to stdout; a closed pipe is the reader's choice, any other
+/// failure an error.
+#[cfg(feature = "datafusion")]
+fn finish_stdout(
+    written: Result<(), arrow_schema::ArrowError>,
+    mut stdout: impl std::io::Write,
+) -> Result<(), Failure> {
     match written.and_then(|()| {
         stdout
             .flush()
@@ -147,6 +168,8 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
         {
             Err(Failure::BrokenPipe)
         }
+        // The query failed while its rows streamed out.
+        Err(arrow_schema::ArrowError::ExternalError(e)) => Err(e.to_string().into()),
         Err(e) => Err(format!("stdout: {e}").into()),
     }
 }
