@@ -26,17 +26,20 @@ pub struct DatasetTables {
 
 impl Dataset {
     /// The columns of the dataset's tables, planned once (and kept) from one chunk of each
-    /// (entity, component, timeline) of each segment, read through its footer (a segment
-    /// without one, or opened with `skip_bad`, is read whole), on the dataset's threads.
+    /// (entity, component, timeline) of each segment that adds a column to one of its
+    /// tables (by the manifests), read through its footer (a segment without one, or
+    /// opened with `skip_bad`, is read whole), on the dataset's threads. A column that a
+    /// segment not read here gives another type is the error of the query that reaches
+    /// that segment.
     ///
     /// # Errors
-    /// A column two segments give different types, a segment that cannot be read (unless
-    /// skipped, [`DatasetOptions::skip_bad`](super::DatasetOptions::skip_bad)).
+    /// A column two segments read here give different types, a segment that cannot be
+    /// read (unless skipped, [`DatasetOptions::skip_bad`](super::DatasetOptions::skip_bad)).
     pub fn tables(&self) -> Result<Arc<DatasetTables>, DatasetError> {
         if let Some(tables) = &*self.inner.tables.lock() {
             return Ok(Arc::clone(tables));
         }
-        let numbers: Vec<usize> = (0..self.segments().len()).collect();
+        let numbers = self.segments_adding_columns();
         let schemas = super::in_parallel(&numbers, self.options().threads, |&number| {
             let segment = &self.segments()[number];
             match self.segment_tables(number) {
@@ -69,6 +72,74 @@ impl Dataset {
         });
         *self.inner.tables.lock() = Some(Arc::clone(&tables));
         Ok(tables)
+    }
+
+    /// The segments (by number, in id order) whose columns the tables need read: those
+    /// that, by their manifests, add a column (an entity's component on a timeline, or
+    /// static) to a table of one of their timelines or to the chunk table. A segment whose
+    /// every column the segments before it already give to each of its tables adds
+    /// nothing to them (a table's field is the first segment's to have it), so a dataset of
+    /// a thousand recordings of one shape reads one. A segment without a footer is always
+    /// read (it was read whole on opening, and is usually in the cache).
+    fn segments_adding_columns(&self) -> Vec<usize> {
+        type Key = (crate::EntityPath, crate::ComponentName, Option<String>);
+        let numbers: Vec<usize> = (0..self.segments().len()).collect();
+        let keys = super::in_parallel(&numbers, self.options().threads, |&number| {
+            if !self.reads_in_part(number) {
+                return Ok(None);
+            }
+            let segment = &self.segments()[number];
+            let lazy = crate::rrd::LazyRecording::open_recording(&segment.path, Some(&segment.id))
+                .map_err(|error| crate::recording::OpenError::rrd(&segment.path, error))?;
+            let Some(lazy) = lazy else {
+                return Ok(None);
+            };
+            let mut keys: std::collections::HashSet<Key> = std::collections::HashSet::new();
+            for entry in &lazy.manifest().entries {
+                for component in &entry.components {
+                    if entry.is_static || component.ranges.is_empty() {
+                        keys.insert((entry.entity_path.clone(), component.name.clone(), None));
+                    }
+                    for range in &component.ranges {
+                        keys.insert((
+                            entry.entity_path.clone(),
+                            component.name.clone(),
+                            Some(range.timeline.name().to_owned()),
+                        ));
+                    }
+                }
+            }
+            Ok::<_, DatasetError>(Some(keys))
+        });
+        let mut seen: HashMap<String, std::collections::HashSet<Key>> = HashMap::new();
+        let mut seen_anywhere: std::collections::HashSet<Key> = std::collections::HashSet::new();
+        let mut adding = Vec::new();
+        for (number, keys) in numbers.into_iter().zip(keys) {
+            // A footer that cannot be read: the segment is read, so that its fault is
+            // reported (or skipped) where it is.
+            let keys = keys.unwrap_or_default();
+            let segment = &self.segments()[number];
+            let Some(keys) = keys else {
+                adding.push(number);
+                continue;
+            };
+            let covered = |given: &std::collections::HashSet<Key>| keys.is_subset(given);
+            let adds = !covered(&seen_anywhere)
+                || segment
+                    .timelines
+                    .iter()
+                    .any(|(t, _)| seen.get(t.name()).is_none_or(|given| !covered(given)));
+            if adds {
+                for (timeline, _) in &segment.timelines {
+                    seen.entry(timeline.name().to_owned())
+                        .or_default()
+                        .extend(keys.iter().cloned());
+                }
+                seen_anywhere.extend(keys);
+                adding.push(number);
+            }
+        }
+        adding
     }
 
     /// One segment's dataframe schema on each of its timelines, and its chunk table's.
@@ -255,6 +326,15 @@ pub(crate) fn place(
     )));
     for field in schema.fields().iter().skip(1) {
         columns.push(match batch.column_by_name(field.name()) {
+            Some(column) if column.data_type() != field.data_type() => {
+                return Err(ArrowError::SchemaError(format!(
+                    "column {:?} of segment {segment:?} is {}, where an earlier segment \
+                     made it {}: the segments cannot be one table",
+                    field.name(),
+                    column.data_type(),
+                    field.data_type()
+                )));
+            }
             Some(column) => Arc::clone(column),
             None => new_null_array(field.data_type(), rows),
         });

@@ -50,8 +50,8 @@ fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusion
 /// Registers the tables of `dataset` in `ctx` (see the module docs), replacing tables of
 /// the same names: one per timeline of any segment, and `chunks` (`__chunks` if a timeline
 /// is named `chunks`). Returns the table names, timelines first (sorted). Planning the
-/// tables' columns reads one chunk of each (entity, component, timeline) of each segment
-/// ([`Dataset::tables`]); no rows are read until a query runs.
+/// tables' columns reads one chunk of each (entity, component, timeline) of the segments
+/// that add a column ([`Dataset::tables`]); no rows are read until a query runs.
 ///
 /// `latest_at(...)` reads one recording, so over a dataset it is an error that says so.
 ///

@@ -266,6 +266,12 @@ fn filters_prune_whole_files_and_chunks_before_anything_is_read() {
     let dir = ScratchDir::new("sql-dataset-prune");
     let dataset = grid(&dir, 6);
     let ctx = context(&dataset, 2);
+    let planned = dataset.read_stats();
+    assert_eq!(
+        (planned.segment_reads, planned.chunks_decoded),
+        (1, 1),
+        "six segments of one shape: the tables' columns are the first's, from one chunk"
+    );
 
     let answer = run(
         &ctx,
@@ -438,4 +444,42 @@ mod pruning_model {
             assert_same_table(&batch, &expected, &sql);
         }
     }
+}
+
+/// A column a later segment gives another type than the first: the tables' columns are
+/// planned from the segments that add columns, so the query that reaches it fails, naming
+/// the column and the segment.
+#[test]
+fn a_column_of_two_types_is_the_error_of_the_query_that_meets_it() {
+    use arrow_array::ArrayRef;
+    use chunkstore::{Chunk, ChunkId, Timeline};
+
+    let dir = ScratchDir::new("sql-dataset-type-conflict");
+    write_recording(
+        &dir,
+        "a.rrd",
+        "first",
+        vec![scalars("/e", "x", &[(1, 1, Some(vec![1.0]))])],
+    );
+    let booleans = Chunk::try_new(
+        ChunkId::new(),
+        crate::common::path("/e"),
+        vec![crate::common::rid(2)],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(vec![2])) as ArrayRef,
+        )],
+        vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
+    )
+    .unwrap();
+    write_recording(&dir, "b.rrd", "second", vec![booleans]);
+    let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
+    let ctx = context(&dataset, 1);
+    let first = run(&ctx, "SELECT * FROM frame WHERE rerun_segment_id = 'first'").unwrap();
+    assert_eq!(first.batch.num_rows(), 1);
+    let error = run(&ctx, "SELECT * FROM frame").err().unwrap().to_string();
+    assert!(
+        error.contains("\"/e:x\"") && error.contains("\"second\""),
+        "{error}"
+    );
 }
