@@ -419,6 +419,13 @@ impl Dataset {
         self.inner.segments[number].from_footer && !self.inner.options.skip_bad
     }
 
+    /// Segment number `number`'s file opened through its footer; `None` when it has none.
+    fn footer(&self, number: usize) -> Result<Option<LazyRecording>, DatasetError> {
+        let segment = &self.inner.segments[number];
+        LazyRecording::open_recording(&segment.path, Some(&segment.id))
+            .map_err(|error| OpenError::rrd(&segment.path, error).into())
+    }
+
     /// The chunks of segment number `number` that `pick` picks from its manifest, read
     /// through its footer; `None` when the file has no footer to read them by.
     fn read_part(
@@ -426,12 +433,10 @@ impl Dataset {
         number: usize,
         pick: impl FnOnce(&crate::rrd::Manifest) -> PickedChunks,
     ) -> Result<Option<(Snapshot, ReadStats, PickedChunks)>, DatasetError> {
-        let segment = &self.inner.segments[number];
-        let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
-            .map_err(|error| OpenError::rrd(&segment.path, error))?;
-        let Some(mut lazy) = lazy else {
+        let Some(mut lazy) = self.footer(number)? else {
             return Ok(None);
         };
+        let segment = &self.inner.segments[number];
         let picked = pick(lazy.manifest());
         let store = lazy
             .load_where(|entry| picked.chunks.contains(&entry.chunk_id))
@@ -465,9 +470,8 @@ impl Dataset {
     }
 
     #[cfg(feature = "datafusion")]
-    /// How many chunks of these segments (by number) reads for `query`'s rows decode: each
-    /// manifest's count, read from its footer (the whole segment's where it is read
-    /// whole), on the dataset's threads.
+    /// How many chunks of these segments (by number) reads for `query`'s rows decode (see
+    /// [`Dataset::chunks_counted`]).
     ///
     /// # Errors
     /// A footer that cannot be read (its file changed since the dataset opened).
@@ -476,24 +480,14 @@ impl Dataset {
         numbers: &[usize],
         query: &crate::DataframeQuery,
     ) -> Result<u64, DatasetError> {
-        let counts = in_parallel(numbers, self.inner.options.threads, |&number| {
-            let segment = &self.inner.segments[number];
-            if self.reads_in_part(number) && prune::prunable(query) {
-                let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
-                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
-                if let Some(lazy) = lazy {
-                    let needed = prune::needed(lazy.manifest(), query, prune::Needs::Rows);
-                    return Ok(needed.len() as u64);
-                }
-            }
-            Ok::<_, DatasetError>(segment.num_chunks)
-        });
-        counts.into_iter().sum()
+        self.chunks_counted(numbers, prune::prunable(query), |manifest| {
+            prune::needed(manifest, query, prune::Needs::Rows).len()
+        })
     }
 
     #[cfg(feature = "datafusion")]
-    /// How many chunks of these segments (by number) `keep` keeps of their manifests (the
-    /// whole segment's where it is read whole), on the dataset's threads.
+    /// How many chunks of these segments (by number) `keep` keeps of their manifests (see
+    /// [`Dataset::chunks_counted`]).
     ///
     /// # Errors
     /// A footer that cannot be read (its file changed since the dataset opened).
@@ -502,17 +496,29 @@ impl Dataset {
         numbers: &[usize],
         keep: impl Fn(&crate::rrd::ManifestEntry) -> bool + Sync,
     ) -> Result<u64, DatasetError> {
+        self.chunks_counted(numbers, true, |manifest| {
+            manifest.entries.iter().filter(|e| keep(e)).count()
+        })
+    }
+
+    #[cfg(feature = "datafusion")]
+    /// The chunks `count` counts in these segments' manifests, read from their footers on
+    /// the dataset's threads; a segment read whole (no footer, `skip_bad`, or `in_part`
+    /// false) counts all its chunks.
+    fn chunks_counted(
+        &self,
+        numbers: &[usize],
+        in_part: bool,
+        count: impl Fn(&crate::rrd::Manifest) -> usize + Sync,
+    ) -> Result<u64, DatasetError> {
         let counts = in_parallel(numbers, self.inner.options.threads, |&number| {
-            let segment = &self.inner.segments[number];
-            if self.reads_in_part(number) {
-                let lazy = LazyRecording::open_recording(&segment.path, Some(&segment.id))
-                    .map_err(|error| OpenError::rrd(&segment.path, error))?;
-                if let Some(lazy) = lazy {
-                    let kept = lazy.manifest().entries.iter().filter(|e| keep(e)).count();
-                    return Ok(kept as u64);
-                }
+            if in_part
+                && self.reads_in_part(number)
+                && let Some(lazy) = self.footer(number)?
+            {
+                return Ok(count(lazy.manifest()) as u64);
             }
-            Ok::<_, DatasetError>(segment.num_chunks)
+            Ok::<_, DatasetError>(self.inner.segments[number].num_chunks)
         });
         counts.into_iter().sum()
     }

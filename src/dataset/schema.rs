@@ -2,7 +2,7 @@
 //! planned from what each segment's footer lets a query read of it, and each segment's
 //! batches placed in them.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, RecordBatch, StringArray, new_null_array};
@@ -88,13 +88,10 @@ impl Dataset {
             if !self.reads_in_part(number) {
                 return Ok(None);
             }
-            let segment = &self.segments()[number];
-            let lazy = crate::rrd::LazyRecording::open_recording(&segment.path, Some(&segment.id))
-                .map_err(|error| crate::recording::OpenError::rrd(&segment.path, error))?;
-            let Some(lazy) = lazy else {
+            let Some(lazy) = self.footer(number)? else {
                 return Ok(None);
             };
-            let mut keys: std::collections::HashSet<Key> = std::collections::HashSet::new();
+            let mut keys: HashSet<Key> = HashSet::new();
             for entry in &lazy.manifest().entries {
                 for component in &entry.components {
                     if entry.is_static || component.ranges.is_empty() {
@@ -111,8 +108,8 @@ impl Dataset {
             }
             Ok::<_, DatasetError>(Some(keys))
         });
-        let mut seen: HashMap<String, std::collections::HashSet<Key>> = HashMap::new();
-        let mut seen_anywhere: std::collections::HashSet<Key> = std::collections::HashSet::new();
+        let mut seen: HashMap<String, HashSet<Key>> = HashMap::new();
+        let mut seen_anywhere: HashSet<Key> = HashSet::new();
         let mut adding = Vec::new();
         for (number, keys) in numbers.into_iter().zip(keys) {
             // A footer that cannot be read: the segment is read, so that its fault is
@@ -123,7 +120,7 @@ impl Dataset {
                 adding.push(number);
                 continue;
             };
-            let covered = |given: &std::collections::HashSet<Key>| keys.is_subset(given);
+            let covered = |given: &HashSet<Key>| keys.is_subset(given);
             let adds = !covered(&seen_anywhere)
                 || segment
                     .timelines

@@ -639,7 +639,7 @@ impl DatasetScanExec {
         Ok(Box::new(part))
     }
 
-    /// The partitions (groups of segments read in order), for tests and `EXPLAIN`.
+    /// The partitions (groups of segments, each read in order).
     fn num_partitions(&self) -> usize {
         self.properties.partitioning.partition_count()
     }

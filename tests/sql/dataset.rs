@@ -52,16 +52,7 @@ fn run(ctx: &SessionContext, sql: &str) -> Result<Answer, datafusion::error::Dat
 }
 
 fn metric(plan: &dyn ExecutionPlan, name: &str) -> usize {
-    let own = plan
-        .downcast_ref::<DatasetScanExec>()
-        .and_then(ExecutionPlan::metrics)
-        .and_then(|metrics| metrics.sum_by_name(name))
-        .map_or(0, |value| value.as_usize());
-    own + plan
-        .children()
-        .into_iter()
-        .map(|child| metric(child.as_ref(), name))
-        .sum::<usize>()
+    crate::metric_of::<DatasetScanExec>(plan, name)
 }
 
 fn read_all(table: impl arrow_array::RecordBatchReader) -> RecordBatch {

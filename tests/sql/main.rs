@@ -79,15 +79,20 @@ fn run(ctx: &SessionContext, sql: &str) -> Result<Answer, datafusion::error::Dat
 
 /// A metric summed over every store scan in the plan.
 fn scan_metric(plan: &dyn ExecutionPlan, name: &str) -> usize {
+    metric_of::<StoreScanExec>(plan, name)
+}
+
+/// A metric summed over every node of type `E` in the plan.
+fn metric_of<E: ExecutionPlan + 'static>(plan: &dyn ExecutionPlan, name: &str) -> usize {
     let own = plan
-        .downcast_ref::<StoreScanExec>()
+        .downcast_ref::<E>()
         .and_then(ExecutionPlan::metrics)
         .and_then(|metrics| metrics.sum_by_name(name))
         .map_or(0, |value| value.as_usize());
     own + plan
         .children()
         .into_iter()
-        .map(|child| scan_metric(child.as_ref(), name))
+        .map(|child| metric_of::<E>(child.as_ref(), name))
         .sum::<usize>()
 }
 
