@@ -29,7 +29,7 @@ use arrow_schema::{ArrowError, DataType, SchemaRef};
 use crate::parquet_export::{
     ParquetExportError, ParquetOptions, ParquetSummary, write_parquet_file,
 };
-use crate::{ChunkTableQuery, DataframeError, DataframeQuery, StoreView};
+use crate::{ChunkTableQuery, ChunkTableStream, DataframeError, DataframeQuery, StoreView};
 
 /// Why a dataset could not be written. Nothing is left under its directory.
 #[derive(Debug)]
@@ -213,11 +213,29 @@ pub fn write_hive_dataset(
     dir: &Path,
     layout: &HiveLayout,
 ) -> Result<HiveSummary, HiveExportError> {
+    check_new_dataset(dir, layout)?;
+    write_new_directory(dir, |partial| match layout {
+        HiveLayout::ByEntity { timeline } => by_entity(view, partial, timeline.as_deref()),
+        HiveLayout::ByTimeBucket {
+            timeline,
+            width,
+            query,
+        } => by_time_bucket(view, partial, timeline, *width, query.as_ref()),
+    })
+}
+
+/// Makes the new directory `dir` appear whole or not at all: `write` fills a temporary
+/// sibling (registered for [`crate::remove_unfinished_outputs`]), which is renamed to `dir`
+/// once `write` succeeds and removed when it fails. The summary's files are named under
+/// `dir`.
+pub(crate) fn write_new_directory<E: From<HiveExportError>>(
+    dir: &Path,
+    write: impl FnOnce(&Path) -> Result<HiveSummary, E>,
+) -> Result<HiveSummary, E> {
     let io = |path: &Path, source| HiveExportError::Io {
         path: path.to_owned(),
         source,
     };
-    check_new_dataset(dir, layout)?;
     let name = dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -228,15 +246,7 @@ pub fn write_hive_dataset(
     // every other output (a typo in the path should not make directories).
     let (_unfinished, ()) = crate::UnfinishedOutput::create(&partial, |p| std::fs::create_dir(p))
         .map_err(|e| io(&partial, e))?;
-    let written = match layout {
-        HiveLayout::ByEntity { timeline } => by_entity(view, &partial, timeline.as_deref()),
-        HiveLayout::ByTimeBucket {
-            timeline,
-            width,
-            query,
-        } => by_time_bucket(view, &partial, timeline, *width, query.as_ref()),
-    };
-    let mut summary = match written {
+    let mut summary = match write(&partial) {
         Ok(summary) => summary,
         Err(error) => {
             let _ = std::fs::remove_dir_all(&partial);
@@ -245,7 +255,7 @@ pub fn write_hive_dataset(
     };
     if let Err(error) = std::fs::rename(&partial, dir) {
         let _ = std::fs::remove_dir_all(&partial);
-        return Err(io(dir, error));
+        return Err(io(dir, error).into());
     }
     for (file, _) in &mut summary.files {
         if let Ok(relative) = file.strip_prefix(&partial) {
@@ -255,6 +265,7 @@ pub fn write_hive_dataset(
     Ok(summary)
 }
 
+/// `dir/key=value/part-0.parquet` (the value escaped), its directories made.
 fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, HiveExportError> {
     let partition = dir.join(format!("{key}={}", escape(value)));
     std::fs::create_dir_all(&partition).map_err(|source| HiveExportError::Io {
@@ -270,6 +281,19 @@ fn by_entity(
     timeline: Option<&str>,
 ) -> Result<HiveSummary, HiveExportError> {
     let mut summary = HiveSummary::default();
+    write_entities(view, dir, timeline, |table| table, &mut summary)?;
+    Ok(summary)
+}
+
+/// Writes `view`'s chunk table, a partition per entity under `dir` (in path order), each
+/// table through `shape` (which gives it the dataset's columns), into `summary`.
+pub(crate) fn write_entities<R: RecordBatchReader>(
+    view: &StoreView,
+    dir: &Path,
+    timeline: Option<&str>,
+    shape: impl Fn(ChunkTableStream) -> R,
+    summary: &mut HiveSummary,
+) -> Result<(), HiveExportError> {
     let mut entities = view.entity_paths();
     entities.sort();
     for entity in entities {
@@ -279,10 +303,10 @@ fn by_entity(
         }
         let table = view.chunk_table(&query).map_err(HiveExportError::Table)?;
         let path = partition_file(dir, "entity", &entity.to_string())?;
-        let written = write_parquet_file(&path, table, &ParquetOptions::default())?;
+        let written = write_parquet_file(&path, shape(table), &ParquetOptions::default())?;
         summary.files.push((path, written));
     }
-    Ok(summary)
+    Ok(())
 }
 
 fn by_time_bucket(
@@ -292,30 +316,50 @@ fn by_time_bucket(
     width: i64,
     query: Option<&DataframeQuery>,
 ) -> Result<HiveSummary, HiveExportError> {
-    let query = match query {
-        Some(query) if query.index() == &**timeline => query.clone(),
-        Some(query) => {
-            return Err(HiveExportError::QueryIndex {
-                index: query.index().to_owned(),
-                timeline: timeline.to_string(),
-            });
-        }
-        None => DataframeQuery::new(Arc::clone(timeline)),
-    };
+    let query = bucket_query(timeline, query)?;
     let stream = view.dataframe(&query).map_err(HiveExportError::Table)?;
+    let mut summary = HiveSummary::default();
+    write_buckets(stream, dir, timeline, width, &mut summary)?;
+    Ok(summary)
+}
+
+/// The dataframe query a [`HiveLayout::ByTimeBucket`] writes: its own, whose index must be
+/// the bucketed timeline, or every column on it.
+pub(crate) fn bucket_query(
+    timeline: &Arc<str>,
+    query: Option<&DataframeQuery>,
+) -> Result<DataframeQuery, HiveExportError> {
+    match query {
+        Some(query) if query.index() == &**timeline => Ok(query.clone()),
+        Some(query) => Err(HiveExportError::QueryIndex {
+            index: query.index().to_owned(),
+            timeline: timeline.to_string(),
+        }),
+        None => Ok(DataframeQuery::new(Arc::clone(timeline))),
+    }
+}
+
+/// Writes `stream` (a dataframe on `timeline`, in index order) under `dir`, a partition
+/// per bucket of `width` index values, into `summary`.
+pub(crate) fn write_buckets(
+    stream: impl RecordBatchReader,
+    dir: &Path,
+    timeline: &str,
+    width: i64,
+    summary: &mut HiveSummary,
+) -> Result<(), HiveExportError> {
     let schema = stream.schema();
     let index = schema
         .index_of(timeline)
         .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?;
     let key = format!("{timeline}_bucket");
-    let options = ParquetOptions::default().with_sorted_by(Arc::clone(timeline));
+    let options = ParquetOptions::default().with_sorted_by(timeline);
     let mut pieces = Buckets {
         batches: Box::new(stream),
         index,
         width,
         pending: None,
     };
-    let mut summary = HiveSummary::default();
     while let Some(bucket) = pieces
         .next_bucket()
         .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?
@@ -329,7 +373,7 @@ fn by_time_bucket(
         let written = write_parquet_file(&path, reader, &options)?;
         summary.files.push((path, written));
     }
-    Ok(summary)
+    Ok(())
 }
 
 /// A dataframe's batches cut where the index crosses into the next bucket.

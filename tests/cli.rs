@@ -1699,6 +1699,93 @@ fn sql_answers_over_a_dataset() {
     assert!(latest.contains("--segment ID"), "{latest}");
 }
 
+/// Issue 36: `hive` of a dataset writes a partition per segment (and in it per bucket or
+/// entity), says what it wrote, and refuses an existing directory or an unknown timeline
+/// in one line, before reading anything.
+#[test]
+fn hive_of_a_dataset_writes_a_partition_per_segment() {
+    let dir = robot_dataset("dataset-hive");
+    let out = scratch_dir("dataset-hive-out");
+    let by_bucket = out.join("by_bucket");
+    let (_, said) = ok(&[
+        dir.as_os_str(),
+        OsStr::new("hive"),
+        by_bucket.as_os_str(),
+        OsStr::new("--index"),
+        OsStr::new("frame_id"),
+        OsStr::new("--bucket"),
+        OsStr::new("100"),
+    ]);
+    assert!(said.contains("of 2 segments under"), "{said}");
+    let mut segments: Vec<String> = std::fs::read_dir(&by_bucket)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    segments.sort();
+    assert_eq!(
+        segments,
+        vec![
+            "segment=a0000000-0000-4000-8000-00000000000a".to_owned(),
+            "segment=second".to_owned()
+        ]
+    );
+    // Each segment holds the rows its own file's dataframe has.
+    let (own, _) = ok(&[
+        dir.join("two.rrd").as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new("SELECT count(*) AS n FROM frame_id"),
+        OsStr::new("--json"),
+    ]);
+    let own: serde_json::Value = serde_json::from_str(own.trim()).unwrap();
+    let rows: u64 = std::fs::read_dir(by_bucket.join("segment=second"))
+        .unwrap()
+        .map(|bucket| {
+            let file = std::fs::File::open(bucket.unwrap().path().join("part-0.parquet")).unwrap();
+            let reader = parquet::file::reader::SerializedFileReader::new(file).unwrap();
+            let rows = parquet::file::reader::FileReader::metadata(&reader)
+                .file_metadata()
+                .num_rows();
+            u64::try_from(rows).unwrap()
+        })
+        .sum();
+    assert_eq!(serde_json::json!(rows), own["n"]);
+
+    let by_entity = out.join("by_entity");
+    let (_, said) = ok(&[dir.as_os_str(), OsStr::new("hive"), by_entity.as_os_str()]);
+    assert!(said.contains("of 2 segments"), "{said}");
+    assert!(by_entity.join("segment=second").is_dir());
+    let entity = std::fs::read_dir(by_entity.join("segment=second"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap();
+    assert!(
+        entity
+            .file_name()
+            .to_string_lossy()
+            .starts_with("entity=%2F"),
+        "{:?}",
+        entity.file_name()
+    );
+
+    let again = fails(&[dir.as_os_str(), OsStr::new("hive"), by_entity.as_os_str()]);
+    assert!(again.contains("already exists"), "{again}");
+    let unknown = fails(&[
+        dir.as_os_str(),
+        OsStr::new("hive"),
+        out.join("unknown").as_os_str(),
+        OsStr::new("--index"),
+        OsStr::new("tick"),
+        OsStr::new("--bucket"),
+        OsStr::new("10"),
+    ]);
+    assert!(
+        unknown.contains("no segment has the index") && unknown.contains("frame_id"),
+        "{unknown}"
+    );
+    assert!(!out.join("unknown").exists());
+}
+
 /// Issue 36: what a dataset does not do, or is not asked right, is one line on stderr;
 /// a corrupt segment is named, and `--skip-bad` skips it with one warning.
 #[test]

@@ -447,3 +447,286 @@ fn batches_and_row_groups_are_bounded_by_bytes() {
     assert!(summary.row_groups > 1, "{summary:?}");
     assert_eq!(read_back(&path).0, whole);
 }
+
+/// The dataset of `common::episodes` (three recordings of different shapes), opened on
+/// `threads` threads.
+fn episodes_dataset(scratch: &ScratchDir, threads: usize) -> chunkstore::dataset::Dataset {
+    use chunkstore::dataset::{Dataset, DatasetOptions};
+    let source = scratch.join("episodes");
+    if !source.exists() {
+        std::fs::create_dir(&source).unwrap();
+        common::episodes(&source);
+    }
+    let options = DatasetOptions {
+        threads,
+        ..DatasetOptions::default()
+    };
+    Dataset::open(&source, &options).unwrap()
+}
+
+/// `file`'s partition values under `root`, as (key, value) pairs, outermost first.
+fn partition_values(root: &Path, file: &Path) -> Vec<(String, String)> {
+    let relative = file.parent().unwrap().strip_prefix(root).unwrap();
+    relative
+        .iter()
+        .map(|part| {
+            let (key, value) = part.to_str().unwrap().split_once('=').unwrap();
+            (key.to_owned(), value.to_owned())
+        })
+        .collect()
+}
+
+/// `batch`'s column `name` as strings.
+fn strings(batch: &RecordBatch, name: &str) -> Vec<String> {
+    let column = batch.column_by_name(name).unwrap();
+    let column = column
+        .as_any()
+        .downcast_ref::<arrow_array::StringArray>()
+        .unwrap();
+    column.iter().map(|v| v.unwrap().to_owned()).collect()
+}
+
+fn assert_same_cells(answer: &RecordBatch, expected: &RecordBatch, context: &str) {
+    assert_eq!(
+        answer.schema().fields(),
+        expected.schema().fields(),
+        "{context}"
+    );
+    assert_eq!(answer.num_rows(), expected.num_rows(), "{context}");
+    for i in 0..expected.num_columns() {
+        assert_eq!(
+            answer.column(i).to_data(),
+            expected.column(i).to_data(),
+            "{context}: column {}",
+            expected.schema().field(i).name()
+        );
+    }
+}
+
+/// A dataset's Hive copy by time bucket: a partition per segment, and in it per bucket;
+/// every file has the dataset table's columns, its rows are its segment's and its bucket's,
+/// and the files in order are the dataset's dataframe, on any number of threads.
+#[test]
+fn a_dataset_hive_copy_by_time_bucket_is_its_dataframe_cut_by_segment_and_bucket() {
+    use chunkstore::hive_export::HiveLayout;
+    let scratch = ScratchDir::new("parquet-dataset-hive-bucket");
+    for threads in [1, 3] {
+        let dataset = episodes_dataset(&scratch, threads);
+        let expected = collect(dataset.dataframe(&DataframeQuery::new("frame")).unwrap());
+        assert_eq!(expected.num_rows(), 6);
+        for width in [1, 2, 100] {
+            let out = scratch.join(format!("bucket-{width}-{threads}"));
+            let layout = HiveLayout::ByTimeBucket {
+                timeline: "frame".into(),
+                width,
+                query: None,
+            };
+            let seen = std::sync::Mutex::new(Vec::new());
+            let summary = dataset
+                .write_hive(&out, &layout, &|info, written| {
+                    seen.lock().unwrap().push((info.id.clone(), written.rows()));
+                })
+                .unwrap();
+            let context = format!("width {width}, {threads} threads");
+            let mut seen = seen.into_inner().unwrap();
+            seen.sort();
+            // Every segment is reported once; the static-only one wrote nothing.
+            assert_eq!(
+                seen,
+                vec![
+                    ("rec-a".to_owned(), 3),
+                    ("rec-b".to_owned(), 3),
+                    ("rec-s".to_owned(), 0)
+                ],
+                "{context}"
+            );
+            let mut parts = Vec::new();
+            let mut keys = Vec::new();
+            for (file, written) in &summary.files {
+                assert!(file.starts_with(&out), "{context}: {}", file.display());
+                let (batch, _) = read_back(file);
+                assert_eq!(batch.num_rows() as u64, written.rows, "{context}");
+                let values = partition_values(&out, file);
+                assert_eq!(values[0].0, "segment", "{context}");
+                assert_eq!(values[1].0, "frame_bucket", "{context}");
+                let bucket: i64 = values[1].1.parse().unwrap();
+                assert!(
+                    strings(&batch, "rerun_segment_id")
+                        .iter()
+                        .all(|s| *s == values[0].1),
+                    "{context}: a file holds its segment's rows"
+                );
+                let frames = batch
+                    .column_by_name("frame")
+                    .unwrap()
+                    .as_any()
+                    .downcast_ref::<arrow_array::Int64Array>()
+                    .unwrap();
+                assert!(
+                    frames
+                        .values()
+                        .iter()
+                        .all(|t| t.div_euclid(width) == bucket),
+                    "{context}: a file holds its bucket's rows"
+                );
+                keys.push((values[0].1.clone(), bucket));
+                parts.push(batch);
+            }
+            let mut sorted = keys.clone();
+            sorted.sort();
+            sorted.dedup();
+            assert_eq!(keys, sorted, "{context}: one file per partition, in order");
+            let joined = concat_batches(&expected.schema(), &parts).unwrap();
+            assert_same_cells(&joined, &expected, &context);
+        }
+    }
+}
+
+/// A dataset's Hive copy by entity: a partition per segment, and in it per entity; each
+/// file is that segment's chunk table of that entity in the dataset's `chunks` columns
+/// (null where the segment lacks a column), its segment id first.
+#[test]
+fn a_dataset_hive_copy_by_entity_is_each_segments_chunk_table() {
+    use chunkstore::hive_export::{HiveLayout, escape};
+    let scratch = ScratchDir::new("parquet-dataset-hive-entity");
+    let dataset = episodes_dataset(&scratch, 2);
+    let columns = Arc::clone(&dataset.tables().unwrap().chunks);
+    let out = scratch.join("by-entity");
+    let layout = HiveLayout::ByEntity {
+        timeline: Some("frame".into()),
+    };
+    let summary = dataset.write_hive(&out, &layout, &|_, _| {}).unwrap();
+    let mut files = 0;
+    for segment in dataset.segments() {
+        let store = dataset
+            .recording(&segment.id)
+            .unwrap()
+            .into_store()
+            .unwrap();
+        let mut entities = store.entity_paths();
+        entities.sort();
+        for entity in entities {
+            let file = out
+                .join(format!("segment={}", escape(&segment.id)))
+                .join(format!("entity={}", escape(&entity.to_string())))
+                .join("part-0.parquet");
+            assert_eq!(summary.files[files].0, file);
+            files += 1;
+            let (batch, _) = read_back(&file);
+            let mut query = ChunkTableQuery::new().with_row_entities([entity.clone()]);
+            if store.time_type("frame").is_some() {
+                query = query.with_index("frame");
+            }
+            let own = collect(store.chunk_table(&query).unwrap());
+            // The segment's own table, placed in the dataset's columns by name.
+            let placed: Vec<Arc<dyn Array>> = columns
+                .fields()
+                .iter()
+                .map(|field| match own.column_by_name(field.name()) {
+                    Some(column) => Arc::clone(column),
+                    None if field.name() == "rerun_segment_id" => {
+                        Arc::new(arrow_array::StringArray::from(vec![
+                            segment.id.as_str();
+                            own.num_rows()
+                        ]))
+                    }
+                    None => arrow_array::new_null_array(field.data_type(), own.num_rows()),
+                })
+                .collect();
+            let expected = RecordBatch::try_new(Arc::clone(&columns), placed).unwrap();
+            assert_same_cells(&batch, &expected, &format!("{} {entity}", segment.id));
+        }
+    }
+    assert_eq!(files, summary.files.len());
+}
+
+/// What a dataset's Hive copy refuses, each a typed error that leaves nothing behind: an
+/// existing directory, a bucket narrower than one, a timeline no segment has; a corrupt
+/// segment is named, or with `skip_bad` skipped with a warning while the rest is written.
+#[test]
+fn a_dataset_hive_copy_refuses_bad_requests_and_names_bad_segments() {
+    use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
+    use chunkstore::hive_export::{HiveExportError, HiveLayout};
+    let scratch = ScratchDir::new("parquet-dataset-hive-bad");
+    let dataset = episodes_dataset(&scratch, 2);
+    let bucket = |timeline: &str, width| HiveLayout::ByTimeBucket {
+        timeline: timeline.into(),
+        width,
+        query: None,
+    };
+    let existing = scratch.join("existing");
+    std::fs::create_dir(&existing).unwrap();
+    let error = dataset
+        .write_hive(&existing, &bucket("frame", 10), &|_, _| {})
+        .unwrap_err();
+    assert!(
+        matches!(error, DatasetError::Hive(HiveExportError::Exists { .. })),
+        "{error:?}"
+    );
+    let out = scratch.join("out");
+    let error = dataset
+        .write_hive(&out, &bucket("frame", 0), &|_, _| {})
+        .unwrap_err();
+    assert!(
+        matches!(
+            error,
+            DatasetError::Hive(HiveExportError::BucketWidth { width: 0 })
+        ),
+        "{error:?}"
+    );
+    for layout in [
+        bucket("tick", 10),
+        HiveLayout::ByEntity {
+            timeline: Some("tick".into()),
+        },
+    ] {
+        let error = dataset.write_hive(&out, &layout, &|_, _| {}).unwrap_err();
+        assert!(
+            matches!(&error, DatasetError::UnknownIndex(u) if u.name == "tick"),
+            "{error:?}"
+        );
+        assert!(error.to_string().contains("frame"), "{error}");
+    }
+    assert!(!out.exists(), "nothing is left behind");
+
+    // A segment whose file is cut short after opening: named, and nothing is written.
+    let source = scratch.join("corrupt");
+    std::fs::create_dir(&source).unwrap();
+    common::episodes(&source);
+    let opened = Dataset::open(&source, &DatasetOptions::default()).unwrap();
+    let victim = source.join("second.rrd");
+    let bytes = std::fs::read(&victim).unwrap();
+    std::fs::write(&victim, &bytes[..bytes.len() / 2]).unwrap();
+    for layout in [bucket("frame", 10), HiveLayout::ByEntity { timeline: None }] {
+        let error = opened.write_hive(&out, &layout, &|_, _| {}).unwrap_err();
+        assert!(error.to_string().contains("second.rrd"), "{error}");
+        assert!(!out.exists(), "nothing is left behind");
+    }
+    // With skip_bad, what cannot be read of it is skipped with a warning, and the others
+    // are written.
+    let skipping = Dataset::open(
+        &source,
+        &DatasetOptions {
+            skip_bad: true,
+            ..DatasetOptions::default()
+        },
+    )
+    .unwrap();
+    let mut warnings = skipping.take_warnings();
+    let summary = skipping
+        .write_hive(&out, &bucket("frame", 10), &|_, _| {})
+        .unwrap();
+    warnings.extend(skipping.take_warnings());
+    let segments: Vec<String> = summary
+        .files
+        .iter()
+        .map(|(file, _)| partition_values(&out, file)[0].1.clone())
+        .collect();
+    assert!(segments.contains(&"rec-b".to_owned()), "{segments:?}");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("second.rrd") || w.contains("rec-a")),
+        "{warnings:?}"
+    );
+}

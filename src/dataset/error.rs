@@ -88,6 +88,17 @@ pub enum DatasetError {
         /// Why.
         error: DataframeError,
     },
+    /// A Hive-partitioned copy of the dataset could not be written (nothing is left of
+    /// it): [`Dataset::write_hive`](super::Dataset::write_hive).
+    #[cfg(feature = "parquet")]
+    Hive(crate::hive_export::HiveExportError),
+}
+
+#[cfg(feature = "parquet")]
+impl From<crate::hive_export::HiveExportError> for DatasetError {
+    fn from(error: crate::hive_export::HiveExportError) -> Self {
+        Self::Hive(error)
+    }
 }
 
 impl From<OpenError> for DatasetError {
@@ -154,6 +165,8 @@ impl fmt::Display for DatasetError {
                 "the dataset has no segment {id:?} (it has {num_segments} segments)"
             ),
             Self::Dataframe { segment, error } => write!(f, "segment {segment:?}: {error}"),
+            #[cfg(feature = "parquet")]
+            Self::Hive(error) => write!(f, "{error}"),
         }
     }
 }
@@ -165,6 +178,8 @@ impl std::error::Error for DatasetError {
             Self::Open(error) => Some(&**error),
             Self::UnknownIndex(unknown) => Some(unknown),
             Self::Dataframe { error, .. } => Some(error),
+            #[cfg(feature = "parquet")]
+            Self::Hive(error) => Some(error),
             _ => None,
         }
     }

@@ -24,6 +24,8 @@
 
 mod cache;
 mod error;
+#[cfg(feature = "parquet")]
+mod hive;
 mod prune;
 mod schema;
 mod stream;
@@ -35,6 +37,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use parking_lot::Mutex;
 
 pub use error::DatasetError;
+#[cfg(feature = "parquet")]
+pub use hive::SEGMENT_PARTITION_KEY;
 pub use schema::DatasetTables;
 #[cfg(feature = "datafusion")]
 pub(crate) use schema::place;

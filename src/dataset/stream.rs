@@ -32,6 +32,17 @@ impl Dataset {
     /// named that the table does not have, a segment that cannot be loaded (unless
     /// skipped, [`DatasetOptions::skip_bad`](super::DatasetOptions::skip_bad)).
     pub fn dataframe(&self, query: &DataframeQuery) -> Result<DatasetStream, DatasetError> {
+        let (schema, segments) = self.plan_dataframe(query)?;
+        Ok(self.stream_segments(schema, segments, self.options().threads))
+    }
+
+    /// The table [`Dataset::dataframe`] streams for `query`, and the segments that give
+    /// its rows (by number, in id order), each with its own query and what planning kept
+    /// of it: for [`Dataset::stream_segments`].
+    pub(crate) fn plan_dataframe(
+        &self,
+        query: &DataframeQuery,
+    ) -> Result<PlannedRows, DatasetError> {
         let index = query.index();
         let with_index: Vec<usize> = (0..self.segments().len())
             .filter(|&n| self.segments()[n].time_type(index).is_some())
@@ -94,7 +105,7 @@ impl Dataset {
                 (number, full.clone().with_columns(columns), kept)
             })
             .collect();
-        Ok(self.stream_segments(schema, segments, self.options().threads))
+        Ok((schema, segments))
     }
 
     /// The rows of these segments (by number, each with its own query, and what planning
@@ -144,6 +155,12 @@ pub struct DatasetStream {
     /// What its loads read from the files.
     read: ReadStats,
 }
+
+/// A dataframe's table and the segments that give its rows: [`Dataset::plan_dataframe`].
+pub(crate) type PlannedRows = (
+    SchemaRef,
+    Vec<(usize, DataframeQuery, Option<crate::Snapshot>)>,
+);
 
 /// A segment's store for the rows, and what reading it read.
 type Loaded = Result<(crate::Snapshot, ReadStats), DatasetError>;

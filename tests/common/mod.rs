@@ -27,6 +27,46 @@ pub fn write_recording(
     path
 }
 
+/// Three recordings of different shapes, each with a footer: entities and components only
+/// some share, a Clear, static data, and one without the `frame` timeline's data (static
+/// only). The datasets of the core, SQL and Parquet tests start from them.
+pub fn episodes(dir: &std::path::Path) {
+    write_recording(
+        dir,
+        "first.rrd",
+        "rec-b",
+        vec![
+            scalars(
+                "/robot/arm",
+                "angle",
+                &[(1, 1, Some(vec![0.5])), (3, 2, Some(vec![1.5]))],
+            ),
+            scalars("/robot/leg", "angle", &[(2, 3, Some(vec![2.5]))]),
+            static_scalar("/robot", "mass", 4, 70.0),
+        ],
+    );
+    write_recording(
+        dir,
+        "second.rrd",
+        "rec-a",
+        vec![
+            scalars(
+                "/robot/arm",
+                "angle",
+                &[(5, 10, Some(vec![9.0])), (2, 11, None)],
+            ),
+            scalars("/camera", "exposure", &[(4, 12, Some(vec![0.01]))]),
+            clear("/robot", Some(6), 13, true),
+        ],
+    );
+    write_recording(
+        dir,
+        "static_only.rrd",
+        "rec-s",
+        vec![static_scalar("/robot", "mass", 20, 80.0)],
+    );
+}
+
 pub fn path(text: &str) -> EntityPath {
     EntityPath::parse(text).unwrap()
 }

@@ -17,7 +17,7 @@ use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions, SEGMENT_ID_COLU
 use chunkstore::rrd::{RrdWriter, StoreId, StoreInfo};
 use chunkstore::{Chunk, ChunkId, ChunkStore, DataframeQuery, LatestAtQuery, TimeInt, Timeline};
 
-use crate::common::{ScratchDir, clear, scalars, static_scalar, write_recording};
+use crate::common::{ScratchDir, clear, scalars, write_recording};
 
 /// Writes `chunks` as recording `id` without a footer (a stream cut before its end).
 fn write_without_footer(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) -> PathBuf {
@@ -34,44 +34,11 @@ fn write_without_footer(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) ->
     path
 }
 
-/// Four recordings of different shapes: entities and components only some share, Clears,
-/// static data, one without the `frame` timeline's data (static only), one without a
-/// footer.
+/// Four recordings of different shapes: the three of `common::episodes` (entities and
+/// components only some share, Clears, static data, one without the `frame` timeline's
+/// data) and one without a footer.
 fn episodes(dir: &Path) {
-    write_recording(
-        dir,
-        "first.rrd",
-        "rec-b",
-        vec![
-            scalars(
-                "/robot/arm",
-                "angle",
-                &[(1, 1, Some(vec![0.5])), (3, 2, Some(vec![1.5]))],
-            ),
-            scalars("/robot/leg", "angle", &[(2, 3, Some(vec![2.5]))]),
-            static_scalar("/robot", "mass", 4, 70.0),
-        ],
-    );
-    write_recording(
-        dir,
-        "second.rrd",
-        "rec-a",
-        vec![
-            scalars(
-                "/robot/arm",
-                "angle",
-                &[(5, 10, Some(vec![9.0])), (2, 11, None)],
-            ),
-            scalars("/camera", "exposure", &[(4, 12, Some(vec![0.01]))]),
-            clear("/robot", Some(6), 13, true),
-        ],
-    );
-    write_recording(
-        dir,
-        "static_only.rrd",
-        "rec-s",
-        vec![static_scalar("/robot", "mass", 20, 80.0)],
-    );
+    crate::common::episodes(dir);
     write_without_footer(
         dir,
         "cut.rrd",

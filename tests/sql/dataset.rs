@@ -15,7 +15,7 @@ use chunkstore::sql::DatasetScanExec;
 use datafusion::physical_plan::{ExecutionPlan, collect};
 use datafusion::prelude::{SessionConfig, SessionContext};
 
-use crate::common::{ScratchDir, clear, scalars, static_scalar, write_recording};
+use crate::common::{ScratchDir, scalars, write_recording};
 use crate::{assert_same_table, runtime};
 
 fn context(dataset: &Dataset, partitions: usize) -> SessionContext {
@@ -61,51 +61,12 @@ fn read_all(table: impl arrow_array::RecordBatchReader) -> RecordBatch {
     concat_batches(&schema, &batches).unwrap()
 }
 
-/// Three recordings sharing some columns, with Clears, static data, one without `frame`
-/// data.
-fn episodes(dir: &Path) {
-    write_recording(
-        dir,
-        "b.rrd",
-        "rec-b",
-        vec![
-            scalars(
-                "/robot/arm",
-                "angle",
-                &[(1, 1, Some(vec![0.5])), (3, 2, Some(vec![1.5]))],
-            ),
-            scalars("/robot/leg", "angle", &[(2, 3, Some(vec![2.5]))]),
-            static_scalar("/robot", "mass", 4, 70.0),
-        ],
-    );
-    write_recording(
-        dir,
-        "a.rrd",
-        "rec-a",
-        vec![
-            scalars(
-                "/robot/arm",
-                "angle",
-                &[(5, 10, Some(vec![9.0])), (2, 11, None)],
-            ),
-            scalars("/camera", "exposure", &[(4, 12, Some(vec![0.01]))]),
-            clear("/robot", Some(6), 13, true),
-        ],
-    );
-    write_recording(
-        dir,
-        "s.rrd",
-        "rec-s",
-        vec![static_scalar("/robot", "mass", 20, 80.0)],
-    );
-}
-
 /// `SELECT *` of a timeline table, in (segment, index) order, is the dataset's dataframe,
 /// however many partitions read it.
 #[test]
 fn a_dataset_timeline_table_is_the_dataset_dataframe() {
     let dir = ScratchDir::new("sql-dataset-table");
-    episodes(&dir);
+    crate::common::episodes(&dir);
     let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
     let expected = read_all(dataset.dataframe(&DataframeQuery::new("frame")).unwrap());
     assert_eq!(expected.num_rows(), 6);
@@ -162,7 +123,7 @@ fn a_dataset_timeline_table_is_the_dataset_dataframe() {
 #[test]
 fn the_dataset_chunk_table_is_each_segments_chunk_table() {
     let dir = ScratchDir::new("sql-dataset-chunks");
-    episodes(&dir);
+    crate::common::episodes(&dir);
     let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
     let ctx = context(&dataset, 2);
     for segment in dataset.segments() {
@@ -331,7 +292,7 @@ fn filters_prune_whole_files_and_chunks_before_anything_is_read() {
 #[test]
 fn latest_at_over_a_dataset_says_what_answers_it() {
     let dir = ScratchDir::new("sql-dataset-latest-at");
-    episodes(&dir);
+    crate::common::episodes(&dir);
     let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
     let ctx = context(&dataset, 1);
     let error = run(&ctx, "SELECT * FROM latest_at('frame', 3)")

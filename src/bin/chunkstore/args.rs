@@ -185,6 +185,7 @@ const HIVE_EXAMPLES: &str = "\
 Examples:
   chunkstore recording.rrd hive by_entity/ --index frame_id
   chunkstore recording.rrd hive by_second/ --index log_time --bucket 1000000000
+  chunkstore episodes/ hive episodes_hive/ --index frame --bucket 100   (a partition per segment)
   duckdb -c \"SELECT entity, count(*) FROM read_parquet('by_entity/**/*.parquet', \\
       hive_partitioning = true) GROUP BY entity\"";
 

@@ -238,17 +238,8 @@ fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(
 /// `hive`: a Hive-partitioned Parquet dataset of the source. The output is checked before
 /// the source is loaded.
 pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Failure> {
-    use chunkstore::hive_export::{HiveLayout, check_new_dataset, write_hive_dataset};
-    let layout = match (&args.index, args.bucket) {
-        (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
-            timeline: index.as_str().into(),
-            width,
-            query: None,
-        },
-        (index, _) => HiveLayout::ByEntity {
-            timeline: index.as_deref().map(Into::into),
-        },
-    };
+    use chunkstore::hive_export::{check_new_dataset, write_hive_dataset};
+    let layout = hive_layout(args);
     let failure = |error| hive_failure(&args.dir, error);
     check_new_dataset(&args.dir, &layout).map_err(failure)?;
     let loaded = load::load(source, options)?;
@@ -262,8 +253,23 @@ pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Fai
     Ok(())
 }
 
+/// The layout `hive`'s arguments ask for.
+pub fn hive_layout(args: &HiveArgs) -> chunkstore::hive_export::HiveLayout {
+    use chunkstore::hive_export::HiveLayout;
+    match (&args.index, args.bucket) {
+        (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
+            timeline: index.as_str().into(),
+            width,
+            query: None,
+        },
+        (index, _) => HiveLayout::ByEntity {
+            timeline: index.as_deref().map(Into::into),
+        },
+    }
+}
+
 /// A dataset that could not be written, as the tool words it.
-fn hive_failure(dir: &Path, error: chunkstore::hive_export::HiveExportError) -> Failure {
+pub fn hive_failure(dir: &Path, error: chunkstore::hive_export::HiveExportError) -> Failure {
     use chunkstore::hive_export::HiveExportError;
     match error {
         HiveExportError::Exists { .. } => format!(

@@ -6,8 +6,10 @@ use std::path::Path;
 
 use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
 
-use crate::args::{Cli, Command, DataframeArgs};
-use crate::dataframe::{Asked, Progress, selects_something, write_table};
+use crate::args::{Cli, Command, DataframeArgs, HiveArgs};
+use crate::dataframe::{
+    Asked, Progress, hive_failure, hive_layout, selects_something, write_table,
+};
 use crate::load::Options;
 use crate::{Failure, output};
 
@@ -34,9 +36,15 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
         skip_bad: options.skip_bad,
         ..DatasetOptions::default()
     };
-    // A dataframe's arguments are named before the files are opened.
+    // A dataframe's arguments and a new directory's path are checked before the files
+    // are opened.
     let asked = match &cli.command {
         Command::Dataframe(args) => Some(Asked::of(args)?),
+        Command::Hive(args) => {
+            chunkstore::hive_export::check_new_dataset(&args.dir, &hive_layout(args))
+                .map_err(|error| hive_failure(&args.dir, error))?;
+            None
+        }
         _ => None,
     };
     let dataset = Dataset::open(dir, &dataset_options).map_err(|e| message(&e))?;
@@ -65,9 +73,10 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
             crate::range(|| open(&dataset, &id), &path, timeline, (min, max), select)
         }
         Command::Sql(args) => sql(&dataset, args),
-        Command::Print { .. } | Command::Convert { .. } | Command::Hive(_) => Err(format!(
-            "{}: a dataset answers dataframe, sql, stats, and latest-at and range with \
-                 --segment ID; not this command yet",
+        Command::Hive(args) => hive(&dataset, args),
+        Command::Print { .. } | Command::Convert { .. } => Err(format!(
+            "{}: a dataset answers dataframe, sql, stats, hive, and latest-at and range \
+                 with --segment ID; not this command yet",
             dir.display()
         )
         .into()),
@@ -179,6 +188,33 @@ fn dataframe(
         .sum();
     let sorted_by = [chunkstore::SEGMENT_ID_COLUMN, args.index.as_str()];
     write_table(stream, args, &sorted_by, &Progress::rows(rows))
+}
+
+/// `hive`: the dataset as one Hive-partitioned Parquet dataset, a partition per segment
+/// (and in it per entity, or per time bucket), a bar over the segments written.
+fn hive(dataset: &Dataset, args: &HiveArgs) -> Result<(), Failure> {
+    let bar = crate::load::progress(dataset.segments().len() as u64, "writing", false);
+    let summary = dataset
+        .write_hive(&args.dir, &hive_layout(args), &|_, _| bar.inc(1))
+        .map_err(|error| match error {
+            DatasetError::Hive(error) => hive_failure(&args.dir, error),
+            other => message(&other).into(),
+        });
+    bar.finish_and_clear();
+    let summary = summary?;
+    let segments: std::collections::BTreeSet<&std::path::Path> = summary
+        .files
+        .iter()
+        .filter_map(|(file, _)| file.parent()?.parent())
+        .collect();
+    eprintln!(
+        "wrote {} rows in {} files of {} segments under {}",
+        summary.rows(),
+        summary.files.len(),
+        segments.len(),
+        args.dir.display()
+    );
+    Ok(())
 }
 
 /// One JSON line: the dataset's totals and timelines, and each segment from its footer.

@@ -1,0 +1,210 @@
+//! A dataset as one Hive-partitioned Parquet dataset (feature `parquet`, SEMANTICS.md
+//! sections 13 and 15): a partition per segment, `segment=<id>/`, and under it that
+//! segment's partitions in the [`HiveLayout`] asked for:
+//! - by entity: `segment=<id>/entity=<path>/part-0.parquet`, the segment's chunk table (the
+//!   dataset's `chunks` table, [`DatasetTables::chunks`](super::DatasetTables::chunks));
+//! - by time bucket: `segment=<id>/<timeline>_bucket=<k>/part-0.parquet`, the segment's
+//!   rows of the dataset's dataframe on the timeline ([`Dataset::dataframe`]).
+//!
+//! Every file holds the whole table's columns, `rerun_segment_id` first (a column a
+//! segment lacks is null in its files), so that DuckDB, Spark, Polars, pyarrow and
+//! DataFusion read the directory as one table without merging schemas, and a file read
+//! alone still names its segment. The partition keys are `segment` and `entity`, not the
+//! columns' own names: Spark refuses a partition key that is also a column of the files.
+//! Segments are written on the dataset's threads, each read once, so memory is bounded by
+//! a few segments, whatever the dataset's size.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use arrow_array::{RecordBatch, RecordBatchReader};
+use arrow_schema::{ArrowError, SchemaRef};
+
+use super::{Dataset, DatasetError, SegmentInfo};
+use crate::hive_export::{
+    HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset, escape,
+    write_buckets, write_entities, write_new_directory,
+};
+use crate::UnknownTimeline;
+
+/// The partition key of a segment's directory.
+pub const SEGMENT_PARTITION_KEY: &str = "segment";
+
+impl Dataset {
+    /// Writes the dataset as a Hive-partitioned Parquet dataset in the new directory `dir`
+    /// (which must not exist; it appears whole or not at all), a partition per segment
+    /// laid out inside as `layout` says: see the module docs of `dataset/hive.rs`.
+    /// `on_segment` is called once for every segment, from any of the dataset's threads,
+    /// when its files are written, with what they hold (nothing, for a segment without
+    /// rows).
+    ///
+    /// With [`HiveLayout::ByEntity`], a segment without the timeline given has its rows
+    /// chunk by chunk. With [`HiveLayout::ByTimeBucket`], the query's contents and range
+    /// narrow every segment's rows, and a segment without the timeline has no partition.
+    ///
+    /// ```no_run
+    /// use chunkstore::dataset::{Dataset, DatasetOptions};
+    /// use chunkstore::hive_export::HiveLayout;
+    ///
+    /// let dataset = Dataset::open("episodes/".as_ref(), &DatasetOptions::default())?;
+    /// let layout = HiveLayout::ByTimeBucket { timeline: "frame".into(), width: 100, query: None };
+    /// let written = dataset.write_hive("episodes_hive".as_ref(), &layout, &|_, _| {})?;
+    /// println!("{} rows in {} files", written.rows(), written.files.len());
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// # Errors
+    /// What [`check_new_dataset`] checks ([`DatasetError::Hive`]), a timeline no segment
+    /// has, what [`Dataset::dataframe`] refuses, a segment that cannot be read (unless
+    /// skipped, [`DatasetOptions::skip_bad`](super::DatasetOptions::skip_bad)), the file
+    /// system's and the Parquet writer's errors.
+    pub fn write_hive(
+        &self,
+        dir: &Path,
+        layout: &HiveLayout,
+        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+    ) -> Result<HiveSummary, DatasetError> {
+        check_new_dataset(dir, layout)?;
+        match layout {
+            HiveLayout::ByEntity { timeline } => {
+                if let Some(timeline) = timeline
+                    && self.time_type(timeline).is_none()
+                {
+                    return Err(DatasetError::UnknownIndex(UnknownTimeline::new(
+                        timeline,
+                        &self.timelines(),
+                    )));
+                }
+                let schema = Arc::clone(&self.tables()?.chunks);
+                write_new_directory(dir, |partial| {
+                    self.entities_by_segment(partial, timeline.as_deref(), &schema, on_segment)
+                })
+            }
+            HiveLayout::ByTimeBucket {
+                timeline,
+                width,
+                query,
+            } => {
+                let query = bucket_query(timeline, query.as_ref())?;
+                let (schema, segments) = self.plan_dataframe(&query)?;
+                let empty = HiveSummary::default();
+                for (number, info) in self.segments().iter().enumerate() {
+                    if !segments.iter().any(|(n, ..)| *n == number) {
+                        on_segment(info, &empty);
+                    }
+                }
+                write_new_directory(dir, |partial| {
+                    super::in_parallel(&segments, self.options().threads, |segment| {
+                        let (number, query, kept) = segment.clone();
+                        let info = &self.segments()[number];
+                        let rows = self.stream_segments(
+                            Arc::clone(&schema),
+                            vec![(number, query, kept)],
+                            1,
+                        );
+                        let mut summary = HiveSummary::default();
+                        let dir = segment_dir(partial, info);
+                        write_buckets(rows, &dir, timeline, *width, &mut summary)
+                            .map_err(|error| segment_failure(info, error))?;
+                        on_segment(info, &summary);
+                        Ok(summary)
+                    })
+                    .into_iter()
+                    .try_fold(HiveSummary::default(), merged)
+                })
+            }
+        }
+    }
+
+    /// Every segment's chunk table, a partition per entity under its segment's.
+    fn entities_by_segment(
+        &self,
+        dir: &Path,
+        timeline: Option<&str>,
+        schema: &SchemaRef,
+        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+    ) -> Result<HiveSummary, DatasetError> {
+        let numbers: Vec<usize> = (0..self.segments().len()).collect();
+        super::in_parallel(&numbers, self.options().threads, |&number| {
+            let info = &self.segments()[number];
+            // Every chunk, read through the footer where there is one (a copy reads each
+            // segment once: nothing is kept for it in the cache).
+            let snapshot = match self.segment_chunks(number, |manifest| {
+                manifest.entries.iter().map(|e| e.chunk_id).collect()
+            }) {
+                Ok((snapshot, _)) => snapshot,
+                Err(error) if self.options().skip_bad => {
+                    self.warn(format!("skipped segment {:?}: {error}", info.id));
+                    return Ok(HiveSummary::default());
+                }
+                Err(error) => return Err(error),
+            };
+            let mut summary = HiveSummary::default();
+            if snapshot.entity_paths().is_empty() {
+                on_segment(info, &summary);
+                return Ok(summary);
+            }
+            let dir = segment_dir(dir, info);
+            let timeline = timeline.filter(|t| snapshot.time_type(t).is_some());
+            let id: Arc<str> = info.id.as_str().into();
+            let shape = |table| Placed {
+                rows: table,
+                schema: Arc::clone(schema),
+                segment: Arc::clone(&id),
+            };
+            write_entities(&snapshot, &dir, timeline, shape, &mut summary)
+                .map_err(|error| segment_failure(info, error))?;
+            on_segment(info, &summary);
+            Ok(summary)
+        })
+        .into_iter()
+        .try_fold(HiveSummary::default(), merged)
+    }
+}
+
+/// A segment's write that failed: a table it cannot give is the segment's error.
+fn segment_failure(info: &SegmentInfo, error: HiveExportError) -> DatasetError {
+    match error {
+        HiveExportError::Table(error) => DatasetError::Dataframe {
+            segment: info.id.clone(),
+            error,
+        },
+        other => other.into(),
+    }
+}
+
+/// `segment=<id>` under `dir` (made with its first partition's file: a segment without
+/// rows has no directory).
+fn segment_dir(dir: &Path, info: &SegmentInfo) -> std::path::PathBuf {
+    dir.join(format!("{SEGMENT_PARTITION_KEY}={}", escape(&info.id)))
+}
+
+fn merged(
+    mut all: HiveSummary,
+    one: Result<HiveSummary, DatasetError>,
+) -> Result<HiveSummary, DatasetError> {
+    all.files.extend(one?.files);
+    Ok(all)
+}
+
+/// A segment's table in the dataset's columns, its segment id first.
+struct Placed<R> {
+    rows: R,
+    schema: SchemaRef,
+    segment: Arc<str>,
+}
+
+impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> Iterator for Placed<R> {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let batch = self.rows.next()?;
+        Some(batch.and_then(|batch| super::schema::place(&self.schema, &self.segment, &batch)))
+    }
+}
+
+impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> RecordBatchReader for Placed<R> {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+}
