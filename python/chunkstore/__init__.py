@@ -330,6 +330,21 @@ class Store:
             component,
         )
 
+    def sql(self, query: str) -> "pyarrow.RecordBatchReader":
+        """The answer of a SQL query (DataFusion's dialect) over a snapshot of the store,
+        streamed batch by batch: one table per timeline (its dataframe view, every
+        column, no fill), ``chunks`` (every stored row) and the table function
+        ``latest_at('<timeline>', <time>)`` (``docs/SEMANTICS.md`` section 12). Filters on
+        the index and on ``entity_path`` are answered by the store's indices. A lazy
+        recording is decoded whole first; writes after the call are not seen.
+
+        >>> store.sql('SELECT avg("/robot/arm:torque"[1]) FROM frame WHERE frame < 100').read_all()
+
+        Raises :class:`InvalidInputError` for a query that cannot be planned."""
+        if not isinstance(query, str):
+            raise InvalidInputError(f"query: expected SQL text (str), got {type(query).__name__}")
+        return self._native.sql(query)
+
     def dataframe(
         self,
         index: str,
@@ -520,6 +535,23 @@ class Dataset:
         :meth:`Store.dataframe`'s."""
         return _reader(self, index, contents, range, index_values, fill_latest_at, batch_rows,
                        include_tombstone_columns, include_semantically_empty_columns, exact_index_values)
+
+    def sql(self, query: str) -> "pyarrow.RecordBatchReader":
+        """The answer of a SQL query (DataFusion's dialect) over the dataset's tables,
+        streamed batch by batch: one table per timeline (the dataset's table on it, as
+        :meth:`dataframe` gives it with every column and no fill) and ``chunks`` (every
+        segment's stored rows), each with ``rerun_segment_id`` first. Filters on
+        ``rerun_segment_id`` and on the index skip whole files and chunks before any is
+        read (``EXPLAIN`` shows what was pruned). ``docs/SEMANTICS.md`` section 15.
+
+        >>> dataset.sql("SELECT rerun_segment_id, count(*) FROM frame GROUP BY 1").read_all()
+
+        Raises :class:`InvalidInputError` for a query that cannot be planned (SQL that
+        does not parse, a table or column that is not there); a file that fails while
+        the answer streams raises from the reader."""
+        if not isinstance(query, str):
+            raise InvalidInputError(f"query: expected SQL text (str), got {type(query).__name__}")
+        return self._native.sql(query)
 
     def _time_type(self, timeline: str) -> str:
         if not isinstance(timeline, str):

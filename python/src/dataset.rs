@@ -8,7 +8,7 @@ use arrow_pyarrow::PyArrowType;
 use chunkstore::dataset::{Dataset, DatasetOptions};
 use pyo3::prelude::*;
 
-use crate::errors::{dataset_error, no_panic};
+use crate::errors::{dataset_error, no_panic, sql_error};
 use crate::store::{reader_query, time_type_name};
 
 /// A dataset: see the module docs.
@@ -149,6 +149,25 @@ impl NativeDataset {
                 let stream = self.dataset.dataframe(&query).map_err(dataset_error)?;
                 Ok(PyArrowType(
                     Box::new(stream) as Box<dyn RecordBatchReader + Send>
+                ))
+            })
+        })
+    }
+
+    /// The answer of a SQL query over the dataset's tables, streamed: see
+    /// `chunkstore.Dataset.sql`.
+    fn sql(
+        &self,
+        py: Python<'_>,
+        query: &str,
+    ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
+        py.detach(|| {
+            no_panic(|| {
+                let ctx = chunkstore::sql::session_context();
+                chunkstore::sql::register_dataset(&ctx, &self.dataset).map_err(sql_error)?;
+                let answer = chunkstore::sql::SqlReader::run(&ctx, query).map_err(sql_error)?;
+                Ok(PyArrowType(
+                    Box::new(answer) as Box<dyn RecordBatchReader + Send>
                 ))
             })
         })

@@ -137,3 +137,11 @@ pub fn dataset_error(error: chunkstore::dataset::DatasetError) -> PyErr {
         other => invalid(other.to_string()),
     }
 }
+
+/// A query SQL could not plan or answer: `InvalidInputError` with DataFusion's message
+/// (a table, column or function the query names that is not there, SQL that does not
+/// parse); a segment's file that fails while the answer streams is raised from the
+/// reader, as pyarrow raises a stream's errors.
+pub fn sql_error(error: chunkstore::sql::DataFusionError) -> PyErr {
+    invalid(error.to_string())
+}

@@ -334,6 +334,27 @@ fn count_deleted(events: &[StoreEvent]) -> (u64, u64) {
 
 #[pymethods]
 impl NativeStore {
+    /// The answer of a SQL query over a snapshot of the store's tables, streamed: see
+    /// `chunkstore.Store.sql`. A lazy recording is decoded whole first.
+    fn sql(
+        &self,
+        py: Python<'_>,
+        query: &str,
+    ) -> PyResult<PyArrowType<Box<dyn arrow_array::RecordBatchReader + Send>>> {
+        py.detach(|| {
+            no_panic(|| {
+                let snapshot = self.snapshot()?;
+                let ctx = chunkstore::sql::session_context();
+                chunkstore::sql::register(&ctx, &snapshot).map_err(crate::errors::sql_error)?;
+                let answer = chunkstore::sql::SqlReader::run(&ctx, query)
+                    .map_err(crate::errors::sql_error)?;
+                Ok(PyArrowType(
+                    Box::new(answer) as Box<dyn arrow_array::RecordBatchReader + Send>
+                ))
+            })
+        })
+    }
+
     /// An empty store; `compaction=False` keeps chunks as inserted.
     #[new]
     #[pyo3(signature = (compaction = true))]

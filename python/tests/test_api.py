@@ -309,3 +309,20 @@ def test_exact_index_values_show_only_what_was_logged_there(robot):
     assert exact.column("/world/robot:Transform3D:translation").equals(
         sparse.column("/world/robot:Transform3D:translation")
     )
+
+
+def test_sql_answers_from_a_snapshot_of_the_store(robot):
+    table = robot.sql("SELECT * FROM frame_id").read_all()
+    expected = robot.dataframe("frame_id").read_all()
+    assert table.num_rows == expected.num_rows
+    assert set(table.schema.names) == set(expected.schema.names)
+    counted = robot.sql(
+        "SELECT count(*) AS n FROM frame_id WHERE frame_id BETWEEN 10 AND 19"
+    ).read_all()
+    assert counted.column("n").to_pylist() == [
+        robot.dataframe("frame_id", range=(10, 19)).read_all().num_rows
+    ]
+    latest = robot.sql("SELECT * FROM latest_at('frame_id', 30)").read_all()
+    assert latest.num_rows > 0
+    with pytest.raises(chunkstore.InvalidInputError, match="no_such_table"):
+        robot.sql("SELECT * FROM no_such_table")

@@ -71,3 +71,37 @@ def _empty(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     return empty
+
+
+def test_sql_over_a_dataset_is_its_table_and_prunes_segments(episodes):
+    dataset = chunkstore.open_dataset(episodes)
+    answer = dataset.sql("SELECT * FROM frame_id ORDER BY rerun_segment_id, frame_id")
+    assert isinstance(answer, pa.RecordBatchReader)
+    table = answer.read_all()
+    expected = dataset.dataframe("frame_id").read_all()
+    assert table.schema.names == expected.schema.names
+    for name in expected.schema.names:
+        assert table.column(name).combine_chunks().equals(expected.column(name).combine_chunks()), name
+    counts = dataset.sql(
+        "SELECT rerun_segment_id, count(*) AS n FROM frame_id GROUP BY 1 ORDER BY 1"
+    ).read_all()
+    own = chunkstore.open(episodes / "two.rrd").dataframe("frame_id").read_all().num_rows
+    assert counts.column("rerun_segment_id").to_pylist() == [s.id for s in dataset.segments()]
+    assert counts.column("n").to_pylist() == [own, own]
+    plan = dataset.sql(
+        "EXPLAIN SELECT count(*) FROM frame_id WHERE rerun_segment_id = 'second'"
+    ).read_all()
+    text = "\n".join(plan.column("plan").to_pylist())
+    assert "segments=1 of 2 (pruned: 1 by rerun_segment_id)" in text, text
+    chunks = dataset.sql("SELECT DISTINCT rerun_segment_id FROM chunks ORDER BY 1").read_all()
+    assert chunks.column(0).to_pylist() == [s.id for s in dataset.segments()]
+
+
+def test_sql_that_cannot_be_planned_raises(episodes):
+    dataset = chunkstore.open_dataset(episodes)
+    with pytest.raises(chunkstore.InvalidInputError, match="nope"):
+        dataset.sql("SELECT * FROM nope")
+    with pytest.raises(chunkstore.InvalidInputError, match="--segment"):
+        dataset.sql("SELECT * FROM latest_at('frame_id', 3)")
+    with pytest.raises(chunkstore.InvalidInputError, match="query"):
+        dataset.sql(42)

@@ -21,11 +21,11 @@ use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
 use super::{Dataset, DatasetError, SegmentInfo};
+use crate::UnknownTimeline;
 use crate::hive_export::{
     HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset, escape,
     write_buckets, write_entities, write_new_directory,
 };
-use crate::UnknownTimeline;
 
 /// The partition key of a segment's directory.
 pub const SEGMENT_PARTITION_KEY: &str = "segment";

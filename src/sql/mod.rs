@@ -41,6 +41,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod blocking;
 #[cfg(feature = "rrd")]
 mod dataset;
 mod integer_times;
@@ -58,6 +59,10 @@ use datafusion::prelude::SessionContext;
 
 use crate::{EntityPathFilter, Snapshot};
 
+pub use blocking::{SqlReader, session_context};
+/// The error of every SQL call here (DataFusion's), for callers without a `datafusion`
+/// dependency of their own.
+pub use datafusion::error::DataFusionError;
 #[cfg(feature = "rrd")]
 pub use dataset::{DatasetChunksTable, DatasetScanExec, DatasetTimelineTable, register_dataset};
 pub use latest_at::{LatestAtFunction, asof_join};

@@ -41,45 +41,21 @@ pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Re
 
 #[cfg(feature = "datafusion")]
 fn context() -> datafusion::prelude::SessionContext {
-    use datafusion::prelude::{SessionConfig, SessionContext};
-    // `SHOW TABLES` and `SHOW COLUMNS` need the information schema. A timeline table's
-    // scan builds its range on every core and yields the rows in index order; spreading
-    // its batches over partitions for a filter (DataFusion's round-robin repartition)
-    // would interleave them for no gain, so the rows printed keep the table's order.
-    SessionContext::new_with_config(
-        SessionConfig::new()
-            .with_information_schema(true)
-            .with_round_robin_repartition(false),
-    )
+    chunkstore::sql::session_context()
 }
 
-/// Runs the query in `ctx` and writes its answer as `args` asks.
+/// Runs the query in `ctx` and writes its answer as `args` asks. The answer streams to a
+/// file or as JSON lines (a dataset's table may be far larger than memory); a table
+/// printed is collected first, to size its columns.
 #[cfg(feature = "datafusion")]
 fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
     use std::io::{IsTerminal as _, Write};
 
-    use arrow_array::RecordBatch;
+    use arrow_array::{RecordBatch, RecordBatchReader as _};
 
-    // A worker per core for DataFusion's own partitions (hash aggregates and joins); a
-    // timeline table's scan builds its parts on threads of its own.
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .build()
-        .map_err(|e| format!("starting the query runtime: {e}"))?;
-    let frame = runtime
-        .block_on(ctx.sql(&args.query))
-        .map_err(|e| e.to_string())?;
-    let schema = frame.schema().inner().clone();
+    let reader = chunkstore::sql::SqlReader::run(ctx, &args.query).map_err(|e| e.to_string())?;
+    let schema = reader.schema();
     if let Some(out) = &args.out {
-        // Streamed to the file batch by batch: a dataset's table may be far larger than
-        // memory.
-        let stream = runtime
-            .block_on(frame.execute_stream())
-            .map_err(|e| e.to_string())?;
-        let reader = Blocking {
-            runtime: &runtime,
-            stream,
-            schema,
-        };
         let is_parquet = out
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
@@ -100,18 +76,9 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
     }
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
     if args.json {
-        // Streamed line by line, as `--out` is.
-        let stream = runtime
-            .block_on(frame.execute_stream())
-            .map_err(|e| e.to_string())?;
-        let batches = Blocking {
-            runtime: &runtime,
-            stream,
-            schema,
-        };
         let mut writer = arrow_json::LineDelimitedWriter::new(&mut stdout);
         let mut written = Ok(());
-        for batch in batches {
+        for batch in reader {
             if let Err(e) = batch.and_then(|batch| writer.write(&batch)) {
                 written = Err(e);
                 break;
@@ -120,9 +87,10 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
         let written = written.and_then(|()| writer.finish());
         return finish_stdout(written, stdout);
     }
-    let batches: Vec<RecordBatch> = runtime
-        .block_on(frame.collect())
-        .map_err(|e| e.to_string())?;
+    let batches: Vec<RecordBatch> = reader.collect::<Result<_, _>>().map_err(|e| match e {
+        arrow_schema::ArrowError::ExternalError(e) => e.to_string(),
+        other => other.to_string(),
+    })?;
     let written = if std::io::stdout().is_terminal() && !args.full {
         // A person reading: the first rows, each cell cut to a width (a wide result took
         // seconds to print whole); the rest is counted.
@@ -171,32 +139,5 @@ fn finish_stdout(
         // The query failed while its rows streamed out.
         Err(arrow_schema::ArrowError::ExternalError(e)) => Err(e.to_string().into()),
         Err(e) => Err(format!("stdout: {e}").into()),
-    }
-}
-
-/// A query's stream read batch by batch on the query runtime, as a reader for the file
-/// writers.
-#[cfg(feature = "datafusion")]
-struct Blocking<'a> {
-    runtime: &'a tokio::runtime::Runtime,
-    stream: datafusion::physical_plan::SendableRecordBatchStream,
-    schema: arrow_schema::SchemaRef,
-}
-
-#[cfg(feature = "datafusion")]
-impl Iterator for Blocking<'_> {
-    type Item = Result<arrow_array::RecordBatch, arrow_schema::ArrowError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        use futures::StreamExt as _;
-        let next = self.runtime.block_on(self.stream.next())?;
-        Some(next.map_err(|e| arrow_schema::ArrowError::ExternalError(Box::new(e))))
-    }
-}
-
-#[cfg(feature = "datafusion")]
-impl arrow_array::RecordBatchReader for Blocking<'_> {
-    fn schema(&self) -> arrow_schema::SchemaRef {
-        std::sync::Arc::clone(&self.schema)
     }
 }
