@@ -1786,6 +1786,64 @@ fn hive_of_a_dataset_writes_a_partition_per_segment() {
     assert!(!out.join("unknown").exists());
 }
 
+/// Issue 36: `--index-cache DIR` keeps the index of a dataset's file without a footer in
+/// DIR (`stats` then says where), never beside the data; the next run answers alike from
+/// it. Given with one recording, it is refused in one line.
+#[test]
+fn index_cache_keeps_the_index_of_a_footerless_segment() {
+    let dir = robot_dataset("dataset-index-cache");
+    let chunks: Vec<chunkstore::Chunk> = common::robot_chunks();
+    common::write_without_footer(&dir, "cut.rrd", "cut", chunks);
+    let cache = scratch_dir("dataset-index-cache-dir").join("index");
+    let listing = |dir: &Path| std::fs::read_dir(dir).map_or(0, Iterator::count);
+    let files = listing(&dir);
+    let stats = |extra: &[&OsStr]| {
+        let args: Vec<&OsStr> = [
+            OsStr::new("--index-cache"),
+            cache.as_os_str(),
+            dir.as_os_str(),
+        ]
+        .into_iter()
+        .chain(extra.iter().copied())
+        .collect();
+        let (out, _) = ok(&args);
+        out
+    };
+    let first = stats(&[OsStr::new("stats")]);
+    let first: serde_json::Value = serde_json::from_str(first.trim()).unwrap();
+    let cut = first["segments"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["id"] == "cut")
+        .unwrap()
+        .clone();
+    assert_eq!(cut["from_footer"], false);
+    let index = cut["index_file"].as_str().unwrap().to_owned();
+    assert!(Path::new(&index).starts_with(&cache), "{index}");
+    assert_eq!(listing(&cache), 1);
+    assert_eq!(listing(&dir), files, "nothing beside the data");
+    let counts = "SELECT rerun_segment_id, count(*) AS n FROM frame_id GROUP BY 1 ORDER BY 1";
+    let cached = stats(&[OsStr::new("sql"), OsStr::new(counts), OsStr::new("--json")]);
+    let (plain, _) = ok(&[
+        dir.as_os_str(),
+        OsStr::new("sql"),
+        OsStr::new(counts),
+        OsStr::new("--json"),
+    ]);
+    assert_eq!(cached, plain);
+    assert_eq!(cached.lines().count(), 3, "{cached}");
+    assert_eq!(listing(&cache), 1);
+
+    let one = fails(&[
+        OsStr::new("--index-cache"),
+        cache.as_os_str(),
+        recording_rrd().as_os_str(),
+        OsStr::new("stats"),
+    ]);
+    assert!(one.contains("is not a dataset"), "{one}");
+}
+
 /// Issue 36: what a dataset does not do, or is not asked right, is one line on stderr;
 /// a corrupt segment is named, and `--skip-bad` skips it with one warning.
 #[test]

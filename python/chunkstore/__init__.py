@@ -570,18 +570,24 @@ def open_dataset(
     *,
     skip_bad: bool = False,
     memory_budget: Optional[int] = None,
+    index_cache: Union[None, str, os.PathLike] = None,
 ) -> Dataset:
     """Opens a dataset: a directory's regular ``.rrd`` files (or one ``.rrd`` file),
     each a segment named by its recording id, reading their footers only.
 
     ``skip_bad``: skip a file that cannot be read (see :meth:`Dataset.take_warnings`)
     rather than raise. ``memory_budget``: bytes of loaded segments kept between uses (by
-    default a quarter of the machine's memory).
+    default a quarter of the machine's memory). ``index_cache``: a directory where the
+    index of each file without a footer is kept once it has been scanned, so that later
+    opens read the index instead of the file (never written beside the data).
 
     Raises :class:`CorruptFileError` for a file that does not parse (or a directory
     without ``.rrd`` files), :class:`InvalidInputError` for two files of one recording.
     """
-    return Dataset(_native=_chunkstore.open_dataset(os.fspath(path), skip_bad, _positive_or_zero(memory_budget)))
+    cache = None if index_cache is None else os.fspath(index_cache)
+    return Dataset(
+        _native=_chunkstore.open_dataset(os.fspath(path), skip_bad, _positive_or_zero(memory_budget), cache)
+    )
 
 
 def _positive_or_zero(value: Optional[int]) -> Optional[int]:

@@ -19,17 +19,19 @@ pub struct NativeDataset {
 
 /// Opens a dataset: see the module docs.
 #[pyfunction]
-#[pyo3(signature = (path, skip_bad = false, memory_budget = None))]
+#[pyo3(signature = (path, skip_bad = false, memory_budget = None, index_cache = None))]
 pub fn open_dataset(
     py: Python<'_>,
     path: PathBuf,
     skip_bad: bool,
     memory_budget: Option<u64>,
+    index_cache: Option<PathBuf>,
 ) -> PyResult<NativeDataset> {
     py.detach(|| {
         no_panic(|| {
             let mut options = DatasetOptions {
                 skip_bad,
+                index_cache,
                 ..DatasetOptions::default()
             };
             if let Some(budget) = memory_budget {

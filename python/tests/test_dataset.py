@@ -105,3 +105,14 @@ def test_sql_that_cannot_be_planned_raises(episodes):
         dataset.sql("SELECT * FROM latest_at('frame_id', 3)")
     with pytest.raises(chunkstore.InvalidInputError, match="query"):
         dataset.sql(42)
+
+
+def test_an_index_cache_is_written_only_for_files_without_a_footer(tmp_path, episodes):
+    cache = tmp_path / "index-cache"
+    dataset = chunkstore.open_dataset(episodes, index_cache=cache)
+    assert len(dataset) == 2
+    # Every segment here has a footer: nothing to index, and no directory made.
+    assert not cache.exists()
+    assert dataset.dataframe("frame_id").read_all().num_rows == (
+        chunkstore.open_dataset(episodes).dataframe("frame_id").read_all().num_rows
+    )

@@ -26,6 +26,7 @@ mod cache;
 mod error;
 #[cfg(feature = "parquet")]
 mod hive;
+mod index_cache;
 mod prune;
 mod schema;
 mod stream;
@@ -67,6 +68,12 @@ pub struct DatasetOptions {
     pub memory_budget: u64,
     /// Threads that read footers when the dataset opens (at least 1).
     pub threads: usize,
+    /// Where to keep the index of each file without a footer (`dataset/index_cache.rs`):
+    /// such a file is scanned once and its detached index written here (never beside the
+    /// data), so that later opens read the index, not the file, and queries read the file
+    /// in part. `None` (the default): such a file is read whole at every open. Not used
+    /// with `skip_bad`, which reads such a file whole to skip what is bad in it.
+    pub index_cache: Option<PathBuf>,
 }
 
 impl Default for DatasetOptions {
@@ -78,6 +85,7 @@ impl Default for DatasetOptions {
             skip_bad: false,
             memory_budget: default_memory_budget(),
             threads: std::thread::available_parallelism().map_or(1, usize::from),
+            index_cache: None,
         }
     }
 }
@@ -118,8 +126,12 @@ pub struct SegmentInfo {
     pub num_rows: u64,
     /// The file's size in bytes.
     pub file_bytes: u64,
-    /// Was this read from the footer (`false`: the file has none and was read whole)?
+    /// Was this read from the footer (`false`: the file has none and was read whole, or
+    /// its index was read from the index cache)?
     pub from_footer: bool,
+    /// For a file without a footer, its index in
+    /// [`DatasetOptions::index_cache`]: the file is read through it, as through a footer.
+    pub index_file: Option<PathBuf>,
 }
 
 impl SegmentInfo {
@@ -420,14 +432,18 @@ impl Dataset {
     /// without a footer, nor with `skip_bad` (a bad chunk is skipped, which only a whole
     /// load does).
     fn reads_in_part(&self, number: usize) -> bool {
-        self.inner.segments[number].from_footer && !self.inner.options.skip_bad
+        let segment = &self.inner.segments[number];
+        (segment.from_footer || segment.index_file.is_some()) && !self.inner.options.skip_bad
     }
 
     /// Segment number `number`'s file opened through its footer; `None` when it has none.
     fn footer(&self, number: usize) -> Result<Option<LazyRecording>, DatasetError> {
         let segment = &self.inner.segments[number];
-        LazyRecording::open_recording(&segment.path, Some(&segment.id))
-            .map_err(|error| OpenError::rrd(&segment.path, error).into())
+        match &segment.index_file {
+            Some(index) => LazyRecording::open_indexed(&segment.path, index, Some(&segment.id)),
+            None => LazyRecording::open_recording(&segment.path, Some(&segment.id)),
+        }
+        .map_err(|error| OpenError::rrd(&segment.path, error).into())
     }
 
     /// The chunks of segment number `number` that `pick` picks from its manifest, read
@@ -698,12 +714,11 @@ fn open_file(
     warnings: &Mutex<Vec<String>>,
 ) -> Result<Opened, DatasetError> {
     let open_error = |error| OpenError::rrd(path, error);
-    let file_bytes = std::fs::metadata(path)
-        .map_err(|source| OpenError::Io {
-            path: path.to_owned(),
-            source,
-        })?
-        .len();
+    let metadata = std::fs::metadata(path).map_err(|source| OpenError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    let file_bytes = metadata.len();
     if crate::recording::SourceKind::detect(path)? != crate::recording::SourceKind::Rrd {
         return Err(DatasetError::NotRrd {
             path: path.to_owned(),
@@ -721,7 +736,12 @@ fn open_file(
                 loaded: None,
             })
         }
-        Ok(None) => load_whole(path, options, warnings, file_bytes),
+        Ok(None) => match &options.index_cache {
+            Some(dir) if !options.skip_bad => {
+                index_cache::open_indexed(path, dir, options, &metadata)
+            }
+            _ => load_whole(path, options, warnings, file_bytes),
+        },
         Err(error) if error.is_recording_choice() => Err(open_error(error).into()),
         // A corrupt footer: the file may still be read whole, message by message.
         Err(_) if options.skip_bad => load_whole(path, options, warnings, file_bytes),
@@ -753,27 +773,38 @@ fn load_whole(
             path: path.to_owned(),
         })?;
     let store = &loaded.store;
+    Ok(Opened {
+        info: info_from_store(path, info, store, file_bytes),
+        loaded: Some(store.snapshot()),
+    })
+}
+
+/// What a dataset knows of a segment read whole into `store`.
+fn info_from_store(
+    path: &Path,
+    info: &StoreInfo,
+    store: &crate::ChunkStore,
+    file_bytes: u64,
+) -> SegmentInfo {
     let stats = store.stats();
     let timelines = store
         .timelines()
         .into_iter()
         .filter_map(|t| Some((t.clone(), store.time_range(t.name())?)))
         .collect();
-    Ok(Opened {
-        info: SegmentInfo {
-            id: info.store_id.recording_id.to_string(),
-            application_id: info.store_id.application_id.to_string(),
-            path: path.to_owned(),
-            timelines,
-            entities: store.entity_paths(),
-            num_chunks: stats.num_chunks(),
-            num_static_chunks: stats.num_static_chunks,
-            num_rows: stats.num_rows(),
-            file_bytes,
-            from_footer: false,
-        },
-        loaded: Some(store.snapshot()),
-    })
+    SegmentInfo {
+        id: info.store_id.recording_id.to_string(),
+        application_id: info.store_id.application_id.to_string(),
+        path: path.to_owned(),
+        timelines,
+        entities: store.entity_paths(),
+        num_chunks: stats.num_chunks(),
+        num_static_chunks: stats.num_static_chunks,
+        num_rows: stats.num_rows(),
+        file_bytes,
+        from_footer: false,
+        index_file: None,
+    }
 }
 
 fn info_from_footer(
@@ -799,6 +830,7 @@ fn info_from_footer(
         num_rows: entries.iter().map(|e| e.num_rows).sum(),
         file_bytes,
         from_footer: true,
+        index_file: None,
     }
 }
 

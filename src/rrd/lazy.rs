@@ -96,6 +96,34 @@ impl LazyRecording<std::fs::File> {
     }
 }
 
+impl LazyRecording<std::fs::File> {
+    /// Opens the data file `path` lazily through its detached index `index` (written by
+    /// [`super::index::scan_and_index`] when the file had no footer): the index gives the
+    /// store info and the manifest, and chunks are read from `path`. `Ok(None)` if the
+    /// index is not one (it has no footer).
+    ///
+    /// # Errors
+    /// As [`LazyRecording::open_recording`], for either file. A data file that changed
+    /// since it was indexed is found out when a chunk is read: one that is not where the
+    /// index puts it is an error naming its offset.
+    pub fn open_indexed(
+        path: &Path,
+        index: &Path,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
+        let Some(mut lazy) = Self::open_recording(index, recording_id)? else {
+            return Ok(None);
+        };
+        let mut data =
+            std::fs::File::open(path).map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
+        lazy.stats.file_bytes = data
+            .seek(SeekFrom::End(0))
+            .map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
+        lazy.input = data;
+        Ok(Some(lazy))
+    }
+}
+
 impl<R: Read + Seek> LazyRecording<R> {
     /// Opens a seekable input lazily; `Ok(None)` if it has no footer.
     ///

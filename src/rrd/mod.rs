@@ -12,6 +12,7 @@ mod directory;
 mod error;
 mod footers;
 mod frames;
+pub mod index;
 mod lazy;
 mod log_msg;
 mod manifest;

@@ -106,6 +106,19 @@ impl<W: Write> RrdWriter<W> {
         Ok(())
     }
 
+    /// Lists in the footer a chunk this stream does not hold: its message's body is
+    /// `byte_size` bytes at `byte_offset` of another file (a detached index,
+    /// [`super::index`]).
+    pub(crate) fn note_chunk_elsewhere(&mut self, chunk: &Chunk, byte_offset: u64, byte_size: u64) {
+        self.written.push(WrittenChunk::new(
+            chunk,
+            byte_offset,
+            byte_size,
+            chunk.heap_size_bytes(),
+        ));
+        self.written_ids.insert(chunk.id());
+    }
+
     /// Bytes written so far.
     pub fn position(&self) -> u64 {
         self.position

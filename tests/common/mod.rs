@@ -67,6 +67,27 @@ pub fn episodes(dir: &std::path::Path) {
     );
 }
 
+/// Writes `chunks` as recording `id` without a footer (a stream cut before its end).
+pub fn write_without_footer(
+    dir: &std::path::Path,
+    name: &str,
+    id: &str,
+    chunks: Vec<Chunk>,
+) -> std::path::PathBuf {
+    let mut bytes = Vec::new();
+    {
+        let info = chunkstore::rrd::StoreInfo::new(chunkstore::rrd::StoreId::recording("app", id));
+        let mut writer =
+            chunkstore::rrd::RrdWriter::with_store_info(&mut bytes, &info, true).unwrap();
+        for chunk in chunks {
+            writer.write_chunk(&Arc::new(chunk)).unwrap();
+        }
+    }
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
 pub fn path(text: &str) -> EntityPath {
     EntityPath::parse(text).unwrap()
 }

@@ -14,25 +14,9 @@ use std::sync::Arc;
 use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch, StringArray};
 use arrow_select::concat::concat_batches;
 use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions, SEGMENT_ID_COLUMN};
-use chunkstore::rrd::{RrdWriter, StoreId, StoreInfo};
 use chunkstore::{Chunk, ChunkId, ChunkStore, DataframeQuery, LatestAtQuery, TimeInt, Timeline};
 
-use crate::common::{ScratchDir, clear, scalars, write_recording};
-
-/// Writes `chunks` as recording `id` without a footer (a stream cut before its end).
-fn write_without_footer(dir: &Path, name: &str, id: &str, chunks: Vec<Chunk>) -> PathBuf {
-    let mut bytes = Vec::new();
-    {
-        let info = StoreInfo::new(StoreId::recording("app", id));
-        let mut writer = RrdWriter::with_store_info(&mut bytes, &info, true).unwrap();
-        for chunk in chunks {
-            writer.write_chunk(&Arc::new(chunk)).unwrap();
-        }
-    }
-    let path = dir.join(name);
-    std::fs::write(&path, bytes).unwrap();
-    path
-}
+use crate::common::{ScratchDir, clear, scalars, write_recording, write_without_footer};
 
 /// Four recordings of different shapes: the three of `common::episodes` (entities and
 /// components only some share, Clears, static data, one without the `frame` timeline's
@@ -539,4 +523,167 @@ mod pruning_model {
             }
         }
     }
+}
+
+/// Issue 36: with an index cache, a file without a footer is scanned once and its index
+/// kept in the cache directory (nothing is written beside the data); the next open reads
+/// the index instead of the file, a range reads the file in part through it, and every
+/// answer is the one without the cache. A file that changes is scanned again.
+#[test]
+#[allow(
+    clippy::too_many_lines,
+    reason = "one file's life in the cache, step by step"
+)]
+fn a_footerless_segment_is_indexed_once_in_the_index_cache() {
+    let dir = ScratchDir::new("dataset-index-cache");
+    let data = dir.join("data");
+    std::fs::create_dir(&data).unwrap();
+    let cut = write_without_footer(
+        &data,
+        "cut.rrd",
+        "rec-c",
+        vec![
+            scalars("/robot/arm", "angle", &[(1, 1, Some(vec![1.0]))]),
+            scalars("/robot/arm", "angle", &[(2, 6, Some(vec![1.0]))]),
+            scalars("/robot/arm", "angle", &[(3, 7, Some(vec![1.0]))]),
+            scalars("/robot/arm", "angle", &[(4, 8, Some(vec![1.0]))]),
+            scalars("/robot/arm", "angle", &[(50, 2, Some(vec![2.0]))]),
+            scalars("/robot/leg", "angle", &[(60, 3, Some(vec![3.0]))]),
+            crate::common::static_scalar("/robot", "mass", 4, 70.0),
+        ],
+    );
+    write_recording(
+        &data,
+        "full.rrd",
+        "rec-f",
+        vec![scalars("/robot/arm", "angle", &[(5, 10, Some(vec![9.0]))])],
+    );
+    let listing = |dir: &Path| {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .map(|entries| {
+                entries
+                    .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                    .collect()
+            })
+            .unwrap_or_default();
+        names.sort();
+        names
+    };
+    let before = listing(&data);
+    let cache = dir.join("cache");
+    let options = DatasetOptions {
+        index_cache: Some(cache.clone()),
+        // Every chunk as written, so that counts of chunks read mean what they say.
+        config: chunkstore::StoreConfig::COMPACTION_OFF,
+        ..DatasetOptions::default()
+    };
+    let plain = Dataset::open(&data, &DatasetOptions::default()).unwrap();
+    assert!(plain.segment("rec-c").unwrap().index_file.is_none());
+    let range = chunkstore::TimeRange::new(TimeInt::new(40).unwrap(), TimeInt::new(55).unwrap());
+    let queries = [
+        DataframeQuery::new("frame"),
+        DataframeQuery::new("frame").with_range(range),
+        DataframeQuery::new("frame")
+            .with_range(range)
+            .with_fill_latest_at(true),
+    ];
+
+    let scanned = Dataset::open(&data, &options).unwrap();
+    let segment = scanned.segment("rec-c").unwrap();
+    assert!(!segment.from_footer);
+    let index = segment.index_file.clone().expect("indexed");
+    assert!(index.starts_with(&cache), "{}", index.display());
+    assert_eq!(listing(&cache).len(), 1, "{:?}", listing(&cache));
+    assert!(listing(&cache)[0].ends_with(".rrd-index"));
+    assert_eq!(listing(&data), before, "nothing is written beside the data");
+    assert!(scanned.segment("rec-f").unwrap().index_file.is_none());
+
+    // The next open reads the index: the same segment, and every answer alike; a range
+    // decodes only the chunks it needs.
+    let indexed = Dataset::open(&data, &options).unwrap();
+    let again = indexed.segment("rec-c").unwrap();
+    assert_eq!(again.index_file.as_ref(), Some(&index));
+    assert_eq!(
+        (
+            &again.entities,
+            &again.timelines,
+            again.num_rows,
+            again.num_chunks
+        ),
+        (
+            &segment.entities,
+            &segment.timelines,
+            segment.num_rows,
+            segment.num_chunks
+        )
+    );
+    assert_eq!(listing(&cache).len(), 1);
+    for query in &queries {
+        let expected = read_all(plain.dataframe(query).unwrap());
+        for dataset in [&scanned, &indexed] {
+            let table = read_all(dataset.dataframe(query).unwrap());
+            assert_eq!(table.schema(), expected.schema(), "{query:?}");
+            for i in 0..expected.num_columns() {
+                assert_eq!(
+                    table.column(i).to_data(),
+                    expected.column(i).to_data(),
+                    "{query:?}: column {}",
+                    expected.schema().field(i).name()
+                );
+            }
+        }
+    }
+    let fresh = Dataset::open(&data, &options).unwrap();
+    let read_before = fresh.read_stats();
+    let _ = read_all(fresh.dataframe(&queries[1]).unwrap());
+    let read = fresh.read_stats();
+    // Of rec-c's seven chunks, at most the one at frame 50 (rows), the static one, and one
+    // of each (entity, component, timeline) for the columns; and rec-f's one chunk.
+    let decoded = read.chunks_decoded - read_before.chunks_decoded;
+    assert!(decoded <= 5, "{read:?}");
+    assert!(read.bytes_read - read_before.bytes_read < std::fs::metadata(&cut).unwrap().len() * 2);
+
+    // A file that changes (here, rewritten with one more chunk) is scanned again, into a
+    // new index.
+    write_without_footer(
+        &data,
+        "cut.rrd",
+        "rec-c",
+        vec![
+            scalars("/robot/arm", "angle", &[(1, 1, Some(vec![1.0]))]),
+            scalars("/robot/arm", "angle", &[(70, 5, Some(vec![5.0]))]),
+        ],
+    );
+    let changed = Dataset::open(&data, &options).unwrap();
+    let segment = changed.segment("rec-c").unwrap();
+    assert_ne!(segment.index_file.as_ref(), Some(&index));
+    assert_eq!(listing(&cache).len(), 2);
+    assert_eq!(
+        segment.time_range("frame").map(|r| r.max().as_i64()),
+        Some(70)
+    );
+    let rows = read_all(changed.dataframe(&queries[0]).unwrap()).num_rows();
+    let plain_rows = read_all(
+        Dataset::open(&data, &DatasetOptions::default())
+            .unwrap()
+            .dataframe(&queries[0])
+            .unwrap(),
+    )
+    .num_rows();
+    assert_eq!(rows, plain_rows);
+
+    // An index that does not read (here, cut short) is written again by a new scan.
+    let current = segment.index_file.clone().unwrap();
+    let whole = std::fs::read(&current).unwrap();
+    std::fs::write(&current, &whole[..whole.len() / 2]).unwrap();
+    let rescanned = Dataset::open(&data, &options).unwrap();
+    assert_eq!(
+        rescanned.segment("rec-c").unwrap().index_file.as_ref(),
+        Some(&current)
+    );
+    assert_eq!(std::fs::read(&current).unwrap().len(), whole.len());
+    assert_eq!(
+        read_all(rescanned.dataframe(&queries[0]).unwrap()).num_rows(),
+        plain_rows
+    );
 }

@@ -72,6 +72,11 @@ pub struct LoadArgs {
     /// recording id): the segment `latest-at` and `range` read.
     #[arg(long, global = true, value_name = "ID")]
     pub segment: Option<String>,
+    /// Of a dataset SOURCE: keep the index of each `.rrd` without a footer in DIR (made if
+    /// missing), so that the next run reads the index instead of the whole file, and
+    /// queries read the file in part. Never written beside the data.
+    #[arg(long, global = true, value_name = "DIR")]
+    pub index_cache: Option<std::path::PathBuf>,
     /// Decode a whole `.rrd` before answering, even where its footer would let a query
     /// decode only the chunks it needs.
     #[arg(long, global = true)]

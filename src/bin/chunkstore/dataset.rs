@@ -34,6 +34,7 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
     let dataset_options = DatasetOptions {
         config: options.config,
         skip_bad: options.skip_bad,
+        index_cache: cli.load.index_cache.clone(),
         ..DatasetOptions::default()
     };
     // A dataframe's arguments and a new directory's path are checked before the files
@@ -240,6 +241,7 @@ fn stats(dataset: &Dataset) -> Result<(), Failure> {
                 "num_rows": s.num_rows,
                 "file_bytes": s.file_bytes,
                 "from_footer": s.from_footer,
+                "index_file": s.index_file.as_ref().map(|p| p.display().to_string()),
                 "num_entities": s.entities.len(),
                 "timelines": s.timelines.iter().map(|(t, r)| timeline_json(t, Some(*r))).collect::<Vec<_>>(),
             })

@@ -235,6 +235,15 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         )
         .into());
     }
+    if let Some(dir) = &cli.load.index_cache {
+        return Err(format!(
+            "--index-cache {}: {} is not a dataset (a directory of .rrd files); one \
+             recording without a footer is read whole",
+            dir.display(),
+            source.display()
+        )
+        .into());
+    }
     match &cli.command {
         Command::LatestAt {
             timeline,

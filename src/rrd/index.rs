@@ -1,0 +1,97 @@
+//! Detached indices: the footer a file without one would have, kept in a file of its own
+//! (feature `rrd`). An `.rrd` cut short (a recording still being written, a process that
+//! died) has no footer, so every use reads it whole; scanned once, its chunks' manifest is
+//! written as a small `.rrd` of its own: its header, the recording's store info, and an
+//! `End` message whose manifest places each chunk in the data file. Opened with
+//! [`LazyRecording::open_indexed`](super::LazyRecording::open_indexed), the data file is
+//! then read as lazily as one with a footer. The index is never written beside the data:
+//! its caller names where it goes.
+
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom};
+use std::path::Path;
+use std::sync::Arc;
+
+use super::frames::{MESSAGE_HEADER_LEN, parse_message_header};
+use super::{RrdError, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreInfo};
+use crate::Chunk;
+
+/// What a scan of a file without a footer found: its recording's store info and chunks.
+#[derive(Debug)]
+#[non_exhaustive]
+pub struct Scanned {
+    /// The recording's store info, if the file has one.
+    pub store_info: Option<StoreInfo>,
+    /// Its chunks, in file order.
+    pub chunks: Vec<Arc<Chunk>>,
+}
+
+/// Reads the single-recording `.rrd` at `path` message by message and, if it names its
+/// recording (a store info), writes its detached index to `index` (created or replaced;
+/// the caller renames a temporary into place). Blueprint messages are skipped, as every
+/// reader here skips them.
+///
+/// # Errors
+/// The file's first fault (a truncated last message included: the index describes a file
+/// that reads cleanly), [`RrdErrorKind::SeveralRecordings`] for a file of more than one
+/// recording, and the index's write errors (as [`RrdErrorKind::Io`]).
+pub fn scan_and_index(path: &Path, index: &Path) -> Result<Scanned, RrdError> {
+    let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
+    let file = std::fs::File::open(path).map_err(io(0))?;
+    let mut headers = std::fs::File::open(path).map_err(io(0))?;
+    let reader = RrdReader::new(BufReader::new(file))?;
+    let mut store_info = None;
+    let mut chunks = Vec::new();
+    let mut placed = Vec::new();
+    let mut recordings: Vec<String> = Vec::new();
+    for item in reader {
+        match item? {
+            RrdItem::StoreInfo(info) if store_info.is_none() => store_info = Some(info),
+            RrdItem::Chunk {
+                store_id,
+                chunk,
+                offset,
+            } => {
+                let id = store_id.recording_id.to_string();
+                if !recordings.contains(&id) {
+                    recordings.push(id);
+                }
+                let len = body_len(&mut headers, offset)?;
+                placed.push((offset, len));
+                chunks.push(Arc::new(chunk));
+            }
+            _ => {}
+        }
+    }
+    if recordings.len() > 1 {
+        return Err(RrdError::new(
+            0,
+            RrdErrorKind::SeveralRecordings {
+                recording_ids: recordings,
+            },
+        ));
+    }
+    if let Some(info) = &store_info {
+        let out = std::fs::File::create(index).map_err(io(0))?;
+        let mut writer = RrdWriter::with_store_info(BufWriter::new(out), info, true)?;
+        for (chunk, &(offset, len)) in chunks.iter().zip(&placed) {
+            writer.note_chunk_elsewhere(chunk, offset, len);
+        }
+        let out = writer.finish()?;
+        let file = out
+            .into_inner()
+            .map_err(|e| RrdError::new(0, RrdErrorKind::Io(e.into_error())))?;
+        file.sync_all().map_err(io(0))?;
+    }
+    Ok(Scanned { store_info, chunks })
+}
+
+/// The length of the message whose body starts at `body_at`, from its header.
+fn body_len(input: &mut (impl Read + Seek), body_at: u64) -> Result<u64, RrdError> {
+    let at = body_at - MESSAGE_HEADER_LEN as u64;
+    let mut header = [0u8; MESSAGE_HEADER_LEN];
+    input
+        .seek(SeekFrom::Start(at))
+        .and_then(|_| input.read_exact(&mut header))
+        .map_err(|e| RrdError::new(at, RrdErrorKind::Io(e)))?;
+    Ok(parse_message_header(&header).1)
+}
