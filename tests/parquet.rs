@@ -486,23 +486,6 @@ fn strings(batch: &RecordBatch, name: &str) -> Vec<String> {
     column.iter().map(|v| v.unwrap().to_owned()).collect()
 }
 
-fn assert_same_cells(answer: &RecordBatch, expected: &RecordBatch, context: &str) {
-    assert_eq!(
-        answer.schema().fields(),
-        expected.schema().fields(),
-        "{context}"
-    );
-    assert_eq!(answer.num_rows(), expected.num_rows(), "{context}");
-    for i in 0..expected.num_columns() {
-        assert_eq!(
-            answer.column(i).to_data(),
-            expected.column(i).to_data(),
-            "{context}: column {}",
-            expected.schema().field(i).name()
-        );
-    }
-}
-
 /// A dataset's Hive copy by time bucket: a partition per segment, and in it per bucket;
 /// every file has the dataset table's columns, its rows are its segment's and its bucket's,
 /// and the files in order are the dataset's dataframe, on any number of threads.
@@ -577,7 +560,7 @@ fn a_dataset_hive_copy_by_time_bucket_is_its_dataframe_cut_by_segment_and_bucket
             sorted.dedup();
             assert_eq!(keys, sorted, "{context}: one file per partition, in order");
             let joined = concat_batches(&expected.schema(), &parts).unwrap();
-            assert_same_cells(&joined, &expected, &context);
+            common::assert_same_cells(&joined, &expected, &context);
         }
     }
 }
@@ -634,7 +617,7 @@ fn a_dataset_hive_copy_by_entity_is_each_segments_chunk_table() {
                 })
                 .collect();
             let expected = RecordBatch::try_new(Arc::clone(&columns), placed).unwrap();
-            assert_same_cells(&batch, &expected, &format!("{} {entity}", segment.id));
+            common::assert_same_cells(&batch, &expected, &format!("{} {entity}", segment.id));
         }
     }
     assert_eq!(files, summary.files.len());

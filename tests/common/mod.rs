@@ -88,6 +88,28 @@ pub fn write_without_footer(
     path
 }
 
+/// `answer` has `expected`'s fields and rows, and each column its cells.
+pub fn assert_same_cells(
+    answer: &arrow_array::RecordBatch,
+    expected: &arrow_array::RecordBatch,
+    context: &str,
+) {
+    assert_eq!(
+        answer.schema().fields(),
+        expected.schema().fields(),
+        "{context}"
+    );
+    assert_eq!(answer.num_rows(), expected.num_rows(), "{context}");
+    for i in 0..expected.num_columns() {
+        assert_eq!(
+            answer.column(i).to_data(),
+            expected.column(i).to_data(),
+            "{context}: column {}",
+            expected.schema().field(i).name()
+        );
+    }
+}
+
 pub fn path(text: &str) -> EntityPath {
     EntityPath::parse(text).unwrap()
 }

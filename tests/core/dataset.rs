@@ -623,14 +623,7 @@ fn a_footerless_segment_is_indexed_once_in_the_index_cache() {
         for dataset in [&scanned, &indexed] {
             let table = read_all(dataset.dataframe(query).unwrap());
             assert_eq!(table.schema(), expected.schema(), "{query:?}");
-            for i in 0..expected.num_columns() {
-                assert_eq!(
-                    table.column(i).to_data(),
-                    expected.column(i).to_data(),
-                    "{query:?}: column {}",
-                    expected.schema().field(i).name()
-                );
-            }
+            crate::common::assert_same_cells(&table, &expected, &format!("{query:?}"));
         }
     }
     let fresh = Dataset::open(&data, &options).unwrap();
