@@ -20,12 +20,13 @@ use std::sync::Arc;
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
+use super::stream::PlannedRows;
 use super::{Dataset, DatasetError, SegmentInfo};
-use crate::UnknownTimeline;
 use crate::hive_export::{
     HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset, escape,
     write_buckets, write_entities, write_new_directory,
 };
+use crate::{DataframeQuery, UnknownTimeline};
 
 /// The partition key of a segment's directory.
 pub const SEGMENT_PARTITION_KEY: &str = "segment";
@@ -85,8 +86,10 @@ impl Dataset {
                 width,
                 query,
             } => {
-                let query = bucket_query(timeline, query.as_ref())?;
-                let (schema, segments) = self.plan_dataframe(&query)?;
+                let (schema, segments) = match query {
+                    None => self.default_view(timeline)?,
+                    Some(_) => self.plan_dataframe(&bucket_query(timeline, query.as_ref())?)?,
+                };
                 let empty = HiveSummary::default();
                 for (number, info) in self.segments().iter().enumerate() {
                     if !segments.iter().any(|(n, ..)| *n == number) {
@@ -114,6 +117,33 @@ impl Dataset {
                 })
             }
         }
+    }
+
+    /// The default view on `timeline` (every column, no fill) as [`Dataset::tables`]
+    /// planned it, and the segments with data on it, each asking for every column: where
+    /// [`Dataset::plan_dataframe`] would read every segment whole to plan the columns
+    /// (and keep what it read, up to the memory budget), this reads a chunk of each column
+    /// once per dataset shape.
+    fn default_view(&self, timeline: &str) -> Result<PlannedRows, DatasetError> {
+        let tables = self.tables()?;
+        let Some(schema) = tables.timelines.get(timeline) else {
+            return Err(DatasetError::UnknownIndex(UnknownTimeline::new(
+                timeline,
+                &self.timelines(),
+            )));
+        };
+        let names: Vec<String> = schema
+            .fields()
+            .iter()
+            .skip(1)
+            .map(|f| f.name().clone())
+            .collect();
+        let query = DataframeQuery::new(timeline).with_columns(names);
+        let segments = (0..self.segments().len())
+            .filter(|&n| self.segments()[n].time_type(timeline).is_some())
+            .map(|n| (n, query.clone(), None))
+            .collect();
+        Ok((Arc::clone(schema), segments))
     }
 
     /// Every segment's chunk table, a partition per entity under its segment's.

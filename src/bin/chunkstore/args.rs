@@ -77,6 +77,10 @@ pub struct LoadArgs {
     /// queries read the file in part. Never written beside the data.
     #[arg(long, global = true, value_name = "DIR")]
     pub index_cache: Option<std::path::PathBuf>,
+    /// Of a dataset SOURCE: bytes of loaded segments kept between uses (e.g. 512MiB,
+    /// 2GB; least recently used out first). By default a quarter of the machine's memory.
+    #[arg(long, global = true, value_name = "BYTES", value_parser = parse_bytes)]
+    pub memory_budget: Option<u64>,
     /// Decode a whole `.rrd` before answering, even where its footer would let a query
     /// decode only the chunks it needs.
     #[arg(long, global = true)]
@@ -360,4 +364,36 @@ fn parse_time(text: &str) -> Result<TimeArg, String> {
 /// clap's error: usage problems, and `--help` / `--version` (which are not failures).
 pub fn parse(args: &[OsString]) -> Result<Cli, clap::Error> {
     Cli::try_parse_from(args)
+}
+
+/// Parses a byte count: an integer, optionally followed by B, KB, MB, GB, TB (powers of
+/// 1000) or KiB, MiB, GiB, TiB (powers of 1024).
+pub fn parse_bytes(text: &str) -> Result<u64, String> {
+    let text = text.trim();
+    let split = text
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(text.len());
+    let (number, unit) = text.split_at(split);
+    let number: u64 = number
+        .parse()
+        .map_err(|_| format!("{text:?} is not a byte count (such as 512MiB or 2GB)"))?;
+    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "kb" => 1_000,
+        "mb" => 1_000_000,
+        "gb" => 1_000_000_000,
+        "tb" => 1_000_000_000_000,
+        "kib" => 1 << 10,
+        "mib" => 1 << 20,
+        "gib" => 1 << 30,
+        "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "{other:?} is not a byte unit (B, KB, MB, GB, TB, KiB, MiB, GiB, TiB)"
+            ));
+        }
+    };
+    number
+        .checked_mul(scale)
+        .ok_or_else(|| format!("{text:?} is too large"))
 }

@@ -31,12 +31,15 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
         )
         .into());
     }
-    let dataset_options = DatasetOptions {
+    let mut dataset_options = DatasetOptions {
         config: options.config,
         skip_bad: options.skip_bad,
         index_cache: cli.load.index_cache.clone(),
         ..DatasetOptions::default()
     };
+    if let Some(budget) = cli.load.memory_budget {
+        dataset_options.memory_budget = budget;
+    }
     // A dataframe's arguments and a new directory's path are checked before the files
     // are opened.
     let asked = match &cli.command {

@@ -235,6 +235,13 @@ fn run(cli: &Cli) -> Result<(), Failure> {
         )
         .into());
     }
+    if cli.load.memory_budget.is_some() {
+        return Err(format!(
+            "--memory-budget: {} is not a dataset (a directory of .rrd files)",
+            source.display()
+        )
+        .into());
+    }
     if let Some(dir) = &cli.load.index_cache {
         return Err(format!(
             "--index-cache {}: {} is not a dataset (a directory of .rrd files); one \

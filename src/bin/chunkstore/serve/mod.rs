@@ -84,37 +84,7 @@ pub enum ReadMode {
     Snapshot,
 }
 
-/// Parses a byte count: an integer, optionally followed by B, KB, MB, GB, TB (powers of
-/// 1000) or KiB, MiB, GiB, TiB (powers of 1024).
-pub fn parse_bytes(text: &str) -> Result<u64, String> {
-    let text = text.trim();
-    let split = text
-        .find(|c: char| !c.is_ascii_digit())
-        .unwrap_or(text.len());
-    let (number, unit) = text.split_at(split);
-    let number: u64 = number
-        .parse()
-        .map_err(|_| format!("{text:?} is not a byte count (such as 512MiB or 2GB)"))?;
-    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
-        "" | "b" => 1,
-        "kb" => 1_000,
-        "mb" => 1_000_000,
-        "gb" => 1_000_000_000,
-        "tb" => 1_000_000_000_000,
-        "kib" => 1 << 10,
-        "mib" => 1 << 20,
-        "gib" => 1 << 30,
-        "tib" => 1 << 40,
-        other => {
-            return Err(format!(
-                "{other:?} is not a byte unit (B, KB, MB, GB, TB, KiB, MiB, GiB, TiB)"
-            ));
-        }
-    };
-    number
-        .checked_mul(scale)
-        .ok_or_else(|| format!("{text:?} is too large"))
-}
+pub use crate::args::parse_bytes;
 
 /// How many live messages a reader may fall behind the writers before it is dropped.
 const LIVE_BACKLOG: usize = 1024;
