@@ -12,7 +12,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::frames::{MESSAGE_HEADER_LEN, parse_message_header};
-use super::{RrdError, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreInfo};
+use super::{RrdError, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreInfo, StoreKind};
 use crate::Chunk;
 
 /// What a scan of a file without a footer found: its recording's store info and chunks.
@@ -45,7 +45,12 @@ pub fn scan_and_index(path: &Path, index: &Path) -> Result<Scanned, RrdError> {
     let mut recordings: Vec<String> = Vec::new();
     for item in reader {
         match item? {
-            RrdItem::StoreInfo(info) if store_info.is_none() => store_info = Some(info),
+            // The recording's own (a blueprint's store info may come first).
+            RrdItem::StoreInfo(info)
+                if store_info.is_none() && info.store_id.kind == StoreKind::Recording =>
+            {
+                store_info = Some(info);
+            }
             RrdItem::Chunk {
                 store_id,
                 chunk,
@@ -87,7 +92,8 @@ pub fn scan_and_index(path: &Path, index: &Path) -> Result<Scanned, RrdError> {
 
 /// The length of the message whose body starts at `body_at`, from its header.
 fn body_len(input: &mut (impl Read + Seek), body_at: u64) -> Result<u64, RrdError> {
-    let at = body_at - MESSAGE_HEADER_LEN as u64;
+    // A chunk's body comes after its header, so this never saturates on a reader's offset.
+    let at = body_at.saturating_sub(MESSAGE_HEADER_LEN as u64);
     let mut header = [0u8; MESSAGE_HEADER_LEN];
     input
         .seek(SeekFrom::Start(at))
