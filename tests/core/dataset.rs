@@ -449,7 +449,9 @@ mod pruning_model {
     use proptest::prelude::*;
 
     use super::{equals_own_tables, read_all};
-    use crate::common::{ScratchDir, clear, scalars, static_scalar, write_recording};
+    use crate::common::{
+        ScratchDir, clear, scalars, static_scalar, write_recording, write_without_footer,
+    };
     use chunkstore::dataset::{Dataset, DatasetOptions};
     use chunkstore::{DataframeQuery, EntityPathFilter, TimeInt, TimeRange};
 
@@ -480,30 +482,38 @@ mod pruning_model {
         ) {
             let case = CASE.fetch_add(1, Ordering::Relaxed);
             let dir = ScratchDir::new(&format!("dataset-model-{case}"));
-            let mut row = 1000u128;
-            let mut next_row = || {
-                row += 1;
-                row
+            // The chunks, built alike for each file (a chunk is not `Clone`).
+            let build = || {
+                let mut row = 1000u128;
+                let mut next_row = || {
+                    row += 1;
+                    row
+                };
+                let mut chunks = Vec::new();
+                for (entity, component, times, null_first) in &specs {
+                    let rows: Vec<(i64, u128, Option<Vec<f64>>)> = times
+                        .iter()
+                        .enumerate()
+                        .map(|(i, &t)| {
+                            let cell = (i > 0 || !null_first).then(|| vec![f64::from(t)]);
+                            (i64::from(t), next_row(), cell)
+                        })
+                        .collect();
+                    chunks.push(scalars(ENTITIES[*entity], COMPONENTS[*component], &rows));
+                }
+                for &(entity, time, recursive) in &clears {
+                    chunks.push(clear(ENTITIES[entity], Some(time), next_row(), recursive));
+                }
+                for &(entity, component) in &statics {
+                    chunks.push(static_scalar(ENTITIES[entity], COMPONENTS[component], next_row(), -1.0));
+                }
+                chunks
             };
-            let mut chunks = Vec::new();
-            for (entity, component, times, null_first) in &specs {
-                let rows: Vec<(i64, u128, Option<Vec<f64>>)> = times
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &t)| {
-                        let cell = (i > 0 || !null_first).then(|| vec![f64::from(t)]);
-                        (i64::from(t), next_row(), cell)
-                    })
-                    .collect();
-                chunks.push(scalars(ENTITIES[*entity], COMPONENTS[*component], &rows));
-            }
-            for &(entity, time, recursive) in &clears {
-                chunks.push(clear(ENTITIES[entity], Some(time), next_row(), recursive));
-            }
-            for &(entity, component) in &statics {
-                chunks.push(static_scalar(ENTITIES[entity], COMPONENTS[component], next_row(), -1.0));
-            }
-            let file = write_recording(&dir, "segment.rrd", "model", chunks);
+            // The same chunks without a footer, read through an index cache.
+            let cut_dir = dir.join("cut");
+            std::fs::create_dir(&cut_dir).unwrap();
+            let cut = write_without_footer(&cut_dir, "segment.rrd", "model", build());
+            let file = write_recording(&dir, "segment.rrd", "model", build());
             let mut query = DataframeQuery::new("frame")
                 .with_range(TimeRange::new(
                     TimeInt::new(lo).unwrap(),
@@ -518,6 +528,19 @@ mod pruning_model {
             for memory_budget in [0, DatasetOptions::default().memory_budget] {
                 let options = DatasetOptions { memory_budget, ..DatasetOptions::default() };
                 let dataset = Dataset::open(&file, &options).unwrap();
+                let table = read_all(dataset.dataframe(&query).unwrap());
+                equals_own_tables(&table, &[("model", file.clone())], &query);
+            }
+            // Scanned into the cache on the first open, read through it on the second;
+            // with no budget, neither keeps the segment, so both read it in part.
+            for _ in 0..2 {
+                let options = DatasetOptions {
+                    memory_budget: 0,
+                    index_cache: Some(dir.join("index")),
+                    ..DatasetOptions::default()
+                };
+                let dataset = Dataset::open(&cut, &options).unwrap();
+                prop_assert!(dataset.segments()[0].index_file.is_some());
                 let table = read_all(dataset.dataframe(&query).unwrap());
                 equals_own_tables(&table, &[("model", file.clone())], &query);
             }
