@@ -63,35 +63,30 @@ pub(super) fn open_indexed(
             loaded: None,
         });
     }
-    let io = |path: &Path| {
-        let path = path.to_owned();
-        move |source| DatasetError::Io { path, source }
+    std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io {
+        path: dir.to_owned(),
+        source,
+    })?;
+    let index_io = |source| DatasetError::Io {
+        path: index.clone(),
+        source,
     };
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let name = index
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let partial = dir.join(format!(".{name}.partial-{}", std::process::id()));
-    let (_unfinished, ()) =
-        crate::UnfinishedOutput::create(&partial, |_| Ok(())).map_err(io(&partial))?;
-    let scanned = match crate::rrd::index::scan_and_index(path, &partial) {
-        Ok(scanned) => scanned,
-        Err(error) => {
-            let _ = std::fs::remove_file(&partial);
-            return Err(OpenError::rrd(path, error).into());
-        }
-    };
-    let Some(info) = scanned.store_info else {
-        let _ = std::fs::remove_file(&partial);
-        return Err(DatasetError::NoRecordingId {
-            path: path.to_owned(),
-        });
-    };
-    std::fs::rename(&partial, &index).map_err(io(&index))?;
+    // Written under a temporary name and renamed: a scan that fails, or a process that
+    // dies, leaves no index that is not whole.
+    let (info, chunks) = crate::atomic::atomic_write(&index, index_io, |file| {
+        let (scanned, out) = crate::rrd::index::scan_and_index(path, std::io::BufWriter::new(file))
+            .map_err(|error| DatasetError::from(OpenError::rrd(path, error)))?;
+        let Some(info) = scanned.store_info else {
+            return Err(DatasetError::NoRecordingId {
+                path: path.to_owned(),
+            });
+        };
+        let file = out.into_inner().map_err(|e| index_io(e.into_error()))?;
+        Ok((file, (info, scanned.chunks)))
+    })?;
     let mut store = ChunkStore::with_config(options.config)
         .map_err(|e| DatasetError::from(OpenError::Config(e)))?;
-    for chunk in scanned.chunks {
+    for chunk in chunks {
         let id = chunk.id();
         store.insert(chunk).map_err(|error| {
             DatasetError::from(OpenError::Fault(Box::new(LoadFault::Chunk {

@@ -7,7 +7,7 @@
 //! then read as lazily as one with a footer. The index is never written beside the data:
 //! its caller names where it goes.
 
-use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom};
+use std::io::{BufReader, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -26,15 +26,15 @@ pub struct Scanned {
 }
 
 /// Reads the single-recording `.rrd` at `path` message by message and, if it names its
-/// recording (a store info), writes its detached index to `index` (created or replaced;
-/// the caller renames a temporary into place). Blueprint messages are skipped, as every
-/// reader here skips them.
+/// recording (a store info), writes its detached index to `index` (nothing, if it does
+/// not), which it gives back. Blueprint messages are skipped, as every reader here skips
+/// them. The caller makes the index durable (`atomic_write` syncs and renames it).
 ///
 /// # Errors
 /// The file's first fault (a truncated last message included: the index describes a file
 /// that reads cleanly), [`RrdErrorKind::SeveralRecordings`] for a file of more than one
 /// recording, and the index's write errors (as [`RrdErrorKind::Io`]).
-pub fn scan_and_index(path: &Path, index: &Path) -> Result<Scanned, RrdError> {
+pub fn scan_and_index<W: Write>(path: &Path, index: W) -> Result<(Scanned, W), RrdError> {
     let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
     let file = std::fs::File::open(path).map_err(io(0))?;
     let mut headers = std::fs::File::open(path).map_err(io(0))?;
@@ -75,19 +75,17 @@ pub fn scan_and_index(path: &Path, index: &Path) -> Result<Scanned, RrdError> {
             },
         ));
     }
-    if let Some(info) = &store_info {
-        let out = std::fs::File::create(index).map_err(io(0))?;
-        let mut writer = RrdWriter::with_store_info(BufWriter::new(out), info, true)?;
-        for (chunk, &(offset, len)) in chunks.iter().zip(&placed) {
-            writer.note_chunk_elsewhere(chunk, offset, len);
+    let index = match &store_info {
+        Some(info) => {
+            let mut writer = RrdWriter::with_store_info(index, info, true)?;
+            for (chunk, &(offset, len)) in chunks.iter().zip(&placed) {
+                writer.note_chunk_elsewhere(chunk, offset, len);
+            }
+            writer.finish()?
         }
-        let out = writer.finish()?;
-        let file = out
-            .into_inner()
-            .map_err(|e| RrdError::new(0, RrdErrorKind::Io(e.into_error())))?;
-        file.sync_all().map_err(io(0))?;
-    }
-    Ok(Scanned { store_info, chunks })
+        None => index,
+    };
+    Ok((Scanned { store_info, chunks }, index))
 }
 
 /// The length of the message whose body starts at `body_at`, from its header.
