@@ -17,16 +17,16 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use arrow_array::{RecordBatch, RecordBatchReader};
-use arrow_schema::{ArrowError, SchemaRef};
+use arrow_schema::SchemaRef;
 
+use super::schema::Placed;
 use super::stream::PlannedRows;
 use super::{Dataset, DatasetError, SegmentInfo};
+use crate::DataframeQuery;
 use crate::hive_export::{
     HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset, escape,
     write_buckets, write_entities, write_new_directory,
 };
-use crate::{DataframeQuery, UnknownTimeline};
 
 /// The partition key of a segment's directory.
 pub const SEGMENT_PARTITION_KEY: &str = "segment";
@@ -71,10 +71,7 @@ impl Dataset {
                 if let Some(timeline) = timeline
                     && self.time_type(timeline).is_none()
                 {
-                    return Err(DatasetError::UnknownIndex(UnknownTimeline::new(
-                        timeline,
-                        &self.timelines(),
-                    )));
+                    return Err(self.unknown_index_error(timeline));
                 }
                 let schema = Arc::clone(&self.tables()?.chunks);
                 write_new_directory(dir, |partial| {
@@ -92,7 +89,11 @@ impl Dataset {
                 };
                 let empty = HiveSummary::default();
                 for (number, info) in self.segments().iter().enumerate() {
-                    if !segments.iter().any(|(n, ..)| *n == number) {
+                    // `segments` is in segment order.
+                    if segments
+                        .binary_search_by_key(&number, |(n, ..)| *n)
+                        .is_err()
+                    {
                         on_segment(info, &empty);
                     }
                 }
@@ -127,10 +128,7 @@ impl Dataset {
     fn default_view(&self, timeline: &str) -> Result<PlannedRows, DatasetError> {
         let tables = self.tables()?;
         let Some(schema) = tables.timelines.get(timeline) else {
-            return Err(DatasetError::UnknownIndex(UnknownTimeline::new(
-                timeline,
-                &self.timelines(),
-            )));
+            return Err(self.unknown_index_error(timeline));
         };
         let names: Vec<String> = schema
             .fields()
@@ -170,18 +168,10 @@ impl Dataset {
                 Err(error) => return Err(error),
             };
             let mut summary = HiveSummary::default();
-            if snapshot.entity_paths().is_empty() {
-                on_segment(info, &summary);
-                return Ok(summary);
-            }
             let dir = segment_dir(dir, info);
             let timeline = timeline.filter(|t| snapshot.time_type(t).is_some());
             let id: Arc<str> = info.id.as_str().into();
-            let shape = |table| Placed {
-                rows: table,
-                schema: Arc::clone(schema),
-                segment: Arc::clone(&id),
-            };
+            let shape = |table| Placed::new(table, Arc::clone(schema), Arc::clone(&id));
             write_entities(&snapshot, &dir, timeline, shape, &mut summary)
                 .map_err(|error| segment_failure(info, error))?;
             on_segment(info, &summary);
@@ -215,26 +205,4 @@ fn merged(
 ) -> Result<HiveSummary, DatasetError> {
     all.files.extend(one?.files);
     Ok(all)
-}
-
-/// A segment's table in the dataset's columns, its segment id first.
-struct Placed<R> {
-    rows: R,
-    schema: SchemaRef,
-    segment: Arc<str>,
-}
-
-impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> Iterator for Placed<R> {
-    type Item = Result<RecordBatch, ArrowError>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        let batch = self.rows.next()?;
-        Some(batch.and_then(|batch| super::schema::place(&self.schema, &self.segment, &batch)))
-    }
-}
-
-impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> RecordBatchReader for Placed<R> {
-    fn schema(&self) -> SchemaRef {
-        Arc::clone(&self.schema)
-    }
 }

@@ -42,7 +42,7 @@ pub use error::DatasetError;
 pub use hive::SEGMENT_PARTITION_KEY;
 pub use schema::DatasetTables;
 #[cfg(feature = "datafusion")]
-pub(crate) use schema::place;
+pub(crate) use schema::Placed;
 pub use stream::DatasetStream;
 
 use crate::recording::{
@@ -375,6 +375,11 @@ impl Dataset {
             id: id.to_owned(),
             num_segments: self.inner.segments.len(),
         }
+    }
+
+    /// The error for an index no segment has, naming the dataset's timelines.
+    pub(crate) fn unknown_index_error(&self, index: &str) -> DatasetError {
+        DatasetError::UnknownIndex(crate::UnknownTimeline::new(index, &self.timelines()))
     }
 
     /// What queries have read from the files so far (opening aside).

@@ -311,7 +311,7 @@ pub(super) fn project(table: &SchemaRef, names: &[String]) -> Result<SchemaRef, 
 
 /// `batch` (one segment's, with some of `schema`'s columns by name) in `schema`: the
 /// segment id first, null where the segment lacks a column.
-pub(crate) fn place(
+fn place(
     schema: &SchemaRef,
     segment: &str,
     batch: &RecordBatch,
@@ -341,4 +341,39 @@ pub(crate) fn place(
         columns,
         &arrow_array::RecordBatchOptions::new().with_row_count(Some(rows)),
     )
+}
+
+/// One segment's batches (`rows`, with some of `schema`'s columns by name) in `schema`,
+/// each placed there: the segment's part of a dataset's table.
+pub(crate) struct Placed<R> {
+    rows: R,
+    schema: SchemaRef,
+    segment: Arc<str>,
+}
+
+impl<R> Placed<R> {
+    pub(crate) fn new(rows: R, schema: SchemaRef, segment: Arc<str>) -> Self {
+        Self {
+            rows,
+            schema,
+            segment,
+        }
+    }
+}
+
+impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> Iterator for Placed<R> {
+    type Item = Result<RecordBatch, ArrowError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let batch = self.rows.next()?;
+        Some(batch.and_then(|batch| place(&self.schema, &self.segment, &batch)))
+    }
+}
+
+impl<R: Iterator<Item = Result<RecordBatch, ArrowError>>> arrow_array::RecordBatchReader
+    for Placed<R>
+{
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
 }

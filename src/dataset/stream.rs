@@ -18,9 +18,9 @@ use std::thread::JoinHandle;
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 
-use super::schema::{SchemaUnion, project};
+use super::schema::{Placed, SchemaUnion, project};
 use super::{Dataset, DatasetError, ReadStats};
-use crate::{DataframeQuery, DataframeStream, UnknownTimeline};
+use crate::{DataframeQuery, DataframeStream};
 
 impl Dataset {
     /// The dataframe of every segment on `query`'s index, as one table: see the module
@@ -48,10 +48,7 @@ impl Dataset {
             .filter(|&n| self.segments()[n].time_type(index).is_some())
             .collect();
         if with_index.is_empty() {
-            return Err(DatasetError::UnknownIndex(UnknownTimeline::new(
-                index,
-                &self.timelines(),
-            )));
+            return Err(self.unknown_index_error(index));
         }
         let full = query.clone().without_columns();
         // Segments are planned on several threads; what planning read is kept for the
@@ -148,7 +145,7 @@ pub struct DatasetStream {
     threads: usize,
     next: usize,
     /// The segment being streamed: its id as a column value, and its stream.
-    current: Option<(Arc<str>, DataframeStream<'static>)>,
+    current: Option<Placed<DataframeStream<'static>>>,
     /// The next segments' loads, on threads of their own while this one streams (one fewer
     /// than `threads`), by position.
     ahead: VecDeque<(usize, JoinHandle<Loaded>)>,
@@ -279,7 +276,7 @@ impl DatasetStream {
             let started = snapshot.and_then(|snapshot| rows_of(snapshot, query, &id));
             match started {
                 Ok(Some(stream)) => {
-                    self.current = Some((id.into(), stream));
+                    self.current = Some(Placed::new(stream, Arc::clone(&self.schema), id.into()));
                     return Ok(true);
                 }
                 Ok(None) => {} // nothing on the index: no rows
@@ -298,13 +295,9 @@ impl Iterator for DatasetStream {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some((segment, stream)) = &mut self.current {
-                match stream.next() {
-                    Some(Ok(batch)) => {
-                        let segment = Arc::clone(segment);
-                        return Some(super::schema::place(&self.schema, &segment, &batch));
-                    }
-                    Some(Err(error)) => return Some(Err(error)),
+            if let Some(placed) = &mut self.current {
+                match placed.next() {
+                    Some(batch) => return Some(batch),
                     None => self.current = None,
                 }
             }

@@ -717,7 +717,7 @@ struct ChunkRows {
     query: ChunkTableQuery,
     columns: Vec<String>,
     picks: ChunkPicks,
-    current: Option<(Arc<str>, crate::ChunkTableStream)>,
+    current: Option<crate::dataset::Placed<crate::ChunkTableStream>>,
     metrics: ReadMetrics,
 }
 
@@ -755,7 +755,11 @@ impl ChunkRows {
             .chunk_table(&self.query.clone().with_columns(present))
             .map_err(|e| failed(e.to_string()))?;
         let id = self.dataset.segments()[number].id.as_str().into();
-        self.current = Some((id, stream));
+        self.current = Some(crate::dataset::Placed::new(
+            stream,
+            Arc::clone(&self.schema),
+            id,
+        ));
         Ok(true)
     }
 }
@@ -765,12 +769,9 @@ impl Iterator for ChunkRows {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some((segment, stream)) = &mut self.current {
-                match stream.next() {
-                    Some(Ok(batch)) => {
-                        return Some(crate::dataset::place(&self.schema, segment, &batch));
-                    }
-                    Some(Err(error)) => return Some(Err(error)),
+            if let Some(placed) = &mut self.current {
+                match placed.next() {
+                    Some(batch) => return Some(batch),
                     None => self.current = None,
                 }
             }
