@@ -228,25 +228,23 @@ fn run(cli: &Cli) -> Result<(), Failure> {
     if source.is_dir() && chunkstore::dataset::is_dataset_dir(source) {
         return dataset::run(cli, source, &options);
     }
-    if let Some(segment) = &cli.load.segment {
+    // The options only a dataset takes.
+    let dataset_only = [
+        cli.load
+            .segment
+            .as_ref()
+            .map(|id| format!("--segment {id}")),
+        cli.load
+            .memory_budget
+            .map(|bytes| format!("--memory-budget {bytes}")),
+        cli.load
+            .index_cache
+            .as_ref()
+            .map(|dir| format!("--index-cache {}", dir.display())),
+    ];
+    if let Some(option) = dataset_only.into_iter().flatten().next() {
         return Err(format!(
-            "--segment {segment}: {} is not a dataset (a directory of .rrd files)",
-            source.display()
-        )
-        .into());
-    }
-    if cli.load.memory_budget.is_some() {
-        return Err(format!(
-            "--memory-budget: {} is not a dataset (a directory of .rrd files)",
-            source.display()
-        )
-        .into());
-    }
-    if let Some(dir) = &cli.load.index_cache {
-        return Err(format!(
-            "--index-cache {}: {} is not a dataset (a directory of .rrd files); one \
-             recording without a footer is read whole",
-            dir.display(),
+            "{option}: {} is not a dataset (a directory of .rrd files)",
             source.display()
         )
         .into());
