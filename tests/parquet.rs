@@ -35,6 +35,17 @@ fn read_back(path: &Path) -> (RecordBatch, parquet::file::metadata::ParquetMetaD
     (collect(builder.build().unwrap()), metadata)
 }
 
+/// Does every row's `index` lie in bucket `bucket` of `width` index values?
+fn in_bucket(batch: &RecordBatch, index: &str, width: i64, bucket: i64) -> bool {
+    let times = batch
+        .column_by_name(index)
+        .unwrap()
+        .as_any()
+        .downcast_ref::<arrow_array::Int64Array>()
+        .unwrap();
+    times.values().iter().all(|t| t.div_euclid(width) == bucket)
+}
+
 /// Min and max of an Int64 column chunk's statistics, per row group.
 fn int64_bounds(
     metadata: &parquet::file::metadata::ParquetMetaData,
@@ -327,16 +338,7 @@ fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
                 .unwrap()
                 .parse()
                 .unwrap();
-            let index = batch
-                .column_by_name("frame_id")
-                .unwrap()
-                .as_any()
-                .downcast_ref::<arrow_array::Int64Array>()
-                .unwrap();
-            assert!(
-                index.values().iter().all(|t| t.div_euclid(width) == bucket),
-                "{width}"
-            );
+            assert!(in_bucket(&batch, "frame_id", width, bucket), "{width}");
             parts.push(batch);
         }
         let joined = arrow_select::concat::concat_batches(&view.schema(), &parts).unwrap();
@@ -539,17 +541,8 @@ fn a_dataset_hive_copy_by_time_bucket_is_its_dataframe_cut_by_segment_and_bucket
                         .all(|s| *s == values[0].1),
                     "{context}: a file holds its segment's rows"
                 );
-                let frames = batch
-                    .column_by_name("frame")
-                    .unwrap()
-                    .as_any()
-                    .downcast_ref::<arrow_array::Int64Array>()
-                    .unwrap();
                 assert!(
-                    frames
-                        .values()
-                        .iter()
-                        .all(|t| t.div_euclid(width) == bucket),
+                    in_bucket(&batch, "frame", width, bucket),
                     "{context}: a file holds its bucket's rows"
                 );
                 keys.push((values[0].1.clone(), bucket));

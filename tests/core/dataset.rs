@@ -659,7 +659,7 @@ fn a_footerless_segment_is_indexed_once_in_the_index_cache() {
     assert!(decoded <= 5, "{read:?}");
     assert!(read.bytes_read - read_before.bytes_read < std::fs::metadata(&cut).unwrap().len() * 2);
 
-    // A file that changes (here, rewritten with one more chunk) is scanned again, into a
+    // A file that changes (here, rewritten with other chunks) is scanned again, into a
     // new index.
     write_without_footer(
         &data,
