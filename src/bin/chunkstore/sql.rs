@@ -25,7 +25,7 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     }
     let loaded = crate::load::load(source, options)?;
     let snapshot = loaded.store.snapshot();
-    let ctx = context();
+    let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
     run(&ctx, args)
 }
@@ -34,14 +34,9 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
 #[cfg(feature = "datafusion")]
 pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Result<(), Failure> {
     crate::dataset::refuse_to_overwrite(dataset, args.out.as_deref())?;
-    let ctx = context();
+    let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
     run(&ctx, args)
-}
-
-#[cfg(feature = "datafusion")]
-fn context() -> datafusion::prelude::SessionContext {
-    chunkstore::sql::session_context()
 }
 
 /// Runs the query in `ctx` and writes its answer as `args` asks. The answer streams to a
