@@ -1794,7 +1794,10 @@ fn index_cache_keeps_the_index_of_a_footerless_segment() {
     let dir = robot_dataset("dataset-index-cache");
     let chunks: Vec<chunkstore::Chunk> = common::robot_chunks();
     common::write_without_footer(&dir, "cut.rrd", "cut", chunks);
-    let cache = scratch_dir("dataset-index-cache-dir").join("index");
+    // The guard is kept to the end: dropped at once, it would delete the directory before
+    // the cache recreated it, and nothing would delete that.
+    let cache_root = scratch_dir("dataset-index-cache-dir");
+    let cache = cache_root.join("index");
     let listing = |dir: &Path| std::fs::read_dir(dir).map_or(0, Iterator::count);
     let files = listing(&dir);
     let stats = |extra: &[&OsStr]| {

@@ -415,6 +415,133 @@ fn a_dataset_answers_alike_whatever_its_memory_budget() {
     assert_eq!(table(0), table(u64::MAX));
 }
 
+/// Segments are planned on the dataset's threads and loaded ahead of the reader on them,
+/// and read in order: on 1, 2 and 5 threads, with planning's reads kept or not, the table
+/// is the same, and a stream dropped before its end leaves the next one whole.
+#[test]
+fn a_dataset_streams_alike_on_any_number_of_threads() {
+    let dir = ScratchDir::new("dataset-threads");
+    episodes(&dir);
+    for n in 0..6 {
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..40u8)
+            .map(|t| {
+                (
+                    i64::from(t),
+                    100 + u128::from(t),
+                    Some(vec![f64::from(n) * 100.0 + f64::from(t)]),
+                )
+            })
+            .collect();
+        write_recording(
+            &dir,
+            &format!("more-{n}.rrd"),
+            &format!("rec-m{n}"),
+            vec![scalars("/robot/arm", "angle", &rows)],
+        );
+    }
+    let table = |threads, budget| {
+        let options = DatasetOptions {
+            memory_budget: budget,
+            threads,
+            ..DatasetOptions::default()
+        };
+        let dataset = Dataset::open(&dir, &options).unwrap();
+        let query = DataframeQuery::new("frame").with_fill_latest_at(true);
+        let mut early = dataset.dataframe(&query).unwrap();
+        assert!(early.next().unwrap().unwrap().num_rows() > 0);
+        drop(early);
+        let stream = dataset.dataframe(&query).unwrap();
+        assert_eq!(stream.num_segments(), 9);
+        let read = read_all(stream);
+        (read, dataset.take_warnings())
+    };
+    let (one, warnings) = table(1, u64::MAX);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert!(one.num_rows() > 6 * 40, "{one:?}");
+    for threads in [1, 2, 5] {
+        for budget in [0, u64::MAX] {
+            assert_eq!(
+                table(threads, budget),
+                (one.clone(), vec![]),
+                "{threads} threads, budget {budget}"
+            );
+        }
+    }
+}
+
+/// A segment that vanishes once its dataframe is planned (with no budget, planning keeps
+/// nothing) is named where its rows would be, the segments before it answered; with
+/// `skip_bad` it is skipped with one warning and the rest answers; on one thread or
+/// several.
+#[test]
+fn a_segment_that_vanishes_while_streaming_is_named_or_skipped() {
+    for threads in [1, 2, 4] {
+        for skip_bad in [false, true] {
+            let dir = ScratchDir::new("dataset-vanish-streaming");
+            let mut files = Vec::new();
+            for n in 0..4u8 {
+                files.push(write_recording(
+                    &dir,
+                    &format!("s{n}.rrd"),
+                    &format!("rec-{n}"),
+                    vec![scalars(
+                        "/e",
+                        "x",
+                        &[(i64::from(n), u128::from(n), Some(vec![f64::from(n)]))],
+                    )],
+                ));
+            }
+            let options = DatasetOptions {
+                memory_budget: 0,
+                threads,
+                skip_bad,
+                ..DatasetOptions::default()
+            };
+            let dataset = Dataset::open(&dir, &options).unwrap();
+            let stream = dataset.dataframe(&DataframeQuery::new("frame")).unwrap();
+            std::fs::remove_file(&files[2]).unwrap();
+            let results: Vec<_> = stream.collect();
+            let context = format!("{threads} threads, skip_bad {skip_bad}");
+            let rows = |results: &[Result<RecordBatch, _>]| -> Vec<String> {
+                results
+                    .iter()
+                    .filter_map(|r| r.as_ref().ok())
+                    .flat_map(|b| {
+                        let ids = b.column(0).as_any().downcast_ref::<StringArray>().unwrap();
+                        (0..b.num_rows())
+                            .map(|i| ids.value(i).to_owned())
+                            .collect::<Vec<_>>()
+                    })
+                    .collect()
+            };
+            assert_eq!(rows(&results), ["rec-0", "rec-1", "rec-3"], "{context}");
+            let errors: Vec<String> = results
+                .iter()
+                .filter_map(|r| r.as_ref().err().map(ToString::to_string))
+                .collect();
+            let warnings = dataset.take_warnings();
+            if skip_bad {
+                assert!(errors.is_empty(), "{context}: {errors:?}");
+                assert_eq!(warnings.len(), 1, "{context}: {warnings:?}");
+                assert!(
+                    warnings[0].contains("rec-2") && warnings[0].contains("s2.rrd"),
+                    "{warnings:?}"
+                );
+            } else {
+                assert_eq!(errors.len(), 1, "{context}: {errors:?}");
+                assert!(errors[0].contains("s2.rrd"), "{context}: {errors:?}");
+                assert!(warnings.is_empty(), "{context}: {warnings:?}");
+                let at = results.iter().position(Result::is_err).unwrap();
+                assert_eq!(
+                    rows(&results[..at]),
+                    ["rec-0", "rec-1"],
+                    "{context}: in order"
+                );
+            }
+        }
+    }
+}
+
 /// A segment opens as a recording for its own reads.
 #[test]
 fn a_segment_opens_as_a_recording() {
