@@ -62,6 +62,21 @@ pub(super) fn read_vec<R: Read + Seek>(
     file_bytes: u64,
     stats: &mut LazyStats,
 ) -> Result<Vec<u8>, RrdError> {
+    let mut out = Vec::new();
+    read_into(input, at, len, file_bytes, stats, &mut out)?;
+    Ok(out)
+}
+
+/// Reads `len` bytes at `at` into `out` (replacing what it held, and reusing its memory),
+/// after checking that the file holds them.
+pub(super) fn read_into<R: Read + Seek>(
+    input: &mut R,
+    at: u64,
+    len: u64,
+    file_bytes: u64,
+    stats: &mut LazyStats,
+    out: &mut Vec<u8>,
+) -> Result<(), RrdError> {
     let fits = at.checked_add(len).is_some_and(|end| end <= file_bytes);
     let size = usize::try_from(len).ok().filter(|_| fits).ok_or_else(|| {
         RrdError::new(
@@ -71,9 +86,9 @@ pub(super) fn read_vec<R: Read + Seek>(
             },
         )
     })?;
-    let mut out = vec![0u8; size];
-    read_at(input, at, &mut out, file_bytes, "message", stats)?;
-    Ok(out)
+    out.clear();
+    out.resize(size, 0);
+    read_at(input, at, out, file_bytes, "message", stats)
 }
 
 /// One stream of the input, found through its footer.

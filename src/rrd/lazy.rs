@@ -26,10 +26,10 @@ use std::sync::Arc;
 use arrow_buffer::Buffer;
 
 use super::error::{RrdError, RrdErrorKind};
-use super::footers::{LazyStats, find_store_info, read_footers, read_stream_header, read_vec};
+use super::footers::{LazyStats, find_store_info, read_footers, read_into, read_stream_header};
 use super::frames::StreamHeader;
 use super::manifest::{Manifest, ManifestEntry};
-use super::messages::{ArrowMsg, StoreInfo};
+use super::messages::{ArrowMsg, Compression, StoreInfo};
 use super::payload;
 use crate::query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult};
 use crate::{
@@ -425,26 +425,39 @@ impl<R: Read + Seek> LazyRecording<R> {
     }
 
     fn load(&mut self, entries: &[usize]) -> Result<(), RrdError> {
+        // A compressed message's body is only read from, until its chunk is decompressed:
+        // one buffer serves every such message of the load. A new one for each (fresh
+        // pages, faulted in and zeroed by the kernel) cost about as much as the read. (A
+        // buffer kept per thread, across loads, measured slower than one per load, which
+        // the next load's allocations reuse once it is freed.)
+        let mut body = Vec::new();
         for &i in entries {
             let entry = &self.manifest.entries[i];
             if self.loaded.contains(&entry.chunk_id) {
                 continue;
             }
             let (id, at, len) = (entry.chunk_id, entry.byte_offset, entry.byte_size);
-            let body = read_vec(
+            read_into(
                 &mut self.input,
                 at,
                 len,
                 self.stats.file_bytes,
                 &mut self.stats,
+                &mut body,
             )?;
             let within =
                 |(offset, kind): (usize, RrdErrorKind)| RrdError::new(at + offset as u64, kind);
             let msg = ArrowMsg::decode(&body).map_err(within)?;
-            let body = Buffer::from_vec(body);
-            let bytes = body.slice_with_length(msg.payload.start, msg.payload.len());
-            let chunk =
-                payload::decode_message_chunk(&msg, payload::PayloadBytes::Shared(bytes), at)?;
+            let payload = if msg.compression == Compression::None {
+                // Decoded in place: the chunk keeps the body.
+                let shared = Buffer::from_vec(std::mem::take(&mut body));
+                payload::PayloadBytes::Shared(
+                    shared.slice_with_length(msg.payload.start, msg.payload.len()),
+                )
+            } else {
+                payload::PayloadBytes::Borrowed(&body[msg.payload.clone()])
+            };
+            let chunk = payload::decode_message_chunk(&msg, payload, at)?;
             if chunk.id() != id {
                 return Err(RrdError::new(
                     at,
