@@ -8,12 +8,12 @@
 //! entity (part by part, in natural order) and component. A column a segment lacks is
 //! null in its rows. Planning loads each segment whose data is on the index (a segment
 //! without it gives no rows, as a dataframe of it would be refused, and is never loaded);
-//! the segment cache keeps what fits for the rows' pass.
+//! what it read is kept for the rows' pass only for the segments the rows start with.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
-use std::thread::JoinHandle;
+use std::sync::mpsc;
 
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
@@ -51,13 +51,25 @@ impl Dataset {
             return Err(self.unknown_index_error(index));
         }
         let full = query.clone().without_columns();
-        // Segments are planned on several threads; what planning read is kept for the
-        // rows' pass while it fits the budget (`Dataset::segment_for`).
+        // Segments are planned on several threads. What planning read is kept for the
+        // rows' pass only for the segments the stream starts with (as many as it loads at
+        // once), while it fits the budget (`Dataset::segment_for`); the others' planning
+        // reads only their columns' chunks and frees them at once. Holding every planned
+        // segment that fits the budget until its rows are streamed was slower, not
+        // faster: a hundred segments' chunks (60 MB) took fresh pages the kernel faulted
+        // in and zeroed (19,000 page faults; 3,600 now), where reading the rows again
+        // from the page cache into freed memory costs less (docs/PERFORMANCE.md,
+        // "Datasets"). With the default budget, a quarter of the machine's memory, a
+        // wide table of those hundred segments held 1.4 GB.
+        let threads = self.options().threads.max(1);
         let room = AtomicU64::new(self.options().memory_budget);
-        let plans = super::in_parallel(&with_index, self.options().threads, |&number| {
+        let no_room = AtomicU64::new(0);
+        let positions: Vec<(usize, usize)> = with_index.iter().copied().enumerate().collect();
+        let plans = super::in_parallel(&positions, threads, |&(position, number)| {
             let segment_id = &self.segments()[number].id;
+            let room = if position < threads { &room } else { &no_room };
             let super::SegmentRead { snapshot, keep, .. } =
-                match self.segment_for(number, &full, Some(&room)) {
+                match self.segment_for(number, &full, Some(room)) {
                     Ok(read) => read,
                     Err(error) if self.options().skip_bad => {
                         self.warn(format!("skipped segment {segment_id:?}: {error}"));
@@ -122,6 +134,7 @@ impl Dataset {
             next: 0,
             current: None,
             ahead: VecDeque::new(),
+            loaders: None,
             read: ReadStats::default(),
         }
     }
@@ -148,7 +161,9 @@ pub struct DatasetStream {
     current: Option<Placed<DataframeStream<'static>>>,
     /// The next segments' loads, on threads of their own while this one streams (one fewer
     /// than `threads`), by position.
-    ahead: VecDeque<(usize, JoinHandle<Loaded>)>,
+    ahead: VecDeque<(usize, mpsc::Receiver<LoadResult>)>,
+    /// The threads that load ahead, started with the first load ahead.
+    loaders: Option<Loaders>,
     /// What its loads read from the files.
     read: ReadStats,
 }
@@ -193,11 +208,63 @@ fn rows_of(
         .map_err(failed)
 }
 
-/// The segment a load ahead read, or its error; a panic (a bug) goes on in this thread.
-fn joined(handle: JoinHandle<Loaded>) -> Loaded {
-    handle
-        .join()
-        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+/// A load ahead's segment, or the panic that ended it.
+type LoadResult = std::thread::Result<Loaded>;
+
+/// A segment to load ahead: its number, its query, and where its load goes.
+type LoadJob = (usize, DataframeQuery, mpsc::Sender<LoadResult>);
+
+/// The threads a stream loads segments ahead on, for as long as it lives: a thread per
+/// segment cost more than its load (100 threads made and ended in a 0.06 s query: 4% of
+/// its time in `clone`, and each new thread's memory was fresh pages again).
+struct Loaders {
+    jobs: mpsc::Sender<LoadJob>,
+}
+
+impl Loaders {
+    /// `threads` threads loading segments of `dataset`; they end when the stream drops.
+    fn start(dataset: &Dataset, threads: usize) -> Self {
+        let (jobs, queue) = mpsc::channel::<LoadJob>();
+        let queue = Arc::new(parking_lot::Mutex::new(queue));
+        for _ in 0..threads {
+            let (dataset, queue) = (dataset.clone(), Arc::clone(&queue));
+            std::thread::spawn(move || {
+                loop {
+                    let job = queue.lock().recv();
+                    let Ok((number, query, done)) = job else {
+                        return; // the stream dropped
+                    };
+                    let loaded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        dataset
+                            .segment_for(number, &query, None)
+                            .map(|read| (read.snapshot, read.read))
+                    }));
+                    // A stream dropped before it took this load no longer wants it.
+                    let _ = done.send(loaded);
+                }
+            });
+        }
+        Self { jobs }
+    }
+
+    /// Starts loading segment `number` for `query`; its load comes through the receiver.
+    fn load(&self, number: usize, query: DataframeQuery) -> mpsc::Receiver<LoadResult> {
+        let (done, loaded) = mpsc::channel();
+        // The threads end only when `jobs` drops (were they gone, the receiver says so,
+        // and the segment is loaded where it is wanted).
+        let _ = self.jobs.send((number, query, done));
+        loaded
+    }
+}
+
+/// The segment a load ahead read, or its error (a panic there, a bug, goes on in this
+/// thread); `None` if its loader ended without sending it.
+fn taken(loaded: &mpsc::Receiver<LoadResult>) -> Option<Loaded> {
+    match loaded.recv() {
+        Ok(Ok(loaded)) => Some(loaded),
+        Ok(Err(panic)) => std::panic::resume_unwind(panic),
+        Err(mpsc::RecvError) => None,
+    }
 }
 
 impl std::fmt::Debug for DatasetStream {
@@ -225,7 +292,7 @@ impl DatasetStream {
         self.read
     }
 
-    /// Starts loading, on threads of their own, the segments after `position` that
+    /// Starts loading, on the stream's loader threads, the segments after `position` that
     /// planning did not keep, up to one fewer than the dataset's threads.
     fn load_ahead(&mut self, position: usize) {
         let end = (position + self.threads).min(self.segments.len());
@@ -234,13 +301,11 @@ impl DatasetStream {
             if kept.is_some() || self.ahead.iter().any(|(p, _)| *p == ahead) {
                 continue;
             }
-            let (dataset, number, query) = (self.dataset.clone(), *number, query.clone());
-            let handle = std::thread::spawn(move || {
-                dataset
-                    .segment_for(number, &query, None)
-                    .map(|read| (read.snapshot, read.read))
-            });
-            self.ahead.push_back((ahead, handle));
+            let (number, query) = (*number, query.clone());
+            let loaders = self
+                .loaders
+                .get_or_insert_with(|| Loaders::start(&self.dataset, self.threads - 1));
+            self.ahead.push_back((ahead, loaders.load(number, query)));
         }
     }
 
@@ -260,9 +325,9 @@ impl DatasetStream {
             let (number, query, kept) = &mut self.segments[position];
             let number = *number;
             let id = self.dataset.segments()[number].id.clone();
-            let loaded = match (kept.take(), loaded_ahead) {
+            let loaded = match (kept.take(), loaded_ahead.as_ref().and_then(taken)) {
                 (Some(snapshot), _) => Ok((snapshot, ReadStats::default())),
-                (None, Some(handle)) => joined(handle),
+                (None, Some(loaded)) => loaded,
                 (None, None) => self
                     .dataset
                     .segment_for(number, query, None)
@@ -295,11 +360,12 @@ impl Iterator for DatasetStream {
 
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            if let Some(placed) = &mut self.current {
-                match placed.next() {
-                    Some(batch) => return Some(batch),
-                    None => self.current = None,
-                }
+            // A segment's stream, once done, is dropped only when the next segment is
+            // loaded: freed first, its memory at the heap's top went back to the kernel
+            // (glibc trims a free top past its threshold) and the next load faulted it in
+            // again (a scan of 1,000 segments: 80,000 page faults, 6,000 this way).
+            if let Some(batch) = self.current.as_mut().and_then(Iterator::next) {
+                return Some(batch);
             }
             match self.start_next() {
                 Ok(true) => {}

@@ -450,9 +450,26 @@ fn a_dataset_streams_alike_on_any_number_of_threads() {
         let mut early = dataset.dataframe(&query).unwrap();
         assert!(early.next().unwrap().unwrap().num_rows() > 0);
         drop(early);
-        let stream = dataset.dataframe(&query).unwrap();
+        let mut stream = dataset.dataframe(&query).unwrap();
         assert_eq!(stream.num_segments(), 9);
-        let read = read_all(stream);
+        let schema = stream.schema();
+        let batches: Vec<RecordBatch> = stream.by_ref().map(Result::unwrap).collect();
+        // What planning read is kept for the rows only for the segments they start with,
+        // one per thread, however large the budget: the others are read as they stream
+        // (but for the footerless one, which the cache keeps whole if it may).
+        let streamed_from_files = dataset
+            .segments()
+            .iter()
+            .filter(|segment| segment.time_type("frame").is_some())
+            .skip(if budget == 0 { 0 } else { threads })
+            .filter(|segment| budget == 0 || segment.from_footer)
+            .count();
+        assert_eq!(
+            stream.read_stats().segment_reads,
+            streamed_from_files as u64,
+            "{threads} threads, budget {budget}"
+        );
+        let read = concat_batches(&schema, &batches).unwrap();
         (read, dataset.take_warnings())
     };
     let (one, warnings) = table(1, u64::MAX);
