@@ -25,6 +25,11 @@ table, and an aggregation over it equals the same SQL run by ``chunkstore DIR sq
 
 Usage: python tests/dataset_catalog.py path/to/chunkstore   (Rerun is run with a
 temporary HOME.)
+
+With ``--python`` instead of a binary, the same tables come from the Python package
+(``chunkstore.open_dataset(DIR).dataframe(INDEX, fill_latest_at=...)``, in a venv where
+it is installed beside Rerun's SDK), checked against Rerun's the same way, and the corrupt
+file is a ``CorruptFileError`` naming it, or with ``skip_bad`` one warning.
 """
 
 import json
@@ -104,6 +109,43 @@ def chunkstore_table(binary, directory, index, fill, scratch):
     subprocess.run(args, check=True)
     with ipc.open_file(out) as reader:
         return reader.read_all()
+
+
+def python_table(directory, index, fill):
+    import chunkstore
+
+    return chunkstore.open_dataset(directory).dataframe(index, fill_latest_at=fill).read_all()
+
+
+def check_python(directory, ids):
+    """The Python package's tables against Rerun's, then the corrupt file."""
+    import chunkstore
+
+    checked = 0
+    for index in ("frame", "sim_time"):
+        for fill in (False, True):
+            theirs = rerun_table(directory, index, fill)
+            ours = python_table(directory, index, fill)
+            differences = compare(ours, theirs, index, fill)
+            checked += ours.num_rows * ours.num_columns
+            print(
+                f"python {index} fill={fill}: {ours.num_rows} rows x {ours.num_columns} columns"
+                f" equal ({differences} cells differ as section 9 says)"
+            )
+    with open(os.path.join(directory, "corrupt.rrd"), "wb") as f:
+        f.write(b"RRF2" + bytes(100))
+    try:
+        chunkstore.open_dataset(directory)
+    except chunkstore.CorruptFileError as error:
+        assert "corrupt.rrd" in str(error), error
+    else:
+        raise AssertionError("a corrupt file was not named")
+    dataset = chunkstore.open_dataset(directory, skip_bad=True)
+    rest = dataset.dataframe("frame").read_all()
+    warnings = dataset.take_warnings()
+    assert len(warnings) == 1 and "corrupt.rrd" in warnings[0], warnings
+    compare(rest, rerun_table(directory, "frame", False), "frame", False)
+    print(f"the Python package's dataset tables equal Rerun 0.41's catalog: {checked} cells, {len(ids)} segments")
 
 
 def sorted_by_segment_and_index(table, index):
@@ -254,12 +296,16 @@ def check_hive(binary, directory, scratch, ours):
 
 
 def main():
-    binary = os.path.abspath(sys.argv[1])
+    python = sys.argv[1] == "--python"
+    binary = None if python else os.path.abspath(sys.argv[1])
     with tempfile.TemporaryDirectory() as scratch:
         os.environ["HOME"] = scratch  # Rerun writes its settings under HOME
         directory = os.path.join(scratch, "dataset")
         os.makedirs(directory)
         ids = write_recordings(directory)
+        if python:
+            check_python(directory, ids)
+            return
         checked = 0
         for index in ("frame", "sim_time"):
             for fill in (False, True):
