@@ -369,7 +369,10 @@ impl Iterator for DatasetStream {
             }
             match self.start_next() {
                 Ok(true) => {}
-                Ok(false) => return None,
+                Ok(false) => {
+                    self.current = None; // the last segment's memory, not kept past the end
+                    return None;
+                }
                 Err(error) => return Some(Err(ArrowError::ExternalError(Box::new(error)))),
             }
         }
