@@ -117,21 +117,28 @@ def python_table(directory, index, fill):
     return chunkstore.open_dataset(directory).dataframe(index, fill_latest_at=fill).read_all()
 
 
-def check_python(directory, ids):
-    """The Python package's tables against Rerun's, then the corrupt file."""
-    import chunkstore
-
+def check_tables(directory, ours_of, label=""):
+    """Our tables (`ours_of(index, fill)`) against Rerun's, on both indices, with and
+    without fill; returns the cells checked."""
     checked = 0
     for index in ("frame", "sim_time"):
         for fill in (False, True):
             theirs = rerun_table(directory, index, fill)
-            ours = python_table(directory, index, fill)
+            ours = ours_of(index, fill)
             differences = compare(ours, theirs, index, fill)
             checked += ours.num_rows * ours.num_columns
             print(
-                f"python {index} fill={fill}: {ours.num_rows} rows x {ours.num_columns} columns"
+                f"{label}{index} fill={fill}: {ours.num_rows} rows x {ours.num_columns} columns"
                 f" equal ({differences} cells differ as section 9 says)"
             )
+    return checked
+
+
+def check_python(directory, ids):
+    """The Python package's tables against Rerun's, then the corrupt file."""
+    import chunkstore
+
+    checked = check_tables(directory, lambda index, fill: python_table(directory, index, fill), "python ")
     with open(os.path.join(directory, "corrupt.rrd"), "wb") as f:
         f.write(b"RRF2" + bytes(100))
     try:
@@ -306,17 +313,9 @@ def main():
         if python:
             check_python(directory, ids)
             return
-        checked = 0
-        for index in ("frame", "sim_time"):
-            for fill in (False, True):
-                theirs = rerun_table(directory, index, fill)
-                ours = chunkstore_table(binary, directory, index, fill, scratch)
-                differences = compare(ours, theirs, index, fill)
-                checked += ours.num_rows * ours.num_columns
-                print(
-                    f"{index} fill={fill}: {ours.num_rows} rows x {ours.num_columns} columns"
-                    f" equal ({differences} cells differ as section 9 says)"
-                )
+        checked = check_tables(
+            directory, lambda index, fill: chunkstore_table(binary, directory, index, fill, scratch)
+        )
         check_hive(binary, directory, scratch, chunkstore_table(binary, directory, "frame", False, scratch))
         # A corrupt file: Rerun skips it without a word; we name it, or skip it and say so.
         with open(os.path.join(directory, "corrupt.rrd"), "wb") as f:

@@ -208,6 +208,13 @@ fn rows_of(
         .map_err(failed)
 }
 
+/// What segment `number` holds for `query`'s rows, read here (in this thread).
+fn load_rows(dataset: &Dataset, number: usize, query: &DataframeQuery) -> Loaded {
+    dataset
+        .segment_for(number, query, None)
+        .map(|read| (read.snapshot, read.read))
+}
+
 /// A load ahead's segment, or the panic that ended it.
 type LoadResult = std::thread::Result<Loaded>;
 
@@ -235,9 +242,7 @@ impl Loaders {
                         return; // the stream dropped
                     };
                     let loaded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        dataset
-                            .segment_for(number, &query, None)
-                            .map(|read| (read.snapshot, read.read))
+                        load_rows(&dataset, number, &query)
                     }));
                     // A stream dropped before it took this load no longer wants it.
                     let _ = done.send(loaded);
@@ -328,10 +333,7 @@ impl DatasetStream {
             let loaded = match (kept.take(), loaded_ahead.as_ref().and_then(taken)) {
                 (Some(snapshot), _) => Ok((snapshot, ReadStats::default())),
                 (None, Some(loaded)) => loaded,
-                (None, None) => self
-                    .dataset
-                    .segment_for(number, query, None)
-                    .map(|read| (read.snapshot, read.read)),
+                (None, None) => load_rows(&self.dataset, number, query),
             };
             let snapshot = loaded.map(|(snapshot, read)| {
                 self.read.add(read);
