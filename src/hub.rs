@@ -265,6 +265,18 @@ impl StoreHub {
         Ok(seq)
     }
 
+    /// Drops every recording and blueprint; sequence numbers go on from where they were
+    /// (a listener never sees one twice). For a server whose log could not keep what it
+    /// was told, to rebuild what it holds from what the log kept.
+    pub fn clear(&self) {
+        let mut state = self.state.lock();
+        let seq = state.seq;
+        *state = HubState {
+            seq,
+            ..HubState::default()
+        };
+    }
+
     /// A store for a new recording (`StoreHub::new` checked the configuration).
     fn empty_store(&self) -> ChunkStore {
         ChunkStore::with_config(self.config).unwrap_or_else(|_| ChunkStore::new())

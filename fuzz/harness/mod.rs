@@ -18,6 +18,8 @@ pub mod chunk_build;
 #[cfg(feature = "cli")]
 #[path = "cli_args.rs"]
 pub mod cli_args;
+#[path = "damaged_log.rs"]
+pub mod damaged_log;
 #[path = "entity_path.rs"]
 pub mod entity_path;
 #[path = "ipc_batch_decoder.rs"]

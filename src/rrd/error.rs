@@ -57,6 +57,12 @@ pub enum RrdErrorKind {
         /// Bytes there were.
         available: u64,
     },
+    /// The rest of the input is zero bytes: space a file system gave a file whose write
+    /// was cut short, never written.
+    ZeroTail {
+        /// How many zero bytes there are.
+        len: u64,
+    },
     /// A message header names a kind this crate does not know.
     UnknownMessageKind {
         /// The kind.
@@ -183,6 +189,9 @@ impl fmt::Display for RrdError {
                 f,
                 "truncated {what}: needs {needed} bytes, {available} remain"
             ),
+            RrdErrorKind::ZeroTail { len } => {
+                write!(f, "the last {len} bytes are zeros (space never written)")
+            }
             RrdErrorKind::UnknownMessageKind { kind } => {
                 write!(f, "unknown message kind {kind}")
             }

@@ -323,119 +323,185 @@ pub struct LogScan {
     /// Why the scan stopped before the end: a truncated stream header, message header or
     /// body (a torn tail), or bytes that are not `.rrd` framing.
     pub fault: Option<RrdError>,
+    torn_tail: bool,
 }
 
 impl LogScan {
     /// The scan stopped at a torn tail (a write cut short), which dropping the bytes past
-    /// [`LogScan::valid_len`] repairs; other faults mean the bytes are not a log.
+    /// [`LogScan::valid_len`] repairs.
+    ///
+    /// A tail is torn only when it can be one: the last frame runs past the end of the
+    /// input, its kind is known and what there is of its body is the start of a message of
+    /// the length its header claims (or the rest of the input is zeros, space a file
+    /// system gave the file but the write never filled). A length damaged in the middle of
+    /// a log also runs past the end, but its body is followed by the next frame, which is
+    /// not the rest of one message: that, and every other fault, means that bytes past the
+    /// fault hold messages, and dropping them would lose them.
     pub fn is_torn_tail(&self) -> bool {
-        matches!(
-            self.fault.as_ref().map(|fault| &fault.kind),
-            Some(RrdErrorKind::Truncated { .. })
-        )
+        self.fault.is_some() && self.torn_tail
+    }
+}
+
+/// `bytes` without the zeros they end with.
+fn without_trailing_zeros(bytes: &[u8]) -> &[u8] {
+    let end = bytes.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    &bytes[..end]
+}
+
+/// Could `rest` (where a stream header belongs) be one cut short: its magic as far as it
+/// goes, then zeros or the end?
+fn stream_header_cut_short(rest: &[u8]) -> bool {
+    let written = without_trailing_zeros(rest);
+    let magic = written.len().min(4);
+    written.len() < STREAM_HEADER_LEN && written[..magic] == frames::MAGIC[..magic]
+}
+
+/// Could `rest` (fewer bytes than a message header) be one cut short: its kind, if all
+/// there, one there is?
+fn message_header_cut_short(rest: &[u8]) -> bool {
+    rest.get(..8).is_none_or(|kind| {
+        let mut le = [0u8; 8];
+        le.copy_from_slice(kind);
+        MessageKind::from_u64(u64::from_le_bytes(le)).is_some()
+    })
+}
+
+/// Could `rest` (to the end of the input) be the start of a body of `len` bytes, a
+/// message of `kind` cut short? Zeros at the end were never written: what matters is what
+/// was.
+fn body_cut_short(kind: u64, rest: &[u8], len: u64) -> bool {
+    MessageKind::from_u64(kind).is_some()
+        && super::protobuf::could_start_message_of(without_trailing_zeros(rest), len)
+}
+
+/// Where the bytes after an `End` message at `at` leave off: past its stream footer if one
+/// is there, or `None` when fewer bytes than a footer follow, then zeros or nothing, and
+/// not the next stream (a footer cut short).
+fn past_stream_end(data: &[u8], mut at: usize) -> Option<usize> {
+    if let Some(tail) = data.get(at..at + STREAM_FOOTER_LEN) {
+        let mut footer = [0u8; STREAM_FOOTER_LEN];
+        footer.copy_from_slice(tail);
+        if StreamFooter::parse(&footer).is_some() {
+            at += STREAM_FOOTER_LEN;
+        }
+    }
+    let rest = &data[at..];
+    let cut_short = !rest.is_empty()
+        && !rest.starts_with(&frames::MAGIC)
+        && without_trailing_zeros(rest).len() < STREAM_FOOTER_LEN;
+    (!cut_short).then_some(at)
+}
+
+impl LogScan {
+    /// Ends the scan at `fault`, a torn tail or not.
+    fn stop(mut self, fault: RrdError, torn_tail: bool) -> Self {
+        self.fault = Some(fault);
+        self.torn_tail = torn_tail;
+        self
     }
 }
 
 /// Splits `.rrd` bytes into their messages without decoding any body: one or several
 /// concatenated streams, each with or without an `End` message and stream footer (a log
 /// appended to as messages arrive has neither). Never allocates more than the input
-/// holds; bodies are slices of `bytes`.
+/// holds; bodies are slices of `bytes`. [`LogScan::is_torn_tail`] tells a write cut short
+/// from damage.
 pub fn scan_log(bytes: &Buffer) -> LogScan {
     let mut scan = LogScan {
         messages: Vec::new(),
         valid_len: 0,
         open_stream: false,
         fault: None,
+        torn_tail: false,
     };
-    let len = bytes.len();
+    let data = bytes.as_slice();
+    let len = data.len();
     let mut at = 0usize;
-    let truncated = |at: usize, what: &'static str, needed: usize| {
+    let truncated = |at: usize, what: &'static str, needed: u64| {
+        let available = (len - at) as u64;
         RrdError::new(
             at as u64,
             RrdErrorKind::Truncated {
                 what,
-                needed: needed as u64,
-                available: (len - at) as u64,
+                needed,
+                available,
             },
         )
     };
+    // Zeros to the end where a stream or a message should start: never written.
+    let zero_tail = |at: usize| {
+        let rest = &data[at..];
+        let len = rest.len() as u64;
+        rest.iter()
+            .all(|&b| b == 0)
+            .then(|| RrdError::new(at as u64, RrdErrorKind::ZeroTail { len }))
+    };
     'streams: while at < len {
-        let Some(header) = bytes.as_slice().get(at..at + STREAM_HEADER_LEN) else {
-            scan.fault = Some(truncated(at, "stream header", STREAM_HEADER_LEN));
-            return scan;
+        if let Some(fault) = zero_tail(at) {
+            return scan.stop(fault, true);
+        }
+        let Some(header) = data.get(at..at + STREAM_HEADER_LEN) else {
+            let fault = truncated(at, "stream header", STREAM_HEADER_LEN as u64);
+            return scan.stop(fault, stream_header_cut_short(&data[at..]));
         };
         let mut header_bytes = [0u8; STREAM_HEADER_LEN];
         header_bytes.copy_from_slice(header);
         if let Err(kind) = StreamHeader::parse(&header_bytes) {
-            scan.fault = Some(RrdError::new(at as u64, kind));
-            return scan;
+            let torn = stream_header_cut_short(&data[at..]);
+            return scan.stop(RrdError::new(at as u64, kind), torn);
         }
         at += STREAM_HEADER_LEN;
         scan.valid_len = at as u64;
         scan.open_stream = true;
         while at < len {
-            let Some(header) = bytes.as_slice().get(at..at + MESSAGE_HEADER_LEN) else {
-                scan.fault = Some(truncated(at, "message header", MESSAGE_HEADER_LEN));
-                return scan;
+            if let Some(fault) = zero_tail(at) {
+                return scan.stop(fault, true);
+            }
+            let Some(header) = data.get(at..at + MESSAGE_HEADER_LEN) else {
+                let fault = truncated(at, "message header", MESSAGE_HEADER_LEN as u64);
+                return scan.stop(fault, message_header_cut_short(&data[at..]));
             };
             let mut header_bytes = [0u8; MESSAGE_HEADER_LEN];
             header_bytes.copy_from_slice(header);
             let (kind, body_len) = frames::parse_message_header(&header_bytes);
             let body_at = at + MESSAGE_HEADER_LEN;
-            let body_len = match usize::try_from(body_len) {
-                Ok(n) if n <= len - body_at => n,
-                _ => {
-                    scan.fault = Some(RrdError::new(
-                        body_at as u64,
-                        RrdErrorKind::Truncated {
-                            what: "message body",
-                            needed: body_len,
-                            available: (len - body_at) as u64,
-                        },
-                    ));
-                    return scan;
-                }
+            let Some(body_len) = usize::try_from(body_len)
+                .ok()
+                .filter(|&n| n <= len - body_at)
+            else {
+                let torn = body_cut_short(kind, &data[body_at..], body_len);
+                return scan.stop(truncated(body_at, "message body", body_len), torn);
             };
             at = body_at + body_len;
-            match MessageKind::from_u64(kind) {
+            let kind = match MessageKind::from_u64(kind) {
                 Some(MessageKind::End) => {
-                    // A footer follows a non-empty `End`; either may be absent.
-                    if let Some(tail) = bytes.as_slice().get(at..at + STREAM_FOOTER_LEN) {
-                        let mut footer = [0u8; STREAM_FOOTER_LEN];
-                        footer.copy_from_slice(tail);
-                        if StreamFooter::parse(&footer).is_some() {
-                            at += STREAM_FOOTER_LEN;
-                        }
-                    } else if at < len {
-                        // Fewer bytes than a stream footer after the end: one cut short.
-                        scan.valid_len = at as u64;
-                        scan.open_stream = false;
-                        scan.fault = Some(truncated(at, "stream footer", STREAM_FOOTER_LEN));
-                        return scan;
-                    }
-                    scan.valid_len = at as u64;
                     scan.open_stream = false;
+                    let Some(past) = past_stream_end(data, at) else {
+                        scan.valid_len = at as u64;
+                        let fault = truncated(at, "stream footer", STREAM_FOOTER_LEN as u64);
+                        return scan.stop(fault, true);
+                    };
+                    at = past;
+                    scan.valid_len = at as u64;
                     continue 'streams;
                 }
-                Some(other) => {
-                    let kind = match other {
-                        MessageKind::SetStoreInfo => LogMsgKind::SetStoreInfo,
-                        MessageKind::ArrowMsg => LogMsgKind::ArrowMsg,
-                        _ => LogMsgKind::BlueprintActivationCommand,
-                    };
-                    scan.messages.push(LogMsg::new(
-                        kind,
-                        bytes.slice_with_length(body_at, body_len),
-                    ));
+                Some(MessageKind::SetStoreInfo) => LogMsgKind::SetStoreInfo,
+                Some(MessageKind::ArrowMsg) => LogMsgKind::ArrowMsg,
+                Some(MessageKind::BlueprintActivationCommand) => {
+                    LogMsgKind::BlueprintActivationCommand
                 }
                 None => {
-                    scan.fault = Some(RrdError::new(
-                        (body_at - MESSAGE_HEADER_LEN) as u64,
-                        RrdErrorKind::UnknownMessageKind { kind },
-                    ));
-                    return scan;
+                    let at = (body_at - MESSAGE_HEADER_LEN) as u64;
+                    return scan.stop(
+                        RrdError::new(at, RrdErrorKind::UnknownMessageKind { kind }),
+                        false,
+                    );
                 }
-            }
+            };
+            scan.messages.push(LogMsg::new(
+                kind,
+                bytes.slice_with_length(body_at, body_len),
+            ));
             scan.valid_len = at as u64;
         }
     }

@@ -193,6 +193,71 @@ impl<'a> WireField<'a> {
     }
 }
 
+/// Could `prefix` be the first bytes of a message `len` bytes long? Every whole field it
+/// holds must end within `len`, and a field cut off by the end of `prefix` must claim no
+/// more than `len` either; a key of field 0 or of a group is never the start of a real
+/// message. What tells a write cut short (a prefix of a real message) from a length that
+/// was damaged: past a real message's end come the next frame's header bytes, whose first
+/// byte (a message kind, 0 to 3) is no valid key.
+pub(crate) fn could_start_message_of(prefix: &[u8], len: u64) -> bool {
+    // A varint at `at`: `Ok(Some((value, end)))`, `Ok(None)` if the prefix ends inside it.
+    fn varint(bytes: &[u8], at: usize) -> Result<Option<(u64, usize)>, ()> {
+        let mut value = 0u64;
+        for (i, shift) in (0..64).step_by(7).enumerate() {
+            let Some(&byte) = bytes.get(at + i) else {
+                return Ok(None);
+            };
+            value |= u64::from(byte & 0x7f) << shift;
+            if byte < 0x80 {
+                return Ok(Some((value, at + i + 1)));
+            }
+        }
+        Err(())
+    }
+    let fits = |end: u64| end <= len;
+    if !fits(prefix.len() as u64) {
+        return false;
+    }
+    let mut at = 0usize;
+    while at < prefix.len() {
+        let Ok(key) = varint(prefix, at) else {
+            return false;
+        };
+        let Some((key, after_key)) = key else {
+            return true;
+        };
+        if key >> 3 == 0 || key >> 3 > u64::from(u32::MAX >> 3) {
+            return false;
+        }
+        let end = match key & 7 {
+            0 => match varint(prefix, after_key) {
+                Ok(Some((_, end))) => end as u64,
+                Ok(None) => return true,
+                Err(()) => return false,
+            },
+            1 => after_key as u64 + 8,
+            5 => after_key as u64 + 4,
+            2 => match varint(prefix, after_key) {
+                Ok(Some((field_len, value_start))) => {
+                    (value_start as u64).saturating_add(field_len)
+                }
+                Ok(None) => return true,
+                Err(()) => return false,
+            },
+            _ => return false,
+        };
+        if !fits(end) {
+            return false;
+        }
+        match usize::try_from(end) {
+            Ok(end) if end <= prefix.len() => at = end,
+            // Cut off inside this field, which fits.
+            _ => return true,
+        }
+    }
+    true
+}
+
 /// Appends protobuf fields to a buffer.
 #[derive(Default)]
 pub(crate) struct FieldWriter {

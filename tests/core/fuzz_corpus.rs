@@ -247,3 +247,26 @@ fn fuzz_crashes_stay_fixed() {
     }
     assert_eq!(num_files, CRASHES.len(), "every listed crash has its file");
 }
+
+#[test]
+fn damaged_log_corpus_replays_without_panics() {
+    replay_corpus("damaged_log", harness::damaged_log::damaged_log);
+}
+
+/// The `damaged_log` target's checks at every byte of two scripted logs (one appended to
+/// a closed file), for each kind of damage: a cut or zeroed tail keeps every whole
+/// message before it; a changed byte is refused or loses only its own message.
+#[test]
+fn a_damaged_log_loses_at_most_the_damaged_message_at_every_offset() {
+    for (flags, choices) in [
+        (5u8, &[0u8, 1, 2, 7, 0, 13][..]),
+        (8 | 3, &[4, 15, 6, 9][..]),
+    ] {
+        let scripted = harness::damaged_log::ScriptedLog::new(flags, choices);
+        for at in 0..scripted.log.len() {
+            for (op, value) in [(0, 0), (1, 0), (2, 0x80), (2, 0x01), (3, 0), (3, 0xff)] {
+                scripted.check_damage(at, op, value);
+            }
+        }
+    }
+}

@@ -298,10 +298,38 @@ fn logged_data_is_queryable_replayable_and_survives_a_kill() {
     });
     drop(server);
 
-    // A torn tail (a write cut short by a crash) is dropped with one warning.
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_torn_tail_is_dropped_and_a_damaged_byte_refuses_to_start() {
+    let dir = temp_dir("damage");
+    let log = dir.join("live.rrd");
+    let log_arg = log.to_str().unwrap();
+    let rt = runtime();
+    let r1 = StoreId::recording("app", "r1");
+    let r2 = StoreId::recording("app", "r2");
+    {
+        let server = Server::start(&dir, &["--persist", log_arg]);
+        rt.block_on(async {
+            let mut first = vec![info_msg(&r1)];
+            first.extend((0..10).map(|f| chunk_msg(&r1, "/arm", f, f as f64)));
+            write(&server, first).await.unwrap();
+            let second = vec![
+                info_msg(&r2),
+                chunk_msg(&r2, "/leg", 0, 1.0),
+                chunk_msg(&r2, "/leg", 1, 2.0),
+            ];
+            write(&server, second).await.unwrap();
+        });
+    }
+    // A torn tail (a write cut short by a crash: the first half of a chunk's frame) is
+    // dropped with one warning.
     let mut bytes = std::fs::read(&log).unwrap();
     let whole = bytes.len();
-    bytes.extend_from_slice(&[2, 0, 0, 0, 0, 0, 0, 0, 200, 0, 0, 0, 0, 0, 0, 0, 1, 2, 3]);
+    let torn = LogMsg::from_chunk(&r1, &common::scalar("/arm", "x", 99, 1, 9.0), true).unwrap();
+    bytes.extend_from_slice(&torn.frame_header());
+    bytes.extend_from_slice(&torn.body().as_slice()[..torn.body().len() / 2]);
     std::fs::write(&log, &bytes).unwrap();
     let server = Server::start(&dir, &["--persist", log_arg]);
     rt.block_on(async {
@@ -317,6 +345,52 @@ fn logged_data_is_queryable_replayable_and_survives_a_kill() {
     );
     assert_eq!(std::fs::metadata(&log).unwrap().len(), whole as u64);
     drop(server);
+
+    // One damaged byte in the middle, the high byte of message 5's length, is no torn
+    // tail: the server refuses to start, names where, and leaves every byte in place.
+    let mut bytes = std::fs::read(&log).unwrap();
+    let scan = chunkstore::rrd::scan_log(&arrow_buffer::Buffer::from(bytes.clone()));
+    let mut at = 12;
+    for msg in &scan.messages[..5] {
+        at += 16 + msg.body().len();
+    }
+    bytes[at + 15] = 0x01;
+    std::fs::write(&log, &bytes).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args(["serve", "--addr", "127.0.0.1:0", "--persist", log_arg])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains(&format!("damaged after byte {at}")),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&log).unwrap(), bytes);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
+    let dir = temp_dir("lock");
+    let log = dir.join("live.rrd");
+    let log_arg = log.to_str().unwrap();
+    let first = Server::start(&dir, &["--persist", log_arg]);
+    let out = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args(["serve", "--addr", "127.0.0.1:0", "--persist", log_arg])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("in use by another server"), "{stderr}");
+    assert!(
+        stderr.contains(&format!("pid {}", first.child.id())),
+        "{stderr}"
+    );
+    drop(first);
+    let again = Server::start(&dir, &["--persist", log_arg]);
+    drop(again);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -6,6 +6,7 @@
 mod flight;
 mod persist;
 mod proxy;
+mod write;
 
 use std::ffi::OsString;
 use std::net::SocketAddr;
@@ -101,11 +102,26 @@ fn store_budget(limit: u64) -> u64 {
     limit - limit / 4
 }
 
+/// What live readers are told: each accepted message, in order, and when the server
+/// dropped messages it could not make durable (a reader that had them must read the
+/// history again).
+#[derive(Clone)]
+pub enum Live {
+    Message(u64, LogMsg),
+    RolledBack,
+}
+
 /// What every RPC handler shares.
 pub struct ServerState {
     pub hub: StoreHub,
-    pub live: broadcast::Sender<(u64, LogMsg)>,
+    pub live: broadcast::Sender<Live>,
     pub persist: Option<Arc<persist::PersistLog>>,
+    /// The SOURCEs loaded before serving: loaded again when memory is rebuilt from the
+    /// log after a failed write.
+    sources: Vec<PathBuf>,
+    /// Held (shared) while a message is ingested and (exclusively) while memory is rebuilt
+    /// after a failed write, so that nothing is ingested in between.
+    write_gate: parking_lot::RwLock<()>,
     pub memory_limit: Option<u64>,
     pub read_mode: ReadMode,
     pub write_slots: Arc<Semaphore>,
@@ -160,6 +176,76 @@ impl ServerState {
     }
 }
 
+/// The settings [`ServerState::start`] takes from the command line.
+pub struct StateOptions {
+    pub memory_limit: Option<u64>,
+    pub read_mode: ReadMode,
+    pub max_write_streams: usize,
+    pub max_message_bytes: usize,
+}
+
+impl ServerState {
+    /// The state of a server about to listen: a hub that appends every accepted message
+    /// to `persist` (if any) and tells live readers, holding the `sources` and what the
+    /// log held.
+    pub fn start(
+        persist: Option<Arc<persist::PersistLog>>,
+        sources: Vec<PathBuf>,
+        options: &StateOptions,
+    ) -> Result<Arc<Self>, String> {
+        let (live, _) = broadcast::channel(LIVE_BACKLOG);
+        let listener_log = persist.clone();
+        let listener_live = live.clone();
+        let hub = StoreHub::with_listener(
+            StoreConfig::DEFAULT,
+            Box::new(move |seq, msg: &LogMsg| {
+                if let Some(log) = &listener_log {
+                    log.append(seq, msg).map_err(|e| e.to_string())?;
+                }
+                // No reader listening is no error.
+                let _ = listener_live.send(Live::Message(seq, msg.clone()));
+                Ok(())
+            }),
+        )
+        .map_err(|e| e.to_string())?;
+        for source in &sources {
+            preload(&hub, source)?;
+        }
+        if let Some(log) = &persist {
+            let report = log.replay_into(&hub);
+            if report.messages > 0 || report.skipped > 0 {
+                eprintln!(
+                    "read {} messages back from {}{}",
+                    report.messages,
+                    log.path().display(),
+                    if report.skipped > 0 {
+                        format!(" ({} skipped)", report.skipped)
+                    } else {
+                        String::new()
+                    }
+                );
+            }
+        }
+        if let Some(limit) = options.memory_limit {
+            hub.collect_garbage(store_budget(limit));
+        }
+        Ok(Arc::new(Self {
+            hub,
+            live,
+            persist,
+            sources,
+            write_gate: parking_lot::RwLock::new(()),
+            memory_limit: options.memory_limit,
+            read_mode: options.read_mode,
+            write_slots: Arc::new(Semaphore::new(options.max_write_streams)),
+            max_message_bytes: options.max_message_bytes,
+            bytes_since_check: AtomicU64::new(0),
+            collecting: AtomicBool::new(false),
+            rewriting: AtomicBool::new(false),
+        }))
+    }
+}
+
 /// `chunkstore serve ...`: `args` are the whole command line (program name first).
 pub fn main(args: &[OsString]) -> ExitCode {
     let mut command_line: Vec<OsString> = vec![OsString::from("chunkstore serve")];
@@ -186,46 +272,20 @@ fn run(args: &ServeArgs) -> Result<(), String> {
     if args.token.as_deref() == Some("") {
         return Err("--token must not be empty".to_owned());
     }
-    let (live, _) = broadcast::channel(LIVE_BACKLOG);
     let persist = match &args.persist {
         Some(path) => Some(Arc::new(persist::PersistLog::create_or_append(path)?)),
         None => None,
     };
-    let listener_log = persist.clone();
-    let listener_live = live.clone();
-    let hub = StoreHub::with_listener(
-        StoreConfig::DEFAULT,
-        Box::new(move |seq, msg: &LogMsg| {
-            if let Some(log) = &listener_log {
-                log.append(seq, msg).map_err(|e| e.to_string())?;
-            }
-            // No reader listening is no error.
-            let _ = listener_live.send((seq, msg.clone()));
-            Ok(())
-        }),
-    )
-    .map_err(|e| e.to_string())?;
-    for source in &args.sources {
-        preload(&hub, source)?;
-    }
-    if let Some(log) = &persist {
-        let report = log.replay_into(&hub);
-        if report.messages > 0 || report.skipped > 0 {
-            eprintln!(
-                "read {} messages back from {}{}",
-                report.messages,
-                log.path().display(),
-                if report.skipped > 0 {
-                    format!(" ({} skipped)", report.skipped)
-                } else {
-                    String::new()
-                }
-            );
-        }
-    }
-    if let Some(limit) = args.memory_limit {
-        hub.collect_garbage(store_budget(limit));
-    }
+    let state = ServerState::start(
+        persist,
+        args.sources.clone(),
+        &StateOptions {
+            memory_limit: args.memory_limit,
+            read_mode: args.read_mode,
+            max_write_streams: args.max_write_streams,
+            max_message_bytes,
+        },
+    )?;
     if args.token.is_none() && !args.addr.ip().is_loopback() {
         eprintln!(
             "warning: listening on {} without --token: anyone who reaches this address can \
@@ -233,18 +293,6 @@ fn run(args: &ServeArgs) -> Result<(), String> {
             args.addr
         );
     }
-    let state = Arc::new(ServerState {
-        hub,
-        live,
-        persist,
-        memory_limit: args.memory_limit,
-        read_mode: args.read_mode,
-        write_slots: Arc::new(Semaphore::new(args.max_write_streams)),
-        max_message_bytes,
-        bytes_since_check: AtomicU64::new(0),
-        collecting: AtomicBool::new(false),
-        rewriting: AtomicBool::new(false),
-    });
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -300,15 +348,20 @@ async fn serve(
         let _ = std::io::stdout().flush();
     }
     if let Some(log) = state.persist.clone() {
+        let state = Arc::clone(&state);
         tokio::spawn(async move {
             let mut tick = tokio::time::interval(Duration::from_secs(1));
             loop {
                 tick.tick().await;
                 let log = Arc::clone(&log);
-                let synced = tokio::task::spawn_blocking(move || log.sync_if_dirty()).await;
-                if let Ok(Err(e)) = synced {
-                    eprintln!("warning: syncing the log: {e}");
-                }
+                let state = Arc::clone(&state);
+                let _ = tokio::task::spawn_blocking(move || {
+                    if let Err(e) = log.sync_if_dirty() {
+                        eprintln!("warning: syncing {}: {e}", log.path().display());
+                        state.recover_log();
+                    }
+                })
+                .await;
             }
         });
     }

@@ -6,7 +6,7 @@
 //! - `WriteMessages` (client streaming): each message is decoded and applied in turn; the
 //!   first bad one ends the stream with `INVALID_ARGUMENT` naming it (the earlier ones
 //!   stay); the response comes only once every message is in the store and, with
-//!   `--persist`, synced to disk.
+//!   `--persist`, synced to disk (the write path is [`super::write`]).
 //! - `ReadMessages` (server streaming): the history ([`StoreHub::replay`]), then, in
 //!   follow mode, every message accepted after it.
 //! - `WriteTable` and `ReadTables` answer `UNIMPLEMENTED`.
@@ -17,7 +17,6 @@ use std::task::{Context, Poll};
 
 use arrow_buffer::Buffer;
 use bytes::{Buf as _, BufMut as _};
-use chunkstore::hub::IngestError;
 use chunkstore::rrd::LogMsg;
 use tokio::sync::broadcast::error::RecvError;
 use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
@@ -25,7 +24,8 @@ use tonic::codegen::{BoxFuture, Service, http};
 use tonic::server::{Grpc, NamedService};
 use tonic::{Request, Response, Status, Streaming};
 
-use super::{ReadMode, ServerState};
+use super::write::blocking;
+use super::{Live, ReadMode, ServerState};
 
 const SERVICE: &str = "rerun.sdk_comms.v1alpha1.MessageProxyService";
 
@@ -149,15 +149,6 @@ impl tonic::server::ClientStreamingService<Buffer> for WriteMessages {
     }
 }
 
-/// The status a refused message ends its stream with.
-fn refused(index: u64, error: &IngestError) -> Status {
-    let text = format!("message {index} of this stream: {error}");
-    match error {
-        IngestError::Listener(_) => Status::internal(text),
-        _ => Status::invalid_argument(text),
-    }
-}
-
 async fn write_messages(
     state: Arc<ServerState>,
     mut stream: Streaming<Buffer>,
@@ -167,26 +158,34 @@ async fn write_messages(
             "too many log streams open at once (--max-write-streams)",
         ));
     };
-    let mut index = 0u64;
-    while let Some(bytes) = stream.message().await? {
-        let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
-            Status::invalid_argument(format!("message {index} of this stream: {e}"))
-        })?;
-        let len = msg.body().len();
-        // Decoding a chunk (LZ4, Arrow IPC, validation) and inserting it is CPU work of
-        // well under a millisecond for the SDK's chunks: done on this worker thread, as
-        // other streams are on the others (handing the thread over per message, with
-        // `block_in_place`, cost more than the work).
-        state.hub.ingest(&msg).map_err(|e| refused(index, &e))?;
-        state.after_ingest(len);
-        index += 1;
+    let mut writer = if state.log_failed() {
+        blocking(&state, ServerState::begin_stream).await??
+    } else {
+        state.begin_stream()?
+    };
+    let written = async {
+        while let Some(bytes) = stream.message().await? {
+            let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
+                Status::invalid_argument(format!("message {} of this stream: {e}", writer.index))
+            })?;
+            let len = msg.body().len();
+            // Decoding a chunk (LZ4, Arrow IPC, validation) and inserting it is CPU work
+            // of well under a millisecond for the SDK's chunks: done on this worker
+            // thread, as other streams are on the others (handing the thread over per
+            // message, with `block_in_place`, cost more than the work).
+            state.write(&mut writer, &msg)?;
+            state.after_ingest(len);
+        }
+        Ok::<(), Status>(())
     }
-    if let Some(log) = state.persist.clone() {
-        tokio::task::spawn_blocking(move || log.sync())
-            .await
-            .map_err(|e| Status::internal(format!("syncing the log: {e}")))?
-            .map_err(|e| Status::internal(format!("syncing the log: {e}")))?;
+    .await;
+    if let Err(status) = written {
+        if state.log_failed() {
+            blocking(&state, ServerState::recover_log).await?;
+        }
+        return Err(status);
     }
+    blocking(&state, move |state| state.finish(&writer)).await??;
     // `WriteMessagesResponse {}`: no fields.
     Ok(Response::new(Vec::new()))
 }
@@ -237,12 +236,21 @@ fn read_messages(state: &Arc<ServerState>) -> MessageStream {
         }
         loop {
             match live.recv().await {
-                Ok((seq, msg)) if seq > history_seq => {
+                Ok(Live::Message(seq, msg)) if seq > history_seq => {
                     if tx.send(Ok(msg.encode_envelope())).await.is_err() {
                         return;
                     }
                 }
-                Ok(_) => {}
+                Ok(Live::Message(..)) => {}
+                Ok(Live::RolledBack) => {
+                    let _ = tx
+                        .send(Err(Status::unavailable(
+                            "the server dropped messages it had sent this reader, which its \
+                             log failed to keep; reconnect to read the history again",
+                        )))
+                        .await;
+                    return;
+                }
                 Err(RecvError::Lagged(n)) => {
                     let _ = tx
                         .send(Err(Status::data_loss(format!(
