@@ -1941,3 +1941,56 @@ fn a_directory_without_recordings_names_both_kinds() {
     let error = fails(&[dir.as_os_str(), OsStr::new("stats")]);
     assert!(error.contains("no .rrd files"), "{error}");
 }
+
+/// A recording of static data alone has no timeline, and static data answers on every
+/// timeline (SEMANTICS.md section 3): `latest-at`, `range`, `dataframe` and SQL's
+/// `latest_at` answer on any name, where a store with timelines still names a typo.
+#[test]
+fn a_recording_of_static_data_alone_answers_on_any_timeline() {
+    let dir = scratch_dir("static-only");
+    let source = common::write_recording(
+        &dir,
+        "static.rrd",
+        "static",
+        vec![common::static_scalar("/config", "gain", 1, 2.5)],
+    );
+    let (out, _) = ok(&[
+        source.as_os_str(),
+        "latest-at".as_ref(),
+        "frame".as_ref(),
+        "0".as_ref(),
+    ]);
+    assert!(out.contains("2.5"), "{out}");
+    let (out, _) = ok(&[
+        source.as_os_str(),
+        "latest-at".as_ref(),
+        "log_time".as_ref(),
+        "2026-11-21T12:55:49Z".as_ref(),
+    ]);
+    assert!(out.contains("2.5"), "{out}");
+    let (out, _) = ok(&[
+        source.as_os_str(),
+        "range".as_ref(),
+        "frame".as_ref(),
+        "0".as_ref(),
+        "10".as_ref(),
+    ]);
+    assert!(out.contains("2.5"), "{out}");
+    let table = run(&[source.as_os_str(), "dataframe".as_ref(), "frame".as_ref()]);
+    assert!(
+        table.status.success(),
+        "{}",
+        String::from_utf8_lossy(&table.stderr)
+    );
+    if cfg!(feature = "datafusion") {
+        let (out, _) = ok(&[
+            source.as_os_str(),
+            "sql".as_ref(),
+            "SELECT * FROM latest_at('frame', 3)".as_ref(),
+        ]);
+        assert!(out.contains("2.5"), "{out}");
+    }
+    // A typo on a recording with timelines is still an error naming them.
+    let line = fails(&[RRD, "latest-at", "FRAME_ID", "0"]);
+    assert!(line.contains("unknown timeline \"FRAME_ID\""), "{line}");
+}

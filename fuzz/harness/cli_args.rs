@@ -41,7 +41,7 @@ pub fn cli_args(bytes: &[u8]) {
                     chunkstore::TimeType::DurationNs,
                     chunkstore::TimeType::TimestampNs,
                 ] {
-                    if let Err(error) = time.on(kind) {
+                    if let Err(error) = time.on(Some(kind)) {
                         assert!(!error.is_empty());
                     }
                 }

@@ -378,11 +378,17 @@ impl StoreView {
         if query.batch_rows == Some(0) {
             return Err(DataframeError::ZeroBatchRows);
         }
-        let Some(time_type) = self.time_type(&query.index) else {
-            return Err(DataframeError::UnknownIndex(UnknownTimeline::new(
-                &query.index,
-                &self.timelines(),
-            )));
+        // A store without temporal data answers on any timeline (static data answers on
+        // every one): an index of no type is a sequence, with no rows.
+        let time_type = match self.time_type(&query.index) {
+            Some(time_type) => time_type,
+            None if self.timelines().is_empty() => crate::TimeType::Sequence,
+            None => {
+                return Err(DataframeError::UnknownIndex(UnknownTimeline::new(
+                    &query.index,
+                    &self.timelines(),
+                )));
+            }
         };
         Ok(schema::TablePlan::new(self, query, time_type))
     }

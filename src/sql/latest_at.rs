@@ -51,9 +51,16 @@ impl TableFunctionImpl for LatestAtFunction {
                 "the first argument must be a timeline name; {usage}"
             )));
         };
-        let Some(time_type) = self.snapshot.time_type(timeline) else {
-            let unknown = crate::UnknownTimeline::new(timeline, &self.snapshot.timelines());
-            return Err(plan_error(&unknown.to_string()));
+        let known = self.snapshot.timelines();
+        let time_type = match self.snapshot.time_type(timeline) {
+            Some(time_type) => time_type,
+            // Without temporal data, any timeline answers (with static data alone); a time
+            // is read as the literal's own type.
+            None if known.is_empty() => literal_time_type(exprs.get(1)),
+            None => {
+                let unknown = crate::UnknownTimeline::new(timeline, &known);
+                return Err(plan_error(&unknown.to_string()));
+            }
         };
         let Some(Expr::Literal(value, _)) = exprs.get(1) else {
             return Err(plan_error(&format!(
@@ -102,6 +109,29 @@ fn times_of(value: &ScalarValue, time_type: TimeType) -> Result<Vec<TimeInt>> {
         return Ok(times);
     }
     Ok(vec![time_of(value, time_type)?])
+}
+
+/// The type a time literal reads as on a timeline of no type: a timestamp or duration
+/// literal's own, text in the first form it reads in, otherwise a sequence.
+fn literal_time_type(expr: Option<&Expr>) -> TimeType {
+    match expr {
+        Some(Expr::Literal(ScalarValue::TimestampNanosecond(..), _)) => TimeType::TimestampNs,
+        Some(Expr::Literal(ScalarValue::DurationNanosecond(..), _)) => TimeType::DurationNs,
+        Some(Expr::Literal(
+            ScalarValue::Utf8(Some(text))
+            | ScalarValue::Utf8View(Some(text))
+            | ScalarValue::LargeUtf8(Some(text)),
+            _,
+        )) => [
+            TimeType::Sequence,
+            TimeType::DurationNs,
+            TimeType::TimestampNs,
+        ]
+        .into_iter()
+        .find(|kind| kind.parse_time(text).is_ok())
+        .unwrap_or(TimeType::Sequence),
+        _ => TimeType::Sequence,
+    }
 }
 
 fn time_of(value: &ScalarValue, time_type: TimeType) -> Result<TimeInt> {

@@ -24,8 +24,8 @@ pub use crate::dataframe::SEGMENT_ID_COLUMN;
 /// recording id) in `ctx`: a table per timeline any of them has, `chunks`, and
 /// `latest_at(...)`, each with [`SEGMENT_ID_COLUMN`] first. Returns the table names,
 /// timelines first (sorted), then the chunk table's (`__chunks` if a timeline is named
-/// `chunks`). With no segment there are no tables (a table's columns come from its
-/// segments).
+/// `chunks`). With no segment there is `chunks` alone, empty (a timeline table's columns
+/// come from its segments; the chunk table's shape does not depend on the data).
 ///
 /// # Errors
 /// DataFusion's, should planning a union fail.
@@ -62,6 +62,16 @@ pub fn register_segments(
     for (segment, snapshot) in segments {
         let table = ChunksTable::new(snapshot.clone())?;
         parts.push((segment.as_str(), Arc::new(table) as Arc<dyn TableProvider>));
+    }
+    // `chunks` is there with no segment too (its shape does not depend on the data), so
+    // that a client started before the first recording can probe it: an empty store's
+    // table has no rows.
+    let empty = crate::SharedStore::new(crate::ChunkStore::new()).snapshot();
+    if parts.is_empty() {
+        parts.push((
+            "",
+            Arc::new(ChunksTable::new(empty)?) as Arc<dyn TableProvider>,
+        ));
     }
     if let Some(view) = stacked(&chunks_name, parts)? {
         replace_table(ctx, &chunks_name, view)?;

@@ -105,9 +105,17 @@ impl TimelineTable {
         };
         let query = table.query();
         table.schema = table.snapshot.dataframe_schema(&query).map_err(external)?;
-        let time_type = table.snapshot.time_type(timeline).ok_or_else(|| {
-            DataFusionError::Plan(format!("the store has no timeline {timeline:?}"))
-        })?;
+        // A store without temporal data answers on any timeline (static data alone), as
+        // its dataframe does: the index is then a sequence.
+        let time_type = match table.snapshot.time_type(timeline) {
+            Some(time_type) => time_type,
+            None if table.snapshot.timelines().is_empty() => crate::TimeType::Sequence,
+            None => {
+                return Err(DataFusionError::Plan(format!(
+                    "the store has no timeline {timeline:?}"
+                )));
+            }
+        };
         table.index = Timeline::new(timeline, time_type);
         Ok(table)
     }

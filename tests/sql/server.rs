@@ -372,6 +372,56 @@ fn a_torn_tail_is_dropped_and_a_damaged_byte_refuses_to_start() {
 }
 
 #[test]
+fn an_empty_server_has_chunks_and_a_statement_gets_the_schema_it_was_planned_with() {
+    let dir = temp_dir("schema");
+    let rt = runtime();
+    let server = Server::start(&dir, &[]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        // Before the first recording: `chunks` is there, empty; an unknown table is an
+        // error naming the tables there are.
+        assert_eq!(counts(&server, "chunks").await, []);
+        let err = query(&server, "SELECT * FROM frame", None)
+            .await
+            .unwrap_err();
+        assert!(err.to_string().contains("the tables are: chunks"), "{err}");
+
+        write(&server, vec![info_msg(&r1), chunk_msg(&r1, "/a", 0, 1.0)])
+            .await
+            .unwrap();
+        // Planned with one entity's column, run after a second entity arrived: the batches
+        // have the columns that were advertised.
+        let mut client = FlightSqlServiceClient::new(server.channel().await);
+        let info = client
+            .execute("SELECT * FROM frame".to_owned(), None)
+            .await
+            .unwrap();
+        let advertised = info.clone().try_decode_schema().unwrap();
+        write(&server, vec![chunk_msg(&r1, "/b", 1, 2.0)])
+            .await
+            .unwrap();
+        let ticket = info.endpoint[0].ticket.clone().unwrap();
+        let batches: Vec<RecordBatch> = client
+            .do_get(ticket)
+            .await
+            .unwrap()
+            .try_collect()
+            .await
+            .unwrap();
+        let rows: usize = batches.iter().map(RecordBatch::num_rows).sum();
+        assert_eq!(rows, 2);
+        for batch in &batches {
+            assert_eq!(batch.schema().fields(), advertised.fields());
+        }
+        // A statement planned now sees both entities.
+        let now = query(&server, "SELECT * FROM frame", None).await.unwrap();
+        assert_eq!(now[0].num_columns(), advertised.fields().len() + 1);
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
     let dir = temp_dir("lock");
     let log = dir.join("live.rrd");

@@ -321,8 +321,15 @@ fn parse_count<T: std::str::FromStr>(text: &str) -> Result<T, String> {
 pub struct TimeArg(pub String);
 
 impl TimeArg {
-    /// The time on a timeline of `time_type`.
-    pub fn on(&self, time_type: TimeType) -> Result<TimeInt, String> {
+    /// The time on a timeline of `time_type`; on one of no type (a source without
+    /// temporal data, where any time answers the same), in the first form it reads in.
+    pub fn on(&self, time_type: Option<TimeType>) -> Result<TimeInt, String> {
+        let Some(time_type) = time_type else {
+            return TIME_TYPES
+                .iter()
+                .find_map(|kind| kind.parse_time(&self.0).ok())
+                .ok_or_else(|| format!("{:?} is not a time", self.0));
+        };
         time_type.parse_time(&self.0).map_err(|e| e.to_string())
     }
 
@@ -338,18 +345,20 @@ impl std::fmt::Display for TimeArg {
     }
 }
 
+/// Every type of time, in the order a time of no known type is read in.
+const TIME_TYPES: [TimeType; 3] = [
+    TimeType::Sequence,
+    TimeType::DurationNs,
+    TimeType::TimestampNs,
+];
+
 fn parse_time(text: &str) -> Result<TimeArg, String> {
     if text.trim().parse::<i64>() == Ok(i64::MIN) {
         return Err(format!(
             "{text} is reserved (i64::MIN is never a valid time)"
         ));
     }
-    let kinds = [
-        TimeType::Sequence,
-        TimeType::DurationNs,
-        TimeType::TimestampNs,
-    ];
-    if kinds.iter().any(|kind| kind.parse_time(text).is_ok()) {
+    if TIME_TYPES.iter().any(|kind| kind.parse_time(text).is_ok()) {
         return Ok(TimeArg(text.to_owned()));
     }
     Err(format!(

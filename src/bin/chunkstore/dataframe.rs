@@ -159,7 +159,7 @@ fn with_times(
     values: Option<&[TimeArg]>,
 ) -> Result<DataframeQuery, Failure> {
     if let Some((min, max)) = range {
-        let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
+        let (lo, hi) = (min.on(Some(time_type))?, max.on(Some(time_type))?);
         if lo > hi {
             return Err(reversed(min, max));
         }
@@ -168,7 +168,7 @@ fn with_times(
     if let Some(values) = values {
         let values = values
             .iter()
-            .map(|v| v.on(time_type))
+            .map(|v| v.on(Some(time_type)))
             .collect::<Result<Vec<_>, _>>()?;
         query = query.with_index_values(values);
     }

@@ -129,13 +129,16 @@ pub fn open_for_queries(
 
 /// The type of `timeline`, or an error naming the timelines the source has: the rule of
 /// `dataframe`, SQL and Python too (a misspelt name must not pass for an answer of static
-/// data only).
+/// data only). A source without temporal data answers on any timeline (`None`: a time
+/// of any form).
 pub fn timeline_type(
     reader: &RecordingReader<'_>,
     timeline: &str,
     source: &Path,
-) -> Result<TimeType, String> {
-    reader
-        .time_type(timeline)
-        .map_err(|error| format!("{}: {error}", source.display()))
+) -> Result<Option<TimeType>, String> {
+    match reader.time_type(timeline) {
+        Ok(time_type) => Ok(Some(time_type)),
+        Err(error) if error.known.is_empty() => Ok(None),
+        Err(error) => Err(format!("{}: {error}", source.display())),
+    }
 }

@@ -61,13 +61,21 @@ impl SqlService {
     }
 
     /// The schema `sql`'s answer will have (planned, not run).
-    async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
+    /// Plans `sql` on the recordings as of now.
+    async fn plan(&self, sql: &str) -> Result<datafusion::dataframe::DataFrame, Status> {
         let ctx = self.session()?;
-        let frame = ctx.sql(sql).await.map_err(query_error)?;
-        Ok(frame.schema().as_arrow().clone())
+        match ctx.sql(sql).await {
+            Ok(frame) => Ok(frame),
+            Err(error) => {
+                Err(unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error)))
+            }
+        }
     }
 
-    /// A flight info whose one endpoint's ticket runs `sql`.
+    async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
+        Ok(self.plan(sql).await?.schema().as_arrow().clone())
+    }
+
     async fn statement_info(
         &self,
         sql: &str,
@@ -75,7 +83,7 @@ impl SqlService {
     ) -> Result<Response<FlightInfo>, Status> {
         let schema = self.plan_schema(sql).await?;
         let ticket = TicketStatementQuery {
-            statement_handle: sql.to_owned().into_bytes().into(),
+            statement_handle: StatementTicket::encode(&schema, sql)?.into(),
         };
         let endpoint = FlightEndpoint::new().with_ticket(Ticket {
             ticket: ticket.as_any().encode_to_vec().into(),
@@ -89,13 +97,32 @@ impl SqlService {
         Ok(Response::new(info))
     }
 
-    /// Runs `sql` and streams its batches.
-    async fn run(&self, sql: &str) -> Result<Response<DoGetStream>, Status> {
-        let ctx = self.session()?;
-        let frame = ctx.sql(sql).await.map_err(query_error)?;
-        let schema = Arc::new(frame.schema().as_arrow().clone());
+    /// Runs `sql` on the recordings as of now; with the schema `GetFlightInfo` advertised,
+    /// its batches are put in that schema (ingest between the two calls may have added
+    /// columns to `SELECT *`, or a collection dropped some).
+    async fn run(
+        &self,
+        sql: &str,
+        advertised: Option<Arc<Schema>>,
+    ) -> Result<Response<DoGetStream>, Status> {
+        let frame = self.plan(sql).await?;
+        let planned = Arc::new(frame.schema().as_arrow().clone());
         let batches = frame.execute_stream().await.map_err(query_error)?;
-        let batches = batches.map_err(|e| FlightError::ExternalError(Box::new(e)));
+        let (schema, batches): (_, DoGetBatches) = match advertised {
+            Some(advertised) if advertised.fields() != planned.fields() => {
+                let target = Arc::clone(&advertised);
+                let placed = batches.map_err(|e| FlightError::ExternalError(Box::new(e)));
+                let placed = placed.and_then(move |batch| {
+                    let target = Arc::clone(&target);
+                    async move { place_in(&batch, &target).map_err(FlightError::Arrow) }
+                });
+                (advertised, Box::pin(placed))
+            }
+            _ => (
+                planned,
+                Box::pin(batches.map_err(|e| FlightError::ExternalError(Box::new(e)))),
+            ),
+        };
         let stream = FlightDataEncoderBuilder::new()
             .with_schema(schema)
             .build(batches)
@@ -104,8 +131,90 @@ impl SqlService {
     }
 }
 
-/// A query's error as the client sees it: its own mistake (`INVALID_ARGUMENT`), with
-/// DataFusion's message on one line.
+type DoGetBatches =
+    Pin<Box<dyn Stream<Item = Result<arrow_array::RecordBatch, FlightError>> + Send>>;
+
+/// `batch`'s columns in `schema`, by name: a column it lacks is null, one of another type
+/// is cast.
+fn place_in(
+    batch: &arrow_array::RecordBatch,
+    schema: &Arc<Schema>,
+) -> Result<arrow_array::RecordBatch, arrow_schema::ArrowError> {
+    let columns = schema
+        .fields()
+        .iter()
+        .map(|field| match batch.column_by_name(field.name()) {
+            Some(column) if column.data_type() == field.data_type() => Ok(Arc::clone(column)),
+            Some(column) => arrow_cast::cast(column, field.data_type()),
+            None => Ok(arrow_array::new_null_array(
+                field.data_type(),
+                batch.num_rows(),
+            )),
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(batch.num_rows()));
+    arrow_array::RecordBatch::try_new_with_options(Arc::clone(schema), columns, &options)
+}
+
+/// A statement's ticket: the schema `GetFlightInfo` advertised, then the SQL text, so
+/// that `DoGet` sends what was advertised. The server keeps nothing per query.
+struct StatementTicket;
+
+impl StatementTicket {
+    const MAGIC: &'static [u8] = b"chunkstore-ticket-1\0";
+
+    fn encode(schema: &Schema, sql: &str) -> Result<Vec<u8>, Status> {
+        let IpcMessage(schema_bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
+            .try_into()
+            .map_err(|e: arrow_schema::ArrowError| {
+                Status::internal(format!("encoding the schema: {e}"))
+            })?;
+        let mut out = Self::MAGIC.to_vec();
+        out.extend_from_slice(&(schema_bytes.len() as u64).to_le_bytes());
+        out.extend_from_slice(&schema_bytes);
+        out.extend_from_slice(sql.as_bytes());
+        Ok(out)
+    }
+
+    /// The SQL and the advertised schema; a ticket that is plain SQL has no schema.
+    fn decode(ticket: &[u8]) -> Result<(String, Option<Arc<Schema>>), Status> {
+        let Some(rest) = ticket.strip_prefix(Self::MAGIC) else {
+            return Ok((utf8(ticket, "the statement ticket")?, None));
+        };
+        let bad = || Status::invalid_argument("the statement ticket is malformed");
+        let (len, rest) = rest.split_at_checked(8).ok_or_else(bad)?;
+        let mut le = [0u8; 8];
+        le.copy_from_slice(len);
+        let len = usize::try_from(u64::from_le_bytes(le)).map_err(|_| bad())?;
+        let (schema_bytes, sql) = rest.split_at_checked(len).ok_or_else(bad)?;
+        let schema = Schema::try_from(IpcMessage(bytes::Bytes::copy_from_slice(schema_bytes)))
+            .map_err(|_| bad())?;
+        Ok((utf8(sql, "the statement ticket")?, Some(Arc::new(schema))))
+    }
+}
+
+/// DataFusion's "table ... not found", with the tables there are.
+fn unknown_table_named(
+    ctx: &SessionContext,
+    error: &datafusion::error::DataFusionError,
+) -> Option<Status> {
+    let text = error.to_string();
+    if !(text.contains("table '") && text.contains("not found")) {
+        return None;
+    }
+    let mut names: Vec<String> = ctx
+        .catalog(CATALOG)
+        .and_then(|catalog| catalog.schema(SCHEMA))
+        .map(|schema| schema.table_names())
+        .unwrap_or_default();
+    names.sort();
+    Some(Status::invalid_argument(format!(
+        "{}; the tables are: {} (and the table function latest_at)",
+        text.replace('\n', " "),
+        names.join(", ")
+    )))
+}
+
 #[expect(clippy::needless_pass_by_value, reason = "the shape `map_err` takes")]
 fn query_error(error: datafusion::error::DataFusionError) -> Status {
     Status::invalid_argument(error.to_string().replace('\n', " "))
@@ -195,8 +304,8 @@ impl FlightSqlService for SqlService {
         ticket: TicketStatementQuery,
         _request: Request<Ticket>,
     ) -> Result<Response<DoGetStream>, Status> {
-        let sql = utf8(&ticket.statement_handle, "the statement ticket")?;
-        self.run(&sql).await
+        let (sql, advertised) = StatementTicket::decode(&ticket.statement_handle)?;
+        self.run(&sql, advertised).await
     }
 
     async fn do_get_prepared_statement(
@@ -208,7 +317,7 @@ impl FlightSqlService for SqlService {
             &query.prepared_statement_handle,
             "the prepared statement handle",
         )?;
-        self.run(&sql).await
+        self.run(&sql, None).await
     }
 
     async fn do_action_create_prepared_statement(
