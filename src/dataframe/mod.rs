@@ -407,8 +407,12 @@ impl Snapshot {
     /// use chunkstore::{ChunkStore, DataframeQuery};
     ///
     /// let store = ChunkStore::new();
-    /// // The store has no timeline yet: the query is refused, as `dataframe` refuses it.
-    /// assert!(store.snapshot().into_dataframe(&DataframeQuery::new("frame")).is_err());
+    /// // A store without temporal data answers on any timeline (static data answers on
+    /// // every one), with no rows.
+    /// let stream = store.snapshot().into_dataframe(&DataframeQuery::new("frame"))?;
+    /// let rows: usize = stream.map(|batch| batch.map(|b| b.num_rows())).sum::<Result<_, _>>()?;
+    /// assert_eq!(rows, 0);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     ///
     /// # Errors

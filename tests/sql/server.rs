@@ -422,6 +422,54 @@ fn an_empty_server_has_chunks_and_a_statement_gets_the_schema_it_was_planned_wit
 }
 
 #[test]
+fn sigterm_stops_the_server_while_a_follow_reader_is_connected() {
+    let dir = temp_dir("sigterm");
+    let rt = runtime();
+    let mut server = Server::start(&dir, &[]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        write(&server, vec![info_msg(&r1), chunk_msg(&r1, "/a", 0, 1.0)])
+            .await
+            .unwrap();
+        // A follow reader (the default read mode), reading the history and then waiting.
+        let mut grpc = tonic::client::Grpc::new(server.channel().await);
+        grpc.ready().await.unwrap();
+        let mut stream = grpc
+            .server_streaming::<Vec<u8>, Vec<u8>, _>(
+                tonic::Request::new(Vec::new()),
+                tonic::codegen::http::uri::PathAndQuery::from_static(READ),
+                Raw,
+            )
+            .await
+            .unwrap()
+            .into_inner();
+        for _ in 0..2 {
+            stream.message().await.unwrap().unwrap();
+        }
+        let pid = server.child.id().to_string();
+        let killed = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        assert!(killed.success());
+        // The reader's stream ends and the process exits, well within the grace period.
+        let start = std::time::Instant::now();
+        loop {
+            if let Some(status) = server.child.try_wait().unwrap() {
+                assert!(status.success(), "{status}: {}", server.stderr());
+                break;
+            }
+            assert!(
+                start.elapsed() < std::time::Duration::from_secs(4),
+                "still running 4 s after SIGTERM: {}",
+                server.stderr()
+            );
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
+        assert!(matches!(stream.message().await, Ok(None) | Err(_)));
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
     let dir = temp_dir("lock");
     let log = dir.join("live.rrd");

@@ -87,6 +87,10 @@ pub enum ReadMode {
 
 pub use crate::args::parse_bytes;
 
+/// How long a stopping server waits for its calls to finish (a write stream's sync, a
+/// history being sent) before it exits anyway.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
 /// How many live messages a reader may fall behind the writers before it is dropped.
 const LIVE_BACKLOG: usize = 1024;
 
@@ -119,6 +123,8 @@ pub struct ServerState {
     /// The SOURCEs loaded before serving: loaded again when memory is rebuilt from the
     /// log after a failed write.
     sources: Vec<PathBuf>,
+    /// Set once the server is stopping: live readers end their streams.
+    pub stopping: tokio::sync::watch::Sender<bool>,
     /// Held (shared) while a message is ingested and (exclusively) while memory is rebuilt
     /// after a failed write, so that nothing is ingested in between.
     write_gate: parking_lot::RwLock<()>,
@@ -234,6 +240,7 @@ impl ServerState {
             live,
             persist,
             sources,
+            stopping: tokio::sync::watch::Sender::new(false),
             write_gate: parking_lot::RwLock::new(()),
             memory_limit: options.memory_limit,
             read_mode: options.read_mode,
@@ -297,7 +304,10 @@ fn run(args: &ServeArgs) -> Result<(), String> {
         .enable_all()
         .build()
         .map_err(|e| format!("starting the server's runtime: {e}"))?;
-    runtime.block_on(serve(state, args.addr, args.token.clone()))
+    let served = runtime.block_on(serve(state, args.addr, args.token.clone()));
+    // A history still being read out on a blocking thread is not waited for.
+    runtime.shutdown_timeout(SHUTDOWN_GRACE);
+    served
 }
 
 /// Loads one SOURCE into the hub: an `.rrd` file message by message (every recording and
@@ -379,7 +389,8 @@ async fn serve(
         auth,
     );
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
-    let shutdown = async {
+    let stopping = Arc::clone(&state);
+    let shutdown = async move {
         match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
             Ok(mut terminate) => {
                 tokio::select! {
@@ -391,23 +402,39 @@ async fn serve(
                 let _ = tokio::signal::ctrl_c().await;
             }
         }
+        // Live readers end their streams, so that the graceful stop does not wait for
+        // them (a follow reader never ends by itself).
+        stopping.stopping.send_replace(true);
     };
     // HTTP/2's default flow-control windows (64 KiB) let a client send one window, then
     // wait a round trip for more: an SDK streaming 60 kB chunks ran at a third of its
     // speed. Large windows let it stream; a write stream still holds one message at a time.
-    let served = tonic::transport::Server::builder()
+    let server = tonic::transport::Server::builder()
         .tcp_nodelay(true)
         .initial_stream_window_size(Some(STREAM_WINDOW))
         .initial_connection_window_size(Some(CONNECTION_WINDOW))
         .add_service(proxy_service)
         .add_service(flight_service)
-        .serve_with_incoming_shutdown(incoming, shutdown)
-        .await;
+        .serve_with_incoming_shutdown(incoming, shutdown);
+    let mut stopped = state.stopping.subscribe();
+    let outcome = tokio::select! {
+        result = server => result,
+        () = async {
+            let _ = stopped.wait_for(|stopping| *stopping).await;
+            tokio::time::sleep(SHUTDOWN_GRACE).await;
+        } => {
+            eprintln!(
+                "warning: calls still open {} s after the stop signal were cut off",
+                SHUTDOWN_GRACE.as_secs()
+            );
+            Ok(())
+        }
+    };
     if let Some(log) = &state.persist {
         log.sync()
             .map_err(|e| format!("{}: {e}", log.path().display()))?;
     }
-    served.map_err(|e| format!("serving on {local}: {e}"))
+    outcome.map_err(|e| format!("serving on {local}: {e}"))
 }
 
 #[cfg(test)]

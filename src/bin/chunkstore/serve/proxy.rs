@@ -213,6 +213,7 @@ fn read_messages(state: &Arc<ServerState>) -> MessageStream {
     // Subscribe before taking the history: a message accepted in between arrives both
     // ways and is sent once (by sequence number).
     let mut live = state.live.subscribe();
+    let mut stopping = state.stopping.subscribe();
     let replay = state.hub.replay();
     let follow = state.read_mode == ReadMode::Follow;
     tokio::spawn(async move {
@@ -235,7 +236,12 @@ fn read_messages(state: &Arc<ServerState>) -> MessageStream {
             return;
         }
         loop {
-            match live.recv().await {
+            let received = tokio::select! {
+                received = live.recv() => received,
+                // The server is stopping: the stream ends (the reader may reconnect).
+                _ = stopping.wait_for(|stopping| *stopping) => return,
+            };
+            match received {
                 Ok(Live::Message(seq, msg)) if seq > history_seq => {
                     if tx.send(Ok(msg.encode_envelope())).await.is_err() {
                         return;
