@@ -374,6 +374,28 @@ fn body_cut_short(kind: u64, rest: &[u8], len: u64) -> bool {
         && super::protobuf::could_start_message_of(without_trailing_zeros(rest), len)
 }
 
+/// Zeros to the end where a stream or a message should start: never written.
+fn zero_tail(data: &[u8], at: usize) -> Option<RrdError> {
+    let rest = &data[at..];
+    let len = rest.len() as u64;
+    rest.iter()
+        .all(|&b| b == 0)
+        .then(|| RrdError::new(at as u64, RrdErrorKind::ZeroTail { len }))
+}
+
+/// Is the whole frame body at `body_at` not a whole message? A damaged length makes it end
+/// inside a field or run into the next frame. Unless all from there on is zeros (a write
+/// cut short), that is damage: the fault, and whether it is a torn tail.
+fn damaged_body(data: &[u8], body_at: usize, body_len: usize) -> Option<(RrdError, bool)> {
+    let bad = super::protobuf::whole_message(&data[body_at..body_at + body_len]).err()?;
+    let torn = data[body_at + bad..].iter().all(|&b| b == 0);
+    let reason = "the message's fields do not end where its frame says it ends: its length \
+                  or its fields are damaged"
+        .to_owned();
+    let fault = RrdError::new((body_at + bad) as u64, RrdErrorKind::Protobuf { reason });
+    Some((fault, torn))
+}
+
 /// Where the bytes after an `End` message at `at` leave off: past its stream footer if one
 /// is there, or `None` when fewer bytes than a footer follow, then zeros or nothing, and
 /// not the next stream (a footer cut short).
@@ -428,16 +450,8 @@ pub fn scan_log(bytes: &Buffer) -> LogScan {
             },
         )
     };
-    // Zeros to the end where a stream or a message should start: never written.
-    let zero_tail = |at: usize| {
-        let rest = &data[at..];
-        let len = rest.len() as u64;
-        rest.iter()
-            .all(|&b| b == 0)
-            .then(|| RrdError::new(at as u64, RrdErrorKind::ZeroTail { len }))
-    };
     'streams: while at < len {
-        if let Some(fault) = zero_tail(at) {
+        if let Some(fault) = zero_tail(data, at) {
             return scan.stop(fault, true);
         }
         let Some(header) = data.get(at..at + STREAM_HEADER_LEN) else {
@@ -454,7 +468,7 @@ pub fn scan_log(bytes: &Buffer) -> LogScan {
         scan.valid_len = at as u64;
         scan.open_stream = true;
         while at < len {
-            if let Some(fault) = zero_tail(at) {
+            if let Some(fault) = zero_tail(data, at) {
                 return scan.stop(fault, true);
             }
             let Some(header) = data.get(at..at + MESSAGE_HEADER_LEN) else {
@@ -472,6 +486,9 @@ pub fn scan_log(bytes: &Buffer) -> LogScan {
                 let torn = body_cut_short(kind, &data[body_at..], body_len);
                 return scan.stop(truncated(body_at, "message body", body_len), torn);
             };
+            if let Some((fault, torn)) = damaged_body(data, body_at, body_len) {
+                return scan.stop(fault, torn);
+            }
             at = body_at + body_len;
             let kind = match MessageKind::from_u64(kind) {
                 Some(MessageKind::End) => {

@@ -193,6 +193,42 @@ impl<'a> WireField<'a> {
     }
 }
 
+/// A varint at `at`: `Ok(Some((value, end)))`, `Ok(None)` if `bytes` end inside it, `Err`
+/// if it is longer than ten bytes.
+fn varint_at(bytes: &[u8], at: usize) -> Result<Option<(u64, usize)>, ()> {
+    let mut value = 0u64;
+    for (i, shift) in (0..64).step_by(7).enumerate() {
+        let Some(&byte) = bytes.get(at + i) else {
+            return Ok(None);
+        };
+        value |= u64::from(byte & 0x7f) << shift;
+        if byte < 0x80 {
+            return Ok(Some((value, at + i + 1)));
+        }
+    }
+    Err(())
+}
+
+/// Where the field starting at `at` ends (it may run past the end of `bytes`): `Ok(None)`
+/// if `bytes` end inside its key or length, `Err` for a key no real message has (field
+/// 0, a group, a wire type that does not exist) or an overlong varint. Only the framing
+/// is read, never a value: a walk over a message's fields is as cheap as their number.
+fn field_end(bytes: &[u8], at: usize) -> Result<Option<u64>, ()> {
+    let Some((key, after_key)) = varint_at(bytes, at)? else {
+        return Ok(None);
+    };
+    if key >> 3 == 0 || key >> 3 > u64::from(u32::MAX >> 3) {
+        return Err(());
+    }
+    Ok(match key & 7 {
+        0 => varint_at(bytes, after_key)?.map(|(_, end)| end as u64),
+        1 => Some(after_key as u64 + 8),
+        5 => Some(after_key as u64 + 4),
+        2 => varint_at(bytes, after_key)?.map(|(len, start)| (start as u64).saturating_add(len)),
+        _ => return Err(()),
+    })
+}
+
 /// Could `prefix` be the first bytes of a message `len` bytes long? Every whole field it
 /// holds must end within `len`, and a field cut off by the end of `prefix` must claim no
 /// more than `len` either; a key of field 0 or of a group is never the start of a real
@@ -200,53 +236,18 @@ impl<'a> WireField<'a> {
 /// was damaged: past a real message's end come the next frame's header bytes, whose first
 /// byte (a message kind, 0 to 3) is no valid key.
 pub(crate) fn could_start_message_of(prefix: &[u8], len: u64) -> bool {
-    // A varint at `at`: `Ok(Some((value, end)))`, `Ok(None)` if the prefix ends inside it.
-    fn varint(bytes: &[u8], at: usize) -> Result<Option<(u64, usize)>, ()> {
-        let mut value = 0u64;
-        for (i, shift) in (0..64).step_by(7).enumerate() {
-            let Some(&byte) = bytes.get(at + i) else {
-                return Ok(None);
-            };
-            value |= u64::from(byte & 0x7f) << shift;
-            if byte < 0x80 {
-                return Ok(Some((value, at + i + 1)));
-            }
-        }
-        Err(())
-    }
-    let fits = |end: u64| end <= len;
-    if !fits(prefix.len() as u64) {
+    if prefix.len() as u64 > len {
         return false;
     }
     let mut at = 0usize;
     while at < prefix.len() {
-        let Ok(key) = varint(prefix, at) else {
-            return false;
+        let end = match field_end(prefix, at) {
+            Ok(Some(end)) => end,
+            // Cut off inside its key or length.
+            Ok(None) => return true,
+            Err(()) => return false,
         };
-        let Some((key, after_key)) = key else {
-            return true;
-        };
-        if key >> 3 == 0 || key >> 3 > u64::from(u32::MAX >> 3) {
-            return false;
-        }
-        let end = match key & 7 {
-            0 => match varint(prefix, after_key) {
-                Ok(Some((_, end))) => end as u64,
-                Ok(None) => return true,
-                Err(()) => return false,
-            },
-            1 => after_key as u64 + 8,
-            5 => after_key as u64 + 4,
-            2 => match varint(prefix, after_key) {
-                Ok(Some((field_len, value_start))) => {
-                    (value_start as u64).saturating_add(field_len)
-                }
-                Ok(None) => return true,
-                Err(()) => return false,
-            },
-            _ => return false,
-        };
-        if !fits(end) {
+        if end > len {
             return false;
         }
         match usize::try_from(end) {
@@ -256,6 +257,22 @@ pub(crate) fn could_start_message_of(prefix: &[u8], len: u64) -> bool {
         }
     }
     true
+}
+
+/// Do `bytes` read as whole protobuf fields, the last ending exactly at their end? `Err`
+/// names where the first field that does not starts. A frame whose length was damaged
+/// fails this: its body ends inside a field, or runs into the next frame's header.
+pub(crate) fn whole_message(bytes: &[u8]) -> Result<(), usize> {
+    let mut at = 0usize;
+    while at < bytes.len() {
+        match field_end(bytes, at) {
+            Ok(Some(end)) if end <= bytes.len() as u64 => {
+                at = usize::try_from(end).map_err(|_| at)?;
+            }
+            _ => return Err(at),
+        }
+    }
+    Ok(())
 }
 
 /// Appends protobuf fields to a buffer.

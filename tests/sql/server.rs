@@ -11,7 +11,7 @@ use arrow_array::{Array, Int64Array, RecordBatch, StringArray};
 use arrow_flight::sql::client::FlightSqlServiceClient;
 use bytes::{Buf as _, BufMut as _};
 use chunkstore::rrd::{LogMsg, StoreId, StoreInfo, StoreKind};
-use futures::TryStreamExt as _;
+use futures::{StreamExt as _, TryStreamExt as _};
 use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
 use tonic::transport::Channel;
 
@@ -465,6 +465,122 @@ fn sigterm_stops_the_server_while_a_follow_reader_is_connected() {
         }
         assert!(matches!(stream.message().await, Ok(None) | Err(_)));
     });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A `WriteMessages` stream that sends nothing until `release` is dropped, then `then`.
+fn open_idle_stream(
+    channel: Channel,
+    then: Vec<Vec<u8>>,
+) -> (
+    tokio::sync::oneshot::Sender<()>,
+    tokio::task::JoinHandle<Result<(), tonic::Status>>,
+) {
+    let (release, released) = tokio::sync::oneshot::channel::<()>();
+    let requests = futures::stream::once(async move {
+        let _ = released.await;
+        futures::stream::iter(then)
+    })
+    .flatten();
+    let task = tokio::spawn(async move {
+        let mut grpc = tonic::client::Grpc::new(channel);
+        grpc.ready().await.unwrap();
+        grpc.client_streaming::<_, Vec<u8>, Vec<u8>, _>(
+            tonic::Request::new(requests),
+            tonic::codegen::http::uri::PathAndQuery::from_static(WRITE),
+            Raw,
+        )
+        .await
+        .map(drop)
+    });
+    (release, task)
+}
+
+/// Idle streams cannot lock loggers out: one connection holds at most 16, a stream must
+/// send its first message within 10 s, and when every slot is taken the stream idle
+/// longest gives way to a new one; each refusal is one line on stderr.
+#[test]
+fn idle_log_streams_give_way_and_are_capped_per_connection() {
+    let dir = temp_dir("idle");
+    let rt = runtime();
+    let server = Server::start(&dir, &["--max-write-streams", "20"]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        // One connection, 17 streams sending nothing: the 17th is refused at once.
+        let channel = server.channel().await;
+        let mut idle = Vec::new();
+        for _ in 0..16 {
+            idle.push(open_idle_stream(channel.clone(), Vec::new()));
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+        let (_release, refused) = open_idle_stream(channel.clone(), Vec::new());
+        let status = refused.await.unwrap().unwrap_err();
+        assert_eq!(status.code(), tonic::Code::ResourceExhausted, "{status}");
+        assert!(status.message().contains("this connection"), "{status}");
+        // None sent a first message: after 10 s each is ended.
+        for (_release, task) in idle {
+            let status = task.await.unwrap().unwrap_err();
+            assert_eq!(status.code(), tonic::Code::DeadlineExceeded, "{status}");
+        }
+    });
+    let stderr = server.stderr();
+    assert_eq!(stderr.matches("no first message").count(), 16, "{stderr}");
+    assert!(
+        stderr.contains("this connection already has 16"),
+        "{stderr}"
+    );
+    drop(server);
+
+    // Two slots, both held by streams that logged once and went quiet: a third stream
+    // is taken (after the idle grace), and the idlest gives way.
+    let server = Server::start(&dir, &["--max-write-streams", "2"]);
+    rt.block_on(async {
+        let mut quiet = Vec::new();
+        for frame in 0..2 {
+            let channel = server.channel().await;
+            let first = vec![info_msg(&r1), chunk_msg(&r1, "/quiet", frame, 1.0)];
+            let (release, released) = tokio::sync::oneshot::channel::<()>();
+            let requests = futures::stream::iter(first).chain(
+                futures::stream::once(async move {
+                    let _ = released.await;
+                    futures::stream::iter(Vec::<Vec<u8>>::new())
+                })
+                .flatten(),
+            );
+            let task = tokio::spawn(async move {
+                let mut grpc = tonic::client::Grpc::new(channel);
+                grpc.ready().await.unwrap();
+                grpc.client_streaming::<_, Vec<u8>, Vec<u8>, _>(
+                    tonic::Request::new(requests),
+                    tonic::codegen::http::uri::PathAndQuery::from_static(WRITE),
+                    Raw,
+                )
+                .await
+                .map(drop)
+            });
+            quiet.push((release, task));
+        }
+        tokio::time::sleep(std::time::Duration::from_secs(11)).await;
+        write(&server, vec![info_msg(&r1), chunk_msg(&r1, "/new", 5, 2.0)])
+            .await
+            .unwrap();
+        let mut gave_way = 0;
+        for (release, task) in quiet {
+            drop(release);
+            if let Err(status) = task.await.unwrap() {
+                assert_eq!(status.code(), tonic::Code::Unavailable, "{status}");
+                gave_way += 1;
+            }
+        }
+        assert_eq!(gave_way, 1);
+        assert_eq!(counts(&server, "frame").await, [("r1".to_owned(), 3)]);
+    });
+    assert!(
+        server.stderr().contains("to make room"),
+        "{}",
+        server.stderr()
+    );
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -3,6 +3,7 @@
 //! log that every acknowledged message is in ([`persist`]). `docs/SERVER.md` is the
 //! user's page.
 
+mod admission;
 mod flight;
 mod persist;
 mod proxy;
@@ -20,7 +21,7 @@ use chunkstore::StoreConfig;
 use chunkstore::hub::StoreHub;
 use chunkstore::rrd::LogMsg;
 use clap::{Parser, ValueEnum};
-use tokio::sync::{Semaphore, broadcast};
+use tokio::sync::broadcast;
 
 const SERVE_EXAMPLES: &str = "\
 Examples:
@@ -130,7 +131,7 @@ pub struct ServerState {
     write_gate: parking_lot::RwLock<()>,
     pub memory_limit: Option<u64>,
     pub read_mode: ReadMode,
-    pub write_slots: Arc<Semaphore>,
+    pub admission: Arc<admission::Admission>,
     pub max_message_bytes: usize,
     /// Message bytes ingested since the memory was last measured.
     bytes_since_check: AtomicU64,
@@ -244,7 +245,7 @@ impl ServerState {
             write_gate: parking_lot::RwLock::new(()),
             memory_limit: options.memory_limit,
             read_mode: options.read_mode,
-            write_slots: Arc::new(Semaphore::new(options.max_write_streams)),
+            admission: admission::Admission::new(options.max_write_streams),
             max_message_bytes: options.max_message_bytes,
             bytes_since_check: AtomicU64::new(0),
             collecting: AtomicBool::new(false),

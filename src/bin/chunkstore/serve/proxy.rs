@@ -24,6 +24,7 @@ use tonic::codegen::{BoxFuture, Service, http};
 use tonic::server::{Grpc, NamedService};
 use tonic::{Request, Response, Status, Streaming};
 
+use super::admission;
 use super::write::blocking;
 use super::{Live, ReadMode, ServerState};
 
@@ -145,26 +146,51 @@ impl tonic::server::ClientStreamingService<Buffer> for WriteMessages {
 
     fn call(&mut self, request: Request<Streaming<Buffer>>) -> Self::Future {
         let state = Arc::clone(&self.state);
-        Box::pin(write_messages(state, request.into_inner()))
+        let peer = request.remote_addr();
+        Box::pin(async move {
+            let result = write_messages(state, peer, request.into_inner()).await;
+            if let Err(status) = &result {
+                admission::log_refusal(peer, status);
+            }
+            result
+        })
     }
 }
 
 async fn write_messages(
     state: Arc<ServerState>,
+    peer: Option<std::net::SocketAddr>,
     mut stream: Streaming<Buffer>,
 ) -> Result<Response<Vec<u8>>, Status> {
-    let Ok(_slot) = Arc::clone(&state.write_slots).try_acquire_owned() else {
-        return Err(Status::resource_exhausted(
-            "too many log streams open at once (--max-write-streams)",
-        ));
-    };
+    let admitted = state.admission.admit(peer).await?;
     let mut writer = if state.log_failed() {
         blocking(&state, ServerState::begin_stream).await??
     } else {
         state.begin_stream()?
     };
     let written = async {
-        while let Some(bytes) = stream.message().await? {
+        loop {
+            let first = writer.index == 0;
+            let next = tokio::select! {
+                next = stream.message() => next?,
+                () = admitted.give_way.notified() => {
+                    return Err(Status::unavailable(format!(
+                        "ended to make room for a new log stream after {} s or more without \
+                         a message (every slot was taken); reconnect to log more",
+                        admission::IDLE_GRACE.as_secs()
+                    )));
+                }
+                () = tokio::time::sleep(admission::FIRST_MESSAGE), if first => {
+                    return Err(Status::deadline_exceeded(format!(
+                        "no first message within {} s",
+                        admission::FIRST_MESSAGE.as_secs()
+                    )));
+                }
+            };
+            let Some(bytes) = next else {
+                break;
+            };
+            admitted.touch();
             let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
                 Status::invalid_argument(format!("message {} of this stream: {e}", writer.index))
             })?;
