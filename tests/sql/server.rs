@@ -585,6 +585,59 @@ fn idle_log_streams_give_way_and_are_capped_per_connection() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A query whose client goes away is stopped (the server says so), and the server goes on
+/// serving its connections meanwhile.
+#[test]
+fn an_abandoned_query_stops() {
+    let dir = temp_dir("abandoned");
+    let rt = runtime();
+    let server = Server::start(&dir, &[]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        let rows: Vec<(i64, u128, Option<Vec<f64>>)> = (0..300)
+            .map(|i| (i, chunkstore::RowId::new().as_u128(), Some(vec![1.0])))
+            .collect();
+        let chunk = common::scalars("/a", "x", &rows);
+        let msg = envelope(&LogMsg::from_chunk(&r1, &chunk, true).unwrap());
+        write(&server, vec![info_msg(&r1), msg]).await.unwrap();
+        // 300^4 rows to count: far longer than the test waits.
+        let mut client = FlightSqlServiceClient::new(server.channel().await);
+        let info = client
+            .execute(
+                "SELECT count(*) FROM frame a, frame b, frame c, frame d".to_owned(),
+                None,
+            )
+            .await
+            .unwrap();
+        let ticket = info.endpoint[0].ticket.clone().unwrap();
+        let started = tokio::time::timeout(std::time::Duration::from_secs(1), async {
+            let mut stream = client.do_get(ticket).await.unwrap();
+            stream.try_next().await
+        })
+        .await;
+        assert!(started.is_err(), "the query finished: {started:?}");
+        drop(client);
+        let start = std::time::Instant::now();
+        while !server.stderr().contains("query stopped: its client left") {
+            assert!(
+                start.elapsed() < std::time::Duration::from_secs(10),
+                "{}",
+                server.stderr()
+            );
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
+        // The connections are served while the abandoned query's operators finish the
+        // work they are in (DataFusion's cannot be interrupted inside a poll).
+        let start = std::time::Instant::now();
+        write(&server, vec![chunk_msg(&r1, "/b", 0, 1.0)])
+            .await
+            .unwrap();
+        assert!(start.elapsed() < std::time::Duration::from_secs(2));
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
     let dir = temp_dir("lock");

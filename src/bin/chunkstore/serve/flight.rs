@@ -24,7 +24,7 @@ use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, IpcMessage, Sch
 use arrow_ipc::writer::IpcWriteOptions;
 use arrow_schema::Schema;
 use datafusion::prelude::{SessionConfig, SessionContext};
-use futures::{Stream, TryStreamExt as _};
+use futures::{Stream, StreamExt as _, TryStreamExt as _};
 use prost::Message as _;
 use tonic::{Request, Response, Status};
 
@@ -38,11 +38,13 @@ type DoGetStream = Pin<Box<dyn Stream<Item = Result<arrow_flight::FlightData, St
 /// The Flight SQL service.
 pub struct SqlService {
     state: Arc<ServerState>,
+    /// The runtime queries plan and run on, apart from the one serving connections.
+    queries: tokio::runtime::Handle,
 }
 
 impl SqlService {
-    pub fn new(state: Arc<ServerState>) -> Self {
-        Self { state }
+    pub fn new(state: Arc<ServerState>, queries: tokio::runtime::Handle) -> Self {
+        Self { state, queries }
     }
 
     /// A query context over the recordings as they are now.
@@ -61,19 +63,42 @@ impl SqlService {
     }
 
     /// The schema `sql`'s answer will have (planned, not run).
-    /// Plans `sql` on the recordings as of now.
-    async fn plan(&self, sql: &str) -> Result<datafusion::dataframe::DataFrame, Status> {
+    /// Plans `sql` on the recordings as of now, on the query runtime: DataFusion's
+    /// planning is CPU work without a pause, quadratic in a table's columns (apache/
+    /// datafusion#7698), and on the connections' runtime a wide `SELECT *` left the
+    /// server deaf to every other call. With `physical`, the physical plan too.
+    async fn plan(
+        &self,
+        sql: &str,
+        physical: bool,
+    ) -> Result<(Arc<Schema>, Option<Planned>), Status> {
         let ctx = self.session()?;
-        match ctx.sql(sql).await {
-            Ok(frame) => Ok(frame),
-            Err(error) => {
-                Err(unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error)))
-            }
-        }
+        let sql = sql.to_owned();
+        self.queries
+            .spawn(async move {
+                {
+                    let frame = match ctx.sql(&sql).await {
+                        Ok(frame) => frame,
+                        Err(error) => {
+                            return Err(unknown_table_named(&ctx, &error)
+                                .unwrap_or_else(|| query_error(error)));
+                        }
+                    };
+                    let schema = Arc::new(frame.schema().as_arrow().clone());
+                    if !physical {
+                        return Ok((schema, None));
+                    }
+                    let task = frame.task_ctx();
+                    let plan = frame.create_physical_plan().await.map_err(query_error)?;
+                    Ok((schema, Some((plan, Arc::new(task)))))
+                }
+            })
+            .await
+            .map_err(|e| Status::internal(format!("planning failed: {e}")))?
     }
 
     async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
-        Ok(self.plan(sql).await?.schema().as_arrow().clone())
+        Ok(self.plan(sql, false).await?.0.as_ref().clone())
     }
 
     async fn statement_info(
@@ -105,9 +130,39 @@ impl SqlService {
         sql: &str,
         advertised: Option<Arc<Schema>>,
     ) -> Result<Response<DoGetStream>, Status> {
-        let frame = self.plan(sql).await?;
-        let planned = Arc::new(frame.schema().as_arrow().clone());
-        let batches = frame.execute_stream().await.map_err(query_error)?;
+        let mut planning = Abandoned::new(sql, "while it was planned");
+        let (planned, physical) = self.plan(sql, true).await?;
+        let Some((plan, task)) = physical else {
+            return Err(Status::internal("no physical plan"));
+        };
+        planning.finished = true;
+        // Run on a task of its own, batches handed over through a small channel: an
+        // operator that computes for minutes inside one poll (an aggregate over a cross
+        // join) would otherwise hold the connection's task, which then never sees the
+        // client go. The task is aborted when the stream is dropped.
+        let (sender, receiver) = tokio::sync::mpsc::channel(2);
+        // Executed there too: DataFusion spawns a plan's partitions on the runtime that
+        // calls `execute`.
+        let producer = self.queries.spawn(async move {
+            let mut batches = match datafusion::physical_plan::execute_stream(plan, task) {
+                Ok(batches) => batches,
+                Err(error) => {
+                    let _ = sender.send(Err(error)).await;
+                    return;
+                }
+            };
+            while let Some(batch) = batches.next().await {
+                if sender.send(batch).await.is_err() {
+                    return;
+                }
+            }
+        });
+        let batches = Watched {
+            inner: tokio_stream::wrappers::ReceiverStream::new(receiver),
+            abandoned: Abandoned::new(sql, "before the query's end"),
+            producer,
+            batches: 0,
+        };
         let (schema, batches): (_, DoGetBatches) = match advertised {
             Some(advertised) if advertised.fields() != planned.fields() => {
                 let target = Arc::clone(&advertised);
@@ -128,6 +183,73 @@ impl SqlService {
             .build(batches)
             .map_err(Status::from);
         Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+type Planned = (
+    Arc<dyn datafusion::physical_plan::ExecutionPlan>,
+    Arc<datafusion::execution::TaskContext>,
+);
+
+/// Says, when dropped unfinished, that a query's client left (a dropped call or stream
+/// stops the query: DataFusion's tasks end with their stream).
+struct Abandoned {
+    sql: String,
+    when: &'static str,
+    finished: bool,
+}
+
+impl Abandoned {
+    fn new(sql: &str, when: &'static str) -> Self {
+        Self {
+            sql: sql.chars().take(80).collect(),
+            when,
+            finished: false,
+        }
+    }
+}
+
+impl Drop for Abandoned {
+    fn drop(&mut self) {
+        if !self.finished {
+            eprintln!(
+                "query stopped: its client left {} ({})",
+                self.when, self.sql
+            );
+        }
+    }
+}
+
+/// A query's batches as they are sent.
+struct Watched {
+    inner:
+        tokio_stream::wrappers::ReceiverStream<datafusion::error::Result<arrow_array::RecordBatch>>,
+    abandoned: Abandoned,
+    /// The task that runs the query.
+    producer: tokio::task::JoinHandle<()>,
+    batches: u64,
+}
+
+impl Drop for Watched {
+    fn drop(&mut self) {
+        self.producer.abort();
+    }
+}
+
+impl Stream for Watched {
+    type Item = datafusion::error::Result<arrow_array::RecordBatch>;
+
+    fn poll_next(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Self::Item>> {
+        let polled = Pin::new(&mut self.inner).poll_next(cx);
+        match &polled {
+            std::task::Poll::Ready(None) => self.abandoned.finished = true,
+            std::task::Poll::Ready(Some(_)) => self.batches += 1,
+            std::task::Poll::Pending => {}
+        }
+        polled
     }
 }
 

@@ -305,7 +305,23 @@ fn run(args: &ServeArgs) -> Result<(), String> {
         .enable_all()
         .build()
         .map_err(|e| format!("starting the server's runtime: {e}"))?;
-    let served = runtime.block_on(serve(state, args.addr, args.token.clone()));
+    // Queries run on a runtime of their own: DataFusion's operators compute inside a
+    // poll for as long as they need (an aggregate over a cross join, minutes), and on the
+    // runtime that serves the connections they left it deaf to clients that go away.
+    let queries = tokio::runtime::Builder::new_multi_thread()
+        .thread_name("query")
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the query runtime: {e}"))?;
+    let stop = stop_signal()?;
+    let served = runtime.block_on(serve(
+        state,
+        args.addr,
+        args.token.clone(),
+        stop,
+        queries.handle().clone(),
+    ));
+    queries.shutdown_background();
     // A history still being read out on a blocking thread is not waited for.
     runtime.shutdown_timeout(SHUTDOWN_GRACE);
     served
@@ -340,10 +356,46 @@ fn preload(hub: &StoreHub, source: &std::path::Path) -> Result<(), String> {
         .map_err(|e| crate::about_path(source, e))
 }
 
+/// Waits for SIGTERM or Ctrl-C on a thread of its own, so that a runtime whose threads
+/// are all busy (a query's CPU work) still hears it; then notifies the returned handle, and
+/// if the process has not ended [`SHUTDOWN_GRACE`] and two seconds later, ends it.
+fn stop_signal() -> Result<Arc<tokio::sync::Notify>, String> {
+    let stop = Arc::new(tokio::sync::Notify::new());
+    let notify = Arc::clone(&stop);
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("starting the signal thread: {e}"))?;
+    // Registered before this returns: a signal from now on is heard.
+    let mut terminate = runtime
+        .block_on(async {
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        })
+        .map_err(|e| format!("listening for SIGTERM: {e}"))?;
+    std::thread::Builder::new()
+        .name("stop-signal".to_owned())
+        .spawn(move || {
+            runtime.block_on(async {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = terminate.recv() => {}
+                }
+            });
+            notify.notify_one();
+            std::thread::sleep(SHUTDOWN_GRACE + Duration::from_secs(2));
+            eprintln!("warning: the server did not stop in time after the stop signal; exiting");
+            std::process::exit(1);
+        })
+        .map_err(|e| format!("starting the signal thread: {e}"))?;
+    Ok(stop)
+}
+
 async fn serve(
     state: Arc<ServerState>,
     addr: SocketAddr,
     token: Option<String>,
+    stop: Arc<tokio::sync::Notify>,
+    queries: tokio::runtime::Handle,
 ) -> Result<(), String> {
     let listener = tokio::net::TcpListener::bind(addr)
         .await
@@ -384,6 +436,7 @@ async fn serve(
     let flight_service = tonic::service::interceptor::InterceptedService::new(
         arrow_flight::flight_service_server::FlightServiceServer::new(flight::SqlService::new(
             Arc::clone(&state),
+            queries,
         ))
         .max_decoding_message_size(state.max_message_bytes)
         .max_encoding_message_size(usize::MAX),
@@ -392,17 +445,7 @@ async fn serve(
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let stopping = Arc::clone(&state);
     let shutdown = async move {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut terminate) => {
-                tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
-                    _ = terminate.recv() => {}
-                }
-            }
-            Err(_) => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
+        stop.notified().await;
         // Live readers end their streams, so that the graceful stop does not wait for
         // them (a follow reader never ends by itself).
         stopping.stopping.send_replace(true);
