@@ -777,6 +777,15 @@ fn bad_arguments_exit_2_with_one_line() {
         &["--memory-limit", "lots"],
         &["--addr", "127.0.0.1:0", "/no/such/recording.rrd"],
         &["--addr", "127.0.0.1:0", "--token", ""],
+        &["--addr", "127.0.0.1:0", "--memory-limit", "1KiB"],
+        &[
+            "--addr",
+            "127.0.0.1:0",
+            "--memory-limit",
+            "64MiB",
+            "--max-message-bytes",
+            "40MiB",
+        ],
     ] {
         let (code, stderr) = run(args);
         assert_eq!(code, Some(2), "{args:?}: {stderr}");

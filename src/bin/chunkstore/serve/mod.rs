@@ -72,9 +72,43 @@ pub struct ServeArgs {
     /// Most log streams open at once; more are refused (`RESOURCE_EXHAUSTED`).
     #[arg(long, value_name = "N", default_value_t = 256)]
     pub max_write_streams: usize,
-    /// Largest message accepted (an image chunk can be many megabytes).
-    #[arg(long, value_name = "BYTES", value_parser = parse_bytes, default_value = "1GiB")]
-    pub max_message_bytes: u64,
+    /// Largest message accepted (an image chunk can be many megabytes). Default: 1GiB, or
+    /// an eighth of --memory-limit; at most half of it.
+    #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
+    pub max_message_bytes: Option<u64>,
+}
+
+/// The smallest `--memory-limit`: below it, the server's own buffers alone break it.
+const MIN_MEMORY_LIMIT: u64 = 16 << 20;
+
+/// The largest message, and the HTTP/2 windows (bytes a client may send ahead, per stream
+/// and per connection), for a memory limit: a message is held whole while it is decoded,
+/// and every connection may have a window's worth in flight.
+fn message_bounds(args: &ServeArgs) -> Result<(usize, u32, u32), String> {
+    let Some(limit) = args.memory_limit else {
+        let max = args.max_message_bytes.unwrap_or(1 << 30);
+        let max = usize::try_from(max)
+            .map_err(|_| "--max-message-bytes is too large for this machine".to_owned())?;
+        return Ok((max, STREAM_WINDOW, CONNECTION_WINDOW));
+    };
+    if limit < MIN_MEMORY_LIMIT {
+        return Err(format!(
+            "--memory-limit {limit} is below 16MiB, less than the server's own buffers take"
+        ));
+    }
+    let max = match args.max_message_bytes {
+        Some(max) if max > limit / 2 => {
+            return Err(format!(
+                "--max-message-bytes {max} is more than half of --memory-limit {limit}: one \
+                 such message would break the limit"
+            ));
+        }
+        Some(max) => max,
+        None => limit / 8,
+    };
+    let window = |most: u32| u32::try_from(limit / 64).map_or(most, |w| w.min(most));
+    let max = usize::try_from(max).map_err(|_| "--max-message-bytes is too large".to_owned())?;
+    Ok((max, window(STREAM_WINDOW), window(CONNECTION_WINDOW)))
 }
 
 /// What `ReadMessages` sends.
@@ -96,7 +130,8 @@ const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 const LIVE_BACKLOG: usize = 1024;
 
 /// HTTP/2 flow-control windows: bytes a client may send ahead, per stream and per
-/// connection (what the server may hold per client before its store does).
+/// connection (what the server may hold per client before its store does); smaller under
+/// a small `--memory-limit` ([`message_bounds`]).
 const STREAM_WINDOW: u32 = 2 << 20;
 const CONNECTION_WINDOW: u32 = 8 << 20;
 
@@ -272,8 +307,7 @@ pub fn main(args: &[OsString]) -> ExitCode {
 }
 
 fn run(args: &ServeArgs) -> Result<(), String> {
-    let max_message_bytes = usize::try_from(args.max_message_bytes)
-        .map_err(|_| "--max-message-bytes is too large for this machine".to_owned())?;
+    let (max_message_bytes, stream_window, connection_window) = message_bounds(args)?;
     if args.max_write_streams == 0 {
         return Err("--max-write-streams must be at least 1".to_owned());
     }
@@ -320,6 +354,7 @@ fn run(args: &ServeArgs) -> Result<(), String> {
         args.token.clone(),
         stop,
         queries.handle().clone(),
+        (stream_window, connection_window),
     ));
     queries.shutdown_background();
     // A history still being read out on a blocking thread is not waited for.
@@ -396,6 +431,7 @@ async fn serve(
     token: Option<String>,
     stop: Arc<tokio::sync::Notify>,
     queries: tokio::runtime::Handle,
+    (stream_window, connection_window): (u32, u32),
 ) -> Result<(), String> {
     let listener = tokio::net::TcpListener::bind(addr)
         .await
@@ -455,8 +491,8 @@ async fn serve(
     // speed. Large windows let it stream; a write stream still holds one message at a time.
     let server = tonic::transport::Server::builder()
         .tcp_nodelay(true)
-        .initial_stream_window_size(Some(STREAM_WINDOW))
-        .initial_connection_window_size(Some(CONNECTION_WINDOW))
+        .initial_stream_window_size(Some(stream_window))
+        .initial_connection_window_size(Some(connection_window))
         .add_service(proxy_service)
         .add_service(flight_service)
         .serve_with_incoming_shutdown(incoming, shutdown);
