@@ -259,12 +259,107 @@ def check_kill_during_ingest():
     restarted.kill()
     print(f"killed mid-ingest: all {len(batches)} acknowledged streams were back after restart")
 
+WIDENING_CLIENT = r"""
+import sys, time, rerun as rr
+url, n = sys.argv[1], int(sys.argv[2])
+rec = rr.RecordingStream("chunkstore_test", recording_id="widening")
+rec.set_sinks(rr.GrpcSink(url))
+for i in range(n):
+    rec.set_time("frame", sequence=i)
+    rec.log(f"entity/{i}", rr.Scalars(float(i)))   # a new column with every row
+    rec.flush()
+    time.sleep(0.01)
+rec.disconnect()
+"""
+
+
+def refused(*args):
+    """`chunkstore serve ARGS` that must exit 2 with one line on stderr; returns it."""
+    done = subprocess.run([CHUNKSTORE, "serve", "--addr", "127.0.0.1:0", *args],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 2, (args, done.returncode, done.stderr)
+    assert len(done.stderr.splitlines()) == 1, done.stderr
+    return done.stderr
+
+
+def check_what_a_newcomer_broke():
+    """Issue 69 with the real clients: a damaged log refuses to start, one server per log,
+    an empty server has `chunks`, `SELECT *` while ingest adds columns, SIGTERM with a
+    follow reader connected, a recording of static data alone."""
+    script = os.path.join(WORK, "client.py")
+    with open(script, "w") as f:
+        f.write(CLIENT)
+    # An empty server: `chunks` is there; an unknown table names the tables.
+    server = Server()
+    assert server.sql("SELECT count(*) AS n FROM chunks")["n"].to_pylist() == [0]
+    try:
+        server.sql("SELECT * FROM frame")
+        raise AssertionError("an unknown table answered")
+    except Exception as e:  # noqa: BLE001 - ADBC's error type varies with the driver
+        assert "the tables are: chunks" in str(e), e
+    # `SELECT *` while a logger adds a column with every row: each statement gets the
+    # schema it was planned with.
+    script_wide = os.path.join(WORK, "widening.py")
+    with open(script_wide, "w") as f:
+        f.write(WIDENING_CLIENT)
+    logger = subprocess.Popen([sys.executable, script_wide, server.proxy, "400"])
+    answered = 0
+    while logger.poll() is None:
+        try:
+            server.sql("SELECT * FROM frame")
+            answered += 1
+        except Exception as e:  # noqa: BLE001
+            assert "not found" in str(e), e  # before the first row only
+    assert logger.wait() == 0 and answered >= 5, answered
+    server.kill()
+
+    # One server per log; the second names the first's pid.
+    log = os.path.join(WORK, "newcomer.rrd")
+    first = Server("--persist", log)
+    for i in range(3):
+        assert subprocess.run([sys.executable, script, first.proxy, f"rec-{i}", "50"]).returncode == 0
+    line = refused("--persist", log)
+    assert "in use by another server" in line and f"pid {first.proc.pid}" in line, line
+    # SIGTERM stops it while `rerun --save --connect` follows it.
+    saved = os.path.join(WORK, "followed.rrd")
+    follower = subprocess.Popen([RERUN, "--save", saved, "--connect", first.proxy],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(2)
+    first.proc.send_signal(signal.SIGTERM)
+    assert first.proc.wait(timeout=10) == 0, first.stderr()
+    follower.wait(timeout=30)
+
+    # A damaged byte in the middle (the high byte of message 5's length) refuses to start
+    # and leaves the log as it is.
+    data = bytearray(open(log, "rb").read())
+    at = 12
+    for _ in range(5):
+        at += 16 + int.from_bytes(data[at + 8:at + 16], "little")
+    data[at + 15] = 1
+    open(log, "wb").write(data)
+    line = refused("--persist", log)
+    assert f"damaged after byte {at}" in line, line
+    assert open(log, "rb").read() == bytes(data)
+
+    # A recording of static data alone answers on any timeline.
+    static = os.path.join(WORK, "static.rrd")
+    rec = rr.RecordingStream("chunkstore_test", recording_id="static")
+    rec.save(static)
+    rec.log("config", rr.TextDocument("gain 2.5"), static=True)
+    rec.disconnect()
+    done = subprocess.run([CHUNKSTORE, static, "latest-at", "frame", "0"],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0 and "gain 2.5" in done.stdout, (done.stdout, done.stderr)
+    print(f"a newcomer's faults: {answered} SELECT * while columns were added, a damaged log "
+          "refused, one server per log, SIGTERM with a follower, static data on any timeline")
+
 
 if __name__ == "__main__":
     try:
         check_tee_equals_server()
         check_many_writers_and_readers()
         check_kill_during_ingest()
+        check_what_a_newcomer_broke()
     finally:
         for server in SERVERS:
             if server.proc.poll() is None:
