@@ -1994,3 +1994,15 @@ fn a_recording_of_static_data_alone_answers_on_any_timeline() {
     let line = fails(&[RRD, "latest-at", "FRAME_ID", "0"]);
     assert!(line.contains("unknown timeline \"FRAME_ID\""), "{line}");
 }
+
+/// A missing argument is named; an empty file says it is empty.
+#[test]
+fn a_missing_argument_is_named_and_an_empty_file_says_so() {
+    let line = fails(&[RRD, "latest-at", "frame_id"]);
+    assert!(line.contains("<TIME>"), "{line}");
+    let dir = scratch_dir("empty-file");
+    let empty = dir.join("empty.rrd");
+    std::fs::write(&empty, b"").unwrap();
+    let line = fails(&[empty.as_os_str(), "stats".as_ref()]);
+    assert!(line.contains("the file is empty"), "{line}");
+}

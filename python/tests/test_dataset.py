@@ -63,8 +63,15 @@ def test_bad_datasets_raise_naming_the_file(tmp_path, episodes):
     warnings = dataset.take_warnings()
     assert len(warnings) == 1 and "broken.rrd" in warnings[0]
     (episodes / "copy.rrd").write_bytes(RRD.read_bytes())
+    # With skip_bad, a second file of one recording is a bad file like the others: skipped
+    # with a warning naming both files.
+    dataset = chunkstore.open_dataset(episodes, skip_bad=True)
+    assert len(dataset) == 2
+    warnings = dataset.take_warnings()
+    assert len(warnings) == 2 and any("copy.rrd" in w for w in warnings), warnings
+    (episodes / "broken.rrd").unlink()
     with pytest.raises(chunkstore.InvalidInputError, match="two files"):
-        chunkstore.open_dataset(episodes, skip_bad=True)
+        chunkstore.open_dataset(episodes)
 
 
 def _empty(tmp_path):

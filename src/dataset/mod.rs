@@ -223,16 +223,17 @@ impl Dataset {
             })?
             .is_dir()
         {
-            rrd_files(path)?
+            rrd_files(path, options.index_cache.as_deref())?
         } else {
-            vec![path.to_owned()]
+            (vec![path.to_owned()], Vec::new())
         };
+        let (files, notes) = files;
         if files.is_empty() {
             return Err(DatasetError::NoRrdFiles {
                 dir: path.to_owned(),
             });
         }
-        Self::open_files(&files, options)
+        Self::open_files_noting(&files, options, notes)
     }
 
     /// Opens a dataset of these `.rrd` files.
@@ -240,12 +241,21 @@ impl Dataset {
     /// # Errors
     /// As [`Dataset::open`].
     pub fn open_files(files: &[PathBuf], options: &DatasetOptions) -> Result<Self, DatasetError> {
+        Self::open_files_noting(files, options, Vec::new())
+    }
+
+    /// [`Dataset::open_files`], with warnings from listing the directory first.
+    fn open_files_noting(
+        files: &[PathBuf],
+        options: &DatasetOptions,
+        notes: Vec<String>,
+    ) -> Result<Self, DatasetError> {
         if files.is_empty() {
             return Err(DatasetError::NoRrdFiles {
                 dir: PathBuf::new(),
             });
         }
-        let warnings = Mutex::new(Vec::new());
+        let warnings = Mutex::new(notes);
         let results = in_parallel(files, options.threads, |path| {
             open_file(path, options, &warnings)
         });
@@ -263,11 +273,28 @@ impl Dataset {
         }
         opened.sort_by(|a, b| a.info.id.cmp(&b.info.id));
         if let Some(pair) = opened.windows(2).find(|w| w[0].info.id == w[1].info.id) {
-            return Err(DatasetError::DuplicateRecording {
-                id: pair[0].info.id.clone(),
-                first: pair[0].info.path.clone(),
-                second: pair[1].info.path.clone(),
-            });
+            if !options.skip_bad {
+                return Err(DatasetError::DuplicateRecording {
+                    id: pair[0].info.id.clone(),
+                    first: pair[0].info.path.clone(),
+                    second: pair[1].info.path.clone(),
+                });
+            }
+            // With skip_bad, a second file of a recording is a bad file like any other:
+            // the first (in path order) stays.
+            let mut kept: Vec<Opened> = Vec::with_capacity(opened.len());
+            for file in opened {
+                match kept.last() {
+                    Some(last) if last.info.id == file.info.id => warnings.lock().push(format!(
+                        "skipped {}: recording {:?} is in {} already",
+                        file.info.path.display(),
+                        file.info.id,
+                        last.info.path.display()
+                    )),
+                    _ => kept.push(file),
+                }
+            }
+            opened = kept;
         }
         check_timeline_types(opened.iter().map(|o| &o.info))?;
         let mut cache = SegmentCache::new(options.memory_budget);
@@ -643,21 +670,65 @@ impl LoadObserver for Warnings<'_> {
     }
 }
 
-/// The regular `.rrd` files directly in `dir`, sorted by name.
-fn rrd_files(dir: &Path) -> Result<Vec<PathBuf>, DatasetError> {
+/// The regular `.rrd` files directly in `dir`, sorted by name, each file once (a link to
+/// a file beside it is the same file); and what to warn of: the links left out, the
+/// subdirectories holding `.rrd` files but `index_cache` (a dataset is the files directly
+/// in `dir`).
+fn rrd_files(
+    dir: &Path,
+    index_cache: Option<&Path>,
+) -> Result<(Vec<PathBuf>, Vec<String>), DatasetError> {
+    let cache = index_cache.and_then(|c| std::fs::canonicalize(c).ok());
     let io = |source| DatasetError::Io {
         path: dir.to_owned(),
         source,
     };
     let mut files = Vec::new();
+    let mut subdirectories = 0usize;
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let path = entry.map_err(io)?.path();
         if is_rrd_name(&path) && path.is_file() {
             files.push(path);
+        } else if path.is_dir()
+            && cache.as_deref() != std::fs::canonicalize(&path).ok().as_deref()
+            && std::fs::read_dir(&path).is_ok_and(|mut inner| {
+                inner.any(|e| e.is_ok_and(|e| is_rrd_name(&e.path()) && e.path().is_file()))
+            })
+        {
+            subdirectories += 1;
         }
     }
     files.sort();
-    Ok(files)
+    let mut notes = Vec::new();
+    if subdirectories > 0 {
+        notes.push(format!(
+            "{}: {subdirectories} subdirectories hold .rrd files, which are not read (a \
+             dataset is the .rrd files directly in the directory)",
+            dir.display()
+        ));
+    }
+    // A link to a file of the dataset: the file is read once, under its own name.
+    let mut seen: Vec<(PathBuf, PathBuf)> = Vec::new();
+    let mut unique = Vec::with_capacity(files.len());
+    let is_link = |p: &Path| std::fs::symlink_metadata(p).is_ok_and(|m| m.file_type().is_symlink());
+    let mut ordered = files;
+    // Real files first, so that a link gives way to the file it names.
+    ordered.sort_by_key(|p| is_link(p));
+    for path in ordered {
+        let canonical = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
+        if let Some((_, first)) = seen.iter().find(|(c, _)| *c == canonical) {
+            notes.push(format!(
+                "{}: the same file as {}, read once",
+                path.display(),
+                first.display()
+            ));
+        } else {
+            seen.push((canonical, path.clone()));
+            unique.push(path);
+        }
+    }
+    unique.sort();
+    Ok((unique, notes))
 }
 
 fn is_rrd_name(path: &Path) -> bool {
@@ -669,7 +740,7 @@ fn is_rrd_name(path: &Path) -> bool {
 /// Does `dir` hold a regular `.rrd` file (is it a dataset directory)? `false` if it
 /// cannot be listed.
 pub fn is_dataset_dir(dir: &Path) -> bool {
-    rrd_files(dir).is_ok_and(|files| !files.is_empty())
+    rrd_files(dir, None).is_ok_and(|(files, _)| !files.is_empty())
 }
 
 /// `f` of every item on up to `threads` threads, the results in the items' order.

@@ -203,6 +203,11 @@ impl fmt::Display for OpenError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::UnknownFormat { path, head } if head.is_empty() => write!(
+                f,
+                "{}: the file is empty (neither an .rrd file nor Arrow IPC)",
+                path.display()
+            ),
             Self::UnknownFormat { path, head } => write!(
                 f,
                 "{}: neither an .rrd file nor Arrow IPC (it starts with {:?})",

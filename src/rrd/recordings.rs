@@ -153,6 +153,14 @@ pub(crate) fn pick<'a>(
     wanted: Option<&str>,
 ) -> Result<Option<&'a StoreId>, RrdErrorKind> {
     let mut selector = RecordingSelector::new(wanted);
+    let stores: Vec<&StoreId> = stores.into_iter().collect();
+    // Every recording the footer lists is seen before any is chosen: an error for "more
+    // than one" names them all, not the first two.
+    for store in &stores {
+        if store.kind == StoreKind::Recording {
+            selector.note_seen(store);
+        }
+    }
     let mut picked = None;
     for store in stores {
         if selector.wants(store)? && picked.is_none() {
@@ -239,5 +247,18 @@ mod tests {
         assert_eq!(pick([&a, &b], Some("b")).unwrap(), Some(&b));
         assert!(pick([&a, &b], Some("c")).is_err());
         assert_eq!(pick([&bp], None).unwrap(), None);
+    }
+
+    #[test]
+    fn several_recordings_in_a_footer_are_all_named() {
+        let stores: Vec<StoreId> = ["a", "b", "c", "d"]
+            .into_iter()
+            .map(|id| info(StoreKind::Recording, id).store_id)
+            .collect();
+        let error = pick(&stores, None).unwrap_err();
+        assert!(
+            matches!(&error, RrdErrorKind::SeveralRecordings { recording_ids } if recording_ids == &["a", "b", "c", "d"]),
+            "{error:?}"
+        );
     }
 }

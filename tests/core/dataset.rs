@@ -473,13 +473,17 @@ fn a_dataset_streams_alike_on_any_number_of_threads() {
         (read, dataset.take_warnings())
     };
     let (one, warnings) = table(1, u64::MAX);
-    assert!(warnings.is_empty(), "{warnings:?}");
+    // The one warning: the fixture's subdirectory, named and not read.
+    assert!(
+        warnings.len() == 1 && warnings[0].contains("1 subdirectories hold .rrd files"),
+        "{warnings:?}"
+    );
     assert!(one.num_rows() > 6 * 40, "{one:?}");
     for threads in [1, 2, 5] {
         for budget in [0, u64::MAX] {
             assert_eq!(
                 table(threads, budget),
-                (one.clone(), vec![]),
+                (one.clone(), warnings.clone()),
                 "{threads} threads, budget {budget}"
             );
         }
@@ -845,5 +849,61 @@ fn a_footerless_segment_is_indexed_once_in_the_index_cache() {
     assert_eq!(
         read_all(rescanned.dataframe(&queries[0]).unwrap()).num_rows(),
         plain_rows
+    );
+}
+
+/// A second file of a recording is skipped with a warning under `skip_bad`; a link to a
+/// file of the dataset is the same file, read once; subdirectories holding `.rrd` files
+/// are named, not read.
+#[test]
+fn duplicates_links_and_subdirectories_are_said_and_skipped() {
+    let dir = ScratchDir::new("dataset-duplicates");
+    write_recording(
+        &dir,
+        "a.rrd",
+        "same",
+        vec![scalars("/e", "x", &[(1, 1, Some(vec![1.0]))])],
+    );
+    write_recording(
+        &dir,
+        "b.rrd",
+        "same",
+        vec![scalars("/e", "x", &[(2, 2, Some(vec![2.0]))])],
+    );
+    let skip = DatasetOptions {
+        skip_bad: true,
+        ..DatasetOptions::default()
+    };
+    let dataset = Dataset::open(&dir, &skip).unwrap();
+    assert_eq!(dataset.segments().len(), 1);
+    let warnings = dataset.take_warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("b.rrd") && w.contains("a.rrd")),
+        "{warnings:?}"
+    );
+    std::fs::remove_file(dir.join("b.rrd")).unwrap();
+
+    std::os::unix::fs::symlink(dir.join("a.rrd"), dir.join("c.rrd")).unwrap();
+    std::fs::create_dir(dir.join("more")).unwrap();
+    write_recording(
+        &dir.join("more"),
+        "d.rrd",
+        "deeper",
+        vec![scalars("/e", "x", &[(3, 3, Some(vec![3.0]))])],
+    );
+    let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
+    assert_eq!(dataset.segments().len(), 1);
+    let warnings = dataset.take_warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("c.rrd") && w.contains("the same file")),
+        "{warnings:?}"
+    );
+    assert!(
+        warnings.iter().any(|w| w.contains("1 subdirectories")),
+        "{warnings:?}"
     );
 }

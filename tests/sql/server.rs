@@ -638,6 +638,60 @@ fn an_abandoned_query_stops() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--addr` takes a host name; on every interface the start line shows an address a
+/// client here can use; follow mode says how `rerun --save --connect` behaves; Flight SQL
+/// answers `GetTableTypes`.
+#[test]
+fn addresses_start_lines_and_table_types() {
+    let dir = temp_dir("addr");
+    let rt = runtime();
+    for (addr, shown) in [("localhost:0", "127.0.0.1:"), ("0.0.0.0:0", "127.0.0.1:")] {
+        let stderr = dir.join(format!("stderr-{}.txt", chunkstore::RowId::new().as_u128()));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+            .args(["serve", "--addr", addr])
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        assert!(
+            line.starts_with(&format!("listening on rerun+http://{shown}")),
+            "{addr}: {line}"
+        );
+        let _ = child.kill();
+        let _ = child.wait();
+        let said = std::fs::read_to_string(&stderr).unwrap();
+        assert!(said.contains("--read-mode snapshot"), "{said}");
+        if addr.starts_with("0.0.0.0") {
+            assert!(said.contains("every interface"), "{said}");
+        }
+    }
+    let server = Server::start(&dir, &[]);
+    rt.block_on(async {
+        let mut client = FlightSqlServiceClient::new(server.channel().await);
+        let info = client.get_table_types().await.unwrap();
+        let ticket = info.endpoint[0].ticket.clone().unwrap();
+        let batches: Vec<RecordBatch> = client
+            .do_get(ticket)
+            .await
+            .unwrap()
+            .try_collect()
+            .await
+            .unwrap();
+        let types = batches[0]
+            .column(0)
+            .as_any()
+            .downcast_ref::<StringArray>()
+            .unwrap();
+        assert_eq!(types.value(0), "TABLE");
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
     let dir = temp_dir("lock");

@@ -200,7 +200,18 @@ fn usage_error(error: &clap::Error) -> ExitCode {
         return ExitCode::from(2);
     }
     let text = error.render().to_string();
-    let first = text.lines().next().unwrap_or("bad arguments");
+    // The error and what clap lists under it (the missing arguments), up to the usage.
+    let said: Vec<&str> = text
+        .lines()
+        .take_while(|line| !line.trim().is_empty())
+        .map(str::trim)
+        .collect();
+    let first = said.join(" ");
+    let first = if first.is_empty() {
+        "bad arguments"
+    } else {
+        first.as_str()
+    };
     let first = first.strip_prefix("error: ").unwrap_or(first);
     eprintln!("error: {} (see --help)", one_line(first));
     ExitCode::from(2)

@@ -49,9 +49,9 @@ pub struct ServeArgs {
     /// Recordings to load before listening: `.rrd` files or directories of Arrow IPC
     /// chunk files. They are served, not written to the --persist log.
     pub sources: Vec<PathBuf>,
-    /// Address to listen on (`:0` picks a free port; the line printed on start says
-    /// which).
-    #[arg(long, default_value = "127.0.0.1:9876")]
+    /// Address to listen on, `HOST:PORT` (`localhost:9876`, `0.0.0.0:9876`; `:0` picks a
+    /// free port, and the line printed on start says which).
+    #[arg(long, default_value = "127.0.0.1:9876", value_parser = parse_addr)]
     pub addr: SocketAddr,
     /// Append every accepted message to this `.rrd` file before acknowledging it, and
     /// read it back on start (a file Rerun wrote works too).
@@ -121,6 +121,15 @@ pub enum ReadMode {
 }
 
 pub use crate::args::parse_bytes;
+
+/// `HOST:PORT`, a name resolved to its first address (`localhost:9876`).
+fn parse_addr(text: &str) -> Result<SocketAddr, String> {
+    use std::net::ToSocketAddrs as _;
+    text.to_socket_addrs()
+        .map_err(|e| format!("{text:?} is not HOST:PORT ({e})"))?
+        .next()
+        .ok_or_else(|| format!("{text:?} names no address"))
+}
 
 /// How long a stopping server waits for its calls to finish (a write stream's sync, a
 /// history being sent) before it exits anyway.
@@ -425,6 +434,44 @@ fn stop_signal() -> Result<Arc<tokio::sync::Notify>, String> {
     Ok(stop)
 }
 
+/// The lines a started server prints: on stderr, notes and the Flight SQL URL; then on
+/// stdout the URL loggers connect to, which is how a script learns the port.
+fn announce(local: SocketAddr, read_mode: ReadMode) {
+    // On every interface (0.0.0.0, ::), clients connect to one of the machine's own
+    // addresses: the line shows loopback, which works here.
+    let shown = if local.ip().is_unspecified() {
+        let loopback: std::net::IpAddr = if local.is_ipv4() {
+            std::net::Ipv4Addr::LOCALHOST.into()
+        } else {
+            std::net::Ipv6Addr::LOCALHOST.into()
+        };
+        SocketAddr::new(loopback, local.port())
+    } else {
+        local
+    };
+    // Notes first: a script that reads the line below may stop the server at once.
+    if local.ip().is_unspecified() {
+        eprintln!(
+            "listening on every interface ({local}): from other machines, use this one's \
+             address with port {}",
+            local.port()
+        );
+    }
+    if read_mode == ReadMode::Follow {
+        eprintln!(
+            "readers follow live data until they leave: `rerun --save FILE --connect` keeps \
+             running (stop it with Ctrl-C), or start the server with --read-mode snapshot"
+        );
+    }
+    eprintln!("Flight SQL on grpc://{shown}");
+    println!("listening on rerun+http://{shown}/proxy");
+    // The line above is how a script learns the port: make sure it is out.
+    {
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+    }
+}
+
 async fn serve(
     state: Arc<ServerState>,
     addr: SocketAddr,
@@ -439,13 +486,7 @@ async fn serve(
     let local = listener
         .local_addr()
         .map_err(|e| format!("listening on {addr}: {e}"))?;
-    println!("listening on rerun+http://{local}/proxy");
-    eprintln!("Flight SQL on grpc://{local}");
-    // The line above is how a script learns the port: make sure it is out.
-    {
-        use std::io::Write as _;
-        let _ = std::io::stdout().flush();
-    }
+    announce(local, state.read_mode);
     if let Some(log) = state.persist.clone() {
         let state = Arc::clone(&state);
         tokio::spawn(async move {
