@@ -133,6 +133,41 @@ impl LogMsg {
         &self.body
     }
 
+    /// About how many bytes the message holds once decoded: an `ArrowMsg`'s payload
+    /// size before compression, as its header claims (at most what LZ4 can expand the
+    /// body to, since the claim is the sender's), else the body's length. For a server
+    /// that must count what its stores grow by, not what came over the wire.
+    ///
+    /// ```
+    /// # use std::sync::Arc;
+    /// # use arrow_array::{ArrayRef, Float64Array};
+    /// use chunkstore::*;
+    /// use chunkstore::rrd::{LogMsg, StoreId};
+    /// let zeros = Arc::new(Float64Array::from(vec![0.0; 10_000])) as ArrayRef;
+    /// let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/e")?)
+    ///     .with_row(RowId::new(), [(Timeline::sequence("frame"), 1)], [("x", zeros)])
+    ///     .build()?;
+    /// let msg = LogMsg::from_chunk(&StoreId::recording("app", "rec"), &chunk, true)?;
+    /// assert!(msg.decoded_len() > 80_000 && msg.body().len() < 10_000);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn decoded_len(&self) -> u64 {
+        let body = self.body.len() as u64;
+        if self.kind != LogMsgKind::ArrowMsg {
+            return body;
+        }
+        let mut fields = FieldReader::new(self.body.as_slice());
+        while let Ok(Some(field)) = fields.next_field() {
+            if field.number == 3
+                && let Ok(claimed) = field.varint("ArrowMsg")
+            {
+                // LZ4 expands a byte to at most 255.
+                return claimed.clamp(body, body.saturating_mul(255));
+            }
+        }
+        body
+    }
+
     /// A `SetStoreInfo` for `info`, under a fresh message id.
     pub fn from_store_info(info: &StoreInfo) -> Self {
         let body = info.encode_set_store_info(crate::RowId::new().as_u128());

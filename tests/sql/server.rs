@@ -692,6 +692,38 @@ fn addresses_start_lines_and_table_types() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The memory limit counts what the stores grow by: chunks that compress to almost
+/// nothing on the wire (800 KB of zeros each) are collected as their decoded size
+/// requires.
+#[test]
+fn the_memory_limit_counts_decoded_bytes() {
+    let dir = temp_dir("decoded");
+    let rt = runtime();
+    let server = Server::start(&dir, &["--memory-limit", "16MiB"]);
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        let mut messages = vec![info_msg(&r1)];
+        for frame in 0..100 {
+            let rows = [(
+                frame,
+                chunkstore::RowId::new().as_u128(),
+                Some(vec![0.0; 100_000]),
+            )];
+            let chunk = common::scalars("/depth", "x", &rows);
+            messages.push(envelope(&LogMsg::from_chunk(&r1, &chunk, true).unwrap()));
+        }
+        let wire: usize = messages.iter().map(Vec::len).sum();
+        assert!(wire < 4 << 20, "{wire} bytes on the wire");
+        write(&server, messages).await.unwrap();
+        // 80 MB decoded under a 16 MiB limit (12 MiB for the stores): at most 15 chunks
+        // of 800 KB stay.
+        let kept = counts(&server, "chunks").await;
+        assert!(kept[0].1 <= 15, "{kept:?} chunks kept");
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn a_second_server_on_the_same_log_exits_2_naming_the_first() {
     let dir = temp_dir("lock");

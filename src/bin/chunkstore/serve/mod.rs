@@ -186,17 +186,17 @@ pub struct ServerState {
 }
 
 impl ServerState {
-    /// After a message of `len` bytes: measure the stores now and then (every
+    /// After a message of `len` bytes decoded: measure the stores now and then (every
     /// 1/32 of the limit ingested), collect garbage when over the limit, and rewrite the
     /// log once it holds much more than the stores.
-    pub fn after_ingest(self: &Arc<Self>, len: usize) {
+    pub fn after_ingest(self: &Arc<Self>, len: u64) {
         let Some(limit) = self.memory_limit else {
             return;
         };
         let since = self
             .bytes_since_check
-            .fetch_add(len as u64, Ordering::Relaxed)
-            + len as u64;
+            .fetch_add(len, Ordering::Relaxed)
+            .saturating_add(len);
         if since < (limit / 32).max(1) {
             return;
         }

@@ -194,7 +194,8 @@ async fn write_messages(
             let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
                 Status::invalid_argument(format!("message {} of this stream: {e}", writer.index))
             })?;
-            let len = msg.body().len();
+            // What the stores grow by: a compressed body may decode to many times its size.
+            let len = msg.decoded_len();
             // Decoding a chunk (LZ4, Arrow IPC, validation) and inserting it is CPU work
             // of well under a millisecond for the SDK's chunks: done on this worker
             // thread, as other streams are on the others (handing the thread over per
