@@ -1931,6 +1931,22 @@ fn a_dataset_names_what_it_cannot_do() {
     assert_eq!(warnings.lines().count(), 1, "{warnings}");
     let stats: serde_json::Value = serde_json::from_str(&stats).unwrap();
     assert_eq!(stats["num_segments"], 2);
+    // A command on one segment says of the other files one line, not one per file.
+    std::fs::write(dir.join("broken2.rrd"), b"RRF2garbage").unwrap();
+    let (_, warnings) = ok(&[
+        OsStr::new("--skip-bad"),
+        OsStr::new("--segment"),
+        OsStr::new("second"),
+        dir.as_os_str(),
+        OsStr::new("latest-at"),
+        OsStr::new("frame_id"),
+        OsStr::new("3"),
+    ]);
+    assert_eq!(warnings.lines().count(), 1, "{warnings}");
+    assert!(
+        warnings.contains("2 warnings about other files"),
+        "{warnings}"
+    );
 }
 
 /// A directory with neither kind of file says what it looked for.

@@ -115,7 +115,45 @@ fn stacked(
         return Ok(None);
     };
     let plan: LogicalPlan = plan.build()?;
-    Ok(Some(Arc::new(ViewTable::new(plan, None))))
+    Ok(Some(Arc::new(StackedTable(ViewTable::new(plan, None)))))
+}
+
+/// The stacked view, a table to whoever asks (`SHOW TABLES`, `information_schema`: `BASE
+/// TABLE`, as one recording's tables are): DataFusion still plans through the view, which
+/// it inlines wherever a provider has a logical plan.
+#[derive(Debug)]
+struct StackedTable(ViewTable);
+
+#[async_trait::async_trait]
+impl TableProvider for StackedTable {
+    fn schema(&self) -> arrow_schema::SchemaRef {
+        self.0.schema()
+    }
+
+    fn table_type(&self) -> datafusion::datasource::TableType {
+        datafusion::datasource::TableType::Base
+    }
+
+    fn get_logical_plan(&self) -> Option<std::borrow::Cow<'_, LogicalPlan>> {
+        self.0.get_logical_plan()
+    }
+
+    fn supports_filters_pushdown(
+        &self,
+        filters: &[&Expr],
+    ) -> Result<Vec<datafusion::logical_expr::TableProviderFilterPushDown>> {
+        self.0.supports_filters_pushdown(filters)
+    }
+
+    async fn scan(
+        &self,
+        state: &dyn datafusion::catalog::Session,
+        projection: Option<&Vec<usize>>,
+        filters: &[Expr],
+        limit: Option<usize>,
+    ) -> Result<Arc<dyn datafusion::physical_plan::ExecutionPlan>> {
+        self.0.scan(state, projection, filters, limit).await
+    }
 }
 
 /// `latest_at('<timeline>', <time>, ...)` over several segments: each segment's answer,

@@ -687,6 +687,25 @@ fn addresses_start_lines_and_table_types() {
             .downcast_ref::<StringArray>()
             .unwrap();
         assert_eq!(types.value(0), "TABLE");
+        // The stacked tables are tables to information_schema too, as in the CLI.
+        let r1 = StoreId::recording("app", "r1");
+        write(&server, vec![info_msg(&r1), chunk_msg(&r1, "/a", 0, 1.0)])
+            .await
+            .unwrap();
+        let shown = query(
+            &server,
+            "SELECT DISTINCT table_type FROM information_schema.tables \
+             WHERE table_schema = 'public'",
+            None,
+        )
+        .await
+        .unwrap();
+        let kinds = shown[0]
+            .column(0)
+            .as_any()
+            .downcast_ref::<StringArray>()
+            .unwrap();
+        assert_eq!((kinds.len(), kinds.value(0)), (1, "BASE TABLE"));
     });
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();

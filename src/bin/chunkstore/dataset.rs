@@ -52,6 +52,23 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
         _ => None,
     };
     let dataset = Dataset::open(dir, &dataset_options).map_err(|e| message(&e))?;
+    if matches!(
+        cli.command,
+        Command::LatestAt { .. } | Command::Range { .. }
+    ) {
+        // One segment is read: what was said of the others (found while looking for it)
+        // is one line, not one per file.
+        let others = dataset.take_warnings();
+        if !others.is_empty() {
+            eprintln!(
+                "warning: {} warnings about other files of {} (`chunkstore {} --skip-bad stats` \
+                 lists them)",
+                others.len(),
+                dir.display(),
+                dir.display()
+            );
+        }
+    }
     warn(&dataset);
     let result = match &cli.command {
         Command::Stats => stats(&dataset),
