@@ -422,17 +422,32 @@ fn a_disk_that_fails_one_write_at_any_byte_loses_nothing_acknowledged() {
             ..Disk::default()
         }));
         let session = run_session(&disk, &steps);
-        let what = format!("a write failing at byte {at}");
-        let (bytes, durable) = {
-            let disk = disk.lock();
-            (disk.bytes.clone(), disk.durable.clone())
-        };
-        // What it served after the failure is what its log kept: nothing it dropped.
-        let killed = restart(bytes, &what);
-        assert_eq!(session.served, killed, "{what}: served what the log lost");
-        check_restart(&killed, &session, &written, &what);
-        check_restart(&restart(durable, &what), &session, &written, &what);
+        check_failed_disk(
+            &disk,
+            &session,
+            &written,
+            &format!("a write failing at byte {at}"),
+        );
     }
+}
+
+/// After a session on a disk that failed and recovered: what the server served is what
+/// its log kept (nothing it dropped), and restarts from what a kill and what a power cut
+/// leave keep every acknowledged message, never more than written.
+fn check_failed_disk(
+    disk: &Arc<Mutex<Disk>>,
+    session: &Session,
+    written: &BTreeMap<String, u64>,
+    what: &str,
+) {
+    let (bytes, durable) = {
+        let disk = disk.lock();
+        (disk.bytes.clone(), disk.durable.clone())
+    };
+    let killed = restart(bytes, what);
+    assert_eq!(session.served, killed, "{what}: served what the log lost");
+    check_restart(&killed, session, written, what);
+    check_restart(&restart(durable, what), session, written, what);
 }
 
 #[test]
@@ -450,14 +465,7 @@ fn a_disk_that_fails_one_sync_loses_nothing_acknowledged() {
             session.acknowledged.len() < 4,
             "{what}: every stream acknowledged"
         );
-        let (bytes, durable) = {
-            let disk = disk.lock();
-            (disk.bytes.clone(), disk.durable.clone())
-        };
-        let killed = restart(bytes, &what);
-        assert_eq!(session.served, killed, "{what}: served what the log lost");
-        check_restart(&killed, &session, &written, &what);
-        check_restart(&restart(durable, &what), &session, &written, &what);
+        check_failed_disk(&disk, &session, &written, &what);
     }
 }
 
