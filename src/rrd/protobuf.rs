@@ -49,18 +49,14 @@ impl<'a> FieldReader<'a> {
             return Ok(u64::from(byte));
         }
         let start = self.position;
-        let mut value = 0u64;
-        for shift in (0..64).step_by(7) {
-            let Some(&byte) = self.bytes.get(self.position) else {
-                return Err((start, protobuf("varint runs past the end of the message")));
-            };
-            self.position += 1;
-            value |= u64::from(byte & 0x7f) << shift;
-            if byte < 0x80 {
-                return Ok(value);
+        match varint_at(self.bytes, start) {
+            Ok(Some((value, end))) => {
+                self.position = end;
+                Ok(value)
             }
+            Ok(None) => Err((start, protobuf("varint runs past the end of the message"))),
+            Err(()) => Err((start, protobuf("varint longer than ten bytes"))),
         }
-        Err((start, protobuf("varint longer than ten bytes")))
     }
 
     fn take(&mut self, len: u64) -> Result<&'a [u8], WireError> {
