@@ -62,43 +62,34 @@ impl SqlService {
         Ok(ctx)
     }
 
-    /// The schema `sql`'s answer will have (planned, not run).
-    /// Plans `sql` on the recordings as of now, on the query runtime: DataFusion's
-    /// planning is CPU work without a pause, quadratic in a table's columns (apache/
-    /// datafusion#7698), and on the connections' runtime a wide `SELECT *` left the
-    /// server deaf to every other call. With `physical`, the physical plan too.
-    async fn plan(
+    /// Runs `work` on the query runtime: DataFusion's planning and execution are CPU work
+    /// without a pause (planning is quadratic in a table's columns, apache/datafusion#7698),
+    /// and on the connections' runtime a wide `SELECT *` left the server deaf to every
+    /// other call.
+    async fn on_queries<T: Send + 'static>(
         &self,
-        sql: &str,
-        physical: bool,
-    ) -> Result<(Arc<Schema>, Option<Planned>), Status> {
-        let ctx = self.session()?;
-        let sql = sql.to_owned();
+        work: impl std::future::Future<Output = Result<T, Status>> + Send + 'static,
+    ) -> Result<T, Status> {
         self.queries
-            .spawn(async move {
-                {
-                    let frame = match ctx.sql(&sql).await {
-                        Ok(frame) => frame,
-                        Err(error) => {
-                            return Err(unknown_table_named(&ctx, &error)
-                                .unwrap_or_else(|| query_error(error)));
-                        }
-                    };
-                    let schema = Arc::new(frame.schema().as_arrow().clone());
-                    if !physical {
-                        return Ok((schema, None));
-                    }
-                    let task = frame.task_ctx();
-                    let plan = frame.create_physical_plan().await.map_err(query_error)?;
-                    Ok((schema, Some((plan, Arc::new(task)))))
-                }
-            })
+            .spawn(work)
             .await
             .map_err(|e| Status::internal(format!("planning failed: {e}")))?
     }
 
+    /// Plans `sql` on the recordings as of now (the logical plan).
+    async fn plan(&self, sql: &str) -> Result<datafusion::dataframe::DataFrame, Status> {
+        let ctx = self.session()?;
+        let sql = sql.to_owned();
+        self.on_queries(async move {
+            ctx.sql(&sql).await.map_err(|error| {
+                unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error))
+            })
+        })
+        .await
+    }
+
     async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
-        Ok(self.plan(sql, false).await?.0.as_ref().clone())
+        Ok(self.plan(sql).await?.schema().as_arrow().clone())
     }
 
     async fn statement_info(
@@ -131,10 +122,15 @@ impl SqlService {
         advertised: Option<Arc<Schema>>,
     ) -> Result<Response<DoGetStream>, Status> {
         let mut planning = Abandoned::new(sql, "while it was planned");
-        let (planned, physical) = self.plan(sql, true).await?;
-        let Some((plan, task)) = physical else {
-            return Err(Status::internal("no physical plan"));
-        };
+        let frame = self.plan(sql).await?;
+        let planned = Arc::new(frame.schema().as_arrow().clone());
+        let (plan, task) = self
+            .on_queries(async move {
+                let task = Arc::new(frame.task_ctx());
+                let plan = frame.create_physical_plan().await.map_err(query_error)?;
+                Ok((plan, task))
+            })
+            .await?;
         planning.finished = true;
         // Run on a task of its own, batches handed over through a small channel: an
         // operator that computes for minutes inside one poll (an aggregate over a cross
@@ -185,11 +181,6 @@ impl SqlService {
         Ok(Response::new(Box::pin(stream)))
     }
 }
-
-type Planned = (
-    Arc<dyn datafusion::physical_plan::ExecutionPlan>,
-    Arc<datafusion::execution::TaskContext>,
-);
 
 /// Says, when dropped unfinished, that a query's client left (a dropped call or stream
 /// stops the query: DataFusion's tasks end with their stream).
