@@ -683,12 +683,15 @@ fn rrd_files(
         path: dir.to_owned(),
         source,
     };
-    let mut files = Vec::new();
+    // Each `.rrd` file with whether its entry is a link (the entry says so: no call).
+    let mut files: Vec<(PathBuf, bool)> = Vec::new();
     let mut subdirectories = 0usize;
     for entry in std::fs::read_dir(dir).map_err(io)? {
-        let path = entry.map_err(io)?.path();
+        let entry = entry.map_err(io)?;
+        let is_link = entry.file_type().is_ok_and(|kind| kind.is_symlink());
+        let path = entry.path();
         if is_rrd_name(&path) && path.is_file() {
-            files.push(path);
+            files.push((path, is_link));
         } else if path.is_dir()
             && cache.as_deref() != std::fs::canonicalize(&path).ok().as_deref()
             && std::fs::read_dir(&path).is_ok_and(|mut inner| {
@@ -698,7 +701,6 @@ fn rrd_files(
             subdirectories += 1;
         }
     }
-    files.sort();
     let mut notes = Vec::new();
     if subdirectories > 0 {
         notes.push(format!(
@@ -707,24 +709,31 @@ fn rrd_files(
             dir.display()
         ));
     }
-    // A link to a file of the dataset: the file is read once, under its own name.
-    let mut seen: Vec<(PathBuf, PathBuf)> = Vec::new();
-    let mut unique = Vec::with_capacity(files.len());
-    let is_link = |p: &Path| std::fs::symlink_metadata(p).is_ok_and(|m| m.file_type().is_symlink());
-    let mut ordered = files;
+    // A link to a file of the dataset: the file is read once, under its own name. A
+    // regular file's real path is the real directory's and its name; only links need
+    // resolving.
+    let real_dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_owned());
     // Real files first, so that a link gives way to the file it names.
-    ordered.sort_by_key(|p| is_link(p));
-    for path in ordered {
-        let canonical = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
-        if let Some((_, first)) = seen.iter().find(|(c, _)| *c == canonical) {
-            notes.push(format!(
+    files.sort_by(|a, b| (a.1, &a.0).cmp(&(b.1, &b.0)));
+    let mut by_real: ahash::HashMap<PathBuf, PathBuf> = ahash::HashMap::default();
+    let mut unique = Vec::with_capacity(files.len());
+    for (path, is_link) in files {
+        let real = if is_link {
+            std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone())
+        } else {
+            path.file_name()
+                .map_or_else(|| path.clone(), |name| real_dir.join(name))
+        };
+        match by_real.entry(real) {
+            std::collections::hash_map::Entry::Occupied(first) => notes.push(format!(
                 "{}: the same file as {}, read once",
                 path.display(),
-                first.display()
-            ));
-        } else {
-            seen.push((canonical, path.clone()));
-            unique.push(path);
+                first.get().display()
+            )),
+            std::collections::hash_map::Entry::Vacant(slot) => {
+                slot.insert(path.clone());
+                unique.push(path);
+            }
         }
     }
     unique.sort();
