@@ -350,11 +350,8 @@ impl PersistLog {
         }
         if frame_len >= file.buffer_capacity {
             // An image: straight to the device, not copied through the buffer.
-            let frame = |file: &mut LogFile| -> io::Result<()> {
-                file.device.append(&header)?;
-                file.device.append(body)
-            };
-            if let Err(e) = frame(&mut file) {
+            let written = file.device.append(&header);
+            if let Err(e) = written.and_then(|()| file.device.append(body)) {
                 file.failed = Some(format!("writing: {e}"));
                 return Err(e);
             }

@@ -85,10 +85,11 @@ impl ServerState {
             }
             Err(None) => Err(rolled_back(index)),
             Err(Some(error)) => {
+                let status = refused(index, &error);
                 if matches!(error, IngestError::Listener(_)) {
-                    eprintln!("warning: {}", refused(index, &error).message());
+                    eprintln!("warning: {}", status.message());
                 }
-                Err(refused(index, &error))
+                Err(status)
             }
         }
     }
