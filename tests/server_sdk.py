@@ -130,6 +130,19 @@ def check_tee_equals_server():
             served = served.drop_columns(["rerun_segment_id"])
         same(served, chunkstore_sql(tee, query), table)
     assert server.sql("SELECT count(*) AS n FROM frame")["n"][0].as_py() > 60
+    # Bound parameters (what BI tools send): `?` and `$1`, each with two values, equal to
+    # the same query with the values written in.
+    with flight_sql.connect(server.flight) as conn, conn.cursor() as cur:
+        for query in ["SELECT count(*) AS n FROM frame WHERE frame >= ?",
+                      "SELECT count(*) AS n FROM frame WHERE frame >= $1"]:
+            for low in (10, 55):
+                cur.execute(query, parameters=(low,))
+                bound = cur.fetch_arrow_table()["n"].to_pylist()
+                written = server.sql(f"SELECT count(*) AS n FROM frame WHERE frame >= {low}")["n"].to_pylist()
+                assert bound == written and written[0] > 0, (query, low, bound, written)
+        cur.execute("SELECT DISTINCT rerun_segment_id AS s FROM chunks WHERE entity_path = ?",
+                    parameters=("/robot/arm/torque",))
+        assert cur.fetch_arrow_table()["s"].to_pylist() == ["tee"]
 
     # What a viewer reads back (`rerun --save` ends once the snapshot stream ends) is a
     # good recording with the same contents.

@@ -2,8 +2,9 @@
 //! across recordings with `rerun_segment_id` first ([`chunkstore::sql::register_segments`]).
 //! Every query plans and runs on snapshots taken when it starts, so ingest goes on.
 //!
-//! A statement's ticket (and a prepared statement's handle) is its SQL text: the server
-//! keeps no per-query state, and `DoGet` runs the query on the snapshots of that moment.
+//! A statement's ticket and a prepared statement's handle carry the statement itself
+//! (`statement.rs`: its SQL, its bound values, the schema it advertised): the server keeps
+//! no per-query state, and `DoGet` runs the query on the snapshots of that moment.
 //! Flight SQL's metadata calls answer with one catalog (`datafusion`) and one schema
 //! (`public`), DataFusion's defaults, so that qualified names work too.
 
@@ -18,8 +19,11 @@ use arrow_flight::sql::{
     ActionClosePreparedStatementRequest, ActionCreatePreparedStatementRequest,
     ActionCreatePreparedStatementResult, CommandGetCatalogs, CommandGetDbSchemas,
     CommandGetSqlInfo, CommandGetTableTypes, CommandGetTables, CommandPreparedStatementQuery,
-    CommandStatementQuery, ProstMessageExt as _, SqlInfo, TicketStatementQuery,
+    CommandStatementQuery, DoPutPreparedStatementResult, ProstMessageExt as _, SqlInfo,
+    TicketStatementQuery,
 };
+use arrow_flight::decode::FlightRecordBatchStream;
+use arrow_flight::sql::server::PeekableFlightDataStream;
 use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, IpcMessage, SchemaAsIpc, Ticket};
 use arrow_ipc::writer::IpcWriteOptions;
 use arrow_schema::Schema;
@@ -29,6 +33,7 @@ use prost::Message as _;
 use tonic::{Request, Response, Status};
 
 use super::ServerState;
+use super::statement::{Statement, StatementTicket, parameter_schema};
 
 const CATALOG: &str = "datafusion";
 const SCHEMA: &str = "public";
@@ -76,30 +81,31 @@ impl SqlService {
             .map_err(|e| Status::internal(format!("planning failed: {e}")))?
     }
 
-    /// Plans `sql` on the recordings as of now (the logical plan).
-    async fn plan(&self, sql: &str) -> Result<datafusion::dataframe::DataFrame, Status> {
+    /// Plans `statement` on the recordings as of now (the logical plan), its values
+    /// bound where it has them.
+    async fn plan(&self, statement: &Statement) -> Result<datafusion::dataframe::DataFrame, Status> {
         let ctx = self.session()?;
-        let sql = sql.to_owned();
+        let statement = statement.clone();
         self.on_queries(async move {
-            ctx.sql(&sql).await.map_err(|error| {
+            let frame = ctx.sql(&statement.numbered_sql()).await.map_err(|error| {
                 unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error))
-            })
+            })?;
+            match statement.parameters {
+                Some(values) => frame.with_param_values(values).map_err(query_error),
+                None => Ok(frame),
+            }
         })
         .await
     }
 
-    async fn plan_schema(&self, sql: &str) -> Result<Schema, Status> {
-        Ok(self.plan(sql).await?.schema().as_arrow().clone())
-    }
-
     async fn statement_info(
         &self,
-        sql: &str,
+        statement: &Statement,
         descriptor: FlightDescriptor,
     ) -> Result<Response<FlightInfo>, Status> {
-        let schema = self.plan_schema(sql).await?;
+        let schema = self.plan(statement).await?.schema().as_arrow().clone();
         let ticket = TicketStatementQuery {
-            statement_handle: StatementTicket::encode(&schema, sql)?.into(),
+            statement_handle: StatementTicket::encode(&schema, statement)?.into(),
         };
         let endpoint = FlightEndpoint::new().with_ticket(Ticket {
             ticket: ticket.as_any().encode_to_vec().into(),
@@ -118,11 +124,12 @@ impl SqlService {
     /// columns to `SELECT *`, or a collection dropped some).
     async fn run(
         &self,
-        sql: &str,
+        statement: &Statement,
         advertised: Option<Arc<Schema>>,
     ) -> Result<Response<DoGetStream>, Status> {
+        let sql = &statement.sql;
         let mut planning = Abandoned::new(sql, "while it was planned");
-        let frame = self.plan(sql).await?;
+        let frame = self.plan(statement).await?;
         let planned = Arc::new(frame.schema().as_arrow().clone());
         let (plan, task) = self
             .on_queries(async move {
@@ -269,43 +276,6 @@ fn place_in(
     arrow_array::RecordBatch::try_new_with_options(Arc::clone(schema), columns, &options)
 }
 
-/// A statement's ticket: the schema `GetFlightInfo` advertised, then the SQL text, so
-/// that `DoGet` sends what was advertised. The server keeps nothing per query.
-struct StatementTicket;
-
-impl StatementTicket {
-    const MAGIC: &'static [u8] = b"chunkstore-ticket-1\0";
-
-    fn encode(schema: &Schema, sql: &str) -> Result<Vec<u8>, Status> {
-        let IpcMessage(schema_bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
-            .try_into()
-            .map_err(|e: arrow_schema::ArrowError| {
-                Status::internal(format!("encoding the schema: {e}"))
-            })?;
-        let mut out = Self::MAGIC.to_vec();
-        out.extend_from_slice(&(schema_bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(&schema_bytes);
-        out.extend_from_slice(sql.as_bytes());
-        Ok(out)
-    }
-
-    /// The SQL and the advertised schema; a ticket that is plain SQL has no schema.
-    fn decode(ticket: &[u8]) -> Result<(String, Option<Arc<Schema>>), Status> {
-        let Some(rest) = ticket.strip_prefix(Self::MAGIC) else {
-            return Ok((utf8(ticket, "the statement ticket")?, None));
-        };
-        let bad = || Status::invalid_argument("the statement ticket is malformed");
-        let (len, rest) = rest.split_at_checked(8).ok_or_else(bad)?;
-        let mut le = [0u8; 8];
-        le.copy_from_slice(len);
-        let len = usize::try_from(u64::from_le_bytes(le)).map_err(|_| bad())?;
-        let (schema_bytes, sql) = rest.split_at_checked(len).ok_or_else(bad)?;
-        let schema = Schema::try_from(IpcMessage(bytes::Bytes::copy_from_slice(schema_bytes)))
-            .map_err(|_| bad())?;
-        Ok((utf8(sql, "the statement ticket")?, Some(Arc::new(schema))))
-    }
-}
-
 /// DataFusion's "table ... not found", with the tables there are.
 fn unknown_table_named(
     ctx: &SessionContext,
@@ -355,6 +325,15 @@ fn sql_info() -> &'static SqlInfoData {
     })
 }
 
+fn schema_bytes(schema: &Schema) -> Result<bytes::Bytes, Status> {
+    let IpcMessage(bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
+        .try_into()
+        .map_err(|e: arrow_schema::ArrowError| {
+            Status::internal(format!("encoding the schema: {e}"))
+        })?;
+    Ok(bytes)
+}
+
 fn batch_stream(
     schema: arrow_schema::SchemaRef,
     batch: Result<arrow_array::RecordBatch, FlightError>,
@@ -382,11 +361,6 @@ fn metadata_info(
     Ok(Response::new(info))
 }
 
-fn utf8(bytes: &[u8], what: &str) -> Result<String, Status> {
-    String::from_utf8(bytes.to_vec())
-        .map_err(|_| Status::invalid_argument(format!("{what} is not UTF-8")))
-}
-
 #[tonic::async_trait]
 impl FlightSqlService for SqlService {
     type FlightService = Self;
@@ -396,7 +370,7 @@ impl FlightSqlService for SqlService {
         query: CommandStatementQuery,
         request: Request<FlightDescriptor>,
     ) -> Result<Response<FlightInfo>, Status> {
-        self.statement_info(&query.query, request.into_inner())
+        self.statement_info(&Statement::new(query.query), request.into_inner())
             .await
     }
 
@@ -405,11 +379,8 @@ impl FlightSqlService for SqlService {
         query: CommandPreparedStatementQuery,
         request: Request<FlightDescriptor>,
     ) -> Result<Response<FlightInfo>, Status> {
-        let sql = utf8(
-            &query.prepared_statement_handle,
-            "the prepared statement handle",
-        )?;
-        self.statement_info(&sql, request.into_inner()).await
+        let statement = Statement::decode(&query.prepared_statement_handle)?;
+        self.statement_info(&statement, request.into_inner()).await
     }
 
     async fn do_get_statement(
@@ -417,8 +388,8 @@ impl FlightSqlService for SqlService {
         ticket: TicketStatementQuery,
         _request: Request<Ticket>,
     ) -> Result<Response<DoGetStream>, Status> {
-        let (sql, advertised) = StatementTicket::decode(&ticket.statement_handle)?;
-        self.run(&sql, advertised).await
+        let (statement, advertised) = StatementTicket::decode(&ticket.statement_handle)?;
+        self.run(&statement, advertised).await
     }
 
     async fn do_get_prepared_statement(
@@ -426,11 +397,8 @@ impl FlightSqlService for SqlService {
         query: CommandPreparedStatementQuery,
         _request: Request<Ticket>,
     ) -> Result<Response<DoGetStream>, Status> {
-        let sql = utf8(
-            &query.prepared_statement_handle,
-            "the prepared statement handle",
-        )?;
-        self.run(&sql, None).await
+        let statement = Statement::decode(&query.prepared_statement_handle)?;
+        self.run(&statement, None).await
     }
 
     async fn do_action_create_prepared_statement(
@@ -438,16 +406,39 @@ impl FlightSqlService for SqlService {
         query: ActionCreatePreparedStatementRequest,
         _request: Request<arrow_flight::Action>,
     ) -> Result<ActionCreatePreparedStatementResult, Status> {
-        let schema = self.plan_schema(&query.query).await?;
-        let IpcMessage(dataset_schema) = SchemaAsIpc::new(&schema, &IpcWriteOptions::default())
-            .try_into()
-            .map_err(|e: arrow_schema::ArrowError| {
-                Status::internal(format!("encoding the schema: {e}"))
-            })?;
+        let frame = self.plan(&Statement::new(query.query.clone())).await?;
+        let schema = frame.schema().as_arrow().clone();
+        let parameters = parameter_schema(frame.logical_plan())?;
         Ok(ActionCreatePreparedStatementResult {
             prepared_statement_handle: query.query.into_bytes().into(),
-            dataset_schema,
-            parameter_schema: bytes::Bytes::default(),
+            dataset_schema: schema_bytes(&schema)?,
+            parameter_schema: if parameters.fields().is_empty() {
+                bytes::Bytes::default()
+            } else {
+                schema_bytes(&parameters)?
+            },
+        })
+    }
+
+    /// Binds values to a prepared statement's parameters: the answer is a new handle
+    /// that holds them (the server keeps nothing per statement).
+    async fn do_put_prepared_statement_query(
+        &self,
+        query: CommandPreparedStatementQuery,
+        request: Request<PeekableFlightDataStream>,
+    ) -> Result<DoPutPreparedStatementResult, Status> {
+        let statement = Statement::decode(&query.prepared_statement_handle)?;
+        let flight_data = request
+            .into_inner()
+            .map_err(|status| FlightError::Tonic(Box::new(status)));
+        let values: Vec<arrow_array::RecordBatch> =
+            FlightRecordBatchStream::new_from_flight_data(flight_data)
+                .try_collect()
+                .await
+                .map_err(|e| Status::invalid_argument(format!("reading the parameters: {e}")))?;
+        let bound = Statement::new(statement.sql).bound(&values)?;
+        Ok(DoPutPreparedStatementResult {
+            prepared_statement_handle: Some(bound.encode()?.into()),
         })
     }
 

@@ -7,6 +7,7 @@ mod admission;
 mod flight;
 mod persist;
 mod proxy;
+mod statement;
 mod write;
 
 use std::ffi::OsString;
