@@ -1,16 +1,24 @@
 //! Several recordings as one set of tables ([`register_segments`]): each table of
 //! [`register`](super::register) once per recording that has it, the recording's id
-//! prepended as `rerun_segment_id`, and the recordings' rows stacked (a union by column
-//! name, so a column one recording lacks is null in its rows). Filters and projections
-//! still reach each recording's scan: the union is a view that DataFusion plans through.
+//! prepended as `rerun_segment_id`, and the recordings' rows stacked (by column name, so
+//! a column one recording lacks is null in its rows). Filters and projections reach each
+//! recording's scan ([`SegmentsTable`]).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
 
+use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use datafusion::catalog::{TableFunctionArgs, TableFunctionImpl};
-use datafusion::common::{Column, Result};
+use datafusion::common::{Column, Result, ScalarValue};
 use datafusion::datasource::{TableProvider, ViewTable, provider_as_source};
-use datafusion::logical_expr::{Expr, LogicalPlan, LogicalPlanBuilder, lit};
+use datafusion::logical_expr::{
+    Expr, LogicalPlan, LogicalPlanBuilder, TableProviderFilterPushDown as FilterPushDown, lit,
+};
+use datafusion::physical_expr::PhysicalExpr;
+use datafusion::physical_expr::expressions::{Column as PhysicalColumn, Literal};
+use datafusion::physical_plan::ExecutionPlan;
+use datafusion::physical_plan::projection::ProjectionExec;
+use datafusion::physical_plan::union::UnionExec;
 use datafusion::prelude::SessionContext;
 
 use super::latest_at::{LatestAtFunction, plan_error};
@@ -87,12 +95,19 @@ pub fn register_segments(
     Ok(names)
 }
 
-/// One view stacking `parts` (each a segment's table) with the segment id first; `None`
-/// for no parts.
+/// One table stacking `parts` (each a segment's table) with the segment id first; `None`
+/// for no parts. Where the parts give a column different types, a view that DataFusion
+/// plans through (a union by name, which coerces them).
 fn stacked(
     name: &str,
     parts: Vec<(&str, Arc<dyn TableProvider>)>,
 ) -> Result<Option<Arc<dyn TableProvider>>> {
+    if parts.is_empty() {
+        return Ok(None);
+    }
+    if let Some(table) = SegmentsTable::new(&parts) {
+        return Ok(Some(Arc::new(table)));
+    }
     let mut plan: Option<LogicalPlanBuilder> = None;
     for (segment, table) in parts {
         let schema = table.schema();
@@ -115,17 +130,172 @@ fn stacked(
         return Ok(None);
     };
     let plan: LogicalPlan = plan.build()?;
-    Ok(Some(Arc::new(StackedTable(ViewTable::new(plan, None)))))
+    Ok(Some(Arc::new(StackedView(ViewTable::new(plan, None)))))
+}
+
+/// Segments' tables as one: the segment id first, then every column any segment has (in
+/// the order they are first met; null in a segment without it), each segment's rows
+/// after the one before's. Each segment's scan gets the projection and the filters it
+/// can take, and the segment id is added above it, so that planning is one pass over the
+/// columns: stacked as a view (a projection per segment under a union by name), DataFusion
+/// planned and optimized every column of every segment again for each query, and a
+/// `SELECT *` over one recording of 4,000 entities took three times as long as the same
+/// query over its file.
+#[derive(Debug)]
+struct SegmentsTable {
+    schema: SchemaRef,
+    parts: Vec<(String, Arc<dyn TableProvider>)>,
+}
+
+impl SegmentsTable {
+    /// `None` where two parts give a column different types.
+    fn new(parts: &[(&str, Arc<dyn TableProvider>)]) -> Option<Self> {
+        let mut fields: Vec<Field> = vec![Field::new(SEGMENT_ID_COLUMN, DataType::Utf8, false)];
+        let mut seen: HashMap<String, usize> = HashMap::new();
+        for (_, table) in parts {
+            for field in table.schema().fields() {
+                match seen.get(field.name()) {
+                    Some(&at) if fields[at].data_type() != field.data_type() => return None,
+                    Some(&at) => {
+                        let nullable = fields[at].is_nullable() || field.is_nullable();
+                        fields[at].set_nullable(nullable);
+                    }
+                    None => {
+                        seen.insert(field.name().clone(), fields.len());
+                        fields.push(field.as_ref().clone());
+                    }
+                }
+            }
+        }
+        // A column some part lacks is null in its rows.
+        for field in fields.iter_mut().skip(1) {
+            let everywhere = parts
+                .iter()
+                .all(|(_, table)| table.schema().field_with_name(field.name()).is_ok());
+            if !everywhere {
+                field.set_nullable(true);
+            }
+        }
+        Some(Self {
+            schema: Arc::new(Schema::new(fields)),
+            parts: parts
+                .iter()
+                .map(|(segment, table)| ((*segment).to_owned(), Arc::clone(table)))
+                .collect(),
+        })
+    }
+
+    /// Can `part` take `filter` (it has every column the filter names, and the filter
+    /// does not name the segment id), and how?
+    fn part_pushdown(table: &dyn TableProvider, filter: &Expr) -> Result<FilterPushDown> {
+        let schema = table.schema();
+        let own = filter
+            .column_refs()
+            .iter()
+            .all(|c| c.name != SEGMENT_ID_COLUMN && schema.field_with_name(&c.name).is_ok());
+        if !own {
+            return Ok(FilterPushDown::Unsupported);
+        }
+        Ok(table
+            .supports_filters_pushdown(&[filter])?
+            .pop()
+            .unwrap_or(FilterPushDown::Unsupported))
+    }
+}
+
+#[async_trait::async_trait]
+impl TableProvider for SegmentsTable {
+    fn schema(&self) -> SchemaRef {
+        Arc::clone(&self.schema)
+    }
+
+    fn table_type(&self) -> datafusion::datasource::TableType {
+        datafusion::datasource::TableType::Base
+    }
+
+    /// Exact where every segment takes the filter exactly; Inexact where some take it
+    /// (DataFusion filters the rows again); a filter on the segment id is DataFusion's.
+    fn supports_filters_pushdown(&self, filters: &[&Expr]) -> Result<Vec<FilterPushDown>> {
+        filters
+            .iter()
+            .map(|filter| {
+                let mut all_exact = true;
+                let mut any = false;
+                for (_, table) in &self.parts {
+                    match Self::part_pushdown(table.as_ref(), filter)? {
+                        FilterPushDown::Exact => any = true,
+                        FilterPushDown::Inexact => {
+                            any = true;
+                            all_exact = false;
+                        }
+                        FilterPushDown::Unsupported => all_exact = false,
+                    }
+                }
+                Ok(match (all_exact, any) {
+                    (true, true) => FilterPushDown::Exact,
+                    (_, true) => FilterPushDown::Inexact,
+                    _ => FilterPushDown::Unsupported,
+                })
+            })
+            .collect()
+    }
+
+    async fn scan(
+        &self,
+        state: &dyn datafusion::catalog::Session,
+        projection: Option<&Vec<usize>>,
+        filters: &[Expr],
+        limit: Option<usize>,
+    ) -> Result<Arc<dyn ExecutionPlan>> {
+        let output: Vec<usize> = match projection {
+            Some(columns) => columns.clone(),
+            None => (0..self.schema.fields().len()).collect(),
+        };
+        let mut children = Vec::with_capacity(self.parts.len());
+        for (segment, table) in &self.parts {
+            let own = table.schema();
+            // The part's columns the output has, each once, in its own order.
+            let mut columns: Vec<usize> = output
+                .iter()
+                .filter_map(|&i| own.index_of(self.schema.field(i).name()).ok())
+                .collect();
+            columns.sort_unstable();
+            columns.dedup();
+            let mut taken = Vec::new();
+            for filter in filters {
+                if Self::part_pushdown(table.as_ref(), filter)? != FilterPushDown::Unsupported {
+                    taken.push(filter.clone());
+                }
+            }
+            let scan = table.scan(state, Some(&columns), &taken, limit).await?;
+            let scanned = scan.schema();
+            let mut exprs: Vec<(Arc<dyn PhysicalExpr>, String)> = Vec::with_capacity(output.len());
+            for &i in &output {
+                let field = self.schema.field(i);
+                let expr: Arc<dyn PhysicalExpr> = if i == 0 {
+                    Arc::new(Literal::new(ScalarValue::Utf8(Some(segment.clone()))))
+                } else if let Ok(at) = scanned.index_of(field.name()) {
+                    Arc::new(PhysicalColumn::new(field.name(), at))
+                } else {
+                    Arc::new(Literal::new(ScalarValue::try_from(field.data_type())?))
+                };
+                exprs.push((expr, field.name().clone()));
+            }
+            children
+                .push(Arc::new(ProjectionExec::try_new(exprs, scan)?) as Arc<dyn ExecutionPlan>);
+        }
+        UnionExec::try_new(children)
+    }
 }
 
 /// The stacked view, a table to whoever asks (`SHOW TABLES`, `information_schema`: `BASE
 /// TABLE`, as one recording's tables are): DataFusion still plans through the view, which
 /// it inlines wherever a provider has a logical plan.
 #[derive(Debug)]
-struct StackedTable(ViewTable);
+struct StackedView(ViewTable);
 
 #[async_trait::async_trait]
-impl TableProvider for StackedTable {
+impl TableProvider for StackedView {
     fn schema(&self) -> arrow_schema::SchemaRef {
         self.0.schema()
     }
@@ -138,10 +308,7 @@ impl TableProvider for StackedTable {
         self.0.get_logical_plan()
     }
 
-    fn supports_filters_pushdown(
-        &self,
-        filters: &[&Expr],
-    ) -> Result<Vec<datafusion::logical_expr::TableProviderFilterPushDown>> {
+    fn supports_filters_pushdown(&self, filters: &[&Expr]) -> Result<Vec<FilterPushDown>> {
         self.0.supports_filters_pushdown(filters)
     }
 
@@ -151,7 +318,7 @@ impl TableProvider for StackedTable {
         projection: Option<&Vec<usize>>,
         filters: &[Expr],
         limit: Option<usize>,
-    ) -> Result<Arc<dyn datafusion::physical_plan::ExecutionPlan>> {
+    ) -> Result<Arc<dyn ExecutionPlan>> {
         self.0.scan(state, projection, filters, limit).await
     }
 }

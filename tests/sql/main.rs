@@ -28,6 +28,7 @@ use proptest::prelude::*;
 #[path = "../common/mod.rs"]
 mod common;
 mod dataset;
+mod segments;
 #[cfg(feature = "server")]
 mod server;
 

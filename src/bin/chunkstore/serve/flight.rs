@@ -11,10 +11,12 @@
 use std::pin::Pin;
 use std::sync::{Arc, OnceLock};
 
+use arrow_flight::decode::FlightRecordBatchStream;
 use arrow_flight::encode::FlightDataEncoderBuilder;
 use arrow_flight::error::FlightError;
 use arrow_flight::sql::metadata::{SqlInfoData, SqlInfoDataBuilder};
 use arrow_flight::sql::server::FlightSqlService;
+use arrow_flight::sql::server::PeekableFlightDataStream;
 use arrow_flight::sql::{
     ActionClosePreparedStatementRequest, ActionCreatePreparedStatementRequest,
     ActionCreatePreparedStatementResult, CommandGetCatalogs, CommandGetDbSchemas,
@@ -22,8 +24,6 @@ use arrow_flight::sql::{
     CommandStatementQuery, DoPutPreparedStatementResult, ProstMessageExt as _, SqlInfo,
     TicketStatementQuery,
 };
-use arrow_flight::decode::FlightRecordBatchStream;
-use arrow_flight::sql::server::PeekableFlightDataStream;
 use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, IpcMessage, SchemaAsIpc, Ticket};
 use arrow_ipc::writer::IpcWriteOptions;
 use arrow_schema::Schema;
@@ -83,7 +83,10 @@ impl SqlService {
 
     /// Plans `statement` on the recordings as of now (the logical plan), its values
     /// bound where it has them.
-    async fn plan(&self, statement: &Statement) -> Result<datafusion::dataframe::DataFrame, Status> {
+    async fn plan(
+        &self,
+        statement: &Statement,
+    ) -> Result<datafusion::dataframe::DataFrame, Status> {
         let ctx = self.session()?;
         let statement = statement.clone();
         self.on_queries(async move {

@@ -121,7 +121,10 @@ fn numbered_placeholders(sql: &str) -> String {
     let Ok(tokens) = Tokenizer::new(&GenericDialect {}, sql).tokenize() else {
         return sql.to_owned(); // the planner says what is wrong
     };
-    if !tokens.iter().any(|t| matches!(t, Token::Placeholder(p) if p == "?")) {
+    if !tokens
+        .iter()
+        .any(|t| matches!(t, Token::Placeholder(p) if p == "?"))
+    {
         return sql.to_owned();
     }
     let mut next = 0;
@@ -185,10 +188,7 @@ impl StatementTicket {
     /// The statement and the advertised schema; a ticket that is plain SQL has no schema.
     pub fn decode(ticket: &[u8]) -> Result<(Statement, Option<Arc<Schema>>), Status> {
         let Some(rest) = ticket.strip_prefix(Self::MAGIC) else {
-            return Ok((
-                Statement::new(utf8(ticket, "the statement ticket")?),
-                None,
-            ));
+            return Ok((Statement::new(utf8(ticket, "the statement ticket")?), None));
         };
         let bad = || Status::invalid_argument("the statement ticket is malformed");
         let (schema_bytes, handle) = length_prefixed(rest).ok_or_else(bad)?;
@@ -262,7 +262,10 @@ mod tests {
         assert_eq!(decoded, statement);
         assert_eq!(advertised.as_deref(), Some(&schema));
         // Unbound, the handle is the SQL itself.
-        assert_eq!(Statement::new("SELECT 1".to_owned()).encode().unwrap(), b"SELECT 1");
+        assert_eq!(
+            Statement::new("SELECT 1".to_owned()).encode().unwrap(),
+            b"SELECT 1"
+        );
     }
 
     #[test]
