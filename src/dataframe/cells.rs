@@ -10,13 +10,15 @@
 
 use std::sync::Arc;
 
+use arrow_array::OffsetSizeTrait;
+use arrow_array::cast::AsArray as _;
 use arrow_array::{Array, ArrayRef, ListArray, UInt64Array, make_array, new_empty_array};
 use arrow_buffer::{
     BooleanBuffer, BooleanBufferBuilder, Buffer, NullBuffer, OffsetBuffer, ScalarBuffer,
 };
 use arrow_data::ArrayData;
-use arrow_data::transform::MutableArrayData;
-use arrow_schema::{ArrowError, FieldRef};
+use arrow_data::transform::{Capacities, MutableArrayData};
+use arrow_schema::{ArrowError, DataType, FieldRef};
 
 use crate::{Chunk, ChunkId, Timeline};
 
@@ -377,6 +379,65 @@ struct FinishedList {
     values: ArrayRef,
 }
 
+/// The exact capacities of copying `parts` (an array of `data_type`, rows `from..to`) into
+/// one array, nested lists and strings included: grown by doubling instead, a batch of
+/// large cells (images) reserved up to twice its bytes, and held both buffers while one
+/// grew into the other (a scan of image recordings peaked at 140 MB of batches, 2.5
+/// times what they held).
+fn capacities_of(data_type: &DataType, parts: &[(&dyn Array, usize, usize)]) -> Capacities {
+    let items = parts.iter().map(|&(_, from, to)| to - from).sum();
+    match data_type {
+        DataType::List(item) => Capacities::List(
+            items,
+            Some(Box::new(list_capacities::<i32>(item.data_type(), parts))),
+        ),
+        DataType::LargeList(item) => Capacities::List(
+            items,
+            Some(Box::new(list_capacities::<i64>(item.data_type(), parts))),
+        ),
+        DataType::Utf8 => {
+            let bytes = parts
+                .iter()
+                .map(|&(array, from, to)| {
+                    value_span(array.as_string::<i32>().value_offsets(), from, to).len()
+                })
+                .sum();
+            Capacities::Binary(items, Some(bytes))
+        }
+        DataType::Binary => {
+            let bytes = parts
+                .iter()
+                .map(|&(array, from, to)| {
+                    value_span(array.as_binary::<i32>().value_offsets(), from, to).len()
+                })
+                .sum();
+            Capacities::Binary(items, Some(bytes))
+        }
+        _ => Capacities::Array(items),
+    }
+}
+
+/// The capacities of the items of `parts`, lists with `O` offsets.
+fn list_capacities<O: OffsetSizeTrait>(
+    item_type: &DataType,
+    parts: &[(&dyn Array, usize, usize)],
+) -> Capacities {
+    let items: Vec<(&dyn Array, usize, usize)> = parts
+        .iter()
+        .map(|&(array, from, to)| {
+            let list = array.as_list::<O>();
+            let span = value_span(list.value_offsets(), from, to);
+            (list.values().as_ref(), span.start, span.end)
+        })
+        .collect();
+    capacities_of(item_type, &items)
+}
+
+/// The values that rows `from..to` of offsets `offsets` span.
+fn value_span<O: OffsetSizeTrait>(offsets: &[O], from: usize, to: usize) -> std::ops::Range<usize> {
+    offsets[from].as_usize()..offsets[to].as_usize()
+}
+
 /// Appends the validity of the `offsets.len() - 1` cells `offsets` bound to `validity`
 /// (`packed`: scratch): a cell holding values is valid, an empty one null, and each cell
 /// numbered in `exceptions` the other way. Returns how many are null.
@@ -642,7 +703,19 @@ impl ListColumnBuilder {
                     .iter()
                     .map(|&s| sources.arrays[s as usize].list.values().to_data())
                     .collect();
-                let mut values = MutableArrayData::new(data.iter().collect(), false, 0);
+                let parts: Vec<(&dyn Array, usize, usize)> = stretches
+                    .iter()
+                    .map(|&(source, from, to)| {
+                        (
+                            sources.arrays[source as usize].list.values().as_ref(),
+                            from,
+                            to,
+                        )
+                    })
+                    .collect();
+                let capacities = capacities_of(sources.item_field.data_type(), &parts);
+                let mut values =
+                    MutableArrayData::with_capacities(data.iter().collect(), false, capacities);
                 for &(source, from, to) in stretches {
                     values.extend(local[source as usize] as usize, from, to);
                 }

@@ -93,6 +93,7 @@ pub struct DataframeQuery {
     fill_latest_at: bool,
     batch_rows: Option<usize>,
     min_batch_rows: usize,
+    batch_bytes: usize,
     columns: Option<Arc<[String]>>,
     kept: KeptColumns,
     exact_index_values: bool,
@@ -119,6 +120,7 @@ impl DataframeQuery {
             fill_latest_at: false,
             batch_rows: None,
             min_batch_rows: 1,
+            batch_bytes: DEFAULT_BATCH_BYTES,
             columns: None,
             kept: KeptColumns {
                 tombstones: true,
@@ -209,6 +211,16 @@ impl DataframeQuery {
         self
     }
 
+    /// Without [`Self::with_batch_rows`]: batches of about `bytes` at most (default
+    /// [`DEFAULT_BATCH_BYTES`]; at least one row each, and this wins over
+    /// [`Self::with_min_batch_rows`]). Whoever holds several batches at once (a reader
+    /// ahead of its consumer) bounds its memory with it.
+    #[must_use]
+    pub fn with_batch_bytes(mut self, bytes: usize) -> Self {
+        self.batch_bytes = bytes.max(1);
+        self
+    }
+
     /// Only these columns in the batches (names of the full view's schema, index columns
     /// included), in the full view's order. The rows stay the full view's: every selected
     /// entity's times still decide which rows there are (SEMANTICS.md section 9), but the
@@ -273,6 +285,11 @@ impl DataframeQuery {
     /// The least rows per batch when batches are sized by cells (1 unless asked).
     pub fn min_batch_rows(&self) -> usize {
         self.min_batch_rows
+    }
+
+    /// The most bytes per batch, about, without [`Self::with_batch_rows`].
+    pub fn batch_bytes(&self) -> usize {
+        self.batch_bytes
     }
 }
 

@@ -11,7 +11,7 @@ use super::column::{
 };
 use super::kept_rows::{GivenRows, KeptRows, RowsKey, budget_times};
 use super::schema::{Selection, TablePlan};
-use super::{DEFAULT_BATCH_BYTES, DEFAULT_BATCH_CELLS, DataframeQuery};
+use super::{DEFAULT_BATCH_CELLS, DataframeQuery};
 use crate::{LatestAtQuery, Snapshot, StoreView, TimeInt, TimeRange};
 
 /// The rows of a dataframe view, as Arrow record batches of at most the query's batch
@@ -173,7 +173,7 @@ impl<'a> DataframeStream<'a> {
             // Bytes bound a batch too: a static cell (a 5,000-point map) is copied into
             // every row, and an image column's cells are large; counting cells alone once
             // made batches of gigabytes.
-            let by_bytes = DEFAULT_BATCH_BYTES / row_bytes(&columns, &selection.data).max(1);
+            let by_bytes = query.batch_bytes / row_bytes(&columns, &selection.data).max(1);
             // The bytes bound wins over the least rows asked for (which only amortizes a
             // fixed cost per batch).
             by_cells

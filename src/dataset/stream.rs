@@ -133,6 +133,7 @@ impl Dataset {
             threads: threads.max(1),
             next: 0,
             current: None,
+            current_bytes: 0,
             ahead: VecDeque::new(),
             loaders: None,
             read: ReadStats::default(),
@@ -159,6 +160,8 @@ pub struct DatasetStream {
     next: usize,
     /// The segment being streamed: its id as a column value, and its stream.
     current: Option<Placed<DataframeStream<'static>>>,
+    /// The heap bytes of the store `current` streams from.
+    current_bytes: u64,
     /// The next segments' loads, on threads of their own while this one streams (one fewer
     /// than `threads`), by position.
     ahead: VecDeque<(usize, mpsc::Receiver<LoadResult>)>,
@@ -214,6 +217,10 @@ fn load_rows(dataset: &Dataset, number: usize, query: &DataframeQuery) -> Loaded
         .segment_for(number, query, None)
         .map(|read| (read.snapshot, read.read))
 }
+
+/// The largest segment (heap bytes) kept while the next one loads (see
+/// [`DatasetStream`]'s `next`).
+const KEEP_DONE_SEGMENT_BYTES: u64 = 8 << 20;
 
 /// A load ahead's segment, or the panic that ended it.
 type LoadResult = std::thread::Result<Loaded>;
@@ -337,6 +344,7 @@ impl DatasetStream {
             };
             let snapshot = loaded.map(|(snapshot, read)| {
                 self.read.add(read);
+                self.current_bytes = snapshot.stats().heap_bytes;
                 snapshot
             });
             let query = &self.segments[position].1;
@@ -368,6 +376,12 @@ impl Iterator for DatasetStream {
             // again (a scan of 1,000 segments: 80,000 page faults, 6,000 this way).
             if let Some(batch) = self.current.as_mut().and_then(Iterator::next) {
                 return Some(batch);
+            }
+            // A large segment is freed before the next loads: held, two of them were in
+            // memory at once (image recordings of 37 MB doubled a scan's peak), and memory
+            // that large is mapped and unmapped whole, never at the heap's top.
+            if self.current_bytes > KEEP_DONE_SEGMENT_BYTES {
+                self.current = None;
             }
             match self.start_next() {
                 Ok(true) => {}

@@ -286,7 +286,13 @@ impl TableProvider for DatasetTimelineTable {
             pushed_down.push(format!("limit={rows}"));
             query = query.with_batch_rows(rows.clamp(1, 4_096));
         }
-        let query = query.with_columns(projected.names.iter().cloned());
+        // Batches wait in queues ahead of DataFusion (a few per partition): their size
+        // follows the memory budget, a sixteenth of it (at 32 MB each, the default, a
+        // scan of images held 180 MB of batches under a 64 MiB budget).
+        let budget = usize::try_from(self.dataset.options().memory_budget).unwrap_or(usize::MAX);
+        let query = query
+            .with_columns(projected.names.iter().cloned())
+            .with_batch_bytes((budget / 16).clamp(1 << 20, crate::DEFAULT_BATCH_BYTES));
         let kept: Vec<usize> = kept.into_iter().collect();
         let partitions = if limit.is_some() {
             1
@@ -634,7 +640,12 @@ impl DatasetScanExec {
         if self.limit.is_some() {
             return Ok(Box::new(make()));
         }
-        let part = ReadAhead::spawn(make, READ_AHEAD_BYTES)
+        // The queues count against the dataset's memory budget: together at most a
+        // quarter of it (a part's first batch is always taken). At 64 MiB queues of their
+        // own, two partitions held four 32 MB batches of images ahead under a 64 MiB budget.
+        let budget = usize::try_from(self.dataset.options().memory_budget).unwrap_or(usize::MAX);
+        let queue_bytes = READ_AHEAD_BYTES.min(budget / 4 / self.num_partitions().max(1));
+        let part = ReadAhead::spawn(make, queue_bytes)
             .map_err(|e| DataFusionError::Execution(format!("starting a scan thread: {e}")))?;
         Ok(Box::new(part))
     }

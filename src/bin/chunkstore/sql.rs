@@ -27,7 +27,11 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     let snapshot = loaded.store.snapshot();
     let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
-    run(&ctx, args)
+    run(
+        &ctx,
+        args,
+        &chunkstore::parquet_export::ParquetOptions::default(),
+    )
 }
 
 /// `sql` over a dataset (a directory of `.rrd` files): its tables, with the segment id.
@@ -36,14 +40,18 @@ pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Re
     crate::dataset::refuse_to_overwrite(dataset, args.out.as_deref())?;
     let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
-    run(&ctx, args)
+    run(&ctx, args, &crate::dataset::parquet_options(dataset))
 }
 
 /// Runs the query in `ctx` and writes its answer as `args` asks. The answer streams to a
 /// file or as JSON lines (a dataset's table may be far larger than memory); a table
 /// printed is collected first, to size its columns.
 #[cfg(feature = "datafusion")]
-fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
+fn run(
+    ctx: &datafusion::prelude::SessionContext,
+    args: &SqlArgs,
+    parquet: &chunkstore::parquet_export::ParquetOptions,
+) -> Result<(), Failure> {
     use std::io::{IsTerminal as _, Write};
 
     use arrow_array::{RecordBatch, RecordBatchReader as _};
@@ -55,13 +63,9 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
         let written = if is_parquet {
-            chunkstore::parquet_export::write_parquet_file(
-                out,
-                reader,
-                &chunkstore::parquet_export::ParquetOptions::default(),
-            )
-            .map(drop)
-            .map_err(|e| e.to_string())
+            chunkstore::parquet_export::write_parquet_file(out, reader, parquet)
+                .map(drop)
+                .map_err(|e| e.to_string())
         } else {
             chunkstore::ipc::write_ipc_file(out, reader)
                 .map(drop)
