@@ -39,13 +39,7 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
         selects_something(filter, &store.entity_paths(), &args.contents, source)?;
     }
     let bar = Progress::over(args, store.time_range(&args.index), &query);
-    write_table(
-        stream,
-        args,
-        &[args.index.as_str()],
-        ParquetOptions::default(),
-        &bar,
-    )
+    write_table(stream, args, &[args.index.as_str()], &bar)
 }
 
 /// What the arguments of `dataframe` ask for, checked before anything is loaded.
@@ -110,7 +104,6 @@ pub fn write_table(
     stream: impl RecordBatchReader,
     args: &DataframeArgs,
     sorted_by: &[&str],
-    parquet: ParquetOptions,
     bar: &Progress,
 ) -> Result<(), Failure> {
     let index_position = stream.schema().index_of(&args.index).ok();
@@ -125,7 +118,7 @@ pub fn write_table(
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
         if is_parquet {
             // A sampled table's rows follow the values given, not the index.
-            let mut options = parquet;
+            let mut options = ParquetOptions::default();
             if args.index_values.is_none() {
                 for column in sorted_by {
                     options = options.with_sorted_by(*column);

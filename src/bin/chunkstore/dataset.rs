@@ -106,17 +106,6 @@ pub fn run(cli: &Cli, dir: &Path, options: &Options) -> Result<(), Failure> {
     result
 }
 
-/// How a dataset's table is written to Parquet: a row group buffered in memory (where the
-/// writer holds about twice its bytes) is at most a quarter of the dataset's memory
-/// budget, at least 8 MiB: at the default 128 MiB, `sql --out` of image recordings held
-/// 310 MB in the writer under a 64 MiB budget.
-pub fn parquet_options(dataset: &Dataset) -> chunkstore::parquet_export::ParquetOptions {
-    let budget = usize::try_from(dataset.options().memory_budget).unwrap_or(usize::MAX);
-    let row_group =
-        (budget / 4).clamp(8 << 20, chunkstore::parquet_export::DEFAULT_ROW_GROUP_BYTES);
-    chunkstore::parquet_export::ParquetOptions::default().with_row_group_bytes(row_group)
-}
-
 #[cfg(feature = "datafusion")]
 fn sql(dataset: &Dataset, args: &crate::args::SqlArgs) -> Result<(), Failure> {
     crate::sql::sql_dataset(dataset, args)
@@ -124,10 +113,7 @@ fn sql(dataset: &Dataset, args: &crate::args::SqlArgs) -> Result<(), Failure> {
 
 #[cfg(not(feature = "datafusion"))]
 fn sql(_dataset: &Dataset, _args: &crate::args::SqlArgs) -> Result<(), Failure> {
-    Err("this chunkstore was built without SQL: build it with \
-         `cargo build --release --features cli,datafusion`"
-        .to_owned()
-        .into())
+    Err(crate::sql::WITHOUT_SQL.to_owned().into())
 }
 
 /// One warning line per thing skipped (`--skip-bad`).
@@ -219,13 +205,7 @@ fn dataframe(
         .map(|s| s.num_rows)
         .sum();
     let sorted_by = [chunkstore::SEGMENT_ID_COLUMN, args.index.as_str()];
-    write_table(
-        stream,
-        args,
-        &sorted_by,
-        parquet_options(dataset),
-        &Progress::rows(rows),
-    )
+    write_table(stream, args, &sorted_by, &Progress::rows(rows))
 }
 
 /// `hive`: the dataset as one Hive-partitioned Parquet dataset, a partition per segment

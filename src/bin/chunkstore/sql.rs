@@ -7,12 +7,14 @@ use crate::Failure;
 use crate::args::SqlArgs;
 use crate::load::Options;
 
+/// What `sql` says in a build without the `datafusion` feature.
+#[cfg(not(feature = "datafusion"))]
+pub const WITHOUT_SQL: &str = "this chunkstore was built without SQL: build it with \
+                               `cargo build --release --features cli,datafusion`";
+
 #[cfg(not(feature = "datafusion"))]
 pub fn sql(_source: &Path, _args: &SqlArgs, _options: &Options) -> Result<(), Failure> {
-    Err("this chunkstore was built without SQL: build it with \
-         `cargo build --release --features cli,datafusion`"
-        .to_owned()
-        .into())
+    Err(WITHOUT_SQL.to_owned().into())
 }
 
 #[cfg(feature = "datafusion")]
@@ -27,11 +29,7 @@ pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failu
     let snapshot = loaded.store.snapshot();
     let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
-    run(
-        &ctx,
-        args,
-        &chunkstore::parquet_export::ParquetOptions::default(),
-    )
+    run(&ctx, args)
 }
 
 /// `sql` over a dataset (a directory of `.rrd` files): its tables, with the segment id.
@@ -40,18 +38,14 @@ pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Re
     crate::dataset::refuse_to_overwrite(dataset, args.out.as_deref())?;
     let ctx = chunkstore::sql::session_context();
     chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
-    run(&ctx, args, &crate::dataset::parquet_options(dataset))
+    run(&ctx, args)
 }
 
 /// Runs the query in `ctx` and writes its answer as `args` asks. The answer streams to a
 /// file or as JSON lines (a dataset's table may be far larger than memory); a table
 /// printed is collected first, to size its columns.
 #[cfg(feature = "datafusion")]
-fn run(
-    ctx: &datafusion::prelude::SessionContext,
-    args: &SqlArgs,
-    parquet: &chunkstore::parquet_export::ParquetOptions,
-) -> Result<(), Failure> {
+fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
     use std::io::{IsTerminal as _, Write};
 
     use arrow_array::{RecordBatch, RecordBatchReader as _};
@@ -63,9 +57,13 @@ fn run(
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
         let written = if is_parquet {
-            chunkstore::parquet_export::write_parquet_file(out, reader, parquet)
-                .map(drop)
-                .map_err(|e| e.to_string())
+            chunkstore::parquet_export::write_parquet_file(
+                out,
+                reader,
+                &chunkstore::parquet_export::ParquetOptions::default(),
+            )
+            .map(drop)
+            .map_err(|e| e.to_string())
         } else {
             chunkstore::ipc::write_ipc_file(out, reader)
                 .map(drop)
