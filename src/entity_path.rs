@@ -586,7 +586,16 @@ mod tests {
     #[test]
     fn the_plain_path_parses_as_the_escaping_one() {
         use proptest::prelude::*;
-        proptest!(|(text in "/?[ab/é.]{1,12}")| {
+        // Its seeds beside every other property test's (`tests/core/seeds.rs`).
+        let config = ProptestConfig {
+            failure_persistence: Some(Box::new(
+                proptest::test_runner::FileFailurePersistence::Direct(
+                    "tests/proptest-regressions/lib/entity_path.txt",
+                ),
+            )),
+            ..ProptestConfig::default()
+        };
+        proptest!(config, |(text in "/?[ab/é.]{1,12}")| {
             let body = text.strip_prefix('/').unwrap_or(&text);
             prop_assume!(!body.is_empty());
             let plain = EntityPath::parse_plain(&text, body);

@@ -693,6 +693,14 @@ fn values_without_bytes_are_refused() {
 }
 
 proptest::proptest! {
+    // Its seeds beside every other property test's (`tests/core/seeds.rs`).
+    #![proptest_config(proptest::test_runner::Config {
+        failure_persistence: Some(Box::new(proptest::test_runner::FileFailurePersistence::Direct(
+            "tests/proptest-regressions/lib/chunk.txt",
+        ))),
+        ..proptest::test_runner::Config::default()
+    })]
+
     /// What a chunk derives from rows in `(time, row id)` or row-id order by shortcut (the
     /// time range from the ends, each component's bounds from its first and last non-null
     /// cells, the best cell as the last non-null one, the row-id range) equals what reading

@@ -315,3 +315,20 @@ pub fn rrd_chunks_rerun_loads(bytes: Vec<u8>) -> Vec<Chunk> {
     chunks.iter().for_each(assert_rerun_loads);
     chunks
 }
+
+/// Where a property test keeps its failing seeds: `tests/proptest-regressions/{file}`
+/// (`binary/module.txt`, one file per test binary and module), read before any new case
+/// and added to on a failure. proptest's default derives the file from the source's path:
+/// when the tests moved into folders, 16 seeds stayed where nothing read them.
+/// `tests/core/seeds.rs` fails on a seed file that no test names.
+#[allow(
+    clippy::unnecessary_wraps,
+    reason = "the value of `ProptestConfig::failure_persistence`, an `Option`"
+)]
+pub fn seed_file(file: &str) -> Option<Box<dyn proptest::test_runner::FailurePersistence>> {
+    let path: &'static str =
+        Box::leak(format!("tests/proptest-regressions/{file}").into_boxed_str());
+    Some(Box::new(
+        proptest::test_runner::FileFailurePersistence::Direct(path),
+    ))
+}

@@ -609,7 +609,7 @@ mod pruning_model {
     static CASE: AtomicUsize = AtomicUsize::new(0);
 
     proptest! {
-        #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+        #![proptest_config(ProptestConfig { cases: 256, failure_persistence: crate::common::seed_file("core/dataset.txt"), ..ProptestConfig::default() })]
 
         /// A segment read through its footer for a query (only the chunks it needs) answers
         /// as the whole segment does, whatever the chunks (any order, nulls, static data,

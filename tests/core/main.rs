@@ -29,6 +29,7 @@ mod module_graph;
 mod real_data;
 mod recording;
 mod rrd;
+mod seeds;
 mod semantics;
 mod snapshot;
 mod wide_chunks;

@@ -175,7 +175,7 @@ fn shuffles() -> impl Strategy<Value = Vec<u64>> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: cases(NUM_CASES), max_shrink_iters: 4096, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(NUM_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
 
     #[test]
     fn store_answers_like_the_naive_model(ops in ops(), shuffles in shuffles()) {
@@ -184,7 +184,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
 
     /// Compaction on insert (tiny thresholds) and on demand (tiny and default thresholds)
     /// answer every query exactly as the store without compaction. Left out: garbage

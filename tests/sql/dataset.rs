@@ -320,7 +320,7 @@ mod pruning_model {
     static CASE: AtomicUsize = AtomicUsize::new(0);
 
     proptest! {
-        #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+        #![proptest_config(ProptestConfig { cases: 64, failure_persistence: crate::common::seed_file("sql/dataset.txt"), ..ProptestConfig::default() })]
 
         /// Whatever the segments, the range and the segments named, a filtered timeline
         /// table is the dataset's dataframe on that range, of those segments: pruning

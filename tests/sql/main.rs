@@ -660,7 +660,7 @@ fn index_filter() -> impl Strategy<Value = String> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(200))]
+    #![proptest_config(ProptestConfig { cases: 200, failure_persistence: common::seed_file("sql/main.txt"), ..ProptestConfig::default() })]
 
     /// Any filter on the index answers the same pushed down (as far as the store can) and
     /// not pushed down at all, on the timeline table and on the chunk table.
@@ -686,7 +686,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(ProptestConfig { cases: 48, failure_persistence: common::seed_file("sql/main.txt"), ..ProptestConfig::default() })]
 
     /// SQL with pushdown == SQL without pushdown == the dataframe API, for random stores,
     /// ranges and entity filters.

@@ -14,7 +14,7 @@ fn one_part() -> SessionContext {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: crate::common::seed_file("sql/segments.txt"), ..ProptestConfig::default() })]
 
     #[test]
     fn each_segment_of_the_stacked_tables_answers_as_its_recording_alone(
