@@ -896,15 +896,20 @@ fn sql_answers_as_a_table_as_json_lines_and_as_files() {
     }
 }
 
+/// Built without `datafusion` (CI builds `cli` alone to run this): `sql` over a recording
+/// and over a dataset exits 2 saying how to build it.
 #[cfg(not(feature = "datafusion"))]
 #[test]
 fn sql_without_the_datafusion_feature_says_how_to_build_it() {
-    let line = fails(&[
-        recording_rrd().as_os_str(),
-        OsStr::new("sql"),
-        OsStr::new("SELECT 1"),
-    ]);
-    assert!(line.contains("--features cli,datafusion"), "{line}");
+    let dataset = robot_dataset("sql-without-datafusion");
+    for source in [recording_rrd(), dataset.to_path_buf()] {
+        let line = fails(&[
+            source.as_os_str(),
+            OsStr::new("sql"),
+            OsStr::new("SELECT 1"),
+        ]);
+        assert!(line.contains("--features cli,datafusion"), "{line}");
+    }
 }
 
 /// `hive` writes a partitioned dataset, by entity or by time bucket, and refuses an
