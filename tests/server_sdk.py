@@ -297,8 +297,9 @@ def refused(*args):
 
 def check_what_a_newcomer_broke():
     """Issue 69 with the real clients: a damaged log refuses to start, one server per log,
-    an empty server has `chunks`, `SELECT *` while ingest adds columns, SIGTERM with a
-    follow reader connected, a recording of static data alone."""
+    an empty server has `chunks`, `SELECT *` while ingest adds columns, a query whose
+    client dies is stopped, SIGTERM with a follow reader connected, a recording of static
+    data alone."""
     script = os.path.join(WORK, "client.py")
     with open(script, "w") as f:
         f.write(CLIENT)
@@ -324,6 +325,24 @@ def check_what_a_newcomer_broke():
         except Exception as e:  # noqa: BLE001
             assert "not found" in str(e), e  # before the first row only
     assert logger.wait() == 0 and answered >= 5, answered
+    # A query whose ADBC client dies is stopped and logged (a four-way cross join runs
+    # for hours otherwise), and the server still answers.
+    heavy = subprocess.Popen([sys.executable, "-c",
+        "import sys, adbc_driver_flightsql.dbapi as f\n"
+        "with f.connect(sys.argv[1]) as c, c.cursor() as cur:\n"
+        "    cur.execute('SELECT sum(a.frame + b.frame + c.frame + d.frame) "
+        "FROM chunks a, chunks b, chunks c, chunks d')\n"
+        "    cur.fetchall()\n",
+        server.flight], stderr=subprocess.PIPE, text=True)
+    time.sleep(3)
+    assert heavy.poll() is None, ("the query ended by itself", heavy.communicate()[1][-500:])
+    heavy.kill()
+    heavy.wait()
+    deadline = time.time() + 20
+    while "query stopped: its client left" not in server.stderr():
+        assert time.time() < deadline, server.stderr()[-500:]
+        time.sleep(0.2)
+    assert server.sql("SELECT count(*) AS n FROM chunks")["n"][0].as_py() > 0
     server.kill()
 
     # One server per log; the second names the first's pid.
@@ -363,7 +382,7 @@ def check_what_a_newcomer_broke():
     done = subprocess.run([CHUNKSTORE, static, "latest-at", "frame", "0"],
                           capture_output=True, text=True, timeout=30)
     assert done.returncode == 0 and "gain 2.5" in done.stdout, (done.stdout, done.stderr)
-    print(f"a newcomer's faults: {answered} SELECT * while columns were added, a damaged log "
+    print(f"a newcomer's faults: {answered} SELECT * while columns were added, an abandoned query stopped, a damaged log "
           "refused, one server per log, SIGTERM with a follower, static data on any timeline")
 
 
