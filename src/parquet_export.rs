@@ -142,8 +142,9 @@ impl std::error::Error for ParquetExportError {
 
 /// Bytes of a batch of byte lists handed to the Parquet writer at once, about: the writer
 /// computes a column's levels for all its values at once, 12 bytes a value (two 16-bit
-/// levels and a 64-bit index), and a list of bytes (an image) has a value per byte. A batch of 32 MB of
-/// images took 400 MB to write; `sql --out` of 850 MB of images peaked at 1.2 GB.
+/// levels and a 64-bit index), and a list of bytes (an image) has a value per byte. A
+/// batch of 32 MB of images took 400 MB to write; `sql --out` of 850 MB of images peaked
+/// at 1.2 GB.
 const WRITE_SLICE_BYTES: usize = 8 << 20;
 
 /// `batch` in slices of about [`WRITE_SLICE_BYTES`] (at least a row each) where it has a
