@@ -34,7 +34,8 @@ pub struct Cli {
     /// An `.rrd` file, a directory of Arrow IPC chunk files, or one such file (told apart
     /// by their contents, not their names); `-` reads either kind of file from standard
     /// input. A directory of `.rrd` files is a dataset: each file a segment, named by its
-    /// recording id (`dataframe`, `stats`, and `latest-at` and `range` with `--segment`).
+    /// recording id (`dataframe`, `stats`, `sql`, `hive`, and `latest-at` and `range` with
+    /// `--segment`).
     pub source: PathBuf,
 
     #[command(subcommand)]

@@ -1,5 +1,6 @@
-//! `chunkstore`: look inside recordings from a terminal: `.rrd` files and directories of
-//! Arrow IPC chunk files.
+//! `chunkstore`: look inside recordings from a terminal (`.rrd` files, directories of
+//! Arrow IPC chunk files, and datasets: directories of `.rrd` files), query them with SQL,
+//! write them as `.rrd`, Arrow or Parquet, and serve them (`serve`).
 //!
 //! ```text
 //! chunkstore [OPTIONS] <SOURCE> latest-at <TIMELINE> <TIME> [--contents EXPR]... [--component NAME]...
