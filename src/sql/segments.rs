@@ -144,7 +144,18 @@ fn stacked(
 #[derive(Debug)]
 struct SegmentsTable {
     schema: SchemaRef,
-    parts: Vec<(String, Arc<dyn TableProvider>)>,
+    parts: Vec<Segment>,
+}
+
+/// One segment's table, and where each column of the stacked table is in it.
+#[derive(Debug)]
+struct Segment {
+    id: String,
+    table: Arc<dyn TableProvider>,
+    /// By column of the stacked table, its index in this segment's table (`None` for the
+    /// segment id and the columns it lacks): mapped once, so that neither registering nor
+    /// scanning looks a column up by name in a list (quadratic in the columns).
+    columns: Vec<Option<usize>>,
 }
 
 impl SegmentsTable {
@@ -152,36 +163,52 @@ impl SegmentsTable {
     fn new(parts: &[(&str, Arc<dyn TableProvider>)]) -> Option<Self> {
         let mut fields: Vec<Field> = vec![Field::new(SEGMENT_ID_COLUMN, DataType::Utf8, false)];
         let mut seen: HashMap<String, usize> = HashMap::new();
+        // By part, the stacked column of each of its own columns.
+        let mut placed: Vec<Vec<usize>> = Vec::with_capacity(parts.len());
         for (_, table) in parts {
-            for field in table.schema().fields() {
-                match seen.get(field.name()) {
+            let schema = table.schema();
+            let mut own = Vec::with_capacity(schema.fields().len());
+            for field in schema.fields() {
+                let at = match seen.get(field.name()) {
                     Some(&at) if fields[at].data_type() != field.data_type() => return None,
                     Some(&at) => {
                         let nullable = fields[at].is_nullable() || field.is_nullable();
                         fields[at].set_nullable(nullable);
+                        at
                     }
                     None => {
                         seen.insert(field.name().clone(), fields.len());
                         fields.push(field.as_ref().clone());
+                        fields.len() - 1
                     }
-                }
+                };
+                own.push(at);
             }
+            placed.push(own);
+        }
+        let mut segments = Vec::with_capacity(parts.len());
+        let mut present = vec![0usize; fields.len()];
+        for ((id, table), own) in parts.iter().zip(placed) {
+            let mut columns = vec![None; fields.len()];
+            for (index, at) in own.into_iter().enumerate() {
+                columns[at] = Some(index);
+                present[at] += 1;
+            }
+            segments.push(Segment {
+                id: (*id).to_owned(),
+                table: Arc::clone(table),
+                columns,
+            });
         }
         // A column some part lacks is null in its rows.
-        for field in fields.iter_mut().skip(1) {
-            let everywhere = parts
-                .iter()
-                .all(|(_, table)| table.schema().field_with_name(field.name()).is_ok());
-            if !everywhere {
+        for (field, count) in fields.iter_mut().zip(present).skip(1) {
+            if count < parts.len() {
                 field.set_nullable(true);
             }
         }
         Some(Self {
             schema: Arc::new(Schema::new(fields)),
-            parts: parts
-                .iter()
-                .map(|(segment, table)| ((*segment).to_owned(), Arc::clone(table)))
-                .collect(),
+            parts: segments,
         })
     }
 
@@ -221,8 +248,8 @@ impl TableProvider for SegmentsTable {
             .map(|filter| {
                 let mut all_exact = true;
                 let mut any = false;
-                for (_, table) in &self.parts {
-                    match Self::part_pushdown(table.as_ref(), filter)? {
+                for part in &self.parts {
+                    match Self::part_pushdown(part.table.as_ref(), filter)? {
                         FilterPushDown::Exact => any = true,
                         FilterPushDown::Inexact => {
                             any = true;
@@ -252,29 +279,30 @@ impl TableProvider for SegmentsTable {
             None => (0..self.schema.fields().len()).collect(),
         };
         let mut children = Vec::with_capacity(self.parts.len());
-        for (segment, table) in &self.parts {
-            let own = table.schema();
+        for part in &self.parts {
             // The part's columns the output has, each once, in its own order.
-            let mut columns: Vec<usize> = output
-                .iter()
-                .filter_map(|&i| own.index_of(self.schema.field(i).name()).ok())
-                .collect();
+            let mut columns: Vec<usize> = output.iter().filter_map(|&i| part.columns[i]).collect();
             columns.sort_unstable();
             columns.dedup();
             let mut taken = Vec::new();
             for filter in filters {
-                if Self::part_pushdown(table.as_ref(), filter)? != FilterPushDown::Unsupported {
+                if Self::part_pushdown(part.table.as_ref(), filter)? != FilterPushDown::Unsupported
+                {
                     taken.push(filter.clone());
                 }
             }
-            let scan = table.scan(state, Some(&columns), &taken, limit).await?;
-            let scanned = scan.schema();
+            let scan = part
+                .table
+                .scan(state, Some(&columns), &taken, limit)
+                .await?;
             let mut exprs: Vec<(Arc<dyn PhysicalExpr>, String)> = Vec::with_capacity(output.len());
             for &i in &output {
                 let field = self.schema.field(i);
+                // The scan's columns are the projection asked for, in its order.
+                let scanned = part.columns[i].and_then(|own| columns.binary_search(&own).ok());
                 let expr: Arc<dyn PhysicalExpr> = if i == 0 {
-                    Arc::new(Literal::new(ScalarValue::Utf8(Some(segment.clone()))))
-                } else if let Ok(at) = scanned.index_of(field.name()) {
+                    Arc::new(Literal::new(ScalarValue::Utf8(Some(part.id.clone()))))
+                } else if let Some(at) = scanned {
                     Arc::new(PhysicalColumn::new(field.name(), at))
                 } else {
                     Arc::new(Literal::new(ScalarValue::try_from(field.data_type())?))
