@@ -24,8 +24,7 @@ use arrow_flight::sql::{
     CommandStatementQuery, DoPutPreparedStatementResult, ProstMessageExt as _, SqlInfo,
     TicketStatementQuery,
 };
-use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, IpcMessage, SchemaAsIpc, Ticket};
-use arrow_ipc::writer::IpcWriteOptions;
+use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, Ticket};
 use arrow_schema::Schema;
 use datafusion::prelude::{SessionConfig, SessionContext};
 use futures::{Stream, StreamExt as _, TryStreamExt as _};
@@ -33,7 +32,7 @@ use prost::Message as _;
 use tonic::{Request, Response, Status};
 
 use super::ServerState;
-use super::statement::{Statement, StatementTicket, parameter_schema};
+use super::statement::{Statement, StatementTicket, parameter_schema, schema_bytes};
 
 const CATALOG: &str = "datafusion";
 const SCHEMA: &str = "public";
@@ -328,15 +327,6 @@ fn sql_info() -> &'static SqlInfoData {
     })
 }
 
-fn schema_bytes(schema: &Schema) -> Result<bytes::Bytes, Status> {
-    let IpcMessage(bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
-        .try_into()
-        .map_err(|e: arrow_schema::ArrowError| {
-            Status::internal(format!("encoding the schema: {e}"))
-        })?;
-    Ok(bytes)
-}
-
 fn batch_stream(
     schema: arrow_schema::SchemaRef,
     batch: Result<arrow_array::RecordBatch, FlightError>,
@@ -409,11 +399,12 @@ impl FlightSqlService for SqlService {
         query: ActionCreatePreparedStatementRequest,
         _request: Request<arrow_flight::Action>,
     ) -> Result<ActionCreatePreparedStatementResult, Status> {
-        let frame = self.plan(&Statement::new(query.query.clone())).await?;
+        let statement = Statement::new(query.query);
+        let frame = self.plan(&statement).await?;
         let schema = frame.schema().as_arrow().clone();
         let parameters = parameter_schema(frame.logical_plan())?;
         Ok(ActionCreatePreparedStatementResult {
-            prepared_statement_handle: query.query.into_bytes().into(),
+            prepared_statement_handle: statement.encode()?.into(),
             dataset_schema: schema_bytes(&schema)?,
             parameter_schema: if parameters.fields().is_empty() {
                 bytes::Bytes::default()

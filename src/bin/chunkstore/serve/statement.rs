@@ -84,11 +84,11 @@ impl Statement {
         let reader = arrow_array::RecordBatchIterator::new([Ok(batch)], schema);
         chunkstore::ipc::write_ipc_stream(&mut values, reader)
             .map_err(|e| Status::internal(format!("encoding the parameters: {e}")))?;
-        let mut out = Self::MAGIC.to_vec();
-        out.extend_from_slice(&(values.len() as u64).to_le_bytes());
-        out.extend_from_slice(&values);
-        out.extend_from_slice(self.sql.as_bytes());
-        Ok(out)
+        Ok(length_prefixed_after(
+            Self::MAGIC,
+            &values,
+            self.sql.as_bytes(),
+        ))
     }
 
     /// The statement a handle names (see [`Statement::encode`]).
@@ -173,16 +173,11 @@ impl StatementTicket {
     const MAGIC: &'static [u8] = b"chunkstore-ticket-1\0";
 
     pub fn encode(schema: &Schema, statement: &Statement) -> Result<Vec<u8>, Status> {
-        let IpcMessage(schema_bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
-            .try_into()
-            .map_err(|e: arrow_schema::ArrowError| {
-                Status::internal(format!("encoding the schema: {e}"))
-            })?;
-        let mut out = Self::MAGIC.to_vec();
-        out.extend_from_slice(&(schema_bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(&schema_bytes);
-        out.extend_from_slice(&statement.encode()?);
-        Ok(out)
+        Ok(length_prefixed_after(
+            Self::MAGIC,
+            &schema_bytes(schema)?,
+            &statement.encode()?,
+        ))
     }
 
     /// The statement and the advertised schema; a ticket that is plain SQL has no schema.
@@ -196,6 +191,27 @@ impl StatementTicket {
             .map_err(|_| bad())?;
         Ok((Statement::decode(handle)?, Some(Arc::new(schema))))
     }
+}
+
+/// `schema` as a Flight IPC schema message.
+pub fn schema_bytes(schema: &Schema) -> Result<bytes::Bytes, Status> {
+    let IpcMessage(bytes) = SchemaAsIpc::new(schema, &IpcWriteOptions::default())
+        .try_into()
+        .map_err(|e: arrow_schema::ArrowError| {
+            Status::internal(format!("encoding the schema: {e}"))
+        })?;
+    Ok(bytes)
+}
+
+/// `magic`, then `part` after its length (8 bytes, little-endian), then `rest`: what
+/// [`length_prefixed`] splits after the magic.
+fn length_prefixed_after(magic: &[u8], part: &[u8], rest: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(magic.len() + 8 + part.len() + rest.len());
+    out.extend_from_slice(magic);
+    out.extend_from_slice(&(part.len() as u64).to_le_bytes());
+    out.extend_from_slice(part);
+    out.extend_from_slice(rest);
+    out
 }
 
 /// `bytes` split after a part whose length (8 bytes, little-endian) comes first.
