@@ -156,16 +156,11 @@ impl LogMsg {
         if self.kind != LogMsgKind::ArrowMsg {
             return body;
         }
-        let mut fields = FieldReader::new(self.body.as_slice());
-        while let Ok(Some(field)) = fields.next_field() {
-            if field.number == 3
-                && let Ok(claimed) = field.varint("ArrowMsg")
-            {
-                // LZ4 expands a byte to at most 255.
-                return claimed.clamp(body, body.saturating_mul(255));
-            }
+        match ArrowMsg::decode(self.body.as_slice()) {
+            // LZ4 expands a byte to at most 255.
+            Ok(msg) => msg.uncompressed_size.clamp(body, body.saturating_mul(255)),
+            Err(_) => body, // refused when it is ingested
         }
-        body
     }
 
     /// A `SetStoreInfo` for `info`, under a fresh message id.
