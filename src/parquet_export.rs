@@ -147,23 +147,21 @@ impl std::error::Error for ParquetExportError {
 /// at 1.2 GB.
 const WRITE_SLICE_BYTES: usize = 8 << 20;
 
-/// `batch` in slices of about [`WRITE_SLICE_BYTES`] (at least a row each) where it has a
-/// nested column of small integers (bytes: an image, a blob), whose levels take twelve
-/// times its bytes; whole otherwise (levels of wider values take 1.5 to 3 times theirs,
-/// and slices of 8 MiB made a scalar dataset's export 12% slower). The nested columns of
-/// small integers are copied: the writer converts such a leaf array whole (to 32-bit
-/// integers) whatever part of it the rows use, so that zero-copy slices of a batch of
-/// images converted the whole batch once per slice (twice the time of writing it
-/// unsliced).
-fn write_slices(batch: &RecordBatch) -> impl Iterator<Item = RecordBatch> + '_ {
+/// `batch` in slices of about [`WRITE_SLICE_BYTES`] (at least a row each) where it has
+/// byte lists (`byte_lists`: by column, is it nested over small integers: an image, a
+/// blob), whose levels take twelve times their bytes; whole otherwise (levels of wider
+/// values take 1.5 to 3 times theirs, and slices of 8 MiB made a scalar dataset's export
+/// 12% slower). The byte lists are copied: the writer converts such a leaf array whole
+/// (to 32-bit integers) whatever part of it the rows use, so that zero-copy slices of a
+/// batch of images converted the whole batch once per slice (twice the time of writing
+/// it unsliced).
+fn write_slices<'a>(
+    batch: &'a RecordBatch,
+    byte_lists: &'a [bool],
+) -> impl Iterator<Item = RecordBatch> + 'a {
     let rows = batch.num_rows();
     let bytes = batch.get_array_memory_size().max(1);
-    let exploding = batch
-        .schema()
-        .fields()
-        .iter()
-        .any(|f| f.data_type().is_nested() && has_small_integer_leaf(f.data_type()));
-    let per_slice = if bytes <= WRITE_SLICE_BYTES || !exploding {
+    let per_slice = if bytes <= WRITE_SLICE_BYTES || !byte_lists.contains(&true) {
         rows.max(1)
     } else {
         usize::try_from(rows as u128 * WRITE_SLICE_BYTES as u128 / bytes as u128)
@@ -177,27 +175,38 @@ fn write_slices(batch: &RecordBatch) -> impl Iterator<Item = RecordBatch> + '_ {
         if whole {
             return slice;
         }
-        let columns = slice.columns().iter().map(compacted).collect();
+        let columns = slice
+            .columns()
+            .iter()
+            .zip(byte_lists)
+            .map(|(column, &copy)| {
+                if copy {
+                    compacted(column)
+                } else {
+                    Arc::clone(column)
+                }
+            })
+            .collect();
         let options = arrow_array::RecordBatchOptions::new().with_row_count(Some(slice.num_rows()));
         // The same schema and lengths as the slice: cannot fail.
         RecordBatch::try_new_with_options(slice.schema(), columns, &options).unwrap_or(slice)
     })
 }
 
-/// `array` with its own buffers where it is nested over small integers (a slice's
-/// children then hold only its values); other arrays as they are.
+/// `array` with buffers of its own (a slice's children then hold only its values).
 fn compacted(array: &arrow_array::ArrayRef) -> arrow_array::ArrayRef {
-    if !array.data_type().is_nested() || !has_small_integer_leaf(array.data_type()) {
-        return Arc::clone(array);
-    }
     let data = array.to_data();
     let mut copy = arrow_data::transform::MutableArrayData::new(vec![&data], false, data.len());
     copy.extend(0, 0, data.len());
     arrow_array::make_array(copy.freeze())
 }
 
-/// Is a leaf of `data_type` an integer type the Parquet writer widens (to `INT32`) array
-/// by array?
+/// Is `data_type` nested over an integer type the Parquet writer widens (to `INT32`)
+/// array by array: a list of bytes?
+fn is_byte_list(data_type: &arrow_schema::DataType) -> bool {
+    data_type.is_nested() && has_small_integer_leaf(data_type)
+}
+
 fn has_small_integer_leaf(data_type: &arrow_schema::DataType) -> bool {
     use arrow_schema::DataType;
     match data_type {
@@ -266,6 +275,11 @@ pub fn write_parquet_file(
         path: path.to_owned(),
         source,
     };
+    let byte_lists: Vec<bool> = schema
+        .fields()
+        .iter()
+        .map(|f| is_byte_list(f.data_type()))
+        .collect();
     crate::atomic::atomic_write(path, io, |file| {
         let mut writer = ArrowWriter::try_new(
             std::io::BufWriter::new(file),
@@ -277,7 +291,7 @@ pub fn write_parquet_file(
         for batch in reader {
             let batch = batch.map_err(ParquetExportError::Arrow)?;
             rows += batch.num_rows() as u64;
-            for part in write_slices(&batch) {
+            for part in write_slices(&batch, &byte_lists) {
                 writer.write(&part).map_err(ParquetExportError::Parquet)?;
                 // A row group is buffered whole until it is written: bound it by bytes
                 // as well as rows (large cells, or a static one repeated on every row,

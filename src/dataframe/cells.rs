@@ -395,20 +395,15 @@ fn capacities_of(data_type: &DataType, parts: &[(&dyn Array, usize, usize)]) -> 
             items,
             Some(Box::new(list_capacities::<i64>(item.data_type(), parts))),
         ),
-        DataType::Utf8 => {
+        DataType::Utf8 | DataType::Binary => {
             let bytes = parts
                 .iter()
                 .map(|&(array, from, to)| {
-                    value_span(array.as_string::<i32>().value_offsets(), from, to).len()
-                })
-                .sum();
-            Capacities::Binary(items, Some(bytes))
-        }
-        DataType::Binary => {
-            let bytes = parts
-                .iter()
-                .map(|&(array, from, to)| {
-                    value_span(array.as_binary::<i32>().value_offsets(), from, to).len()
+                    let offsets = match array.as_string_opt::<i32>() {
+                        Some(strings) => strings.value_offsets(),
+                        None => array.as_binary::<i32>().value_offsets(),
+                    };
+                    value_span(offsets, from, to).len()
                 })
                 .sum();
             Capacities::Binary(items, Some(bytes))
