@@ -3,7 +3,8 @@
 //! length and that many bytes of a `WriteMessagesRequest` envelope. Each message is decoded
 //! and ingested by one [`StoreHub`], as the server does. Nothing may panic; a refused
 //! message changes nothing (the sequence number and every recording's rows stay); the hub
-//! stays sane; an accepted message's envelope round-trips; and replaying the hub's history
+//! stays sane; a decoded message's envelope round-trips, and its decoded length lies
+//! between its body's and what LZ4 can expand that to; and replaying the hub's history
 //! into a fresh hub gives the same recordings with the same rows. The same bytes are also
 //! scanned as an `.rrd` log (what `--persist` reads back at start).
 
@@ -41,6 +42,11 @@ pub fn log_msg(bytes: &[u8]) {
         let again = LogMsg::decode_envelope(&Buffer::from(msg.encode_envelope()))
             .expect("an envelope this crate wrote decodes");
         assert_eq!(again, msg);
+        // What the server counts a message as (it drives the memory checks): never less
+        // than the body, never more than LZ4 can expand it to.
+        let body = msg.body().len() as u64;
+        let decoded = msg.decoded_len();
+        assert!(decoded >= body && decoded <= body.saturating_mul(255).max(body));
         let (seq, before) = (hub.last_seq(), rows(&hub));
         if let Ok(new_seq) = hub.ingest(&msg) {
             assert_eq!(new_seq, seq + 1);
