@@ -137,3 +137,8 @@ fn replace_table(
     ctx.register_table(reference, table)?;
     Ok(())
 }
+
+/// An error of the store, a dataset or a file as DataFusion carries it (its message kept).
+fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusionError {
+    DataFusionError::External(Box::new(error))
+}

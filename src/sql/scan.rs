@@ -87,22 +87,7 @@ impl StoreScanExec {
     /// per distinct time, in order), so that DataFusion needs no sort for `ORDER BY` it.
     /// Nothing changes when the projection left the column out.
     pub(crate) fn sorted_by(mut self, column: &str) -> Self {
-        if let Ok(position) = self.schema.index_of(column) {
-            // The column has no nulls, so both null placements hold; SQL's `ORDER BY x`
-            // means `NULLS LAST` in DataFusion.
-            let mut ordered = EquivalenceProperties::new(Arc::clone(&self.schema));
-            for nulls_first in [false, true] {
-                let options = SortOptions {
-                    descending: false,
-                    nulls_first,
-                };
-                ordered.add_ordering([PhysicalSortExpr::new(
-                    Arc::new(Column::new(column, position)),
-                    options,
-                )]);
-            }
-            self.properties = Arc::new(plan_properties(ordered));
-        }
+        self.properties = Arc::new(plan_properties(ascending_on(&self.schema, &[column])));
         self
     }
 
@@ -111,6 +96,40 @@ impl StoreScanExec {
     pub fn pushed_down(&self) -> &[String] {
         &self.pushed_down
     }
+}
+
+/// What is known of the order of rows in `schema` sorted ascending by `columns` in turn:
+/// by as many of them, from the first, as the schema has (nothing when it lacks the
+/// first, as when a projection left it out). None of these columns has nulls, so every
+/// null placement holds and each is declared (SQL's `ORDER BY x` means `NULLS LAST` in
+/// DataFusion, `NULLS FIRST` with `DESC`...).
+pub(crate) fn ascending_on(schema: &SchemaRef, columns: &[&str]) -> EquivalenceProperties {
+    let mut ordered = EquivalenceProperties::new(Arc::clone(schema));
+    let sorted: Vec<(&str, usize)> = columns
+        .iter()
+        .map_while(|&name| Some((name, schema.index_of(name).ok()?)))
+        .collect();
+    if sorted.is_empty() {
+        return ordered;
+    }
+    // Column `i`'s nulls are first where bit `n - 1 - i` of `placement` is set: the
+    // orderings go in the order of their first column's placement, then the next's. The
+    // order matters to DataFusion 54's equivalence classes: with the last column's varying
+    // slowest instead, a sort on (segment id, index) was planned again
+    // (`a_dataset_timeline_table_is_the_dataset_dataframe` checks).
+    let n = sorted.len();
+    for placement in 0u32..1 << n {
+        ordered.add_ordering(sorted.iter().enumerate().map(|(i, &(name, position))| {
+            PhysicalSortExpr::new(
+                Arc::new(Column::new(name, position)),
+                SortOptions {
+                    descending: false,
+                    nulls_first: placement & (1 << (n - 1 - i)) != 0,
+                },
+            )
+        }));
+    }
+    ordered
 }
 
 /// One partition, emitted batch by batch, bounded; `ordered` says what is known of the

@@ -13,6 +13,7 @@ use datafusion::logical_expr::{Expr, TableProviderFilterPushDown};
 use datafusion::physical_plan::ExecutionPlan;
 
 use super::pushdown::{self, TimeFilter};
+use super::external;
 use super::scan::{ScanSource, StoreScanExec};
 use crate::{
     ChunkTableQuery, DataframeQuery, EntityPath, EntityPathFilter, Snapshot, TimeInt, TimeRange,
@@ -32,10 +33,6 @@ fn limit_batch_rows(limit: Option<usize>, pushed_down: &mut Vec<String>) -> Opti
     let limit = limit?;
     pushed_down.push(format!("limit={limit}"));
     (limit < SMALL_LIMIT).then_some(limit.max(1))
-}
-
-fn external(error: impl std::error::Error + Send + Sync + 'static) -> DataFusionError {
-    DataFusionError::External(Box::new(error))
 }
 
 /// One timeline's dataframe view of a snapshot (SEMANTICS.md section 9) as a DataFusion
@@ -402,13 +399,12 @@ impl TableProvider for ChunksTable {
         Ok(filters
             .iter()
             .map(|filter| {
-                if self.entity_filter(filter).is_some() {
-                    TableProviderFilterPushDown::Exact
-                } else if self.time_filter(filter).is_some() {
-                    TableProviderFilterPushDown::Inexact
+                // A time filter only narrows the chunks read: DataFusion filters the rows.
+                pushdown::support(if self.entity_filter(filter).is_some() {
+                    Some(true)
                 } else {
-                    TableProviderFilterPushDown::Unsupported
-                }
+                    self.time_filter(filter).map(|_| false)
+                })
             })
             .collect())
     }
