@@ -98,7 +98,7 @@ impl Dataset {
                     }
                 }
                 write_new_directory(dir, |partial| {
-                    super::in_parallel(&segments, self.options().threads, |segment| {
+                    super::threads::in_parallel(&segments, self.options().threads, |segment| {
                         let (number, query, kept) = segment.clone();
                         let info = &self.segments()[number];
                         let rows = self.stream_segments(
@@ -153,7 +153,7 @@ impl Dataset {
         on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
     ) -> Result<HiveSummary, DatasetError> {
         let numbers: Vec<usize> = (0..self.segments().len()).collect();
-        super::in_parallel(&numbers, self.options().threads, |&number| {
+        super::threads::in_parallel(&numbers, self.options().threads, |&number| {
             let info = &self.segments()[number];
             // Every chunk, read through the footer where there is one (a copy reads each
             // segment once: nothing is kept for it in the cache).

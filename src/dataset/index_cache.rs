@@ -8,9 +8,9 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DatasetError, DatasetOptions, Opened, info_from_footer, info_from_store};
+use super::{DatasetError, DatasetOptions, Opened, SegmentInfo};
 use crate::ChunkStore;
-use crate::recording::{LoadFault, OpenError};
+use crate::recording::{LoadFault, OpenError, RecordingReader};
 use crate::rrd::LazyRecording;
 
 /// Where the index of `path` (whose metadata is `metadata`) is kept in `dir`.
@@ -47,16 +47,16 @@ pub(super) fn open_indexed(
     let index = index_file(dir, path, metadata);
     let file_bytes = metadata.len();
     if index.is_file()
-        && let Ok(Some(lazy)) = LazyRecording::open_indexed(path, &index, None)
-        && let Some(info) = lazy.store_info()
+        && let Ok(Some(mut lazy)) = LazyRecording::open_indexed(path, &index, None)
+        && let Some(info) = lazy.store_info().cloned()
         && lazy
             .manifest()
             .entries
             .iter()
             .all(|e| e.byte_offset.saturating_add(e.byte_size) <= file_bytes)
     {
-        let mut segment = info_from_footer(path, info, &lazy, file_bytes);
-        segment.from_footer = false;
+        let reader = RecordingReader::lazy(&mut lazy);
+        let mut segment = SegmentInfo::read(path, &info, &reader, file_bytes, false);
         segment.index_file = Some(index);
         return Ok(Opened {
             info: segment,
@@ -97,7 +97,8 @@ pub(super) fn open_indexed(
             })))
         })?;
     }
-    let mut segment = info_from_store(path, &info, &store, file_bytes);
+    let reader = RecordingReader::view(&store);
+    let mut segment = SegmentInfo::read(path, &info, &reader, file_bytes, false);
     segment.index_file = Some(index);
     Ok(Opened {
         info: segment,

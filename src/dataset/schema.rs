@@ -40,7 +40,7 @@ impl Dataset {
             return Ok(Arc::clone(tables));
         }
         let numbers = self.segments_adding_columns();
-        let schemas = super::in_parallel(&numbers, self.options().threads, |&number| {
+        let schemas = super::threads::in_parallel(&numbers, self.options().threads, |&number| {
             let segment = &self.segments()[number];
             match self.segment_tables(number) {
                 Ok(tables) => Ok(Some(tables)),
@@ -84,7 +84,7 @@ impl Dataset {
     fn segments_adding_columns(&self) -> Vec<usize> {
         type Key = (crate::EntityPath, crate::ComponentName, Option<String>);
         let numbers: Vec<usize> = (0..self.segments().len()).collect();
-        let keys = super::in_parallel(&numbers, self.options().threads, |&number| {
+        let keys = super::threads::in_parallel(&numbers, self.options().threads, |&number| {
             if !self.reads_in_part(number) {
                 return Ok(None);
             }

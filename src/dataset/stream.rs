@@ -65,7 +65,7 @@ impl Dataset {
         let room = AtomicU64::new(self.options().memory_budget);
         let no_room = AtomicU64::new(0);
         let positions: Vec<(usize, usize)> = with_index.iter().copied().enumerate().collect();
-        let plans = super::in_parallel(&positions, threads, |&(position, number)| {
+        let plans = super::threads::in_parallel(&positions, threads, |&(position, number)| {
             let segment_id = &self.segments()[number].id;
             let room = if position < threads { &room } else { &no_room };
             let super::SegmentRead { snapshot, keep, .. } =

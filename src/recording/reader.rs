@@ -105,6 +105,17 @@ impl<'a> RecordingReader<'a> {
         }
     }
 
+    /// Static chunks: for a lazy recording, as its footer lists them.
+    pub fn num_static_chunks(&self) -> u64 {
+        match &self.source {
+            Source::View(view) => view.stats().num_static_chunks,
+            Source::Lazy(lazy) => {
+                let entries = &lazy.manifest().entries;
+                entries.iter().filter(|e| e.is_static).count() as u64
+            }
+        }
+    }
+
     /// The latest-at answer ([`StoreView::latest_at`]).
     ///
     /// # Errors
