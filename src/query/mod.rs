@@ -1,6 +1,7 @@
 //! Queries: latest-at (SEMANTICS.md section 3, with Clears of section 5 applied) and range
 //! (section 4). Answers point into the stored chunks: no cell is copied.
 
+mod cursor;
 mod latest_at;
 mod range;
 
@@ -11,7 +12,7 @@ use arrow_array::ArrayRef;
 use crate::{Chunk, ChunkId, ComponentColumn, RowId, TimeInt};
 
 pub use latest_at::LatestAtQuery;
-pub(crate) use range::{CURSOR_BLOCK, RangeCursor};
+pub(crate) use cursor::{CURSOR_BLOCK, RangeCursor};
 pub use range::{RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 
 /// One cell a query answered with: the chunk and row it lives in, and its index.
