@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ListArray};
 
-use super::component_column::same_data_type;
+use super::data_types::same_data_type;
 use super::{Chunk, ComponentColumn};
 
 impl Chunk {

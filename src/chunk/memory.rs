@@ -190,7 +190,7 @@ impl ChunkMemory {
     /// figures of a small chunk, which compaction builds for every merge. `None` (and
     /// nothing added) for another shape.
     fn add_leaf_list(&mut self, list: &ListArray, leaf: &Buffer) -> Option<u64> {
-        let (leaf_type, fixed_size) = super::component_column::leaf_shape(list.data_type())?;
+        let (leaf_type, fixed_size) = super::data_types::leaf_shape(list.data_type())?;
         let width = leaf_type.primitive_width()? as u64;
         let items = list.values();
         let leaf_array: &dyn Array = match fixed_size {

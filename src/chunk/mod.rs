@@ -4,6 +4,7 @@
 
 mod builder;
 mod component_column;
+mod data_types;
 mod equality;
 mod error;
 pub(crate) mod memory;
@@ -23,7 +24,8 @@ use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeInt, Timeline};
 pub use builder::ChunkBuilder;
 pub use component_column::ComponentColumn;
 use component_column::RawComponentColumn;
-pub(crate) use component_column::{ComponentTimeBounds, equal_element_types};
+pub(crate) use component_column::ComponentTimeBounds;
+pub(crate) use data_types::equal_element_types;
 pub use error::ChunkError;
 use metadata::Metadata;
 #[cfg(feature = "ipc")]

@@ -9,7 +9,7 @@ use arrow_buffer::{ArrowNativeType, Buffer, NullBuffer, OffsetBuffer, ScalarBuff
 use arrow_data::ArrayData;
 use arrow_schema::{DataType, FieldRef};
 
-use super::component_column::{leaf_shape, same_data_type};
+use super::data_types::{leaf_shape, same_data_type};
 use super::{Chunk, ComponentColumn, RawComponentColumn, RawTimeColumn, RawTimes};
 use crate::ChunkError;
 use crate::{ChunkId, RowId};

@@ -20,7 +20,7 @@ use arrow_buffer::{MutableBuffer, NullBuffer, ScalarBuffer};
 use arrow_schema::DataType;
 use smallvec::SmallVec;
 
-use super::component_column::{instance_bytes, leaf_shape};
+use super::data_types::{instance_bytes, leaf_shape};
 use super::rewrite::single_values_list;
 use super::{Buffers, Chunk, ChunkError, RawComponentColumns, RawTimeColumns};
 use crate::{ChunkId, RowId};

@@ -800,7 +800,7 @@ fn a_query_reads_the_front_of_a_chunk_and_of_its_columns() {
 fn inline_type_comparisons_agree_with_data_types() {
     use arrow_schema::{Field, TimeUnit};
 
-    use super::component_column::same_data_type;
+    use super::data_types::same_data_type;
     let item = Arc::new(Field::new("item", DataType::Float32, true));
     let types = [
         DataType::Null,

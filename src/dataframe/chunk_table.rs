@@ -10,7 +10,8 @@ use arrow_array::builder::{FixedSizeBinaryBuilder, StringBuilder};
 use arrow_array::{Array, ArrayRef, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, Field, FieldRef, Schema, SchemaRef};
 
-use super::cells::{Cell, ColumnCells, ListColumnBuilder, Sources};
+use super::cell_runs::ColumnCells;
+use super::cells::{Cell, ListColumnBuilder, Sources};
 use super::{DEFAULT_BATCH_CELLS, DataframeError, EntityPathFilter};
 use crate::{Chunk, EntityPath, RowId, StoreView, TimeInt, TimeRange, Timeline};
 

@@ -20,6 +20,8 @@
 //! ([`kept_rows`]); a later query of the same view over that range or a part of it takes
 //! its rows from there and reads only the columns it outputs.
 
+mod batch_times;
+mod cell_runs;
 mod cells;
 mod chunk_table;
 mod column;
