@@ -7,6 +7,8 @@
 )]
 #![allow(dead_code, reason = "each test file uses a different subset")]
 
+pub mod repo;
+
 use std::sync::Arc;
 
 use arrow_array::builder::{BooleanBuilder, Float64Builder, ListBuilder};

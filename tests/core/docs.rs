@@ -5,38 +5,16 @@
 
 use std::path::{Path, PathBuf};
 
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
+use crate::common::repo::{self, root};
 
 /// Every text file the check reads: sources, tests, examples, benches, fuzz harness, docs.
 fn files() -> Vec<PathBuf> {
     let mut files = vec![root().join("README.md")];
-    let mut stack: Vec<PathBuf> = [
-        "src",
-        "tests",
-        "examples",
-        "benches",
-        "docs",
-        "fuzz/harness",
-    ]
-    .iter()
-    .map(|d| root().join(d))
-    .collect();
-    while let Some(dir) = stack.pop() {
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        for entry in entries {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else if path.extension().is_some_and(|e| e == "rs" || e == "md")
+    for dir in ["src", "tests", "examples", "benches", "docs", "fuzz/harness"] {
+        files.extend(repo::files_under(&root().join(dir), |path| {
+            path.extension().is_some_and(|e| e == "rs" || e == "md")
                 && !path.ends_with("tests/core/docs.rs")
-            {
-                files.push(path);
-            }
-        }
+        }));
     }
     files
 }

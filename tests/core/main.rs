@@ -22,6 +22,7 @@ mod dataframe;
 mod dataframe_oracle;
 mod dataset;
 mod docs;
+mod file_size;
 mod fuzz_corpus;
 mod index_shapes;
 mod lifecycle;

@@ -5,8 +5,11 @@
 //! module to the module it names, a name re-exported by `lib.rs` or a directory's `mod.rs`
 //! counting for the module that defines it. Two graphs must have no cycle:
 //! - the crate's top-level modules (`src/x.rs`, `src/x/`);
-//! - within each directory, its files, leaving out edges to the directory's own `mod.rs`
-//!   (a parent owns its children: their items and `impl` blocks are its parts).
+//! - within each directory, at every depth, its files and subdirectories, leaving out edges
+//!   to the directory's own `mod.rs` (a parent owns its children: their items and `impl`
+//!   blocks are its parts).
+//!
+//! The same holds for the tool, `src/bin/chunkstore/`, a crate of its own.
 //!
 //! `cargo test --test core module_graph -- --nocapture` prints the layers of the top-level
 //! graph, which `docs/ARCHITECTURE.md` draws.
@@ -19,6 +22,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
+use crate::common::repo;
+
 /// A module's source: its path (`store::entity`) and its library code.
 struct Module {
     path: Vec<String>,
@@ -26,11 +31,8 @@ struct Module {
 }
 
 fn library_code(text: &str) -> String {
-    let text = match text.find("#[cfg(test)]\nmod tests") {
-        Some(tests) => &text[..tests],
-        None => text,
-    };
-    text.lines()
+    repo::non_test_part(text)
+        .lines()
         .map(|line| match line.find("//") {
             Some(comment) => &line[..comment],
             None => line,
@@ -39,40 +41,40 @@ fn library_code(text: &str) -> String {
         .join("\n")
 }
 
-fn modules() -> Vec<Module> {
+/// The modules of the crate whose root is in `src`: the library (`src/`, `lib.rs`; the
+/// tool in `src/bin/` is a crate of its own, a user of the library) or the tool
+/// (`src/bin/chunkstore/`, `main.rs`).
+fn modules(src: &Path) -> Vec<Module> {
+    let bin = repo::root().join("src/bin");
     let mut modules = Vec::new();
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut stack = vec![src.clone()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                // `src/bin/`: the tool is a crate of its own, a user of the library.
-                if path != src.join("bin") {
-                    stack.push(path);
-                }
-                continue;
-            }
-            if path.extension().is_none_or(|e| e != "rs") {
-                continue;
-            }
-            let relative = path.strip_prefix(&src).unwrap();
-            let mut parts: Vec<String> = relative
-                .iter()
-                .map(|p| p.to_string_lossy().into_owned())
-                .collect();
-            let file = parts.pop().unwrap();
-            match file.as_str() {
-                "lib.rs" | "mod.rs" => {}
-                "tests.rs" => continue, // a `#[cfg(test)] mod tests;`
-                other => parts.push(other.trim_end_matches(".rs").to_owned()),
-            }
-            let code = library_code(&std::fs::read_to_string(&path).unwrap());
-            modules.push(Module { path: parts, code });
+    for path in repo::files_under(src, repo::is_rust) {
+        if !src.starts_with(&bin) && path.starts_with(&bin) {
+            continue;
         }
+        let relative = path.strip_prefix(src).unwrap();
+        let mut parts: Vec<String> = relative
+            .iter()
+            .map(|p| p.to_string_lossy().into_owned())
+            .collect();
+        let file = parts.pop().unwrap();
+        match file.as_str() {
+            "lib.rs" | "main.rs" | "mod.rs" => {}
+            "tests.rs" => continue, // a `#[cfg(test)] mod tests;`
+            other => parts.push(other.trim_end_matches(".rs").to_owned()),
+        }
+        let code = library_code(&std::fs::read_to_string(&path).unwrap());
+        modules.push(Module { path: parts, code });
     }
     modules.sort_by(|a, b| a.path.cmp(&b.path));
     modules
+}
+
+fn library() -> Vec<Module> {
+    modules(&repo::root().join("src"))
+}
+
+fn tool() -> Vec<Module> {
+    modules(&repo::root().join("src/bin/chunkstore"))
 }
 
 /// Every path of a `use` tree such as `a::{b, c::{d, e}}` (without the leading `a::` when
@@ -254,9 +256,11 @@ fn find_cycle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>>
 /// Each node's imports.
 type Graph = BTreeMap<String, BTreeSet<String>>;
 
-/// The graphs: top-level modules, and the files of each directory.
-fn graphs() -> (Graph, BTreeMap<String, Graph>) {
-    let modules = modules();
+/// A graph per directory, by its path (`""` for the crate's top-level modules, `sql`,
+/// `sql/dataset`): its files and subdirectories, each with those it imports. An item of a
+/// subdirectory is the subdirectory's; an import of the directory's own `mod.rs` is no
+/// edge (a parent owns its children: their items and `impl` blocks are its parts).
+fn graphs(modules: &[Module]) -> BTreeMap<String, Graph> {
     let known: BTreeSet<Vec<String>> = modules.iter().map(|m| m.path.clone()).collect();
     let reexports: BTreeMap<Vec<String>, BTreeMap<String, Vec<String>>> = modules
         .iter()
@@ -268,31 +272,38 @@ fn graphs() -> (Graph, BTreeMap<String, Graph>) {
         })
         .map(|m| (m.path.clone(), imports(m)))
         .collect();
-    let mut top: Graph = BTreeMap::new();
-    let mut within: BTreeMap<String, Graph> = BTreeMap::new();
+    let mut graphs: BTreeMap<String, Graph> = BTreeMap::new();
     for module in modules.iter().filter(|m| !m.path.is_empty()) {
-        let unit = module.path[0].clone();
-        top.entry(unit.clone()).or_default();
+        // The module is a node of each directory above it: `sql/dataset/scan` is `sql` in
+        // the top-level graph, `dataset` in `sql`'s and `scan` in `sql/dataset`'s.
+        for depth in 0..module.path.len() {
+            graphs
+                .entry(module.path[..depth].join("/"))
+                .or_default()
+                .entry(module.path[depth].clone())
+                .or_default();
+        }
         for path in references(module) {
             let target = resolve(&path, &known, &reexports);
-            let Some(target_unit) = target.first() else {
-                continue;
-            };
-            if *target_unit != unit {
-                top.entry(unit.clone())
-                    .or_default()
-                    .insert(target_unit.clone());
-            } else if module.path.len() == 2 && target.len() >= 2 && target[1] != module.path[1] {
-                within
-                    .entry(unit.clone())
-                    .or_default()
-                    .entry(module.path[1].clone())
-                    .or_default()
-                    .insert(target[1].clone());
+            for depth in 0..module.path.len() {
+                if !target.starts_with(&module.path[..depth]) {
+                    break;
+                }
+                if let Some(node) = target.get(depth)
+                    && *node != module.path[depth]
+                {
+                    graphs
+                        .get_mut(&module.path[..depth].join("/"))
+                        .unwrap()
+                        .get_mut(&module.path[depth])
+                        .unwrap()
+                        .insert(node.clone());
+                    break;
+                }
             }
         }
     }
-    (top, within)
+    graphs
 }
 
 /// Layers of an acyclic graph: each module after everything it imports.
@@ -318,19 +329,20 @@ fn layers(graph: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
 
 #[test]
 fn the_top_level_module_graph_has_no_cycle() {
-    let (top, _) = graphs();
+    let graphs = graphs(&library());
+    let top = &graphs[""];
     assert!(top.len() > 10, "the sources were read: {top:?}");
     assert!(
         top["store"].contains("chunk") && top["insert"].contains("store"),
         "edges are found: {top:?}"
     );
-    if let Some(cycle) = find_cycle(&top) {
+    if let Some(cycle) = find_cycle(top) {
         panic!("modules import each other: {}", cycle.join(" -> "));
     }
-    for (depth, layer) in layers(&top).iter().enumerate() {
+    for (depth, layer) in layers(top).iter().enumerate() {
         println!("layer {depth}: {}", layer.join(", "));
     }
-    for (module, imports) in &top {
+    for (module, imports) in top {
         println!(
             "{module} -> {}",
             imports.iter().cloned().collect::<Vec<_>>().join(", ")
@@ -338,21 +350,43 @@ fn the_top_level_module_graph_has_no_cycle() {
     }
 }
 
-#[test]
-fn the_files_of_each_directory_import_one_way() {
-    let (_, within) = graphs();
-    assert!(within.contains_key("store"), "{within:?}");
-    for (unit, graph) in &within {
+/// Every directory's graph of `modules` is acyclic; prints the edges.
+fn assert_one_way(crate_name: &str, graphs: &BTreeMap<String, Graph>) {
+    for (dir, graph) in graphs {
         if let Some(cycle) = find_cycle(graph) {
-            panic!("files of {unit}/ import each other: {}", cycle.join(" -> "));
+            panic!(
+                "{crate_name}: files of {}/ import each other: {}",
+                if dir.is_empty() { "the top level" } else { dir },
+                cycle.join(" -> ")
+            );
         }
         for (file, imports) in graph {
             println!(
-                "{unit}/{file} -> {}",
+                "{crate_name}: {dir}/{file} -> {}",
                 imports.iter().cloned().collect::<Vec<_>>().join(", ")
             );
         }
     }
+}
+
+#[test]
+fn the_files_of_each_directory_import_one_way() {
+    let graphs = graphs(&library());
+    assert!(
+        graphs["store"].len() > 3 && graphs["sql/dataset"]["tables"].contains("scan"),
+        "every directory, at every depth, is read: {graphs:?}"
+    );
+    assert_one_way("the library", &graphs);
+}
+
+#[test]
+fn the_tools_modules_import_one_way() {
+    let graphs = graphs(&tool());
+    assert!(
+        graphs[""].len() > 5 && graphs.contains_key("serve"),
+        "the tool's sources were read: {graphs:?}"
+    );
+    assert_one_way("src/bin/chunkstore", &graphs);
 }
 
 #[test]

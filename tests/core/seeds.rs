@@ -7,56 +7,35 @@
 
 use std::path::{Path, PathBuf};
 
-const SEEDS: &str = "tests/proptest-regressions";
+use crate::common::repo;
 
-/// Files under `dir` (not in `target` or `.git`) that `keep` keeps, relative to `root`.
-fn files(root: &Path, dir: &Path, keep: &dyn Fn(&Path) -> bool, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let path = entry.path();
-        let name = entry.file_name();
-        if name == "target" || name == ".git" || name == "node_modules" {
-            continue;
-        }
-        if path.is_dir() {
-            files(root, &path, keep, out);
-        } else if keep(&path) {
-            out.push(path.strip_prefix(root).unwrap_or(&path).to_owned());
-        }
-    }
-}
+const SEEDS: &str = "tests/proptest-regressions";
 
 fn is_seed_file(path: &Path) -> bool {
     let text = path.to_string_lossy();
     text.ends_with(".proptest-regressions") || text.contains("proptest-regressions/")
 }
 
+/// The Rust sources of the core crate's library and tests and of the Python package's
+/// native crate, by path relative to the root.
 fn rust_sources(root: &Path) -> Vec<(PathBuf, String)> {
-    let mut paths = Vec::new();
-    for dir in ["src", "tests", "python/src"] {
-        files(
-            root,
-            &root.join(dir),
-            &|p| p.extension().is_some_and(|e| e == "rs"),
-            &mut paths,
-        );
-    }
-    paths
-        .into_iter()
-        .map(|p| {
-            let text = std::fs::read_to_string(root.join(&p)).unwrap_or_default();
-            (p, text)
+    ["src", "tests", "python/src"]
+        .iter()
+        .flat_map(|dir| repo::files_under(&root.join(dir), repo::is_rust))
+        .map(|path| {
+            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            (path.strip_prefix(root).unwrap_or(&path).to_owned(), text)
         })
         .collect()
 }
 
 #[test]
 fn every_seed_file_is_read_by_a_test_and_every_property_test_names_one() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut seed_files = Vec::new();
-    files(root, root, &is_seed_file, &mut seed_files);
+    let root = repo::root();
+    let seed_files: Vec<PathBuf> = repo::files_under(root, is_seed_file)
+        .into_iter()
+        .map(|path| path.strip_prefix(root).unwrap_or(&path).to_owned())
+        .collect();
     let sources = rust_sources(root);
     let mut problems = Vec::new();
     for file in &seed_files {
