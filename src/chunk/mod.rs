@@ -23,8 +23,8 @@ use crate::{ChunkId, ComponentDescriptor, EntityPath, RowId, TimeInt, Timeline};
 
 pub use builder::ChunkBuilder;
 pub use component_column::ComponentColumn;
-use component_column::RawComponentColumn;
 pub(crate) use component_column::ComponentTimeBounds;
+use component_column::RawComponentColumn;
 pub(crate) use data_types::equal_element_types;
 pub use error::ChunkError;
 use metadata::Metadata;

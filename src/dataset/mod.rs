@@ -28,7 +28,6 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-
 mod cache;
 mod error;
 #[cfg(feature = "parquet")]

@@ -123,7 +123,6 @@ impl Dataset {
             }),
         })
     }
-
 }
 
 /// The regular `.rrd` files directly in `dir`, sorted by name, each file once (a link to

@@ -33,7 +33,6 @@ impl Dataset {
         this
     }
 
-
     /// Segment number `number` loaded whole, from the cache or from its file.
     pub(crate) fn loaded_segment(
         &self,

@@ -9,7 +9,6 @@ use arrow_array::Array;
 use super::range::{RangeResult, Source};
 use crate::{Chunk, RowId, TimeInt};
 
-
 /// One row a [`RangeCursor`] stands on: 16 bytes, four to a cache line (its row id, which
 /// only a same-time tie needs, is read from the chunk: [`RangeCursor::row_id`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

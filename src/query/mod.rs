@@ -11,8 +11,8 @@ use arrow_array::ArrayRef;
 
 use crate::{Chunk, ChunkId, ComponentColumn, RowId, TimeInt};
 
-pub use latest_at::LatestAtQuery;
 pub(crate) use cursor::{CURSOR_BLOCK, RangeCursor};
+pub use latest_at::LatestAtQuery;
 pub use range::{RangeQuery, RangeResult, RangeRow, RangeRun, RunRows};
 
 /// One cell a query answered with: the chunk and row it lives in, and its index.

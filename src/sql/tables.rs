@@ -12,8 +12,8 @@ use datafusion::datasource::{TableProvider, TableType};
 use datafusion::logical_expr::{Expr, TableProviderFilterPushDown};
 use datafusion::physical_plan::ExecutionPlan;
 
-use super::pushdown::{self, TimeFilter};
 use super::external;
+use super::pushdown::{self, TimeFilter};
 use super::scan::{ScanSource, StoreScanExec};
 use crate::{
     ChunkTableQuery, DataframeQuery, EntityPath, EntityPathFilter, Snapshot, TimeInt, TimeRange,

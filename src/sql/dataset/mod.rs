@@ -24,8 +24,8 @@ use datafusion::datasource::TableProvider;
 use datafusion::prelude::SessionContext;
 
 use super::{CHUNKS_TABLE, external, replace_table};
-use crate::dataset::Dataset;
 use crate::Timeline;
+use crate::dataset::Dataset;
 
 pub use scan::DatasetScanExec;
 pub use tables::{DatasetChunksTable, DatasetTimelineTable};
