@@ -52,8 +52,7 @@ pub use open::is_dataset_dir;
 pub use schema::DatasetTables;
 #[cfg(feature = "datafusion")]
 pub(crate) use schema::Placed;
-#[cfg(feature = "datafusion")]
-pub(crate) use segment::SegmentRead;
+use segment::SegmentRead;
 pub use stream::DatasetStream;
 
 use crate::recording::{LoadFault, LoadObserver, OpenOptions, Recording, RecordingReader};

@@ -5,6 +5,7 @@
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+#[cfg(feature = "datafusion")]
 use super::threads::in_parallel;
 use super::{Dataset, DatasetError, ReadStats, Warnings, prune};
 use crate::recording::{LoadedRecording, OpenError, OpenOptions};
