@@ -44,7 +44,7 @@ run() {
   local before
   before=$(ls -A)
   printf '%q ' "$@" >"$dir/command"
-  "$bin" "$@" >"$dir/stdout" 2>"$dir/stderr" </dev/null
+  "$bin" "$@" >"$dir/stdout" 2>"$dir/stderr" <"${STDIN:-/dev/null}"
   echo $? >"$dir/exit"
   for made in $(comm -13 <(echo "$before") <(ls -A)); do
     # An `.rrd` by its chunks as `print --json` lists them and its dataframe, and a store
@@ -112,6 +112,16 @@ run ds-segment-range --segment episode_3 episodes range frame_id 0 5
 run ds-budget --memory-budget 1MiB episodes sql 'SELECT count(*) FROM frame_id'
 run ds-index-cache --index-cache cache episodes stats
 
+# Standard input, and a dataset with a file that is not a recording.
+STDIN="$robot" run stdin-stats - stats
+STDIN="$robot" run stdin-latest-at - latest-at frame_id 30
+mkdir -p damaged
+cp episodes/*.rrd damaged/
+head -c 1000 episodes/episode_1.rrd >damaged/torn.rrd
+run ds-skip-bad --skip-bad damaged stats
+run ds-skip-bad-segment --skip-bad --segment episode_2 damaged latest-at frame_id 3
+run err-ds-damaged damaged stats
+
 # Errors: each a line on stderr and exit 2.
 run err-missing missing.rrd stats
 run err-timeline robot.rrd latest-at no_such_timeline 3
@@ -127,10 +137,15 @@ run err-ds-print episodes print
 run err-ds-convert episodes convert x.rrd
 run err-sql robot.rrd sql 'SELECT nothing FROM nowhere'
 run err-segment-recording --segment episode_1 robot.rrd stats
+run err-budget-recording --memory-budget 1MiB robot.rrd stats
+run err-ds-recording --recording x episodes stats
+run err-ds-contents episodes dataframe frame_id --contents /nothing
+run err-ds-range episodes dataframe frame_id --range 5 1
 run err-bucket robot.rrd hive x --index frame_id --bucket 0
 run err-args robot.rrd
 run err-max-rows --max-rows -1 robot.rrd stats
 run help --help
+run help-serve serve --help
 run help-sql robot.rrd sql --help
 run version --version
 rm -rf "$work"

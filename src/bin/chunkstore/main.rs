@@ -21,15 +21,12 @@
 //! are JSON lines; bad arguments or input print one line on stderr and exit with code 2;
 //! a bug (a panic) prints one line and exits with 101.
 
+mod answers;
 mod args;
-mod convert;
-mod dataframe;
-mod dataset;
+mod commands;
 mod load;
 mod output;
-#[cfg(feature = "server")]
-mod serve;
-mod sql;
+mod source;
 mod table;
 
 use std::cell::RefCell;
@@ -37,7 +34,8 @@ use std::ffi::OsString;
 use std::process::ExitCode;
 
 use args::{Cli, Command};
-use chunkstore::TimeRange;
+use commands::{convert, dataframe, hive, latest_at, print, range, sql, stats};
+use source::Source;
 
 thread_local! {
     /// The last panic's message and place, for the one line printed if a panic escapes.
@@ -55,43 +53,6 @@ enum Failure {
 impl From<String> for Failure {
     fn from(message: String) -> Self {
         Self::Message(message)
-    }
-}
-
-/// Standard input copied to a temporary file, removed when dropped (and on SIGINT or
-/// SIGTERM, as every unfinished output is).
-struct StdinCopy {
-    file: chunkstore::UnfinishedOutput,
-}
-
-impl StdinCopy {
-    fn new() -> Result<Self, String> {
-        let path = std::env::temp_dir().join(format!(
-            "chunkstore-stdin-{}-{:x}",
-            std::process::id(),
-            chunkstore::RowId::new().as_u128()
-        ));
-        let (file, mut out) = chunkstore::UnfinishedOutput::create(&path, |path| {
-            std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(path)
-        })
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-        let copy = Self { file };
-        std::io::copy(&mut std::io::stdin().lock(), &mut out)
-            .map_err(|e| format!("reading standard input: {e}"))?;
-        Ok(copy)
-    }
-
-    fn path(&self) -> &std::path::Path {
-        self.file.path()
-    }
-}
-
-impl Drop for StdinCopy {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(self.file.path());
     }
 }
 
@@ -138,7 +99,7 @@ fn main() -> ExitCode {
     // log, then stops).
     if args.get(1).is_some_and(|a| a == "serve") {
         #[cfg(feature = "server")]
-        return serve::main(&args);
+        return commands::serve::main(&args);
         #[cfg(not(feature = "server"))]
         {
             eprintln!(
@@ -218,130 +179,31 @@ fn usage_error(error: &clap::Error) -> ExitCode {
     ExitCode::from(2)
 }
 
+/// Runs the command on the SOURCE: each command answers for the kinds of source it
+/// reads (`commands/`).
 fn run(cli: &Cli) -> Result<(), Failure> {
-    let config = cli.load.config()?;
-    let options = load::Options {
-        config,
-        compact: cli.load.compact,
-        skip_bad: cli.load.skip_bad,
-        recording: cli.load.recording.clone(),
-        ..load::Options::default()
-    };
-    // `-`: standard input, copied to a temporary file first (lazy reading seeks, and
-    // sources are told apart by their first bytes); removed when the command ends.
-    let stdin_copy = if cli.source.as_os_str() == "-" {
-        Some(StdinCopy::new()?)
-    } else {
-        None
-    };
-    let source = stdin_copy
-        .as_ref()
-        .map_or(cli.source.as_path(), StdinCopy::path);
-    if source.is_dir() && chunkstore::dataset::is_dataset_dir(source) {
-        return dataset::run(cli, source, &options);
-    }
-    // The options only a dataset takes.
-    let dataset_only = [
-        cli.load
-            .segment
-            .as_ref()
-            .map(|id| format!("--segment {id}")),
-        cli.load
-            .memory_budget
-            .map(|bytes| format!("--memory-budget {bytes}")),
-        cli.load
-            .index_cache
-            .as_ref()
-            .map(|dir| format!("--index-cache {}", dir.display())),
-    ];
-    if let Some(option) = dataset_only.into_iter().flatten().next() {
-        return Err(format!(
-            "{option}: {} is not a dataset (a directory of .rrd files)",
-            source.display()
-        )
-        .into());
-    }
+    let source = Source::of(cli)?;
     match &cli.command {
         Command::LatestAt {
             timeline,
             time,
             select,
-        } => latest_at(
-            || load::open_for_queries(source, &options, cli.load.eager),
-            source,
-            timeline,
-            time,
-            select,
-        ),
+        } => latest_at::run(&source, timeline, time, select),
         Command::Range {
             timeline,
             min,
             max,
             select,
-        } => range(
-            || load::open_for_queries(source, &options, cli.load.eager),
-            source,
-            timeline,
-            (min, max),
-            select,
-        ),
-        Command::Stats => {
-            let loaded = load::load(source, &options)?;
-            output::stats(&loaded.store)
-        }
-        Command::Print { json } => output::print(source, *json, options.skip_bad),
+        } => range::run(&source, timeline, (min, max), select),
+        Command::Stats => stats::run(&source),
+        Command::Print { json } => print::run(&source, *json),
         Command::Convert {
             out,
             application_id,
             recording_id,
-        } => convert::convert(
-            source,
-            out,
-            &options,
-            application_id,
-            recording_id.as_deref(),
-        ),
-        Command::Dataframe(args) => dataframe::dataframe(source, args, &options),
-        Command::Sql(args) => sql::sql(source, args, &options),
-        Command::Hive(args) => dataframe::hive(source, args, &options),
+        } => convert::run(&source, out, application_id, recording_id.as_deref()),
+        Command::Dataframe(args) => dataframe::run(&source, args),
+        Command::Sql(args) => sql::run(&source, args),
+        Command::Hive(args) => hive::run(&source, args),
     }
-}
-
-/// `latest-at` on the recording `open` opens (`source` names it in errors).
-pub(crate) fn latest_at(
-    open: impl FnOnce() -> Result<chunkstore::recording::Recording, String>,
-    source: &std::path::Path,
-    timeline: &str,
-    time: &args::TimeArg,
-    select: &args::Select,
-) -> Result<(), Failure> {
-    let mut recording = open()?;
-    let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
-    output::latest_at(&mut recording, timeline, time.on(time_type)?, select)
-}
-
-/// `range` on the recording `open` opens.
-pub(crate) fn range(
-    open: impl FnOnce() -> Result<chunkstore::recording::Recording, String>,
-    source: &std::path::Path,
-    timeline: &str,
-    (min, max): (&args::TimeArg, &args::TimeArg),
-    select: &args::Select,
-) -> Result<(), Failure> {
-    // The same rule as `dataframe --range`, SQL and Python: a reversed range is a mistake
-    // to name, not an empty answer that looks like success (named before loading where
-    // the times are integers).
-    let reversed = || format!("range {min} {max}: MIN is greater than MAX");
-    if let (Some(a), Some(b)) = (min.integer(), max.integer())
-        && a > b
-    {
-        return Err(reversed().into());
-    }
-    let mut recording = open()?;
-    let time_type = load::timeline_type(&recording.reader(), timeline, source)?;
-    let (lo, hi) = (min.on(time_type)?, max.on(time_type)?);
-    if lo > hi {
-        return Err(reversed().into());
-    }
-    output::range(&mut recording, timeline, TimeRange::new(lo, hi), select)
 }

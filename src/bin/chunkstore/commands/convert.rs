@@ -9,19 +9,37 @@ use chunkstore::{Chunk, StoreConfig};
 
 use crate::Failure;
 use crate::load::{self, Options};
+use crate::source::Source;
 
-pub fn convert(
+/// `convert OUT` of `source` (a recording: a dataset is many).
+pub fn run(
+    source: &Source,
+    out: &Path,
+    application_id: &str,
+    recording_id: Option<&str>,
+) -> Result<(), Failure> {
+    match source {
+        Source::Recording(recording) => {
+            recording.refuse_to_overwrite(out)?;
+            convert(
+                &recording.path,
+                out,
+                &recording.options,
+                application_id,
+                recording_id,
+            )
+        }
+        Source::Dataset(dataset) => Err(dataset.unanswered()),
+    }
+}
+
+fn convert(
     source: &Path,
     out: &Path,
     options: &Options,
     application_id: &str,
     recording_id: Option<&str>,
 ) -> Result<(), Failure> {
-    if let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
-        && a == b
-    {
-        return Err(format!("{}: the output would overwrite the source", out.display()).into());
-    }
     // Without `--compact`, the chunks go out as they came in: no compaction on insert.
     let load_options = Options {
         config: if options.compact {

@@ -1,5 +1,6 @@
-//! `dataframe`: a dataframe view of the source as an Arrow IPC stream on stdout, or as an
-//! Arrow IPC file or a Parquet file (atomically) with `--out`.
+//! `dataframe`: a dataframe view of the source (a recording's, or a dataset's with the
+//! segment id first) as an Arrow IPC stream on stdout, the first rows as text on a
+//! terminal, or an Arrow IPC file or a Parquet file (atomically) with `--out`.
 
 use std::io::{IsTerminal as _, Write as _};
 use std::path::Path;
@@ -8,25 +9,41 @@ use arrow_array::cast::AsArray;
 use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondType};
 use arrow_array::{Array, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, SchemaRef};
-use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::dataset::Dataset;
+use chunkstore::parquet_export::ParquetOptions;
 use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange, TimeType};
 use indicatif::ProgressBar;
 
-use crate::Failure;
-use crate::args::{DataframeArgs, HiveArgs, TimeArg};
+use crate::args::{DataframeArgs, TimeArg};
 use crate::load::{self, Options};
+use crate::source::{self, Source, refuse_to_overwrite_segment};
+use crate::{Failure, output};
 
-pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Result<(), Failure> {
+/// `dataframe INDEX` of `source`: a recording's table, or a dataset's (every segment's
+/// table as one, the segment id first).
+pub fn run(source: &Source, args: &DataframeArgs) -> Result<(), Failure> {
     // Arguments first: a bad one is named before a long load (times that are integers
     // are checked now; the others once the index's type is known).
     let asked = Asked::of(args)?;
-    if let Some(out) = &args.out
-        && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
-        && a == b
-    {
-        return Err(format!("{}: the output would overwrite the source", out.display()).into());
+    match source {
+        Source::Recording(recording) => {
+            if let Some(out) = &args.out {
+                recording.refuse_to_overwrite(out)?;
+            }
+            of_recording(&recording.path, args, &recording.options, &asked)
+        }
+        Source::Dataset(dataset_source) => dataset_source.with_dataset(false, |dataset| {
+            of_dataset(dataset, &dataset_source.dir, args, &asked)
+        }),
     }
+}
 
+fn of_recording(
+    source: &Path,
+    args: &DataframeArgs,
+    options: &Options,
+    asked: &Asked<'_>,
+) -> Result<(), Failure> {
     let loaded = load::load(source, options)?;
     let store = &loaded.store;
     let mut query = asked.query.clone();
@@ -42,18 +59,45 @@ pub fn dataframe(source: &Path, args: &DataframeArgs, options: &Options) -> Resu
     write_table(stream, args, &[args.index.as_str()], &bar)
 }
 
+fn of_dataset(
+    dataset: &Dataset,
+    dir: &Path,
+    args: &DataframeArgs,
+    asked: &Asked<'_>,
+) -> Result<(), Failure> {
+    if let Some(out) = &args.out {
+        refuse_to_overwrite_segment(dataset, out)?;
+    }
+    let mut query = asked.query.clone();
+    if let Some(time_type) = dataset.time_type(&args.index) {
+        query = asked.with_times(query, time_type)?;
+    }
+    if let Some(filter) = &asked.filter {
+        selects_something(filter, &dataset.entity_paths(), &args.contents, dir)?;
+    }
+    let stream = dataset.dataframe(&query).map_err(|e| source::message(&e))?;
+    let rows: u64 = dataset
+        .segments()
+        .iter()
+        .filter(|s| s.time_type(&args.index).is_some())
+        .map(|s| s.num_rows)
+        .sum();
+    let sorted_by = [chunkstore::SEGMENT_ID_COLUMN, args.index.as_str()];
+    write_table(stream, args, &sorted_by, &Progress::rows(rows))
+}
+
 /// What the arguments of `dataframe` ask for, checked before anything is loaded.
-pub struct Asked<'a> {
+struct Asked<'a> {
     /// The query without its times (read once the index's type is known).
-    pub query: DataframeQuery,
+    query: DataframeQuery,
     range: Option<(&'a TimeArg, &'a TimeArg)>,
     values: Option<&'a [TimeArg]>,
     /// `--contents`, parsed.
-    pub filter: Option<EntityPathFilter>,
+    filter: Option<EntityPathFilter>,
 }
 
 impl<'a> Asked<'a> {
-    pub fn of(args: &'a DataframeArgs) -> Result<Self, Failure> {
+    fn of(args: &'a DataframeArgs) -> Result<Self, Failure> {
         let mut query = DataframeQuery::new(args.index.as_str())
             .with_fill_latest_at(args.fill_latest_at)
             .with_tombstone_columns(!args.without_tombstones)
@@ -89,7 +133,7 @@ impl<'a> Asked<'a> {
     }
 
     /// `query` with the range and sampled values asked for, read on the index's type.
-    pub fn with_times(
+    fn with_times(
         &self,
         query: DataframeQuery,
         time_type: TimeType,
@@ -100,7 +144,7 @@ impl<'a> Asked<'a> {
 
 /// Writes the table where `args` says: `--out` (Parquet or Arrow IPC, atomically), a
 /// terminal (the first rows as text) or a pipe (an Arrow IPC stream).
-pub fn write_table(
+fn write_table(
     stream: impl RecordBatchReader,
     args: &DataframeArgs,
     sorted_by: &[&str],
@@ -113,25 +157,14 @@ pub fn write_table(
         index_position,
     };
     let result = if let Some(out) = &args.out {
-        let is_parquet = out
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
-        if is_parquet {
-            // A sampled table's rows follow the values given, not the index.
-            let mut options = ParquetOptions::default();
-            if args.index_values.is_none() {
-                for column in sorted_by {
-                    options = options.with_sorted_by(*column);
-                }
+        // A sampled table's rows follow the values given, not the index.
+        let mut options = ParquetOptions::default();
+        if args.index_values.is_none() {
+            for column in sorted_by {
+                options = options.with_sorted_by(*column);
             }
-            write_parquet_file(out, reader, &options)
-                .map(drop)
-                .map_err(|e| crate::about_path(out, e).into())
-        } else {
-            chunkstore::ipc::write_ipc_file(out, reader)
-                .map(drop)
-                .map_err(|e| crate::about_path(out, e).into())
         }
+        output::write_file(out, reader, &options)
     } else if std::io::stdout().is_terminal() {
         // Binary Arrow IPC is of no use on a terminal: a person gets the first rows as
         // text, and the rest counted.
@@ -140,7 +173,7 @@ pub fn write_table(
         let stdout = std::io::BufWriter::new(std::io::stdout().lock());
         chunkstore::ipc::write_ipc_stream(stdout, reader)
             .map(drop)
-            .map_err(|e| stream_failure(&e))
+            .map_err(|e| output::stream_failure(&e))
     };
     bar.0.finish_and_clear();
     result
@@ -176,7 +209,7 @@ fn with_times(
 }
 
 /// A filter that selects nothing is a mistake (a typo'd path), not an empty table.
-pub fn selects_something(
+fn selects_something(
     filter: &EntityPathFilter,
     entities: &[chunkstore::EntityPath],
     contents: &[String],
@@ -224,7 +257,7 @@ fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(
                 .map_err(|e| ArrowError::IoError(e.to_string(), e))?;
             Ok(omitted)
         })
-        .map_err(|e| stream_failure(&chunkstore::ipc::IpcError::Ipc(e)))?;
+        .map_err(|e| output::stream_failure(&chunkstore::ipc::IpcError::Ipc(e)))?;
     if omitted + beyond > 0 {
         eprintln!(
             "({} more rows: --out FILE writes the whole table, and a pipe gets it as an Arrow \
@@ -233,72 +266,6 @@ fn terminal_table(reader: impl RecordBatchReader, bar: &ProgressBar) -> Result<(
         );
     }
     Ok(())
-}
-
-/// `hive`: a Hive-partitioned Parquet dataset of the source. The output is checked before
-/// the source is loaded.
-pub fn hive(source: &Path, args: &HiveArgs, options: &Options) -> Result<(), Failure> {
-    use chunkstore::hive_export::{check_new_dataset, write_hive_dataset};
-    let layout = hive_layout(args);
-    let failure = |error| hive_failure(&args.dir, error);
-    check_new_dataset(&args.dir, &layout).map_err(failure)?;
-    let loaded = load::load(source, options)?;
-    let summary = write_hive_dataset(&loaded.store, &args.dir, &layout).map_err(failure)?;
-    eprintln!(
-        "wrote {} rows in {} files under {}",
-        summary.rows(),
-        summary.files.len(),
-        args.dir.display()
-    );
-    Ok(())
-}
-
-/// The layout `hive`'s arguments ask for.
-pub fn hive_layout(args: &HiveArgs) -> chunkstore::hive_export::HiveLayout {
-    use chunkstore::hive_export::HiveLayout;
-    match (&args.index, args.bucket) {
-        (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
-            timeline: index.as_str().into(),
-            width,
-            query: None,
-        },
-        (index, _) => HiveLayout::ByEntity {
-            timeline: index.as_deref().map(Into::into),
-        },
-    }
-}
-
-/// A dataset that could not be written, as the tool words it.
-pub fn hive_failure(dir: &Path, error: chunkstore::hive_export::HiveExportError) -> Failure {
-    use chunkstore::hive_export::HiveExportError;
-    match error {
-        HiveExportError::Exists { .. } => format!(
-            "{}: already exists (hive writes a new directory)",
-            dir.display()
-        ),
-        HiveExportError::BucketWidth { width } => {
-            format!("--bucket {width}: a bucket is at least 1 wide")
-        }
-        HiveExportError::Table(chunkstore::DataframeError::UnknownIndex(unknown)) => format!(
-            "unknown timeline {:?} (the source has: {})",
-            unknown.name,
-            unknown.known.join(", ")
-        ),
-        other => crate::about_path(dir, other),
-    }
-    .into()
-}
-
-/// A failed stream to stdout: a reader that went away (`| head -c`) is no error of ours.
-fn stream_failure(error: &chunkstore::ipc::IpcError) -> Failure {
-    match error {
-        chunkstore::ipc::IpcError::Ipc(ArrowError::IoError(_, e))
-            if e.kind() == std::io::ErrorKind::BrokenPipe =>
-        {
-            Failure::BrokenPipe
-        }
-        other => Failure::Message(format!("stdout: {other}")),
-    }
 }
 
 /// The last value of an index column (never null: it is the row's index).
@@ -314,7 +281,7 @@ fn last_time(column: &dyn Array) -> Option<i64> {
 
 /// A progress bar over the index values (or the sampled values), when stderr is a
 /// terminal.
-pub struct Progress(ProgressBar, Option<i64>);
+struct Progress(ProgressBar, Option<i64>);
 
 impl Progress {
     fn new(len: u64, start: Option<i64>) -> Self {
@@ -322,13 +289,13 @@ impl Progress {
     }
 
     /// Over about `rows` rows (moved by each batch's rows).
-    pub fn rows(rows: u64) -> Self {
+    fn rows(rows: u64) -> Self {
         Self::new(rows, None)
     }
 
     /// Over the sampled values, or the index's times `span` (of the data) within the
     /// query's range.
-    pub fn over(args: &DataframeArgs, span: Option<TimeRange>, query: &DataframeQuery) -> Self {
+    fn over(args: &DataframeArgs, span: Option<TimeRange>, query: &DataframeQuery) -> Self {
         match (&args.index_values, span) {
             (Some(values), _) => Self::new(values.len() as u64, None),
             (None, Some(range)) => {

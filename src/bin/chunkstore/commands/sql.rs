@@ -1,51 +1,51 @@
 //! `sql`: a SQL query over the source's tables (`chunkstore::sql`), printed as a table, as
 //! JSON lines, or written to an Arrow IPC or Parquet file.
 
-use std::path::Path;
-
 use crate::Failure;
 use crate::args::SqlArgs;
-use crate::load::Options;
+use crate::source::Source;
 
 /// What `sql` says in a build without the `datafusion` feature.
 #[cfg(not(feature = "datafusion"))]
 pub const WITHOUT_SQL: &str = "this chunkstore was built without SQL: build it with \
                                `cargo build --release --features cli,datafusion`";
 
+/// `sql QUERY` over `source`'s tables.
 #[cfg(not(feature = "datafusion"))]
-pub fn sql(_source: &Path, _args: &SqlArgs, _options: &Options) -> Result<(), Failure> {
+pub fn run(_source: &Source, _args: &SqlArgs) -> Result<(), Failure> {
     Err(WITHOUT_SQL.to_owned().into())
 }
 
+/// `sql QUERY` over `source`'s tables: a recording's (its snapshot's), or a dataset's
+/// (with the segment id).
 #[cfg(feature = "datafusion")]
-pub fn sql(source: &Path, args: &SqlArgs, options: &Options) -> Result<(), Failure> {
-    if let Some(out) = &args.out
-        && let (Ok(a), Ok(b)) = (source.canonicalize(), out.canonicalize())
-        && a == b
-    {
-        return Err(format!("{}: the output would overwrite the source", out.display()).into());
+pub fn run(source: &Source, args: &SqlArgs) -> Result<(), Failure> {
+    let ctx = chunkstore::sql::session_context();
+    match source {
+        Source::Recording(recording) => {
+            if let Some(out) = &args.out {
+                recording.refuse_to_overwrite(out)?;
+            }
+            let loaded = crate::load::load(&recording.path, &recording.options)?;
+            let snapshot = loaded.store.snapshot();
+            chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
+            answer(&ctx, args)
+        }
+        Source::Dataset(dataset) => dataset.with_dataset(false, |dataset| {
+            if let Some(out) = &args.out {
+                crate::source::refuse_to_overwrite_segment(dataset, out)?;
+            }
+            chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
+            answer(&ctx, args)
+        }),
     }
-    let loaded = crate::load::load(source, options)?;
-    let snapshot = loaded.store.snapshot();
-    let ctx = chunkstore::sql::session_context();
-    chunkstore::sql::register(&ctx, &snapshot).map_err(|e| e.to_string())?;
-    run(&ctx, args)
-}
-
-/// `sql` over a dataset (a directory of `.rrd` files): its tables, with the segment id.
-#[cfg(feature = "datafusion")]
-pub fn sql_dataset(dataset: &chunkstore::dataset::Dataset, args: &SqlArgs) -> Result<(), Failure> {
-    crate::dataset::refuse_to_overwrite(dataset, args.out.as_deref())?;
-    let ctx = chunkstore::sql::session_context();
-    chunkstore::sql::register_dataset(&ctx, dataset).map_err(|e| e.to_string())?;
-    run(&ctx, args)
 }
 
 /// Runs the query in `ctx` and writes its answer as `args` asks. The answer streams to a
 /// file or as JSON lines (a dataset's table may be far larger than memory); a table
 /// printed is collected first, to size its columns.
 #[cfg(feature = "datafusion")]
-fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
+fn answer(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), Failure> {
     use std::io::{IsTerminal as _, Write};
 
     use arrow_array::{RecordBatch, RecordBatchReader as _};
@@ -53,23 +53,8 @@ fn run(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(), 
     let reader = chunkstore::sql::SqlReader::run(ctx, &args.query).map_err(|e| e.to_string())?;
     let schema = reader.schema();
     if let Some(out) = &args.out {
-        let is_parquet = out
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
-        let written = if is_parquet {
-            chunkstore::parquet_export::write_parquet_file(
-                out,
-                reader,
-                &chunkstore::parquet_export::ParquetOptions::default(),
-            )
-            .map(drop)
-            .map_err(|e| e.to_string())
-        } else {
-            chunkstore::ipc::write_ipc_file(out, reader)
-                .map(drop)
-                .map_err(|e| e.to_string())
-        };
-        return written.map_err(|e| crate::about_path(out, e).into());
+        let parquet = chunkstore::parquet_export::ParquetOptions::default();
+        return crate::output::write_file(out, reader, &parquet);
     }
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
     if args.json {
