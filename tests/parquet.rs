@@ -342,14 +342,7 @@ fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
             parts.push(batch);
         }
         let joined = arrow_select::concat::concat_batches(&view.schema(), &parts).unwrap();
-        assert_eq!(joined.num_rows(), view.num_rows(), "{width}");
-        for i in 0..view.num_columns() {
-            assert_eq!(
-                joined.column(i).to_data(),
-                view.column(i).to_data(),
-                "{width}: column {i}"
-            );
-        }
+        common::assert_same_table(&joined, &view, &format!("buckets of {width}"));
     }
     let zero = HiveLayout::ByTimeBucket {
         timeline: "frame_id".into(),
@@ -739,9 +732,6 @@ fn a_batch_of_images_is_written_in_slices_and_reads_back_equal() {
         let reader = RecordBatchIterator::new([Ok(written.clone())], written.schema());
         write_parquet_file(&path, reader, &ParquetOptions::default()).unwrap();
         let (back, _) = read_back(&path);
-        assert_eq!(back.num_rows(), written.num_rows(), "{name}");
-        for (a, b) in back.columns().iter().zip(written.columns()) {
-            assert_eq!(a.to_data(), b.to_data(), "{name}");
-        }
+        common::assert_same_table(&back, &written, name);
     }
 }

@@ -334,3 +334,28 @@ pub fn seed_file(file: &str) -> Option<Box<dyn proptest::test_runner::FailurePer
         proptest::test_runner::FileFailurePersistence::Direct(path),
     ))
 }
+
+/// The same table: equal column names in order, rows, and every column's values, where the
+/// schemas may differ in metadata (DataFusion's, a Parquet file's read back).
+pub fn assert_same_table(
+    ours: &arrow_array::RecordBatch,
+    expected: &arrow_array::RecordBatch,
+    what: &str,
+) {
+    let names = |b: &arrow_array::RecordBatch| -> Vec<String> {
+        b.schema()
+            .fields()
+            .iter()
+            .map(|f| f.name().clone())
+            .collect()
+    };
+    assert_eq!(names(ours), names(expected), "{what}: columns");
+    assert_eq!(ours.num_rows(), expected.num_rows(), "{what}: rows");
+    for (i, name) in names(expected).iter().enumerate() {
+        assert_eq!(
+            ours.column(i).to_data(),
+            expected.column(i).to_data(),
+            "{what}: column {name}"
+        );
+    }
+}

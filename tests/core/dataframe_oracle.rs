@@ -55,7 +55,7 @@ fn table(store: &ChunkStore, query: &DataframeQuery) -> RecordBatch {
 /// Same column names in the same order, the index column equal, and every data column
 /// equal cell by cell (other index columns are Rerun's maxima: not compared, per the
 /// oracle's README). Field metadata of data columns must match too.
-fn assert_same_table(ours: &RecordBatch, theirs: &RecordBatch, index: &str, what: &str) {
+fn assert_same_as_rerun(ours: &RecordBatch, theirs: &RecordBatch, index: &str, what: &str) {
     let names = |b: &RecordBatch| -> Vec<String> {
         b.schema()
             .fields()
@@ -136,7 +136,7 @@ fn sampled_tables_equal_rerun_latest_at() {
                     .with_fill_latest_at(fill)
                     .with_batch_rows(7);
                 let ours = table(&store, &query);
-                assert_same_table(&ours, theirs, timeline, &format!("latest_at {timeline}"));
+                assert_same_as_rerun(&ours, theirs, timeline, &format!("latest_at {timeline}"));
             }
         }
     }
@@ -158,7 +158,7 @@ fn range_tables_equal_rerun_ranges() {
                         .with_range(TimeRange::new(lo, hi))
                         .with_batch_rows(batch_rows);
                     let ours = table(&store, &query);
-                    assert_same_table(
+                    assert_same_as_rerun(
                         &ours,
                         theirs,
                         timeline,

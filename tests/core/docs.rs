@@ -10,7 +10,14 @@ use crate::common::repo::{self, root};
 /// Every text file the check reads: sources, tests, examples, benches, fuzz harness, docs.
 fn files() -> Vec<PathBuf> {
     let mut files = vec![root().join("README.md")];
-    for dir in ["src", "tests", "examples", "benches", "docs", "fuzz/harness"] {
+    for dir in [
+        "src",
+        "tests",
+        "examples",
+        "benches",
+        "docs",
+        "fuzz/harness",
+    ] {
         files.extend(repo::files_under(&root().join(dir), |path| {
             path.extension().is_some_and(|e| e == "rs" || e == "md")
                 && !path.ends_with("tests/core/docs.rs")

@@ -59,5 +59,8 @@ fn the_count_leaves_out_unit_tests_only() {
     let text = "fn a() {}\n// note\n#[cfg(test)]\nmod tests {\n    fn t() {}\n}\n";
     assert_eq!(repo::non_test_part(text).lines().count(), 2);
     assert_eq!(repo::non_test_part("fn a() {}\n").lines().count(), 1);
-    assert!(!oversized().is_empty() || ALLOWED.is_empty(), "sources were read");
+    assert!(
+        !oversized().is_empty() || ALLOWED.is_empty(),
+        "sources were read"
+    );
 }

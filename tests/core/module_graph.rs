@@ -383,7 +383,7 @@ fn the_files_of_each_directory_import_one_way() {
 fn the_tools_modules_import_one_way() {
     let graphs = graphs(&tool());
     assert!(
-        graphs[""].len() > 5 && graphs.contains_key("serve"),
+        graphs[""].len() > 5 && graphs.contains_key("commands/serve"),
         "the tool's sources were read: {graphs:?}"
     );
     assert_one_way("src/bin/chunkstore", &graphs);

@@ -27,6 +27,7 @@ use proptest::prelude::*;
 
 #[path = "../common/mod.rs"]
 mod common;
+use common::assert_same_table;
 mod dataset;
 mod segments;
 #[cfg(feature = "server")]
@@ -122,26 +123,6 @@ fn chunk_table(snapshot: &Snapshot) -> RecordBatch {
     let schema = stream.schema();
     let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
     concat_batches(&schema, &batches).unwrap()
-}
-
-/// Equal columns, by name and value (DataFusion's schema may differ in metadata).
-fn assert_same_table(sql: &RecordBatch, api: &RecordBatch, what: &str) {
-    let names = |b: &RecordBatch| -> Vec<String> {
-        b.schema()
-            .fields()
-            .iter()
-            .map(|f| f.name().clone())
-            .collect()
-    };
-    assert_eq!(names(sql), names(api), "{what}: columns");
-    assert_eq!(sql.num_rows(), api.num_rows(), "{what}: rows");
-    for (i, name) in names(api).iter().enumerate() {
-        assert_eq!(
-            sql.column(i).to_data(),
-            api.column(i).to_data(),
-            "{what}: column {name}"
-        );
-    }
 }
 
 #[test]

@@ -5,7 +5,8 @@
 
 use proptest::prelude::*;
 
-use super::{assert_same_table, index_filter, random_store, run};
+use super::{index_filter, random_store, run};
+use crate::common::assert_same_table;
 use chunkstore::sql::register_segments;
 use datafusion::prelude::{SessionConfig, SessionContext};
 
