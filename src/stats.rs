@@ -15,7 +15,7 @@ use crate::chunk::memory::{buffer_address, buffer_bytes};
 use crate::index::SMALL_INDEX_BYTES_PER_ENTRY;
 
 // The index estimates below were measured with the counting allocator of
-// `tests/memory.rs` (20,000 single-row chunks inserted in order, with one and with six
+// `tests/memory/main.rs` (20,000 single-row chunks inserted in order, with one and with six
 // (timeline, component) entries each) when the global orders were B-trees, whose nodes
 // filled in order are about half full. Kept as deques (`crate::ordered`) they cost less,
 // so in-order stores are slightly overestimated; the memory test holds every shape it
@@ -36,7 +36,7 @@ pub(crate) fn add_index_bytes(stats: &mut StoreStats, entity: &mut EntityStats, 
 /// Estimated heap of one entity's own bookkeeping, whatever its chunks: its slot in the
 /// entity map, its path, and its small maps (element types, chunk set, timelines,
 /// components, compaction groups). Measured with the counting allocator of
-/// `tests/memory.rs` on its many-entity shapes (about 920 bytes an entity, since the small
+/// `tests/memory/main.rs` on its many-entity shapes (about 920 bytes an entity, since the small
 /// maps keep their first entry inline; 1,800 while the component types were B-trees);
 /// counted in `heap_bytes` and the entity's figure, in neither kind's.
 pub(crate) const ENTITY_BYTES: u64 = 920;

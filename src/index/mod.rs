@@ -66,12 +66,12 @@ type MinTimeKey = (TimeInt, ChunkId);
 pub(crate) const SMALL_INDEX_MAX_CHUNKS: usize = 32;
 
 /// Heap of one chunk's entry in a small index: its slot in the vector, with the vector's
-/// usual spare capacity. An estimate, held to account by `tests/memory.rs`.
+/// usual spare capacity. An estimate, held to account by `tests/memory/main.rs`.
 pub(crate) const SMALL_INDEX_BYTES_PER_ENTRY: u64 = 80;
 
 /// Heap of one chunk's entry in a large index: its share of the nodes of the two ordered
 /// views (B-tree nodes filled in order are about half full, so an entry costs about twice
-/// its keys and values). Measured with the counting allocator of `tests/memory.rs`.
+/// its keys and values). Measured with the counting allocator of `tests/memory/main.rs`.
 pub(crate) const LARGE_INDEX_BYTES_PER_ENTRY: u64 = 490;
 
 /// The index of one (entity, timeline, component): see the module docs.

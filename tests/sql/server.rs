@@ -1,7 +1,7 @@
 //! `chunkstore serve` (feature `server`), driven as a user drives it: the built binary on a
 //! free loopback port, Rerun's proxy protocol written by a raw gRPC client (the bytes an
 //! SDK sends), Arrow Flight SQL read by arrow-flight's client. What the real Rerun SDK and
-//! ADBC do against it is `tests/server_sdk.py`'s part (run by `.ci/run`).
+//! ADBC do against it is `tests/clients/server_sdk.py`'s part (run by `.ci/run`).
 
 use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};

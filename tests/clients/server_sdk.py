@@ -1,7 +1,7 @@
 """`chunkstore serve` against the real clients: Rerun 0.41's Python SDK and `rerun` CLI, and
 ADBC's Flight SQL driver. Run by `.ci/run` (which installs them in a venv):
 
-    python tests/server_sdk.py path/to/chunkstore
+    python tests/clients/server_sdk.py path/to/chunkstore
 
 Each check starts its own server on a free port and kills it (SIGKILL) at the end. The
 `rerun` binary writes under $HOME: this script points HOME at a temporary directory.

@@ -23,7 +23,7 @@ segment and entity) read back by DuckDB (``read_parquet(..., hive_partitioning =
 and by DataFusion's listing table (the ``datafusion`` package) equals the dataset's own
 table, and an aggregation over it equals the same SQL run by ``chunkstore DIR sql``.
 
-Usage: python tests/dataset_catalog.py path/to/chunkstore   (Rerun is run with a
+Usage: python tests/clients/dataset_catalog.py path/to/chunkstore   (Rerun is run with a
 temporary HOME.)
 
 With ``--python`` instead of a binary, the same tables come from the Python package

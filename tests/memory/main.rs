@@ -15,6 +15,7 @@
     reason = "tests fail loudly; byte counts are far below 2^52"
 )]
 
+#[path = "../common/mod.rs"]
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};

@@ -19,6 +19,7 @@ use chunkstore::{ChunkTableQuery, DataframeQuery, TimeInt, TimeRange};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::file::statistics::Statistics;
 
+#[path = "../common/mod.rs"]
 mod common;
 use common::ScratchDir;
 
