@@ -137,11 +137,9 @@ fn threads() -> usize {
 
 fn opened(dir: &str, budget_mib: u64) -> Result<(Dataset, f64), Box<dyn std::error::Error>> {
     let started = Instant::now();
-    let options = DatasetOptions {
-        memory_budget: budget_mib << 20,
-        threads: threads(),
-        ..DatasetOptions::default()
-    };
+    let options = DatasetOptions::default()
+        .with_memory_budget(budget_mib << 20)
+        .with_threads(threads());
     let dataset = Dataset::open(dir.as_ref(), &options)?;
     Ok((dataset, started.elapsed().as_secs_f64()))
 }

@@ -28,7 +28,7 @@ use std::time::Instant;
 use arrow_array::{ArrayRef, Float64Array, Int64Array, ListArray};
 use arrow_buffer::OffsetBuffer;
 use arrow_schema::{DataType, Field};
-use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 use chunkstore::sql::StoreScanExec;
 use chunkstore::{
     Chunk, ChunkId, ChunkStore, DataframeQuery, EntityPath, RowId, StoreConfig, Timeline,

@@ -329,7 +329,7 @@ fn dataframe() -> bool {
 #[cfg(feature = "parquet")]
 fn dataframe_to_parquet(store: &ChunkStore, times: usize) -> bool {
     use chunkstore::DataframeQuery;
-    use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+    use chunkstore::parquet::{ParquetOptions, write_parquet_file};
     reset_peak_rss();
     let before = peak_rss_kib();
     let path = std::env::temp_dir().join(format!(

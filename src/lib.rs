@@ -110,8 +110,8 @@
 //!   [`recording`], the one door to a recording of any source; and [`dataset`], many
 //!   `.rrd` recordings queried as one table. Needs
 //!   `lz4_flex`, `xxhash-rust` and `sha2`.
-//! - `parquet`: `parquet_export`, dataframes and the raw chunk table as Parquet files, and
-//!   `hive_export`, Hive-partitioned datasets of them. Needs `parquet` (Snappy only).
+//! - `parquet`: `parquet`, dataframes and the raw chunk table as Parquet files, and
+//!   Hive-partitioned datasets of them. Needs the `parquet` crate (Snappy only).
 //! - `datafusion`: `sql`, the store's views as DataFusion tables with filters pushed down
 //!   to its indices, the `latest_at` table function and `asof_join`; implies `parquet`.
 //!   Needs `datafusion` 54 (a long build), `tokio`, `futures` and `async-trait`.
@@ -119,8 +119,6 @@
 //!   `rrd` and `parquet`. With `datafusion` too, its `sql` command runs queries.
 #![forbid(unsafe_code)]
 
-#[cfg(any(feature = "ipc", feature = "parquet"))]
-mod atomic;
 mod chunk;
 mod clear;
 mod compaction;
@@ -133,8 +131,6 @@ mod drop;
 mod entity_path;
 mod export;
 mod gc;
-#[cfg(feature = "parquet")]
-pub mod hive_export;
 #[cfg(feature = "rrd")]
 pub mod hub;
 mod ids;
@@ -144,8 +140,10 @@ mod interner;
 #[cfg(feature = "ipc")]
 pub mod ipc;
 mod ordered;
+#[cfg(any(feature = "ipc", feature = "parquet"))]
+pub mod output;
 #[cfg(feature = "parquet")]
-pub mod parquet_export;
+pub mod parquet;
 mod query;
 #[cfg(feature = "rrd")]
 pub mod recording;
@@ -162,8 +160,6 @@ mod text;
 mod time;
 mod time_text;
 
-#[cfg(any(feature = "ipc", feature = "parquet"))]
-pub use atomic::{UnfinishedOutput, remove_unfinished_outputs};
 pub use chunk::{Chunk, ChunkBuilder, ChunkError, ComponentColumn, TimeColumn};
 pub use compaction::{CompactionGroup, CompactionPlan, CompactionReason};
 pub use component::{ComponentDescriptor, ComponentName};

@@ -29,13 +29,12 @@ pub fn open_dataset(
 ) -> PyResult<NativeDataset> {
     py.detach(|| {
         no_panic(|| {
-            let mut options = DatasetOptions {
-                skip_bad,
-                index_cache,
-                ..DatasetOptions::default()
-            };
+            let mut options = DatasetOptions::default().with_skip_bad(skip_bad);
+            if let Some(dir) = index_cache {
+                options = options.with_index_cache(dir);
+            }
             if let Some(budget) = memory_budget {
-                options.memory_budget = budget;
+                options = options.with_memory_budget(budget);
             }
             let dataset = Dataset::open(&path, &options).map_err(dataset_error)?;
             Ok(NativeDataset { dataset })

@@ -24,11 +24,10 @@ pub fn open(
 }
 
 fn open_path(path: &Path, lazy: bool, recording: Option<String>) -> PyResult<NativeStore> {
-    let options = OpenOptions {
-        lazy,
-        recording,
-        ..OpenOptions::default()
-    };
+    let mut options = OpenOptions::default().with_lazy(lazy);
+    if let Some(recording) = recording {
+        options = options.with_recording(recording);
+    }
     let recording = Recording::open(path, &options, &mut ()).map_err(open_error)?;
     NativeStore::open(recording)
 }

@@ -17,7 +17,7 @@ use std::sync::Arc;
 use arrow_array::{Array, RecordBatch, RecordBatchReader};
 use arrow_pyarrow::{PyArrowType, Table};
 use arrow_schema::{DataType, Field, Schema};
-use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 use chunkstore::recording::{Recording, RecordingReader};
 use chunkstore::rrd::{StoreId, StoreInfo};
 use chunkstore::{
@@ -704,7 +704,7 @@ impl NativeStore {
         self.with_snapshot(py, move |view| {
             let stream = view.dataframe(&query).map_err(dataframe_error)?;
             let summary = write_parquet_file(&path, stream, &options).map_err(|e| match e {
-                chunkstore::parquet_export::ParquetExportError::Io { path, source } => {
+                chunkstore::parquet::ParquetExportError::Io { path, source } => {
                     os_error(&path, source)
                 }
                 other => Error::new_err(format!("{}: {other}", path.display())),

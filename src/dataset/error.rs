@@ -91,12 +91,12 @@ pub enum DatasetError {
     /// A Hive-partitioned copy of the dataset could not be written (nothing is left of
     /// it): [`Dataset::write_hive`](super::Dataset::write_hive).
     #[cfg(feature = "parquet")]
-    Hive(crate::hive_export::HiveExportError),
+    Hive(crate::parquet::HiveExportError),
 }
 
 #[cfg(feature = "parquet")]
-impl From<crate::hive_export::HiveExportError> for DatasetError {
-    fn from(error: crate::hive_export::HiveExportError) -> Self {
+impl From<crate::parquet::HiveExportError> for DatasetError {
+    fn from(error: crate::parquet::HiveExportError) -> Self {
         Self::Hive(error)
     }
 }

@@ -23,9 +23,9 @@ use super::schema::Placed;
 use super::stream::PlannedRows;
 use super::{Dataset, DatasetError, SegmentInfo};
 use crate::DataframeQuery;
-use crate::hive_export::{
-    HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset, escape,
-    write_buckets, write_entities, write_new_directory,
+use crate::parquet::{
+    HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset,
+    escape_partition_value, write_buckets, write_entities, write_new_directory,
 };
 
 /// The partition key of a segment's directory.
@@ -45,7 +45,7 @@ impl Dataset {
     ///
     /// ```no_run
     /// use chunkstore::dataset::{Dataset, DatasetOptions};
-    /// use chunkstore::hive_export::HiveLayout;
+    /// use chunkstore::parquet::HiveLayout;
     ///
     /// let dataset = Dataset::open("episodes/".as_ref(), &DatasetOptions::default())?;
     /// let layout = HiveLayout::ByTimeBucket { timeline: "frame".into(), width: 100, query: None };
@@ -196,7 +196,10 @@ fn segment_failure(info: &SegmentInfo, error: HiveExportError) -> DatasetError {
 /// `segment=<id>` under `dir` (made with its first partition's file: a segment without
 /// rows has no directory).
 fn segment_dir(dir: &Path, info: &SegmentInfo) -> std::path::PathBuf {
-    dir.join(format!("{SEGMENT_PARTITION_KEY}={}", escape(&info.id)))
+    dir.join(format!(
+        "{SEGMENT_PARTITION_KEY}={}",
+        escape_partition_value(&info.id)
+    ))
 }
 
 fn merged(

@@ -73,7 +73,7 @@ pub(super) fn open_indexed(
     };
     // Written under a temporary name and renamed: a scan that fails, or a process that
     // dies, leaves no index that is not whole.
-    let (info, chunks) = crate::atomic::atomic_write(&index, index_io, |file| {
+    let (info, chunks) = crate::output::atomic_write(&index, index_io, |file| {
         let (scanned, out) = crate::rrd::index::scan_and_index(path, std::io::BufWriter::new(file))
             .map_err(|error| DatasetError::from(OpenError::rrd(path, error)))?;
         let Some(info) = scanned.store_info else {

@@ -60,10 +60,16 @@ use crate::rrd::StoreInfo;
 use crate::{EntityPath, Snapshot, StoreConfig, TimeRange, TimeType, Timeline};
 use cache::SegmentCache;
 
-pub use crate::dataframe::SEGMENT_ID_COLUMN;
-
-/// How to open a dataset.
+/// How to open a dataset: from [`DatasetOptions::default`] with the `with_*` methods (the
+/// struct may gain fields).
+///
+/// ```
+/// use chunkstore::dataset::DatasetOptions;
+/// let options = DatasetOptions::default().with_memory_budget(512 << 20).with_threads(4);
+/// assert_eq!((options.memory_budget, options.threads), (512 << 20, 4));
+/// ```
 #[derive(Clone, Debug)]
+#[non_exhaustive]
 pub struct DatasetOptions {
     /// The configuration of each segment's store when loaded.
     pub config: StoreConfig,
@@ -95,6 +101,44 @@ impl Default for DatasetOptions {
             threads: std::thread::available_parallelism().map_or(1, usize::from),
             index_cache: None,
         }
+    }
+}
+
+impl DatasetOptions {
+    /// With each segment's store configuration.
+    #[must_use]
+    pub fn with_config(mut self, config: StoreConfig) -> Self {
+        self.config = config;
+        self
+    }
+
+    /// Skipping what cannot be read, or not ([`DatasetOptions::skip_bad`]).
+    #[must_use]
+    pub fn with_skip_bad(mut self, skip_bad: bool) -> Self {
+        self.skip_bad = skip_bad;
+        self
+    }
+
+    /// With this many bytes of loaded segments kept ([`DatasetOptions::memory_budget`]).
+    #[must_use]
+    pub fn with_memory_budget(mut self, bytes: u64) -> Self {
+        self.memory_budget = bytes;
+        self
+    }
+
+    /// With this many threads reading footers (at least 1).
+    #[must_use]
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads.max(1);
+        self
+    }
+
+    /// Keeping the indices of files without a footer in `dir`
+    /// ([`DatasetOptions::index_cache`]).
+    #[must_use]
+    pub fn with_index_cache(mut self, dir: impl Into<PathBuf>) -> Self {
+        self.index_cache = Some(dir.into());
+        self
     }
 }
 

@@ -177,6 +177,8 @@ pub(crate) fn read_stream_zero_copy(
 /// [`read_stream_batches_zero_copy`] keeps, per thread, the last few schema messages it
 /// parsed (at most 64, 1 MiB in all) and reuses one for a message equal to it but in those
 /// values.
+// Not part of the API: a hook for the fuzz targets and tests, hidden from the docs.
+#[doc(hidden)]
 pub fn without_schema_cache<T>(decode: impl FnOnce() -> T) -> T {
     schema_cache::without(decode)
 }
@@ -191,12 +193,16 @@ pub fn without_schema_cache<T>(decode: impl FnOnce() -> T) -> T {
 /// The own decoder (`ipc/batch_decoder.rs`) builds the arrays chunks are made of with
 /// arrow's typed constructors, which check what they need once, where arrow-ipc's reader
 /// validates a generic `ArrayData` per array.
+// Not part of the API: a hook for the fuzz targets and tests, hidden from the docs.
+#[doc(hidden)]
 pub fn without_own_batch_decoder<T>(decode: impl FnOnce() -> T) -> T {
     batch_decoder::without(decode)
 }
 
 /// Empties this thread's cache of parsed IPC schemas (see [`without_schema_cache`]), so
 /// that what follows starts from nothing, as a fuzz input must.
+// Not part of the API: a hook for the fuzz targets and tests, hidden from the docs.
+#[doc(hidden)]
 pub fn clear_schema_cache() {
     schema_cache::clear();
 }
@@ -271,7 +277,7 @@ pub fn write_ipc_file(path: &Path, reader: impl RecordBatchReader) -> Result<u64
         ArrowError::IoError(_, source) => io(source),
         other => IpcError::Ipc(other),
     };
-    crate::atomic::atomic_write(path, io, |file| {
+    crate::output::atomic_write(path, io, |file| {
         let schema = reader.schema();
         let mut writer =
             FileWriter::try_new(std::io::BufWriter::new(file), &schema).map_err(written)?;

@@ -33,7 +33,16 @@ use crate::rrd::{LazyRecording, StoreInfo, StreamHeader};
 use crate::{ChunkId, ChunkStore, RowId, StoreConfig};
 
 /// How to open a source.
+///
+/// Built from [`OpenOptions::default`] with the `with_*` methods (the struct may gain
+/// fields):
+/// ```
+/// use chunkstore::recording::OpenOptions;
+/// let options = OpenOptions::default().with_skip_bad(true).with_recording("run-7");
+/// assert!(options.skip_bad && options.lazy);
+/// ```
 #[derive(Debug, Clone)]
+#[non_exhaustive]
 #[allow(
     clippy::struct_excessive_bools,
     reason = "independent switches, each a command-line flag"
@@ -71,6 +80,57 @@ impl Default for OpenOptions {
             keep_source_order: false,
             track_row_sources: false,
         }
+    }
+}
+
+impl OpenOptions {
+    /// With the store's configuration.
+    #[must_use]
+    pub fn with_config(mut self, config: StoreConfig) -> Self {
+        self.config = config;
+        self
+    }
+
+    /// Compacting once everything is loaded, or not.
+    #[must_use]
+    pub fn with_compact(mut self, compact: bool) -> Self {
+        self.compact = compact;
+        self
+    }
+
+    /// Skipping what cannot be loaded, or not ([`OpenOptions::skip_bad`]).
+    #[must_use]
+    pub fn with_skip_bad(mut self, skip_bad: bool) -> Self {
+        self.skip_bad = skip_bad;
+        self
+    }
+
+    /// Reading the recording with this recording id.
+    #[must_use]
+    pub fn with_recording(mut self, recording: impl Into<String>) -> Self {
+        self.recording = Some(recording.into());
+        self
+    }
+
+    /// Opening an `.rrd` with a footer lazily, or not ([`OpenOptions::lazy`]).
+    #[must_use]
+    pub fn with_lazy(mut self, lazy: bool) -> Self {
+        self.lazy = lazy;
+        self
+    }
+
+    /// Keeping the chunks in source order, or not.
+    #[must_use]
+    pub fn with_keep_source_order(mut self, keep: bool) -> Self {
+        self.keep_source_order = keep;
+        self
+    }
+
+    /// Remembering the chunk each row was loaded from, or not.
+    #[must_use]
+    pub fn with_track_row_sources(mut self, track: bool) -> Self {
+        self.track_row_sources = track;
+        self
     }
 }
 

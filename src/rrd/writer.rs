@@ -159,7 +159,7 @@ pub fn write_rrd_file(
     chunks: impl IntoIterator<Item = Arc<Chunk>>,
     mut progress: impl FnMut(u64),
 ) -> Result<u64, RrdError> {
-    crate::atomic::atomic_write(
+    crate::output::atomic_write(
         path,
         |e| RrdError::new(0, RrdErrorKind::Io(e)),
         |file| {

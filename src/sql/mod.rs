@@ -67,7 +67,7 @@ pub use datafusion::error::DataFusionError;
 pub use dataset::{DatasetChunksTable, DatasetScanExec, DatasetTimelineTable, register_dataset};
 pub use latest_at::{LatestAtFunction, asof_join};
 pub use scan::StoreScanExec;
-pub use segments::{SEGMENT_ID_COLUMN, register_segments};
+pub use segments::register_segments;
 pub use tables::{ChunksTable, TimelineTable};
 
 /// The name of the table of every stored row.

@@ -24,9 +24,7 @@ use datafusion::prelude::SessionContext;
 use super::latest_at::{LatestAtFunction, plan_error};
 use super::tables::{ChunksTable, TimelineTable};
 use super::{CHUNKS_TABLE, replace_table};
-use crate::{EntityPathFilter, Snapshot, Timeline};
-
-pub use crate::dataframe::SEGMENT_ID_COLUMN;
+use crate::{EntityPathFilter, SEGMENT_ID_COLUMN, Snapshot, Timeline};
 
 /// Registers the tables of several recordings (`(segment id, snapshot)`, usually the
 /// recording id) in `ctx`: a table per timeline any of them has, `chunks`, and

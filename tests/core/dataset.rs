@@ -13,7 +13,8 @@ use std::sync::Arc;
 
 use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch, StringArray};
 use arrow_select::concat::concat_batches;
-use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions, SEGMENT_ID_COLUMN};
+use chunkstore::SEGMENT_ID_COLUMN;
+use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
 use chunkstore::{Chunk, ChunkId, ChunkStore, DataframeQuery, LatestAtQuery, TimeInt, Timeline};
 
 use crate::common::{ScratchDir, clear, scalars, write_recording, write_without_footer};
@@ -41,10 +42,7 @@ fn episodes(dir: &Path) {
 }
 
 fn store_of(path: &Path) -> ChunkStore {
-    let options = chunkstore::recording::OpenOptions {
-        lazy: false,
-        ..Default::default()
-    };
+    let options = chunkstore::recording::OpenOptions::default().with_lazy(false);
     chunkstore::recording::LoadedRecording::load(path, &options, &mut ())
         .unwrap()
         .store
@@ -221,10 +219,7 @@ fn a_dataset_query_reads_only_what_it_needs_and_answers_alike() {
                         .with_contents(chunkstore::EntityPathFilter::parse([contents]).unwrap());
                 }
                 for memory_budget in [0, DatasetOptions::default().memory_budget] {
-                    let options = DatasetOptions {
-                        memory_budget,
-                        ..DatasetOptions::default()
-                    };
+                    let options = DatasetOptions::default().with_memory_budget(memory_budget);
                     let dataset = Dataset::open(&dir, &options).unwrap();
                     let table = read_all(dataset.dataframe(&query).unwrap());
                     equals_own_tables(&table, &files, &query);
@@ -351,10 +346,7 @@ fn bad_datasets_are_named_errors() {
     std::fs::write(dir.join("truncated.rrd"), &bytes[..5]).unwrap();
     let error = Dataset::open(&dir, &DatasetOptions::default()).unwrap_err();
     assert!(error.to_string().contains("truncated.rrd"), "{error}");
-    let options = DatasetOptions {
-        skip_bad: true,
-        ..DatasetOptions::default()
-    };
+    let options = DatasetOptions::default().with_skip_bad(true);
     let dataset = Dataset::open(&dir, &options).unwrap();
     let ids: Vec<&str> = dataset.segments().iter().map(|s| s.id.as_str()).collect();
     assert_eq!(ids, ["other", "same"]);
@@ -370,10 +362,7 @@ fn bad_datasets_are_named_errors() {
 
     // A file that vanishes once the dataset is open: the query names it.
     std::fs::remove_file(&a).unwrap();
-    let dataset_options = DatasetOptions {
-        memory_budget: 0,
-        ..DatasetOptions::default()
-    };
+    let dataset_options = DatasetOptions::default().with_memory_budget(0);
     let dir2 = ScratchDir::new("dataset-vanish");
     let kept = write_recording(
         &dir2,
@@ -403,11 +392,9 @@ fn a_dataset_answers_alike_whatever_its_memory_budget() {
     let dir = ScratchDir::new("dataset-budget");
     episodes(&dir);
     let table = |budget| {
-        let options = DatasetOptions {
-            memory_budget: budget,
-            threads: 1,
-            ..DatasetOptions::default()
-        };
+        let options = DatasetOptions::default()
+            .with_memory_budget(budget)
+            .with_threads(1);
         let dataset = Dataset::open(&dir, &options).unwrap();
         let stream = dataset.dataframe(&DataframeQuery::new("frame")).unwrap();
         read_all(stream)
@@ -440,11 +427,9 @@ fn a_dataset_streams_alike_on_any_number_of_threads() {
         );
     }
     let table = |threads, budget| {
-        let options = DatasetOptions {
-            memory_budget: budget,
-            threads,
-            ..DatasetOptions::default()
-        };
+        let options = DatasetOptions::default()
+            .with_memory_budget(budget)
+            .with_threads(threads);
         let dataset = Dataset::open(&dir, &options).unwrap();
         let query = DataframeQuery::new("frame").with_fill_latest_at(true);
         let mut early = dataset.dataframe(&query).unwrap();
@@ -512,12 +497,10 @@ fn a_segment_that_vanishes_while_streaming_is_named_or_skipped() {
                     )],
                 ));
             }
-            let options = DatasetOptions {
-                memory_budget: 0,
-                threads,
-                skip_bad,
-                ..DatasetOptions::default()
-            };
+            let options = DatasetOptions::default()
+                .with_memory_budget(0)
+                .with_threads(threads)
+                .with_skip_bad(skip_bad);
             let dataset = Dataset::open(&dir, &options).unwrap();
             let stream = dataset.dataframe(&DataframeQuery::new("frame")).unwrap();
             std::fs::remove_file(&files[2]).unwrap();
@@ -674,7 +657,7 @@ mod pruning_model {
             // A budget of nothing: planning reads the columns' chunks alone, the rows'
             // pass the rest.
             for memory_budget in [0, DatasetOptions::default().memory_budget] {
-                let options = DatasetOptions { memory_budget, ..DatasetOptions::default() };
+                let options = DatasetOptions::default().with_memory_budget(memory_budget);
                 let dataset = Dataset::open(&file, &options).unwrap();
                 let table = read_all(dataset.dataframe(&query).unwrap());
                 equals_own_tables(&table, &[("model", file.clone())], &query);
@@ -682,11 +665,7 @@ mod pruning_model {
             // Scanned into the cache on the first open, read through it on the second;
             // with no budget, neither keeps the segment, so both read it in part.
             for _ in 0..2 {
-                let options = DatasetOptions {
-                    memory_budget: 0,
-                    index_cache: Some(dir.join("index")),
-                    ..DatasetOptions::default()
-                };
+                let options = DatasetOptions::default().with_memory_budget(0).with_index_cache(dir.join("index"));
                 let dataset = Dataset::open(&cut, &options).unwrap();
                 prop_assert!(dataset.segments()[0].index_file.is_some());
                 let table = read_all(dataset.dataframe(&query).unwrap());
@@ -742,12 +721,10 @@ fn a_footerless_segment_is_indexed_once_in_the_index_cache() {
     };
     let before = listing(&data);
     let cache = dir.join("cache");
-    let options = DatasetOptions {
-        index_cache: Some(cache.clone()),
-        // Every chunk as written, so that counts of chunks read mean what they say.
-        config: chunkstore::StoreConfig::COMPACTION_OFF,
-        ..DatasetOptions::default()
-    };
+    // Every chunk as written, so that counts of chunks read mean what they say.
+    let options = DatasetOptions::default()
+        .with_index_cache(cache.clone())
+        .with_config(chunkstore::StoreConfig::COMPACTION_OFF);
     let plain = Dataset::open(&data, &DatasetOptions::default()).unwrap();
     assert!(plain.segment("rec-c").unwrap().index_file.is_none());
     let range = chunkstore::TimeRange::new(TimeInt::new(40).unwrap(), TimeInt::new(55).unwrap());
@@ -870,10 +847,7 @@ fn duplicates_links_and_subdirectories_are_said_and_skipped() {
         "same",
         vec![scalars("/e", "x", &[(2, 2, Some(vec![2.0]))])],
     );
-    let skip = DatasetOptions {
-        skip_bad: true,
-        ..DatasetOptions::default()
-    };
+    let skip = DatasetOptions::default().with_skip_bad(true);
     let dataset = Dataset::open(&dir, &skip).unwrap();
     assert_eq!(dataset.segments().len(), 1);
     let warnings = dataset.take_warnings();

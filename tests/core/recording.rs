@@ -26,10 +26,7 @@ fn robot_dir() -> std::path::PathBuf {
 }
 
 fn eager() -> OpenOptions {
-    OpenOptions {
-        lazy: false,
-        ..OpenOptions::default()
-    }
+    OpenOptions::default().with_lazy(false)
 }
 
 #[test]
@@ -185,12 +182,10 @@ impl LoadObserver for Told {
 fn a_load_reports_progress_and_keeps_what_was_asked() {
     let mut told = Told::default();
     let size = std::fs::metadata(robot_rrd()).unwrap().len();
-    let options = OpenOptions {
-        keep_source_order: true,
-        track_row_sources: true,
-        compact: true,
-        ..eager()
-    };
+    let options = eager()
+        .with_keep_source_order(true)
+        .with_track_row_sources(true)
+        .with_compact(true);
     let loaded = LoadedRecording::load(&robot_rrd(), &options, &mut told).unwrap();
     assert_eq!(told.headers, 1);
     assert_eq!(told.started, [(size, ProgressUnit::Bytes)]);
@@ -239,10 +234,7 @@ fn bad_sources_are_typed_errors_and_skip_bad_loads_the_rest() {
     assert!(error.is_skippable(), "{error:?}");
     assert!(matches!(&error, OpenError::Fault(fault) if matches!(**fault, LoadFault::File { .. })));
     let mut told = Told::default();
-    let skip_bad = OpenOptions {
-        skip_bad: true,
-        ..OpenOptions::default()
-    };
+    let skip_bad = OpenOptions::default().with_skip_bad(true);
     let recording = Recording::open(&dir, &skip_bad, &mut told).unwrap();
     assert_eq!(told.skipped.len(), 1, "{:?}", told.skipped);
     assert!(
@@ -292,25 +284,18 @@ fn a_recording_is_chosen_by_its_id() {
     bytes.extend(std::fs::read(robot_rrd()).unwrap());
     std::fs::write(&both, bytes).unwrap();
     for lazy in [true, false] {
-        let options = OpenOptions {
-            lazy,
-            ..OpenOptions::default()
-        };
+        let options = OpenOptions::default().with_lazy(lazy);
         let error = Recording::open(&both, &options, &mut ()).unwrap_err();
         assert!(error.is_recording_choice(), "{error:?}");
-        let chosen = OpenOptions {
-            recording: Some("out-of-order-rec".to_owned()),
-            ..options.clone()
-        };
+        let chosen = options
+            .clone()
+            .with_recording("out-of-order-rec".to_owned());
         let mut recording = Recording::open(&both, &chosen, &mut ()).unwrap();
         assert_eq!(recording.is_lazy(), lazy);
         let entities = recording.reader().entity_paths();
         assert!(entities.contains(&path("/plot/a")), "{entities:?}");
         assert!(!entities.iter().any(|e| e.to_string().starts_with("/world")));
-        let wrong = OpenOptions {
-            recording: Some("nope".to_owned()),
-            ..options
-        };
+        let wrong = options.with_recording("nope".to_owned());
         let error = Recording::open(&both, &wrong, &mut ()).unwrap_err();
         assert!(error.is_recording_choice(), "{error:?}");
         assert!(error.to_string().contains("nope"), "{error}");

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use arrow_array::{Array, RecordBatch, RecordBatchIterator, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
 use arrow_select::concat::concat_batches;
-use chunkstore::parquet_export::{ParquetExportError, ParquetOptions, write_parquet_file};
+use chunkstore::parquet::{ParquetExportError, ParquetOptions, write_parquet_file};
 use chunkstore::{ChunkTableQuery, DataframeQuery, TimeInt, TimeRange};
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::file::statistics::Statistics;
@@ -256,7 +256,7 @@ fn an_interrupted_write_leaves_nothing_and_keeps_an_older_file() {
 /// schema and exactly that entity's rows, which together are the whole table.
 #[test]
 fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
-    use chunkstore::hive_export::{HiveLayout, escape, write_hive_dataset};
+    use chunkstore::parquet::{HiveLayout, escape_partition_value as escape, write_hive_dataset};
     let store = common::robot();
     let scratch = ScratchDir::new("parquet-hive-by-entity");
     let dir = scratch.join("dataset");
@@ -297,10 +297,7 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
     // A second write to the same directory is refused, and leaves it as it was.
     let again = write_hive_dataset(&store, &dir, &layout).unwrap_err();
     assert!(
-        matches!(
-            again,
-            chunkstore::hive_export::HiveExportError::Exists { .. }
-        ),
+        matches!(again, chunkstore::parquet::HiveExportError::Exists { .. }),
         "{again:?}"
     );
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), entities.len());
@@ -310,9 +307,7 @@ fn a_hive_dataset_by_entity_holds_each_entity_in_its_own_partition() {
 /// at multiples of the width, and every file's index lies in its bucket.
 #[test]
 fn a_hive_dataset_by_time_bucket_cuts_the_view_at_bucket_boundaries() {
-    use chunkstore::hive_export::{
-        HiveExportError, HiveLayout, check_new_dataset, write_hive_dataset,
-    };
+    use chunkstore::parquet::{HiveExportError, HiveLayout, check_new_dataset, write_hive_dataset};
     let store = common::robot();
     let view = collect(store.dataframe(&DataframeQuery::new("frame_id")).unwrap());
     let scratch = ScratchDir::new("parquet-hive-by-bucket");
@@ -453,10 +448,7 @@ fn episodes_dataset(scratch: &ScratchDir, threads: usize) -> chunkstore::dataset
         std::fs::create_dir(&source).unwrap();
         common::episodes(&source);
     }
-    let options = DatasetOptions {
-        threads,
-        ..DatasetOptions::default()
-    };
+    let options = DatasetOptions::default().with_threads(threads);
     Dataset::open(&source, &options).unwrap()
 }
 
@@ -487,7 +479,7 @@ fn strings(batch: &RecordBatch, name: &str) -> Vec<String> {
 /// and the files in order are the dataset's dataframe, on any number of threads.
 #[test]
 fn a_dataset_hive_copy_by_time_bucket_is_its_dataframe_cut_by_segment_and_bucket() {
-    use chunkstore::hive_export::HiveLayout;
+    use chunkstore::parquet::HiveLayout;
     let scratch = ScratchDir::new("parquet-dataset-hive-bucket");
     for threads in [1, 3] {
         let dataset = episodes_dataset(&scratch, threads);
@@ -557,7 +549,7 @@ fn a_dataset_hive_copy_by_time_bucket_is_its_dataframe_cut_by_segment_and_bucket
 /// (null where the segment lacks a column), its segment id first.
 #[test]
 fn a_dataset_hive_copy_by_entity_is_each_segments_chunk_table() {
-    use chunkstore::hive_export::{HiveLayout, escape};
+    use chunkstore::parquet::{HiveLayout, escape_partition_value as escape};
     let scratch = ScratchDir::new("parquet-dataset-hive-entity");
     let dataset = episodes_dataset(&scratch, 2);
     let columns = Arc::clone(&dataset.tables().unwrap().chunks);
@@ -616,7 +608,7 @@ fn a_dataset_hive_copy_by_entity_is_each_segments_chunk_table() {
 #[test]
 fn a_dataset_hive_copy_refuses_bad_requests_and_names_bad_segments() {
     use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
-    use chunkstore::hive_export::{HiveExportError, HiveLayout};
+    use chunkstore::parquet::{HiveExportError, HiveLayout};
     let scratch = ScratchDir::new("parquet-dataset-hive-bad");
     let dataset = episodes_dataset(&scratch, 2);
     let bucket = |timeline: &str, width| HiveLayout::ByTimeBucket {
@@ -674,14 +666,7 @@ fn a_dataset_hive_copy_refuses_bad_requests_and_names_bad_segments() {
     }
     // With skip_bad, what cannot be read of it is skipped with a warning, and the others
     // are written.
-    let skipping = Dataset::open(
-        &source,
-        &DatasetOptions {
-            skip_bad: true,
-            ..DatasetOptions::default()
-        },
-    )
-    .unwrap();
+    let skipping = Dataset::open(&source, &DatasetOptions::default().with_skip_bad(true)).unwrap();
     let mut warnings = skipping.take_warnings();
     let summary = skipping
         .write_hive(&out, &bucket("frame", 10), &|_, _| {})

@@ -129,10 +129,7 @@ fn the_dataset_chunk_table_is_each_segments_chunk_table() {
     for segment in dataset.segments() {
         let store = chunkstore::recording::LoadedRecording::load(
             &segment.path,
-            &chunkstore::recording::OpenOptions {
-                lazy: false,
-                ..Default::default()
-            },
+            &chunkstore::recording::OpenOptions::default().with_lazy(false),
             &mut (),
         )
         .unwrap()

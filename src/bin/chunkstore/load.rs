@@ -104,11 +104,7 @@ pub fn load(source: &Path, options: &Options) -> Result<LoadedRecording, String>
 
 /// Loads the whole source, also keeping its chunks in source order.
 pub fn load_in_order(source: &Path, options: &Options) -> Result<LoadedRecording, String> {
-    let options = OpenOptions {
-        keep_source_order: true,
-        ..options.clone()
-    };
-    load(source, &options)
+    load(source, &options.clone().with_keep_source_order(true))
 }
 
 /// Opens the source for latest-at and range queries: lazily where it is an `.rrd` with a
@@ -119,11 +115,10 @@ pub fn open_for_queries(
     options: &Options,
     eager: bool,
 ) -> Result<Recording, String> {
-    let options = OpenOptions {
-        lazy: !eager,
-        track_row_sources: true,
-        ..options.clone()
-    };
+    let options = options
+        .clone()
+        .with_lazy(!eager)
+        .with_track_row_sources(true);
     Recording::open(source, &options, &mut Terminal::new(source)).map_err(|e| message(&e))
 }
 

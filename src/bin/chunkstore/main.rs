@@ -112,9 +112,9 @@ fn main() -> ExitCode {
     // Ctrl-C or SIGTERM: the temporary files and directories of outputs being written
     // are removed (the outputs themselves are untouched: they only ever appear whole),
     // then the tool exits as an interrupted program does. A SIGKILL leaves them: see
-    // `chunkstore::remove_unfinished_outputs`.
+    // `chunkstore::output::remove_unfinished_outputs`.
     let _ = ctrlc::set_handler(|| {
-        chunkstore::remove_unfinished_outputs();
+        chunkstore::output::remove_unfinished_outputs();
         eprintln!("error: interrupted");
         std::process::exit(130);
     });

@@ -8,7 +8,7 @@ use std::path::Path;
 use arrow_array::RecordBatchReader;
 use arrow_schema::ArrowError;
 use chunkstore::TimeType;
-use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
+use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 
 use crate::Failure;
 

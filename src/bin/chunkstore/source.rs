@@ -43,13 +43,13 @@ impl Source {
     /// the source's kind does not take, or a directory holding both kinds of files.
     pub fn of(cli: &Cli) -> Result<Self, Failure> {
         let config = cli.load.config()?;
-        let options = load::Options {
-            config,
-            compact: cli.load.compact,
-            skip_bad: cli.load.skip_bad,
-            recording: cli.load.recording.clone(),
-            ..load::Options::default()
-        };
+        let mut options = load::Options::default()
+            .with_config(config)
+            .with_compact(cli.load.compact)
+            .with_skip_bad(cli.load.skip_bad);
+        if let Some(recording) = &cli.load.recording {
+            options = options.with_recording(recording.as_str());
+        }
         // `-`: standard input, copied to a temporary file first (lazy reading seeks, and
         // sources are told apart by their first bytes); removed when the command ends.
         let stdin = if cli.source.as_os_str() == "-" {
@@ -119,14 +119,14 @@ impl DatasetSource {
             )
             .into());
         }
-        let mut dataset_options = DatasetOptions {
-            config: options.config,
-            skip_bad: options.skip_bad,
-            index_cache: cli.load.index_cache.clone(),
-            ..DatasetOptions::default()
-        };
+        let mut dataset_options = DatasetOptions::default()
+            .with_config(options.config)
+            .with_skip_bad(options.skip_bad);
+        if let Some(dir) = &cli.load.index_cache {
+            dataset_options = dataset_options.with_index_cache(dir);
+        }
         if let Some(budget) = cli.load.memory_budget {
-            dataset_options.memory_budget = budget;
+            dataset_options = dataset_options.with_memory_budget(budget);
         }
         Ok(Self {
             dir,
@@ -247,7 +247,7 @@ pub fn message(error: &DatasetError) -> String {
 /// Standard input copied to a temporary file, removed when dropped (and on SIGINT or
 /// SIGTERM, as every unfinished output is).
 struct StdinCopy {
-    file: chunkstore::UnfinishedOutput,
+    file: chunkstore::output::UnfinishedOutput,
 }
 
 impl StdinCopy {
@@ -257,7 +257,7 @@ impl StdinCopy {
             std::process::id(),
             chunkstore::RowId::new().as_u128()
         ));
-        let (file, mut out) = chunkstore::UnfinishedOutput::create(&path, |path| {
+        let (file, mut out) = chunkstore::output::UnfinishedOutput::create(&path, |path| {
             std::fs::OpenOptions::new()
                 .write(true)
                 .create_new(true)

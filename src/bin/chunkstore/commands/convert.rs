@@ -41,14 +41,11 @@ fn convert(
     recording_id: Option<&str>,
 ) -> Result<(), Failure> {
     // Without `--compact`, the chunks go out as they came in: no compaction on insert.
-    let load_options = Options {
-        config: if options.compact {
-            options.config
-        } else {
-            StoreConfig::COMPACTION_OFF
-        },
-        ..options.clone()
-    };
+    let load_options = options.clone().with_config(if options.compact {
+        options.config
+    } else {
+        StoreConfig::COMPACTION_OFF
+    });
     let loaded = load::load_in_order(source, &load_options)?;
     let chunks: Vec<Arc<Chunk>> = if options.compact {
         // What the store holds and the Clears it still applies (`export_chunks`), entity
@@ -126,8 +123,9 @@ fn write_directory(out: &Path, info: &StoreInfo, chunks: &[Arc<Chunk>]) -> Resul
         .map_or_else(|| "out".to_owned(), |n| n.to_string_lossy().into_owned());
     let temp: PathBuf = out.with_file_name(format!(".{file_name}.{}.tmp", std::process::id()));
     // Registered, so that an interrupt (SIGINT, SIGTERM) removes it.
-    let (_unfinished, ()) = chunkstore::UnfinishedOutput::create(&temp, |p| std::fs::create_dir(p))
-        .map_err(|e| format!("{name}: {e}"))?;
+    let (_unfinished, ()) =
+        chunkstore::output::UnfinishedOutput::create(&temp, |p| std::fs::create_dir(p))
+            .map_err(|e| format!("{name}: {e}"))?;
     let result = (|| -> Result<(), String> {
         let width = chunks.len().to_string().len().max(4);
         let bar = load::progress(chunks.len() as u64, "writing", false);

@@ -10,7 +10,7 @@ use arrow_array::types::{DurationNanosecondType, Int64Type, TimestampNanosecondT
 use arrow_array::{Array, RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, SchemaRef};
 use chunkstore::dataset::Dataset;
-use chunkstore::parquet_export::ParquetOptions;
+use chunkstore::parquet::ParquetOptions;
 use chunkstore::{DataframeQuery, EntityPathFilter, TimeRange, TimeType};
 use indicatif::ProgressBar;
 

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use chunkstore::dataset::{Dataset, DatasetError};
-use chunkstore::hive_export::{check_new_dataset, write_hive_dataset};
+use chunkstore::parquet::{check_new_dataset, write_hive_dataset};
 
 use crate::Failure;
 use crate::args::HiveArgs;
@@ -41,8 +41,8 @@ fn of_recording(source: &Path, args: &HiveArgs, options: &Options) -> Result<(),
 }
 
 /// The layout `hive`'s arguments ask for.
-fn hive_layout(args: &HiveArgs) -> chunkstore::hive_export::HiveLayout {
-    use chunkstore::hive_export::HiveLayout;
+fn hive_layout(args: &HiveArgs) -> chunkstore::parquet::HiveLayout {
+    use chunkstore::parquet::HiveLayout;
     match (&args.index, args.bucket) {
         (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
             timeline: index.as_str().into(),
@@ -56,8 +56,8 @@ fn hive_layout(args: &HiveArgs) -> chunkstore::hive_export::HiveLayout {
 }
 
 /// A dataset that could not be written, as the tool words it.
-fn hive_failure(dir: &Path, error: chunkstore::hive_export::HiveExportError) -> Failure {
-    use chunkstore::hive_export::HiveExportError;
+fn hive_failure(dir: &Path, error: chunkstore::parquet::HiveExportError) -> Failure {
+    use chunkstore::parquet::HiveExportError;
     match error {
         HiveExportError::Exists { .. } => format!(
             "{}: already exists (hive writes a new directory)",

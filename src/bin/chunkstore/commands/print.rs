@@ -107,11 +107,9 @@ fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
             }
         }
         SourceKind::ChunkDirectory | SourceKind::IpcFile => {
-            let options = load::Options {
-                config: chunkstore::StoreConfig::COMPACTION_OFF,
-                skip_bad,
-                ..load::Options::default()
-            };
+            let options = load::Options::default()
+                .with_config(chunkstore::StoreConfig::COMPACTION_OFF)
+                .with_skip_bad(skip_bad);
             let loaded = load::load_in_order(source, &options)?;
             for chunk in &loaded.in_source_order {
                 write_line(&mut out, &chunk_line(chunk, json))?;

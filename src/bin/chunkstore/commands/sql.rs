@@ -53,7 +53,7 @@ fn answer(ctx: &datafusion::prelude::SessionContext, args: &SqlArgs) -> Result<(
     let reader = chunkstore::sql::SqlReader::run(ctx, &args.query).map_err(|e| e.to_string())?;
     let schema = reader.schema();
     if let Some(out) = &args.out {
-        let parquet = chunkstore::parquet_export::ParquetOptions::default();
+        let parquet = chunkstore::parquet::ParquetOptions::default();
         return crate::output::write_file(out, reader, &parquet);
     }
     let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());

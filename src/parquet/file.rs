@@ -5,32 +5,18 @@
 //! index and the entity path included, so readers prune row groups on time), the sort
 //! order recorded, the Arrow schema embedded (field metadata included), Snappy pages, and
 //! written atomically (a temporary file renamed into place).
-//!
-//! ```no_run
-//! use chunkstore::{ChunkStore, DataframeQuery};
-//! use chunkstore::parquet_export::{ParquetOptions, write_parquet_file};
-//! # let store = ChunkStore::new();
-//! let query = DataframeQuery::new("frame_id").with_fill_latest_at(true);
-//! let summary = write_parquet_file(
-//!     "robot.parquet".as_ref(),
-//!     store.dataframe(&query)?,
-//!     &ParquetOptions::default().with_sorted_by("frame_id"),
-//! )?;
-//! println!("{} rows in {} row groups", summary.rows, summary.row_groups);
-//! # Ok::<(), Box<dyn std::error::Error>>(())
-//! ```
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use ::parquet::arrow::ArrowWriter;
+use ::parquet::basic::Compression;
+use ::parquet::errors::ParquetError;
+use ::parquet::file::metadata::SortingColumn;
+use ::parquet::file::properties::{EnabledStatistics, WriterProperties};
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::ArrowError;
-use parquet::arrow::ArrowWriter;
-use parquet::basic::Compression;
-use parquet::errors::ParquetError;
-use parquet::file::metadata::SortingColumn;
-use parquet::file::properties::{EnabledStatistics, WriterProperties};
 
 /// Cells per row group when [`ParquetOptions::with_row_group_rows`] is not given: the
 /// writer holds one row group's encoded pages in memory, so a wide table gets shorter
@@ -280,7 +266,7 @@ pub fn write_parquet_file(
         .iter()
         .map(|f| is_byte_list(f.data_type()))
         .collect();
-    crate::atomic::atomic_write(path, io, |file| {
+    crate::output::atomic_write(path, io, |file| {
         let mut writer = ArrowWriter::try_new(
             std::io::BufWriter::new(file),
             Arc::clone(&schema),

@@ -26,9 +26,7 @@ use std::sync::Arc;
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, DataType, SchemaRef};
 
-use crate::parquet_export::{
-    ParquetExportError, ParquetOptions, ParquetSummary, write_parquet_file,
-};
+use super::file::{ParquetExportError, ParquetOptions, ParquetSummary, write_parquet_file};
 use crate::{ChunkTableQuery, ChunkTableStream, DataframeError, DataframeQuery, StoreView};
 
 /// Why a dataset could not be written. Nothing is left under its directory.
@@ -185,9 +183,9 @@ impl HiveSummary {
 /// becomes `%XX`.
 ///
 /// ```
-/// assert_eq!(chunkstore::hive_export::escape("/robot/arm 1"), "%2Frobot%2Farm%201");
+/// assert_eq!(chunkstore::parquet::escape_partition_value("/robot/arm 1"), "%2Frobot%2Farm%201");
 /// ```
-pub fn escape(value: &str) -> String {
+pub fn escape_partition_value(value: &str) -> String {
     let mut out = String::with_capacity(value.len());
     for byte in value.bytes() {
         if byte.is_ascii_alphanumeric() || matches!(byte, b'.' | b'_' | b'-') {
@@ -225,7 +223,7 @@ pub fn write_hive_dataset(
 }
 
 /// Makes the new directory `dir` appear whole or not at all: `write` fills a temporary
-/// sibling (registered for [`crate::remove_unfinished_outputs`]), which is renamed to `dir`
+/// sibling (registered for [`crate::output::remove_unfinished_outputs`]), which is renamed to `dir`
 /// once `write` succeeds and removed when it fails. The summary's files are named under
 /// `dir`.
 pub(crate) fn write_new_directory<E: From<HiveExportError>>(
@@ -244,8 +242,9 @@ pub(crate) fn write_new_directory<E: From<HiveExportError>>(
     let _ = std::fs::remove_dir_all(&partial);
     // `create_dir`, not `create_dir_all`: a missing parent is an error, as it is for
     // every other output (a typo in the path should not make directories).
-    let (_unfinished, ()) = crate::UnfinishedOutput::create(&partial, |p| std::fs::create_dir(p))
-        .map_err(|e| io(&partial, e))?;
+    let (_unfinished, ()) =
+        crate::output::UnfinishedOutput::create(&partial, |p| std::fs::create_dir(p))
+            .map_err(|e| io(&partial, e))?;
     let mut summary = match write(&partial) {
         Ok(summary) => summary,
         Err(error) => {
@@ -267,7 +266,7 @@ pub(crate) fn write_new_directory<E: From<HiveExportError>>(
 
 /// `dir/key=value/part-0.parquet` (the value escaped), its directories made.
 fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, HiveExportError> {
-    let partition = dir.join(format!("{key}={}", escape(value)));
+    let partition = dir.join(format!("{key}={}", escape_partition_value(value)));
     std::fs::create_dir_all(&partition).map_err(|source| HiveExportError::Io {
         path: partition.clone(),
         source,
