@@ -1,10 +1,23 @@
 """Type stubs of the native module (use the ``chunkstore`` package, not this)."""
 
-from typing import Optional
+from typing import Optional, TypedDict
 
 import pyarrow
 
 __version__: str
+
+class DataframeArgs(TypedDict):
+    """A dataframe's keywords, as ``chunkstore._arguments.dataframe_args`` makes them."""
+
+    index: str
+    contents: Optional[list[str]]
+    range: Optional[tuple[int, int]]
+    index_values: Optional[list[int]]
+    fill_latest_at: bool
+    batch_rows: Optional[int]
+    include_tombstone_columns: bool
+    include_semantically_empty_columns: bool
+    exact_index_values: bool
 
 class NativeStore:
     def __init__(self, compaction: bool = True) -> None: ...
@@ -23,33 +36,13 @@ class NativeStore:
         self, timeline: str, lo: int, hi: int, entity: str, component: str
     ) -> pyarrow.Table: ...
     def schema(self, index: str, contents: Optional[list[str]] = None) -> pyarrow.Schema: ...
-    def dataframe(
-        self,
-        index: str,
-        contents: Optional[list[str]] = None,
-        range: Optional[tuple[int, int]] = None,
-        index_values: Optional[list[int]] = None,
-        fill_latest_at: bool = False,
-        batch_rows: Optional[int] = None,
-        include_tombstone_columns: bool = True,
-        include_semantically_empty_columns: bool = True,
-        exact_index_values: bool = False,
-    ) -> pyarrow.RecordBatchReader: ...
+    def dataframe(self, args: DataframeArgs) -> pyarrow.RecordBatchReader: ...
     def gc(
         self, fraction: Optional[float] = None, bytes: Optional[int] = None, protect_latest: int = 0
     ) -> tuple[int, int]: ...
     def compact(self) -> tuple[int, int]: ...
     def write_rrd(self, path: str, application_id: str = "chunkstore", recording_id: Optional[str] = None) -> int: ...
-    def to_parquet(
-        self,
-        path: str,
-        index: str,
-        contents: Optional[list[str]] = None,
-        range: Optional[tuple[int, int]] = None,
-        index_values: Optional[list[int]] = None,
-        fill_latest_at: bool = False,
-        row_group_rows: Optional[int] = None,
-    ) -> int: ...
+    def write_parquet(self, path: str, args: DataframeArgs, row_group_rows: Optional[int] = None) -> int: ...
 
     def sql(self, query: str) -> pyarrow.RecordBatchReader: ...
 
@@ -60,18 +53,7 @@ class NativeDataset:
     def timelines(self) -> list[tuple[str, str, Optional[int], Optional[int]]]: ...
     def time_type(self, timeline: str) -> Optional[str]: ...
     def take_warnings(self) -> list[str]: ...
-    def dataframe(
-        self,
-        index: str,
-        contents: Optional[list[str]],
-        range: Optional[tuple[int, int]],
-        index_values: Optional[list[int]],
-        fill_latest_at: bool,
-        batch_rows: Optional[int],
-        include_tombstone_columns: bool,
-        include_semantically_empty_columns: bool,
-        exact_index_values: bool,
-    ) -> pyarrow.RecordBatchReader: ...
+    def dataframe(self, args: DataframeArgs) -> pyarrow.RecordBatchReader: ...
 
     def sql(self, query: str) -> pyarrow.RecordBatchReader: ...
 

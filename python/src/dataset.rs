@@ -9,7 +9,8 @@ use chunkstore::dataset::{Dataset, DatasetOptions};
 use pyo3::prelude::*;
 
 use crate::errors::{dataset_error, no_panic, sql_error};
-use crate::store::{reader_query, time_type_name};
+use crate::dataframe_args::DataframeArgs;
+use crate::store::time_type_name;
 
 /// A dataset: see the module docs.
 #[pyclass(frozen, module = "chunkstore._chunkstore")]
@@ -113,38 +114,12 @@ impl NativeDataset {
     }
 
     /// The dataset's table: see `chunkstore.Dataset.dataframe`.
-    #[pyo3(signature = (index, contents, range, index_values, fill_latest_at, batch_rows, include_tombstone_columns, include_semantically_empty_columns, exact_index_values))]
-    #[allow(
-        clippy::too_many_arguments,
-        clippy::fn_params_excessive_bools,
-        reason = "Python's keyword arguments, one each"
-    )]
     fn dataframe(
         &self,
         py: Python<'_>,
-        index: &str,
-        contents: Option<Vec<String>>,
-        range: Option<(i64, i64)>,
-        index_values: Option<Vec<i64>>,
-        fill_latest_at: bool,
-        batch_rows: Option<usize>,
-        include_tombstone_columns: bool,
-        include_semantically_empty_columns: bool,
-        exact_index_values: bool,
+        args: DataframeArgs,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let query = reader_query(
-            index,
-            contents,
-            range,
-            index_values,
-            fill_latest_at,
-            batch_rows,
-            [
-                include_tombstone_columns,
-                include_semantically_empty_columns,
-                exact_index_values,
-            ],
-        )?;
+        let query = args.reader_query()?;
         py.detach(|| {
             no_panic(|| {
                 let stream = self.dataset.dataframe(&query).map_err(dataset_error)?;

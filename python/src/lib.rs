@@ -15,6 +15,12 @@
 //! `OSError` subclass. A panic inside the store (a bug) is caught at the boundary and
 //! raised as `chunkstore.Error` naming it as one.
 
+#![allow(
+    clippy::needless_pass_by_value,
+    reason = "pyo3 hands arguments over owned: a method takes what Python gave it"
+)]
+
+mod dataframe_args;
 mod dataset;
 mod errors;
 mod open;

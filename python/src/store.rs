@@ -21,9 +21,8 @@ use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 use chunkstore::recording::{Recording, RecordingReader};
 use chunkstore::rrd::{StoreId, StoreInfo};
 use chunkstore::{
-    Chunk, ChunkStore, DataframeQuery, EntityPath, EntityPathFilter, GcOptions, GcTarget,
-    LatestAtQuery, RangeQuery, SharedStore, Snapshot, StoreConfig, StoreEvent, StoreView, TimeInt,
-    TimeRange, TimeType,
+    Chunk, ChunkStore, EntityPath, GcOptions, GcTarget, LatestAtQuery, RangeQuery, SharedStore,
+    Snapshot, StoreConfig, StoreEvent, StoreView, TimeInt, TimeType,
 };
 use parking_lot::Mutex;
 use pyo3::prelude::*;
@@ -32,6 +31,7 @@ use crate::errors::{
     Error, chunk_error, dataframe_error, insert_error, invalid, listing, no_panic, open_error,
     os_error, rrd_error, unknown_timeline,
 };
+use crate::dataframe_args::{DataframeArgs, base_query, time, time_range};
 use crate::tables::{Answer, latest_at_batch, range_batches};
 
 /// What a store is: a recording still read lazily, or a store in memory.
@@ -222,96 +222,6 @@ fn parse_entity(text: &str) -> PyResult<EntityPath> {
     EntityPath::parse(text).map_err(|e| invalid(format!("entity path {text:?}: {e}")))
 }
 
-fn time(value: i64) -> PyResult<TimeInt> {
-    TimeInt::new(value).ok_or_else(|| invalid(format!("time {value} is out of range")))
-}
-
-/// `[lo, hi]` as a time range; `lo` after `hi` is refused, not read as empty.
-fn time_range(lo: i64, hi: i64) -> PyResult<TimeRange> {
-    if lo > hi {
-        return Err(invalid(format!(
-            "range ({lo}, {hi}): the start is after the end"
-        )));
-    }
-    Ok(TimeRange::new(time(lo)?, time(hi)?))
-}
-
-fn contents_filter(contents: Option<Vec<String>>) -> PyResult<Option<EntityPathFilter>> {
-    contents
-        .map(|rules| {
-            EntityPathFilter::parse(&rules).map_err(|e| invalid(format!("contents {rules:?}: {e}")))
-        })
-        .transpose()
-}
-
-/// Rows per batch at least of a dataframe read from Python, unless rows are asked for
-/// (`to_parquet`'s batches stay in Rust and keep the crate's default). Each batch crosses into
-/// pyarrow array by array, a fixed cost per (batch, column), so a wide table's short
-/// default batches (349 rows at 3,000 columns) cost Python more than they cost Rust:
-/// reading such a table whole took 4.6 s from Python against 2.8 s in Rust; with
-/// batches of 4,096 rows, 3.1 s (the read benchmark, `docs/performance-log.md`). Narrower
-/// tables already have batches this long.
-const PYTHON_MIN_BATCH_ROWS: usize = 4_096;
-
-/// A dataframe query from the Python arguments.
-fn dataframe_query(
-    index: &str,
-    contents: Option<Vec<String>>,
-    range: Option<(i64, i64)>,
-    index_values: Option<Vec<i64>>,
-    fill_latest_at: bool,
-    batch_rows: Option<usize>,
-) -> PyResult<DataframeQuery> {
-    let mut query = DataframeQuery::new(index).with_fill_latest_at(fill_latest_at);
-    if let Some(filter) = contents_filter(contents)? {
-        query = query.with_contents(filter);
-    }
-    if let Some((lo, hi)) = range {
-        query = query.with_range(time_range(lo, hi)?);
-    }
-    if let Some(values) = index_values {
-        let values: Vec<TimeInt> = values.into_iter().map(time).collect::<PyResult<_>>()?;
-        query = query.with_index_values(values);
-    }
-    if let Some(rows) = batch_rows {
-        if rows == 0 {
-            return Err(invalid("batch_rows must be at least 1"));
-        }
-        query = query.with_batch_rows(rows);
-    }
-    Ok(query)
-}
-
-/// The query of a `dataframe` reader from the Python arguments (`kept`: include tombstone
-/// columns, include semantically empty columns, exact index values), its batches sized
-/// for the crossing into pyarrow.
-pub(crate) fn reader_query(
-    index: &str,
-    contents: Option<Vec<String>>,
-    range: Option<(i64, i64)>,
-    index_values: Option<Vec<i64>>,
-    fill_latest_at: bool,
-    batch_rows: Option<usize>,
-    [tombstones, semantically_empty, exact]: [bool; 3],
-) -> PyResult<DataframeQuery> {
-    let mut query = dataframe_query(
-        index,
-        contents,
-        range,
-        index_values,
-        fill_latest_at,
-        batch_rows,
-    )?
-    .with_tombstone_columns(tombstones)
-    .with_semantically_empty_columns(semantically_empty)
-    .with_exact_index_values(exact);
-    if batch_rows.is_none() {
-        // The batches cross into pyarrow (to_parquet's never leave Rust).
-        query = query.with_min_batch_rows(PYTHON_MIN_BATCH_ROWS);
-    }
-    Ok(query)
-}
-
 pub(crate) fn time_type_name(time_type: TimeType) -> &'static str {
     match time_type {
         TimeType::Sequence => "sequence",
@@ -410,7 +320,10 @@ impl NativeStore {
 
     /// `(name, type, min, max)` per timeline, sorted by name; type is `"sequence"`,
     /// `"duration"` or `"timestamp"`; min and max are `None` when no data is left.
-    #[allow(clippy::type_complexity)]
+    #[allow(
+        clippy::type_complexity,
+        reason = "the tuple Python unpacks into a Timeline, spelled out"
+    )]
     fn timelines(
         &self,
         py: Python<'_>,
@@ -550,46 +463,21 @@ impl NativeStore {
         index: &str,
         contents: Option<Vec<String>>,
     ) -> PyResult<PyArrowType<Schema>> {
-        let query = dataframe_query(index, contents, None, None, false, None)?;
+        let query = base_query(index, contents)?;
         self.with_snapshot(py, move |view| {
             let stream = view.dataframe(&query).map_err(dataframe_error)?;
             Ok(PyArrowType(Arc::unwrap_or_clone(stream.schema())))
         })
     }
 
-    /// A dataframe view (SEMANTICS.md section 9), streamed from one snapshot.
-    #[pyo3(signature = (index, contents = None, range = None, index_values = None, fill_latest_at = false, batch_rows = None, include_tombstone_columns = true, include_semantically_empty_columns = true, exact_index_values = false))]
-    #[allow(
-        clippy::too_many_arguments,
-        clippy::fn_params_excessive_bools,
-        reason = "Python's keyword arguments, one each"
-    )]
+    /// A dataframe view (SEMANTICS.md section 9), streamed from one snapshot: see
+    /// `chunkstore.Store.dataframe`.
     fn dataframe(
         &self,
         py: Python<'_>,
-        index: &str,
-        contents: Option<Vec<String>>,
-        range: Option<(i64, i64)>,
-        index_values: Option<Vec<i64>>,
-        fill_latest_at: bool,
-        batch_rows: Option<usize>,
-        include_tombstone_columns: bool,
-        include_semantically_empty_columns: bool,
-        exact_index_values: bool,
+        args: DataframeArgs,
     ) -> PyResult<PyArrowType<Box<dyn RecordBatchReader + Send>>> {
-        let query = reader_query(
-            index,
-            contents,
-            range,
-            index_values,
-            fill_latest_at,
-            batch_rows,
-            [
-                include_tombstone_columns,
-                include_semantically_empty_columns,
-                exact_index_values,
-            ],
-        )?;
+        let query = args.reader_query()?;
         py.detach(|| {
             no_panic(|| {
                 let stream = self
@@ -674,21 +562,17 @@ impl NativeStore {
     }
 
     /// Writes a dataframe view to a Parquet file (atomically); returns the rows written.
-    #[pyo3(signature = (path, index, contents = None, range = None, index_values = None, fill_latest_at = false, row_group_rows = None))]
-    #[allow(clippy::too_many_arguments)]
-    fn to_parquet(
+    #[pyo3(signature = (path, args, row_group_rows = None))]
+    fn write_parquet(
         &self,
         py: Python<'_>,
         path: PathBuf,
-        index: &str,
-        contents: Option<Vec<String>>,
-        range: Option<(i64, i64)>,
-        index_values: Option<Vec<i64>>,
-        fill_latest_at: bool,
+        args: DataframeArgs,
         row_group_rows: Option<usize>,
     ) -> PyResult<u64> {
-        let sampled = index_values.is_some();
-        let query = dataframe_query(index, contents, range, index_values, fill_latest_at, None)?;
+        let query = args.query()?;
+        let sampled = args.is_sampled();
+        let index = args.index();
         let mut options = ParquetOptions::default();
         if !sampled {
             // A sampled table's rows follow the values given, not the index.

@@ -201,7 +201,7 @@ def test_write_rrd_and_parquet(tmp_path, robot):
     assert copy.dataframe("frame_id").read_all().equals(robot.dataframe("frame_id").read_all())
 
     parquet = tmp_path / "cost.parquet"
-    assert robot.to_parquet(parquet, "frame_id", contents=COST) == 60
+    assert robot.write_parquet(parquet, "frame_id", contents=COST) == 60
     table = pq.read_table(parquet)
     assert table.column(f"{COST}:{SCALARS}").to_pylist() == robot.dataframe(
         "frame_id", contents=COST
@@ -260,15 +260,32 @@ def test_a_missing_answer_has_the_same_type_lazy_or_loaded():
     ).schema
 
 
-def test_to_parquet_takes_the_dataframe_arguments(tmp_path, robot):
+def test_write_parquet_takes_the_dataframe_arguments(tmp_path, robot):
     path = tmp_path / "sampled.parquet"
-    assert robot.to_parquet(path, "sim_time", contents=COST, index_values=np.array([0, 10**9], dtype="timedelta64[ns]")) == 2
+    assert robot.write_parquet(path, "sim_time", contents=COST, index_values=np.array([0, 10**9], dtype="timedelta64[ns]")) == 2
     ranged = tmp_path / "ranged.parquet"
-    assert robot.to_parquet(ranged, "frame_id", range=(10, 19), fill_latest_at=True, row_group_rows=4) == 10
+    assert robot.write_parquet(ranged, "frame_id", range=(10, 19), fill_latest_at=True, row_group_rows=4) == 10
     assert pq.ParquetFile(ranged).metadata.num_row_groups == 3
+    assert pq.read_table(ranged).equals(
+        robot.dataframe("frame_id", range=(10, 19), fill_latest_at=True).read_all()
+    )
     with pytest.raises(chunkstore.InvalidInputError, match="range"):
-        robot.to_parquet(tmp_path / "bad.parquet", "frame_id", range=3)
+        robot.write_parquet(tmp_path / "bad.parquet", "frame_id", range=3)
     assert not (tmp_path / "bad.parquet").exists()
+    # Every keyword of dataframe, the same table.
+    lean = tmp_path / "lean.parquet"
+    robot.write_parquet(lean, "frame_id", include_tombstone_columns=False, include_semantically_empty_columns=False)
+    assert pq.read_table(lean).equals(
+        robot.dataframe("frame_id", include_tombstone_columns=False, include_semantically_empty_columns=False).read_all()
+    )
+
+
+def test_to_parquet_is_write_parquet_under_its_old_name_with_a_warning(tmp_path, robot):
+    old, new = tmp_path / "old.parquet", tmp_path / "new.parquet"
+    with pytest.warns(DeprecationWarning, match="write_parquet"):
+        rows = robot.to_parquet(old, "frame_id", contents=COST, row_group_rows=7)
+    assert rows == robot.write_parquet(new, "frame_id", contents=COST, row_group_rows=7) == 60
+    assert pq.read_table(old).equals(pq.read_table(new))
 
 
 def test_tombstone_and_empty_columns_can_be_left_out(robot):

@@ -61,7 +61,7 @@ def test_writes_never_replace_the_source(tmp_path, lazy):
     with pytest.raises(chunkstore.InvalidInputError, match="overwrite"):
         store.write_rrd(source)
     with pytest.raises(chunkstore.InvalidInputError, match="overwrite"):
-        store.to_parquet(source, "frame")
+        store.write_parquet(source, "frame")
     assert source.read_bytes() == before
     # A link to the source is the source.
     link = tmp_path / "link.rrd"
