@@ -122,3 +122,116 @@ fn citations_are_read_in_every_form() {
     assert_eq!(cited("SEMANTICS.md sections 6 to 8"), [6, 8]);
     assert_eq!(cited("SEMANTICS.md section Transport"), [0]);
 }
+
+/// `docs/PERFORMANCE.md` is the present, not a log: at most 300 lines, and every section
+/// of figures says when, at which commit and with which command they were measured (the
+/// history goes to `docs/performance-log.md`).
+#[test]
+fn performance_md_holds_the_present_only() {
+    let text = std::fs::read_to_string(root().join("docs/PERFORMANCE.md")).unwrap();
+    let lines = text.lines().count();
+    assert!(
+        lines <= 300,
+        "docs/PERFORMANCE.md has {lines} lines: keep the current figures (one table per \
+         dimension) and move the story to docs/performance-log.md"
+    );
+    let is_date = |w: &str| {
+        let b = w.as_bytes();
+        b.len() >= 10
+            && b[..10].iter().enumerate().all(|(i, c)| {
+                if i == 4 || i == 7 {
+                    *c == b'-'
+                } else {
+                    c.is_ascii_digit()
+                }
+            })
+    };
+    // Backticked spans: a commit is 7 to 40 hex digits; a command starts with a tool.
+    let spans = |section: &str| -> Vec<String> {
+        section
+            .split('`')
+            .skip(1)
+            .step_by(2)
+            .map(str::to_owned)
+            .collect()
+    };
+    let mut problems = Vec::new();
+    for section in text.split("\n## ").skip(1) {
+        let title = section.lines().next().unwrap_or_default();
+        if title == "Reproducing" {
+            continue;
+        }
+        let spans = spans(section);
+        let has_date = section
+            .split(|c: char| c.is_whitespace() || c == '(' || c == ',')
+            .any(is_date);
+        let has_commit = spans
+            .iter()
+            .any(|s| (7..=40).contains(&s.len()) && s.chars().all(|c| c.is_ascii_hexdigit()));
+        let has_command = spans.iter().any(|s| {
+            // Past any `NAME=value` settings of the environment.
+            let command = s
+                .split_whitespace()
+                .skip_while(|w| w.contains('=') && !w.starts_with('-'))
+                .collect::<Vec<_>>()
+                .join(" ");
+            [
+                "cargo ",
+                "python ",
+                "chunkstore ",
+                "../shared/bench/compare",
+                "dataset_bench ",
+            ]
+            .iter()
+            .any(|tool| command.starts_with(tool))
+        });
+        for (ok, what) in [
+            (has_date, "date"),
+            (has_commit, "commit"),
+            (has_command, "command"),
+        ] {
+            if !ok {
+                problems.push(format!("section {title:?} names no {what}"));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// `CHANGELOG.md` has one `Unreleased` section, each kind of change under one heading in
+/// a section, and performance entries of one line each (the headline figure; the story is
+/// in the performance log).
+#[test]
+fn the_changelog_has_one_unreleased_section_and_one_line_performance_entries() {
+    let text = std::fs::read_to_string(root().join("CHANGELOG.md")).unwrap();
+    let unreleased = text
+        .lines()
+        .filter(|l| l.starts_with("## ") && l.contains("Unreleased"))
+        .count();
+    assert_eq!(unreleased, 1, "one `## Unreleased` section");
+    for section in text.split("\n## ").skip(1) {
+        let title = section.lines().next().unwrap_or_default();
+        let mut headings: Vec<&str> = section
+            .lines()
+            .filter_map(|l| l.strip_prefix("### "))
+            .map(|h| h.split(" (").next().unwrap_or(h))
+            .collect();
+        let all = headings.len();
+        headings.sort_unstable();
+        headings.dedup();
+        assert_eq!(
+            headings.len(),
+            all,
+            "{title}: a kind of change under two headings"
+        );
+        if let Some(performance) = section.split("\n### Performance\n").nth(1) {
+            let performance = performance.split("\n### ").next().unwrap_or_default();
+            for line in performance.lines().filter(|l| !l.trim().is_empty()) {
+                assert!(
+                    line.starts_with("- "),
+                    "{title}: a performance entry runs past one line: {line:?}"
+                );
+            }
+        }
+    }
+}
