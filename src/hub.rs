@@ -1,7 +1,7 @@
 //! [`StoreHub`]: several stores side by side, keyed by store id, fed one Rerun log message
 //! ([`LogMsg`]) at a time, and replayed as log messages: what a server that SDKs log into
-//! needs, with no I/O of its own (the server in `src/bin/chunkstore/commands/serve/` brings the
-//! network and the disk).
+//! needs, with no I/O of its own (the server in `src/bin/chunkstore/commands/serve/`
+//! brings the network and the disk).
 //!
 //! - Each recording (a `StoreKind::Recording` store id) gets its own [`SharedStore`], so
 //!   readers query snapshots while writers go on.
