@@ -8,8 +8,8 @@ use arrow_pyarrow::PyArrowType;
 use chunkstore::dataset::{Dataset, DatasetOptions};
 use pyo3::prelude::*;
 
-use crate::errors::{dataset_error, no_panic, sql_error};
 use crate::dataframe_args::DataframeArgs;
+use crate::errors::{dataset_error, no_panic, sql_error};
 use crate::store::time_type_name;
 
 /// A dataset: see the module docs.

@@ -27,11 +27,11 @@ use chunkstore::{
 use parking_lot::Mutex;
 use pyo3::prelude::*;
 
+use crate::dataframe_args::{DataframeArgs, base_query, time, time_range};
 use crate::errors::{
     Error, chunk_error, dataframe_error, insert_error, invalid, listing, no_panic, open_error,
     os_error, rrd_error, unknown_timeline,
 };
-use crate::dataframe_args::{DataframeArgs, base_query, time, time_range};
 use crate::tables::{Answer, latest_at_batch, range_batches};
 
 /// What a store is: a recording still read lazily, or a store in memory.

@@ -132,6 +132,22 @@ pub(crate) fn ascending_on(schema: &SchemaRef, columns: &[&str]) -> EquivalenceP
     ordered
 }
 
+/// `ExecutionPlan::with_new_children` of a scan, which has no children: the plan itself,
+/// or an internal error should DataFusion hand it some.
+pub(crate) fn leaf_with_new_children(
+    plan: Arc<dyn ExecutionPlan>,
+    children: &[Arc<dyn ExecutionPlan>],
+) -> Result<Arc<dyn ExecutionPlan>> {
+    if children.is_empty() {
+        Ok(plan)
+    } else {
+        Err(DataFusionError::Internal(format!(
+            "{} has no children",
+            plan.name()
+        )))
+    }
+}
+
 /// One partition, emitted batch by batch, bounded; `ordered` says what is known of the
 /// rows' order.
 fn plan_properties(ordered: EquivalenceProperties) -> PlanProperties {
@@ -181,13 +197,7 @@ impl ExecutionPlan for StoreScanExec {
         self: Arc<Self>,
         children: Vec<Arc<dyn ExecutionPlan>>,
     ) -> Result<Arc<dyn ExecutionPlan>> {
-        if children.is_empty() {
-            Ok(self)
-        } else {
-            Err(DataFusionError::Internal(
-                "StoreScanExec has no children".to_owned(),
-            ))
-        }
+        leaf_with_new_children(self, &children)
     }
 
     fn execute(

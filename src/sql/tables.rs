@@ -23,6 +23,91 @@ use crate::{
 /// The name of the chunk table's entity path column.
 pub(super) const ENTITY_PATH: &str = "entity_path";
 
+/// What a chunk table's filters read of it, the store's ([`ChunksTable`]) or a dataset's:
+/// a filter on `entity_path` picks the entities whose rows are read (`Exact`), one on a
+/// timeline the chunks that overlap its range (`Inexact`: DataFusion filters the rows).
+#[derive(Debug, Clone)]
+pub(super) struct ChunkRowFilters {
+    /// Every entity path, with its text as the `entity_path` column shows it.
+    entities: Vec<(EntityPath, String)>,
+    timelines: Vec<Timeline>,
+}
+
+/// The rows a chunk table's filters pick, as [`ChunkRowFilters::apply`] found them.
+pub(super) struct PickedRows<'a> {
+    /// The query reading them.
+    pub query: ChunkTableQuery,
+    /// The entities whose rows are read; all where `None`.
+    pub entities: Option<BTreeSet<EntityPath>>,
+    /// The range on a timeline that the chunks read overlap; any where `None`.
+    pub overlapping: Option<(&'a Timeline, TimeRange)>,
+}
+
+impl ChunkRowFilters {
+    pub(super) fn new(entities: Vec<EntityPath>, timelines: Vec<Timeline>) -> Self {
+        let entities = entities
+            .into_iter()
+            .map(|path| {
+                let text = path.to_string();
+                (path, text)
+            })
+            .collect();
+        Self {
+            entities,
+            timelines,
+        }
+    }
+
+    fn entity_filter(&self, filter: &Expr) -> Option<BTreeSet<EntityPath>> {
+        pushdown::text_filter(filter, ENTITY_PATH, &self.entities)
+    }
+
+    /// What DataFusion is told of `filter`.
+    pub(super) fn support(&self, filter: &Expr) -> TableProviderFilterPushDown {
+        pushdown::support(if self.entity_filter(filter).is_some() {
+            Some(true)
+        } else {
+            pushdown::timeline_filter(filter, &self.timelines).map(|_| false)
+        })
+    }
+
+    /// `filters` applied to `query`, each noted in `pushed_down` for `EXPLAIN`.
+    pub(super) fn apply(
+        &self,
+        filters: &[Expr],
+        mut query: ChunkTableQuery,
+        pushed_down: &mut Vec<String>,
+    ) -> PickedRows<'_> {
+        let entities = filters
+            .iter()
+            .filter_map(|filter| self.entity_filter(filter))
+            .reduce(|a, b| a.intersection(&b).cloned().collect());
+        if let Some(entities) = &entities {
+            pushed_down.push(format!(
+                "entities={} of {}",
+                entities.len(),
+                self.entities.len()
+            ));
+            query = query.with_row_entities(entities.iter().cloned());
+        }
+        // One timeline's range narrows the chunks read; DataFusion applies every filter
+        // on times again.
+        let overlapping = pushdown::chunks_overlapping(filters, &self.timelines);
+        if let Some((timeline, range)) = overlapping {
+            pushed_down.push(format!(
+                "chunks overlapping {}",
+                pushdown::describe(timeline.name(), range)
+            ));
+            query = query.with_rows_overlapping(Arc::clone(timeline.name_arc()), range);
+        }
+        PickedRows {
+            query,
+            entities,
+            overlapping,
+        }
+    }
+}
+
 /// Batches no longer than this when a small `LIMIT` is pushed down (a longer limit keeps
 /// the view's own batch size).
 const SMALL_LIMIT: usize = 4_096;
@@ -339,9 +424,7 @@ fn project(
 #[derive(Debug, Clone)]
 pub struct ChunksTable {
     snapshot: Snapshot,
-    /// Every entity path, with its text as the `entity_path` column shows it.
-    entities: Vec<(EntityPath, String)>,
-    timelines: Vec<Timeline>,
+    filters: ChunkRowFilters,
     schema: SchemaRef,
 }
 
@@ -356,29 +439,12 @@ impl ChunksTable {
             .chunk_table(&ChunkTableQuery::new().with_row_entities([]))
             .map_err(external)?
             .schema();
-        let entities = snapshot
-            .entity_paths()
-            .into_iter()
-            .map(|path| {
-                let text = path.to_string();
-                (path, text)
-            })
-            .collect();
-        let timelines = snapshot.timelines();
+        let filters = ChunkRowFilters::new(snapshot.entity_paths(), snapshot.timelines());
         Ok(Self {
             snapshot,
-            entities,
-            timelines,
+            filters,
             schema,
         })
-    }
-
-    fn entity_filter(&self, filter: &Expr) -> Option<BTreeSet<EntityPath>> {
-        pushdown::text_filter(filter, ENTITY_PATH, &self.entities)
-    }
-
-    fn time_filter(&self, filter: &Expr) -> Option<(&Timeline, TimeFilter)> {
-        pushdown::timeline_filter(filter, &self.timelines)
     }
 }
 
@@ -398,14 +464,7 @@ impl TableProvider for ChunksTable {
     ) -> Result<Vec<TableProviderFilterPushDown>> {
         Ok(filters
             .iter()
-            .map(|filter| {
-                // A time filter only narrows the chunks read: DataFusion filters the rows.
-                pushdown::support(if self.entity_filter(filter).is_some() {
-                    Some(true)
-                } else {
-                    self.time_filter(filter).map(|_| false)
-                })
-            })
+            .map(|filter| self.filters.support(filter))
             .collect())
     }
 
@@ -416,30 +475,11 @@ impl TableProvider for ChunksTable {
         filters: &[Expr],
         limit: Option<usize>,
     ) -> Result<Arc<dyn ExecutionPlan>> {
-        let mut query = ChunkTableQuery::new();
         let mut pushed_down = Vec::new();
-        let entities = filters
-            .iter()
-            .filter_map(|filter| self.entity_filter(filter))
-            .reduce(|a, b| a.intersection(&b).cloned().collect());
-        if let Some(entities) = entities {
-            pushed_down.push(format!(
-                "entities={} of {}",
-                entities.len(),
-                self.entities.len()
-            ));
-            query = query.with_row_entities(entities);
-        }
-        // One timeline's range narrows the chunks read; DataFusion applies every filter
-        // on times again.
-        let overlapping = pushdown::chunks_overlapping(filters, &self.timelines);
-        if let Some((timeline, range)) = overlapping {
-            pushed_down.push(format!(
-                "chunks overlapping {}",
-                pushdown::describe(timeline.name(), range)
-            ));
-            query = query.with_rows_overlapping(Arc::clone(timeline.name_arc()), range);
-        }
+        let mut query = self
+            .filters
+            .apply(filters, ChunkTableQuery::new(), &mut pushed_down)
+            .query;
         let (schema, projection) = project(&self.schema, projection, &mut pushed_down)?;
         if let Some((names, _)) = &projection {
             query = query.with_columns(names.iter().cloned());

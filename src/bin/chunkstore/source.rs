@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
+use chunkstore::recording::Recording;
 
 use crate::Failure;
 use crate::args::Cli;
@@ -90,6 +91,27 @@ impl Source {
             eager: cli.load.eager,
             _stdin: stdin,
         }))
+    }
+}
+
+impl Source {
+    /// Runs `answer` on the one recording a query reads: the SOURCE (lazily where its
+    /// footer allows), or a dataset's `--segment`. `answer` is given the recording's opener
+    /// (so that it may check its arguments first) and the path that names it in errors.
+    pub fn with_one_recording(
+        &self,
+        answer: impl FnOnce(&dyn Fn() -> Result<Recording, String>, &Path) -> Result<(), Failure>,
+    ) -> Result<(), Failure> {
+        match self {
+            Self::Recording(recording) => answer(
+                &|| load::open_for_queries(&recording.path, &recording.options, recording.eager),
+                &recording.path,
+            ),
+            Self::Dataset(source) => source.with_dataset(true, |dataset| {
+                let (id, path) = source.segment(dataset)?;
+                answer(&|| dataset.recording(&id).map_err(|e| message(&e)), &path)
+            }),
+        }
     }
 }
 

@@ -367,13 +367,7 @@ impl ExecutionPlan for DatasetScanExec {
         self: Arc<Self>,
         children: Vec<Arc<dyn ExecutionPlan>>,
     ) -> Result<Arc<dyn ExecutionPlan>> {
-        if children.is_empty() {
-            Ok(self)
-        } else {
-            Err(DataFusionError::Internal(
-                "DatasetScanExec has no children".to_owned(),
-            ))
-        }
+        crate::sql::scan::leaf_with_new_children(self, &children)
     }
 
     fn execute(

@@ -19,8 +19,8 @@ use crate::dataset::Dataset;
 use crate::sql::CHUNKS_TABLE;
 use crate::sql::pushdown::{self, TimeFilter};
 use crate::sql::scan::ascending_on;
-use crate::sql::tables::ENTITY_PATH;
-use crate::{ChunkTableQuery, DataframeQuery, EntityPath, SEGMENT_ID_COLUMN, Timeline};
+use crate::sql::tables::{ChunkRowFilters, PickedRows};
+use crate::{ChunkTableQuery, DataframeQuery, SEGMENT_ID_COLUMN, Timeline};
 
 /// The segments (among `segments`) that `filters` on [`SEGMENT_ID_COLUMN`] keep, all of
 /// them where no filter is on it; and how many the filters dropped.
@@ -35,6 +35,27 @@ fn kept_segments(filters: &[Expr], segments: &[(usize, String)]) -> (BTreeSet<us
     (kept, dropped)
 }
 
+/// What `EXPLAIN` says of the segments a scan reads: `segments=N of M`, and why the others
+/// were pruned.
+fn segments_line(kept: usize, total: usize, pruned: &[String]) -> String {
+    if pruned.is_empty() {
+        format!("segments={kept} of {total}")
+    } else {
+        format!("segments={kept} of {total} (pruned: {})", pruned.join(", "))
+    }
+}
+
+/// The segments a filter on the id pruned, as [`segments_line`] lists them.
+fn pruned_by_id(by_id: usize) -> Vec<String> {
+    if by_id > 0 {
+        vec![format!("{by_id} by {SEGMENT_ID_COLUMN}")]
+    } else {
+        Vec::new()
+    }
+}
+
+/// The scan's side of a projection: the stream's schema (the segment id and the projected
+/// columns, in the table's order), the output, and where each output column is.
 fn stream_projection(
     table: &SchemaRef,
     projection: Option<&Vec<usize>>,
@@ -170,10 +191,7 @@ impl TableProvider for DatasetTimelineTable {
                     .is_some_and(|span| span.intersects(range))
             });
         }
-        let mut pruned = Vec::new();
-        if by_id > 0 {
-            pruned.push(format!("{by_id} by {SEGMENT_ID_COLUMN}"));
-        }
+        let mut pruned = pruned_by_id(by_id);
         if without_index > 0 {
             pruned.push(format!("{without_index} without {index}"));
         }
@@ -184,16 +202,7 @@ impl TableProvider for DatasetTimelineTable {
                 pushdown::describe(index, range)
             ));
         }
-        pushed_down.push(format!(
-            "segments={} of {}{}",
-            kept.len(),
-            self.segments.len(),
-            if pruned.is_empty() {
-                String::new()
-            } else {
-                format!(" (pruned: {})", pruned.join(", "))
-            }
-        ));
+        pushed_down.push(segments_line(kept.len(), self.segments.len(), &pruned));
         if let Some(range) = range {
             pushed_down.push(pushdown::describe(index, range));
         }
@@ -261,9 +270,8 @@ pub struct DatasetChunksTable {
     dataset: Dataset,
     schema: SchemaRef,
     segments: Arc<[(usize, String)]>,
-    /// Every entity path of any segment, with its text as `entity_path` shows it.
-    entities: Vec<(EntityPath, String)>,
-    timelines: Vec<Timeline>,
+    /// The filters on entity paths and times.
+    filters: ChunkRowFilters,
 }
 
 impl DatasetChunksTable {
@@ -272,26 +280,13 @@ impl DatasetChunksTable {
         schema: SchemaRef,
         segments: Arc<[(usize, String)]>,
     ) -> Self {
-        let entities = dataset
-            .entity_paths()
-            .into_iter()
-            .map(|path| {
-                let text = path.to_string();
-                (path, text)
-            })
-            .collect();
-        let timelines = dataset.timelines();
+        let filters = ChunkRowFilters::new(dataset.entity_paths(), dataset.timelines());
         Self {
             dataset,
             schema,
             segments,
-            entities,
-            timelines,
+            filters,
         }
-    }
-
-    fn time_filter(&self, filter: &Expr) -> Option<(&Timeline, TimeFilter)> {
-        pushdown::timeline_filter(filter, &self.timelines)
     }
 }
 
@@ -312,15 +307,11 @@ impl TableProvider for DatasetChunksTable {
         Ok(filters
             .iter()
             .map(|filter| {
-                let exact = pushdown::text_filter(filter, SEGMENT_ID_COLUMN, &self.segments)
-                    .is_some()
-                    || pushdown::text_filter(filter, ENTITY_PATH, &self.entities).is_some();
-                // A time filter only narrows the chunks read: DataFusion filters the rows.
-                pushdown::support(if exact {
-                    Some(true)
+                if pushdown::text_filter(filter, SEGMENT_ID_COLUMN, &self.segments).is_some() {
+                    TableProviderFilterPushDown::Exact
                 } else {
-                    self.time_filter(filter).map(|_| false)
-                })
+                    self.filters.support(filter)
+                }
             })
             .collect())
     }
@@ -334,37 +325,18 @@ impl TableProvider for DatasetChunksTable {
     ) -> Result<Arc<dyn ExecutionPlan>> {
         let mut pushed_down = Vec::new();
         let (kept, by_id) = kept_segments(filters, &self.segments);
-        pushed_down.push(format!(
-            "segments={} of {}{}",
+        pushed_down.push(segments_line(
             kept.len(),
             self.segments.len(),
-            if by_id > 0 {
-                format!(" (pruned: {by_id} by {SEGMENT_ID_COLUMN})")
-            } else {
-                String::new()
-            }
+            &pruned_by_id(by_id),
         ));
-        let mut query = ChunkTableQuery::new();
-        let entities = filters
-            .iter()
-            .filter_map(|filter| pushdown::text_filter(filter, ENTITY_PATH, &self.entities))
-            .reduce(|a, b| a.intersection(&b).cloned().collect());
-        if let Some(entities) = &entities {
-            pushed_down.push(format!(
-                "entities={} of {}",
-                entities.len(),
-                self.entities.len()
-            ));
-            query = query.with_row_entities(entities.iter().cloned());
-        }
-        let overlapping = pushdown::chunks_overlapping(filters, &self.timelines);
-        if let Some((timeline, range)) = overlapping {
-            pushed_down.push(format!(
-                "chunks overlapping {}",
-                pushdown::describe(timeline.name(), range)
-            ));
-            query = query.with_rows_overlapping(Arc::clone(timeline.name_arc()), range);
-        }
+        let PickedRows {
+            mut query,
+            entities,
+            overlapping,
+        } = self
+            .filters
+            .apply(filters, ChunkTableQuery::new(), &mut pushed_down);
         let projected = stream_projection(&self.schema, projection, &mut pushed_down)?;
         if let Some(rows) = limit {
             pushed_down.push(format!("limit={rows}"));

@@ -18,29 +18,12 @@ pub fn run(
     time: &TimeArg,
     select: &Select,
 ) -> Result<(), Failure> {
-    match source {
-        Source::Recording(recording) => answer(
-            || load::open_for_queries(&recording.path, &recording.options, recording.eager),
-            &recording.path,
-            timeline,
-            time,
-            select,
-        ),
-        Source::Dataset(dataset_source) => dataset_source.with_dataset(true, |dataset| {
-            let (id, path) = dataset_source.segment(dataset)?;
-            let open = || {
-                dataset
-                    .recording(&id)
-                    .map_err(|e| crate::source::message(&e))
-            };
-            answer(open, &path, timeline, time, select)
-        }),
-    }
+    source.with_one_recording(|open, path| answer(open, path, timeline, time, select))
 }
 
 /// The answer of the recording `open` opens (`path` names it in errors).
 fn answer(
-    open: impl FnOnce() -> Result<Recording, String>,
+    open: &dyn Fn() -> Result<Recording, String>,
     path: &std::path::Path,
     timeline: &str,
     time: &TimeArg,
