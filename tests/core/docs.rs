@@ -235,3 +235,47 @@ fn the_changelog_has_one_unreleased_section_and_one_line_performance_entries() {
         }
     }
 }
+
+/// Every file or folder of the repository that `README.md` and `docs/` name in backticks
+/// (`tests/cli/`, `src/rrd/reader.rs`, `scripts/capture_cli.sh`) exists: moving a file
+/// leaves no document pointing at its old place. `docs/performance-log.md` and the
+/// CHANGELOG are history, and name files as they were.
+#[test]
+fn every_repository_path_the_documents_name_exists() {
+    const ROOTS: [&str; 7] = [
+        "src/",
+        "tests/",
+        "benches/",
+        "examples/",
+        "scripts/",
+        "python/",
+        "fuzz/",
+    ];
+    const KINDS: [&str; 6] = [".rs", ".py", ".md", ".sh", ".toml", "/"];
+    let mut documents = vec![root().join("README.md")];
+    documents.extend(repo::files_under(&root().join("docs"), |path| {
+        path.extension().is_some_and(|e| e == "md") && !path.ends_with("performance-log.md")
+    }));
+    let mut missing = Vec::new();
+    let mut checked = 0;
+    for document in &documents {
+        let text = std::fs::read_to_string(document).unwrap();
+        for span in text.split('`').skip(1).step_by(2) {
+            let path = span
+                .split(|c: char| c.is_whitespace() || c == ':')
+                .next()
+                .unwrap_or_default();
+            if !ROOTS.iter().any(|r| path.starts_with(r))
+                || !KINDS.iter().any(|k| path.ends_with(k))
+            {
+                continue;
+            }
+            checked += 1;
+            if !root().join(path).exists() {
+                missing.push(format!("{} names {path}", document.display()));
+            }
+        }
+    }
+    assert!(checked > 20, "paths were found: {checked}");
+    assert!(missing.is_empty(), "{}", missing.join("\n"));
+}
