@@ -123,6 +123,11 @@ fn citations_are_read_in_every_form() {
     assert_eq!(cited("SEMANTICS.md section Transport"), [0]);
 }
 
+/// The text between backticks (code spans) of a Markdown text.
+fn code_spans(text: &str) -> impl Iterator<Item = &str> {
+    text.split('`').skip(1).step_by(2)
+}
+
 /// `docs/PERFORMANCE.md` is the present, not a log: at most 300 lines, and every section
 /// of figures says when, at which commit and with which command they were measured (the
 /// history goes to `docs/performance-log.md`).
@@ -146,22 +151,14 @@ fn performance_md_holds_the_present_only() {
                 }
             })
     };
-    // Backticked spans: a commit is 7 to 40 hex digits; a command starts with a tool.
-    let spans = |section: &str| -> Vec<String> {
-        section
-            .split('`')
-            .skip(1)
-            .step_by(2)
-            .map(str::to_owned)
-            .collect()
-    };
     let mut problems = Vec::new();
     for section in text.split("\n## ").skip(1) {
         let title = section.lines().next().unwrap_or_default();
         if title == "Reproducing" {
             continue;
         }
-        let spans = spans(section);
+        // A commit is 7 to 40 hex digits; a command starts with a tool.
+        let spans: Vec<&str> = code_spans(section).collect();
         let has_date = section
             .split(|c: char| c.is_whitespace() || c == '(' || c == ',')
             .any(is_date);
@@ -260,7 +257,7 @@ fn every_repository_path_the_documents_name_exists() {
     let mut checked = 0;
     for document in &documents {
         let text = std::fs::read_to_string(document).unwrap();
-        for span in text.split('`').skip(1).step_by(2) {
+        for span in code_spans(&text) {
             let path = span
                 .split(|c: char| c.is_whitespace() || c == ':')
                 .next()

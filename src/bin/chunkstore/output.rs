@@ -7,8 +7,8 @@ use std::path::Path;
 
 use arrow_array::RecordBatchReader;
 use arrow_schema::ArrowError;
-use chunkstore::TimeType;
 use chunkstore::parquet::{ParquetOptions, write_parquet_file};
+use chunkstore::{TimeRange, TimeType, Timeline};
 
 use crate::Failure;
 
@@ -40,6 +40,17 @@ pub fn type_name(time_type: TimeType) -> &'static str {
         TimeType::DurationNs => "duration_ns",
         TimeType::TimestampNs => "timestamp_ns",
     }
+}
+
+/// A timeline as `stats` and `print --json` show it: its name, its type and the times
+/// its data spans (`null` without any).
+pub fn timeline_json(timeline: &Timeline, range: Option<TimeRange>) -> serde_json::Value {
+    serde_json::json!({
+        "name": timeline.name(),
+        "type": type_name(timeline.time_type()),
+        "min": range.map(|r| r.min().as_i64()),
+        "max": range.map(|r| r.max().as_i64()),
+    })
 }
 
 /// Writes `table` to the file `out`: Parquet for a name ending `.parquet` (with

@@ -92,9 +92,7 @@ impl Source {
             _stdin: stdin,
         }))
     }
-}
 
-impl Source {
     /// Runs `answer` on the one recording a query reads: the SOURCE (lazily where its
     /// footer allows), or a dataset's `--segment`. `answer` is given the recording's opener
     /// (so that it may check its arguments first) and the path that names it in errors.

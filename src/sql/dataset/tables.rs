@@ -27,12 +27,18 @@ use crate::{ChunkTableQuery, DataframeQuery, SEGMENT_ID_COLUMN, Timeline};
 fn kept_segments(filters: &[Expr], segments: &[(usize, String)]) -> (BTreeSet<usize>, usize) {
     let mut kept: BTreeSet<usize> = segments.iter().map(|(n, _)| *n).collect();
     for filter in filters {
-        if let Some(named) = pushdown::text_filter(filter, SEGMENT_ID_COLUMN, segments) {
+        if let Some(named) = segment_filter(filter, segments) {
             kept = kept.intersection(&named).copied().collect();
         }
     }
     let dropped = segments.len() - kept.len();
     (kept, dropped)
+}
+
+/// The segments (by number) a filter on [`SEGMENT_ID_COLUMN`] keeps, where it is one the
+/// scan applies itself (exactly: DataFusion need not filter again).
+fn segment_filter(filter: &Expr, segments: &[(usize, String)]) -> Option<BTreeSet<usize>> {
+    pushdown::text_filter(filter, SEGMENT_ID_COLUMN, segments)
 }
 
 /// What `EXPLAIN` says of the segments a scan reads: `segments=N of M`, and why the others
@@ -154,11 +160,11 @@ impl TableProvider for DatasetTimelineTable {
         Ok(filters
             .iter()
             .map(|filter| {
-                let by_id = pushdown::text_filter(filter, SEGMENT_ID_COLUMN, &self.segments);
-                pushdown::support(match by_id {
-                    Some(_) => Some(true),
-                    None => self.time_filter(filter).map(|f| f.exact),
-                })
+                if segment_filter(filter, &self.segments).is_some() {
+                    TableProviderFilterPushDown::Exact
+                } else {
+                    pushdown::support(self.time_filter(filter).map(|f| f.exact))
+                }
             })
             .collect())
     }
@@ -307,7 +313,7 @@ impl TableProvider for DatasetChunksTable {
         Ok(filters
             .iter()
             .map(|filter| {
-                if pushdown::text_filter(filter, SEGMENT_ID_COLUMN, &self.segments).is_some() {
+                if segment_filter(filter, &self.segments).is_some() {
                     TableProviderFilterPushDown::Exact
                 } else {
                     self.filters.support(filter)

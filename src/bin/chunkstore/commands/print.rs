@@ -7,7 +7,7 @@ use chunkstore::Chunk;
 use chunkstore::recording::SourceKind;
 use chunkstore::rrd::{RrdItem, RrdReader};
 
-use crate::output::{flush, stdout, type_name, write_line};
+use crate::output::{flush, stdout, timeline_json, write_line};
 use crate::source::Source;
 use crate::{Failure, load, one_line};
 
@@ -30,16 +30,7 @@ fn chunk_line(chunk: &Chunk, json: bool) -> String {
         let timelines: Vec<serde_json::Value> = chunk
             .time_columns()
             .iter()
-            .map(|c| {
-                let bounds = c.time_range();
-                let (min, max) = (bounds.min(), bounds.max());
-                serde_json::json!({
-                    "name": c.timeline().name(),
-                    "type": type_name(c.timeline().time_type()),
-                    "min": min.as_i64(),
-                    "max": max.as_i64(),
-                })
-            })
+            .map(|c| timeline_json(c.timeline(), Some(c.time_range())))
             .collect();
         return serde_json::json!({
             "chunk_id": chunk.id().to_string(),

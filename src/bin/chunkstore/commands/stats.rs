@@ -6,7 +6,7 @@ use chunkstore::dataset::Dataset;
 
 use crate::Failure;
 use crate::load;
-use crate::output::{flush, stdout, type_name, write_line};
+use crate::output::{flush, stdout, timeline_json, write_line};
 use crate::source::Source;
 
 /// `stats` of `source`.
@@ -26,15 +26,7 @@ fn store_stats(store: &ChunkStore) -> Result<(), Failure> {
     let timelines: Vec<serde_json::Value> = store
         .timelines()
         .iter()
-        .map(|timeline| {
-            let range = store.time_range(timeline.name());
-            serde_json::json!({
-                "name": timeline.name(),
-                "type": type_name(timeline.time_type()),
-                "min": range.map(|r| r.min().as_i64()),
-                "max": range.map(|r| r.max().as_i64()),
-            })
-        })
+        .map(|timeline| timeline_json(timeline, store.time_range(timeline.name())))
         .collect();
     let entities: Vec<String> = store
         .entity_paths()
@@ -62,14 +54,6 @@ fn store_stats(store: &ChunkStore) -> Result<(), Failure> {
 
 /// One JSON line: the dataset's totals and timelines, and each segment from its footer.
 fn dataset_stats(dataset: &Dataset) -> Result<(), Failure> {
-    let timeline_json = |timeline: &chunkstore::Timeline, range: Option<chunkstore::TimeRange>| {
-        serde_json::json!({
-            "name": timeline.name(),
-            "type": type_name(timeline.time_type()),
-            "min": range.map(|r| r.min().as_i64()),
-            "max": range.map(|r| r.max().as_i64()),
-        })
-    };
     let segments: Vec<serde_json::Value> = dataset
         .segments()
         .iter()
