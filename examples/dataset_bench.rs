@@ -11,6 +11,10 @@
 //! ```
 //!
 //! `DATASET_THREADS=N` sets the threads that read segments (by default one per core).
+//! DIR may be a URL (`s3://bucket/ds1000/`, feature `object-store`): credentials from
+//! the environment, and `STORAGE_OPTIONS=key=value,key=value` for more (with
+//! `chunkstore_added_latency_ms=20`, a fixed delay per request); each line then has the
+//! requests and bytes the step asked of the store.
 //! `table` asks what `benches/dataset_catalog.py` asks Rerun's catalog server (one entity's
 //! whole table, every column), so that the two compare.
 //!
@@ -139,22 +143,63 @@ fn opened(dir: &str, budget_mib: u64) -> Result<(Dataset, f64), Box<dyn std::err
     let started = Instant::now();
     let options = DatasetOptions::default()
         .with_memory_budget(budget_mib << 20)
-        .with_threads(threads());
+        .with_threads(threads())
+        .with_storage(storage_options());
     let dataset = Dataset::open(dir.as_ref(), &options)?;
     Ok((dataset, started.elapsed().as_secs_f64()))
 }
 
 fn open(dir: &str) -> Result<(), Box<dyn std::error::Error>> {
+    let before = Requests::now();
     let (dataset, seconds) = opened(dir, 0)?;
     let segments = dataset.segments();
     println!(
-        "{{\"open\":{dir:?},\"segments\":{},\"chunks\":{},\"file_bytes\":{},\"seconds\":{seconds:.3},\"peak_rss\":{}}}",
+        "{{\"open\":{dir:?},\"segments\":{},\"chunks\":{},\"file_bytes\":{},\"seconds\":{seconds:.3},\"peak_rss\":{}{}}}",
         segments.len(),
         segments.iter().map(|s| s.num_chunks).sum::<u64>(),
         segments.iter().map(|s| s.file_bytes).sum::<u64>(),
-        common::peak_rss()
+        common::peak_rss(),
+        before.since_json()
     );
     Ok(())
+}
+
+/// `STORAGE_OPTIONS`: `key=value` pairs, comma-separated.
+fn storage_options() -> chunkstore::storage::StorageOptions {
+    std::env::var("STORAGE_OPTIONS")
+        .unwrap_or_default()
+        .split(',')
+        .filter_map(|pair| pair.split_once('='))
+        .collect()
+}
+
+/// The object-store requests made since it was taken (none without the feature).
+struct Requests {
+    #[cfg(feature = "object-store")]
+    at: chunkstore::storage::object::StorageCounters,
+}
+
+impl Requests {
+    fn now() -> Self {
+        Self {
+            #[cfg(feature = "object-store")]
+            at: chunkstore::storage::object::counters(),
+        }
+    }
+
+    /// The requests since, as JSON fields to append to a line (`,"gets":…`).
+    fn since_json(&self) -> String {
+        #[cfg(feature = "object-store")]
+        {
+            let c = chunkstore::storage::object::counters().since(&self.at);
+            format!(
+                ",\"gets\":{},\"lists\":{},\"bytes_fetched\":{}",
+                c.gets, c.lists, c.bytes_fetched
+            )
+        }
+        #[cfg(not(feature = "object-store"))]
+        String::new()
+    }
 }
 
 /// One scalar column of one entity, on `range` (or everywhere).
@@ -199,18 +244,20 @@ fn range(dir: &str, budget_mib: u64) -> Result<(), Box<dyn std::error::Error>> {
         TimeInt::new(start + width - 1).ok_or("time")?,
     );
     let started = Instant::now();
+    let before = Requests::now();
     let (rows, sum) = aggregate(&dataset, &scalar_query(Some(range)))?;
     let read = dataset.read_stats();
     let segments = dataset.segments();
     println!(
-        "{{\"range\":[{start},{}],\"rows\":{rows},\"sum\":{sum:.3},\"open_seconds\":{open_seconds:.3},\"seconds\":{:.3},\"chunks_decoded\":{},\"chunks\":{},\"bytes_read\":{},\"file_bytes\":{},\"budget_mib\":{budget_mib},\"peak_rss\":{}}}",
+        "{{\"range\":[{start},{}],\"rows\":{rows},\"sum\":{sum:.3},\"open_seconds\":{open_seconds:.3},\"seconds\":{:.3},\"chunks_decoded\":{},\"chunks\":{},\"bytes_read\":{},\"file_bytes\":{},\"budget_mib\":{budget_mib},\"peak_rss\":{}{}}}",
         start + width - 1,
         started.elapsed().as_secs_f64(),
         read.chunks_decoded,
         segments.iter().map(|s| s.num_chunks).sum::<u64>(),
         read.bytes_read,
         segments.iter().map(|s| s.file_bytes).sum::<u64>(),
-        common::peak_rss()
+        common::peak_rss(),
+        before.since_json()
     );
     Ok(())
 }

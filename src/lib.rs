@@ -155,6 +155,8 @@ mod snapshot;
 #[cfg(feature = "datafusion")]
 pub mod sql;
 mod stats;
+#[cfg(feature = "rrd")]
+pub mod storage;
 mod store;
 mod text;
 mod time;

@@ -47,7 +47,7 @@ pub(super) fn open_indexed(
     let index = index_file(dir, path, metadata);
     let file_bytes = metadata.len();
     if index.is_file()
-        && let Ok(Some(mut lazy)) = LazyRecording::open_indexed(path, &index, None)
+        && let Ok(Some(lazy)) = LazyRecording::open_indexed(path, &index, None)
         && let Some(info) = lazy.store_info().cloned()
         && lazy
             .manifest()
@@ -55,13 +55,11 @@ pub(super) fn open_indexed(
             .iter()
             .all(|e| e.byte_offset.saturating_add(e.byte_size) <= file_bytes)
     {
+        let mut lazy = lazy.map_input(crate::storage::Input::File);
         let reader = RecordingReader::lazy(&mut lazy);
-        let mut segment = SegmentInfo::read(path, &info, &reader, file_bytes, false);
+        let mut segment = SegmentInfo::read(path, &info.store_id, &reader, file_bytes, false);
         segment.index_file = Some(index);
-        return Ok(Opened {
-            info: segment,
-            loaded: None,
-        });
+        return Ok(Opened::new(segment, None));
     }
     std::fs::create_dir_all(dir).map_err(|source| DatasetError::Io {
         path: dir.to_owned(),
@@ -98,10 +96,7 @@ pub(super) fn open_indexed(
         })?;
     }
     let reader = RecordingReader::view(&store);
-    let mut segment = SegmentInfo::read(path, &info, &reader, file_bytes, false);
+    let mut segment = SegmentInfo::read(path, &info.store_id, &reader, file_bytes, false);
     segment.index_file = Some(index);
-    Ok(Opened {
-        info: segment,
-        loaded: Some(store.snapshot()),
-    })
+    Ok(Opened::new(segment, Some(store.snapshot())))
 }

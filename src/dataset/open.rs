@@ -16,6 +16,7 @@ use super::{
 use crate::TimeType;
 use crate::recording::{LoadedRecording, OpenError, OpenOptions, RecordingReader};
 use crate::rrd::LazyRecording;
+use crate::storage::Input;
 
 impl Dataset {
     /// Opens a dataset directory (its regular `*.rrd` files) or a single `.rrd` file,
@@ -25,6 +26,10 @@ impl Dataset {
     /// A directory without `.rrd` files, a file that cannot be opened (unless skipped),
     /// two files of one recording, a timeline of different types in two segments.
     pub fn open(path: &Path, options: &DatasetOptions) -> Result<Self, DatasetError> {
+        if crate::storage::url_scheme(path).is_some() {
+            return Self::open_url(path, options);
+        }
+        let path = crate::storage::local_path(path);
         let files = if std::fs::metadata(path)
             .map_err(|source| DatasetError::Io {
                 path: path.to_owned(),
@@ -66,8 +71,22 @@ impl Dataset {
         }
         let warnings = Mutex::new(notes);
         let results = in_parallel(files, options.threads, |path| {
-            open_file(path, options, &warnings)
+            if crate::storage::url_scheme(path).is_some() {
+                open_object(path, options, &warnings)
+            } else {
+                open_file(path, options, &warnings)
+            }
         });
+        Self::from_opened(files, results, options, warnings)
+    }
+
+    /// The dataset of the files `files` whose opening gave `results`.
+    pub(super) fn from_opened(
+        files: &[PathBuf],
+        results: Vec<Result<Opened, DatasetError>>,
+        options: &DatasetOptions,
+        warnings: Mutex<Vec<String>>,
+    ) -> Result<Self, DatasetError> {
         let mut opened = Vec::with_capacity(files.len());
         for (path, result) in files.iter().zip(results) {
             match result {
@@ -112,8 +131,12 @@ impl Dataset {
                 cache.insert(number, snapshot);
             }
         }
+        #[cfg(feature = "object-store")]
+        let objects = opened.iter_mut().map(|o| o.object.take()).collect();
         Ok(Self {
             inner: Arc::new(Inner {
+                #[cfg(feature = "object-store")]
+                objects,
                 segments: opened.into_iter().map(|o| o.info).collect(),
                 options: options.clone(),
                 cache: Mutex::new(cache),
@@ -225,18 +248,19 @@ fn open_file(
         });
     }
     match LazyRecording::open(path) {
-        Ok(Some(mut lazy)) => {
+        Ok(Some(lazy)) => {
             let info = lazy
                 .store_info()
                 .cloned()
                 .ok_or_else(|| DatasetError::NoRecordingId {
                     path: path.to_owned(),
                 })?;
+            let mut lazy = lazy.map_input(Input::File);
             let reader = RecordingReader::lazy(&mut lazy);
-            Ok(Opened {
-                info: SegmentInfo::read(path, &info, &reader, file_bytes, true),
-                loaded: None,
-            })
+            Ok(Opened::new(
+                SegmentInfo::read(path, &info.store_id, &reader, file_bytes, true),
+                None,
+            ))
         }
         Ok(None) => match &options.index_cache {
             Some(dir) if !options.skip_bad => {
@@ -265,6 +289,7 @@ fn load_whole(
         config: options.config,
         skip_bad: options.skip_bad,
         lazy: false,
+        storage: options.storage.clone(),
         ..OpenOptions::default()
     };
     let loaded = LoadedRecording::load(path, &open, &mut Warnings(warnings))?;
@@ -275,10 +300,16 @@ fn load_whole(
             path: path.to_owned(),
         })?;
     let store = &loaded.store;
-    Ok(Opened {
-        info: SegmentInfo::read(path, info, &RecordingReader::view(store), file_bytes, false),
-        loaded: Some(store.snapshot()),
-    })
+    Ok(Opened::new(
+        SegmentInfo::read(
+            path,
+            &info.store_id,
+            &RecordingReader::view(store),
+            file_bytes,
+            false,
+        ),
+        Some(store.snapshot()),
+    ))
 }
 
 /// A timeline has one type across the segments.
@@ -305,4 +336,61 @@ fn check_timeline_types<'a>(
         }
     }
     Ok(())
+}
+
+/// A dataset file named by URL and not opened yet (outside [`Dataset::open_url`]'s
+/// listing): opened through its footer, or read whole if it has none.
+fn open_object(
+    path: &Path,
+    options: &DatasetOptions,
+    warnings: &Mutex<Vec<String>>,
+) -> Result<Opened, DatasetError> {
+    let input =
+        crate::storage::open_input(path, &options.storage).map_err(|source| OpenError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+    opened_object(path, input, options, warnings)
+}
+
+/// A dataset file in an object store, its end fetched already (in `input`): opened from
+/// its footer alone (its manifest names the recording), or read whole if it has none.
+pub(super) fn opened_object(
+    path: &Path,
+    input: Input,
+    options: &DatasetOptions,
+    warnings: &Mutex<Vec<String>>,
+) -> Result<Opened, DatasetError> {
+    let file_bytes = input.size().unwrap_or(0);
+    #[cfg(feature = "object-store")]
+    let object = match &input {
+        Input::Object(object) => Some(object.clone()),
+        Input::File(_) => None,
+    };
+    match LazyRecording::from_reader_footer(input, None) {
+        Ok(Some(mut lazy)) => {
+            let store = lazy.manifest().store_id.clone();
+            let reader = RecordingReader::lazy(&mut lazy);
+            let info = SegmentInfo::read(path, &store, &reader, file_bytes, true);
+            #[cfg(feature = "object-store")]
+            let object = object.map(|mut object| {
+                object.keep_from(lazy.footers_start());
+                object
+            });
+            Ok(Opened {
+                info,
+                loaded: None,
+                #[cfg(feature = "object-store")]
+                object,
+            })
+        }
+        Ok(None) => load_whole(path, options, warnings, file_bytes),
+        Err(error) if error.is_recording_choice() => Err(OpenError::rrd(path, error).into()),
+        Err(_) if options.skip_bad => load_whole(path, options, warnings, file_bytes),
+        Err(error) => Err(OpenError::Footer {
+            path: path.to_owned(),
+            error,
+        }
+        .into()),
+    }
 }

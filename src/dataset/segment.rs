@@ -10,6 +10,7 @@ use super::threads::in_parallel;
 use super::{Dataset, DatasetError, ReadStats, Warnings, prune};
 use crate::recording::{LoadedRecording, OpenError, OpenOptions};
 use crate::rrd::LazyRecording;
+use crate::storage::Input;
 use crate::{ChunkId, Snapshot};
 
 /// What a query read of one segment.
@@ -64,12 +65,25 @@ impl Dataset {
     }
 
     /// Segment number `number`'s file opened through its footer; `None` when it has none.
-    pub(super) fn footer(&self, number: usize) -> Result<Option<LazyRecording>, DatasetError> {
+    pub(super) fn footer(
+        &self,
+        number: usize,
+    ) -> Result<Option<LazyRecording<Input>>, DatasetError> {
         let segment = &self.inner.segments[number];
+        #[cfg(feature = "object-store")]
+        if let Some(object) = &self.inner.objects[number] {
+            // Its footer was fetched when the dataset opened: no request.
+            return LazyRecording::from_reader_footer(
+                Input::Object(object.clone()),
+                Some(&segment.id),
+            )
+            .map_err(|error| OpenError::rrd(&segment.path, error).into());
+        }
         match &segment.index_file {
             Some(index) => LazyRecording::open_indexed(&segment.path, index, Some(&segment.id)),
             None => LazyRecording::open_recording(&segment.path, Some(&segment.id)),
         }
+        .map(|lazy| lazy.map(|lazy| lazy.map_input(Input::File)))
         .map_err(|error| OpenError::rrd(&segment.path, error).into())
     }
 
@@ -158,7 +172,7 @@ impl Dataset {
         in_part: bool,
         count: impl Fn(&crate::rrd::Manifest) -> usize + Sync,
     ) -> Result<u64, DatasetError> {
-        let counts = in_parallel(numbers, self.inner.options.threads, |&number| {
+        let counts = in_parallel(numbers, self.read_threads(), |&number| {
             if in_part
                 && self.reads_in_part(number)
                 && let Some(lazy) = self.footer(number)?

@@ -33,7 +33,7 @@ impl Dataset {
     /// skipped, [`DatasetOptions::skip_bad`](super::DatasetOptions::skip_bad)).
     pub fn dataframe(&self, query: &DataframeQuery) -> Result<DatasetStream, DatasetError> {
         let (schema, segments) = self.plan_dataframe(query)?;
-        Ok(self.stream_segments(schema, segments, self.options().threads))
+        Ok(self.stream_segments(schema, segments, self.read_threads()))
     }
 
     /// The table [`Dataset::dataframe`] streams for `query`, and the segments that give
@@ -61,7 +61,7 @@ impl Dataset {
         // from the page cache into freed memory costs less (docs/PERFORMANCE.md,
         // "Datasets"). With the default budget, a quarter of the machine's memory, a
         // wide table of those hundred segments held 1.4 GB.
-        let threads = self.options().threads.max(1);
+        let threads = self.read_threads();
         let room = AtomicU64::new(self.options().memory_budget);
         let no_room = AtomicU64::new(0);
         let positions: Vec<(usize, usize)> = with_index.iter().copied().enumerate().collect();

@@ -138,8 +138,7 @@ impl LoadedRecording {
             path: path.to_owned(),
             source,
         };
-        let file = std::fs::File::open(path).map_err(io)?;
-        let size = file.metadata().map_or(0, |m| m.len());
+        let (file, size) = crate::storage::open_stream(path, &self.options.storage).map_err(io)?;
         let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
             .map_err(|error| OpenError::rrd(path, error))?;
         self.header = Some(reader.header());

@@ -30,6 +30,7 @@ pub use reader::RecordingReader;
 pub use source::SourceKind;
 
 use crate::rrd::{LazyRecording, StoreInfo, StreamHeader};
+use crate::storage::{Input, StorageOptions};
 use crate::{ChunkId, ChunkStore, RowId, StoreConfig};
 
 /// How to open a source.
@@ -66,6 +67,8 @@ pub struct OpenOptions {
     /// Remember the chunk each row was loaded from ([`Recording::row_source`]): a map
     /// entry per row.
     pub track_row_sources: bool,
+    /// Options of the object store a URL source names ([`crate::storage`]).
+    pub storage: StorageOptions,
 }
 
 impl Default for OpenOptions {
@@ -79,6 +82,7 @@ impl Default for OpenOptions {
             lazy: true,
             keep_source_order: false,
             track_row_sources: false,
+            storage: StorageOptions::default(),
         }
     }
 }
@@ -132,6 +136,13 @@ impl OpenOptions {
         self.track_row_sources = track;
         self
     }
+
+    /// With the options of the object store a URL source names.
+    #[must_use]
+    pub fn with_storage(mut self, storage: StorageOptions) -> Self {
+        self.storage = storage;
+        self
+    }
 }
 
 /// What a load counts its progress in.
@@ -172,7 +183,7 @@ pub struct Recording {
 #[derive(Debug)]
 enum Contents {
     Loaded(Box<LoadedRecording>),
-    Lazy(Box<LazyRecording>),
+    Lazy(Box<LazyRecording<Input>>),
 }
 
 impl Recording {
@@ -189,9 +200,17 @@ impl Recording {
     ) -> Result<Self, OpenError> {
         let kind = SourceKind::detect(path)?;
         if kind == SourceKind::Rrd && options.lazy && !options.skip_bad {
-            match LazyRecording::open_recording(path, options.recording.as_deref()) {
+            let input = crate::storage::open_input(path, &options.storage).map_err(|source| {
+                OpenError::Io {
+                    path: path.to_owned(),
+                    source,
+                }
+            })?;
+            match LazyRecording::from_reader_recording(input, options.recording.as_deref()) {
                 Ok(Some(lazy)) => {
-                    observer.header(lazy.header());
+                    if let Some(header) = lazy.header() {
+                        observer.header(header);
+                    }
                     return Ok(Self {
                         source: path.to_owned(),
                         kind,
@@ -242,7 +261,7 @@ impl Recording {
     }
 
     /// The lazy recording, while it is read lazily.
-    pub fn lazy(&self) -> Option<&LazyRecording> {
+    pub fn lazy(&self) -> Option<&LazyRecording<Input>> {
         match &self.contents {
             Contents::Lazy(lazy) => Some(lazy),
             Contents::Loaded(_) => None,

@@ -4,6 +4,7 @@
 use crate::UnknownTimeline;
 use crate::query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult};
 use crate::rrd::{LazyRecording, RrdError};
+use crate::storage::Input;
 use crate::{ComponentName, EntityPath, StoreView, TimeRange, TimeType, Timeline};
 
 /// The reads of a recording: discovery (entities, components, timelines and their spans,
@@ -18,7 +19,7 @@ pub struct RecordingReader<'a> {
 
 enum Source<'a> {
     View(&'a StoreView),
-    Lazy(&'a mut LazyRecording),
+    Lazy(&'a mut LazyRecording<Input>),
 }
 
 impl<'a> RecordingReader<'a> {
@@ -31,7 +32,7 @@ impl<'a> RecordingReader<'a> {
     }
 
     /// Reads over a lazy recording.
-    pub fn lazy(recording: &'a mut LazyRecording) -> Self {
+    pub fn lazy(recording: &'a mut LazyRecording<Input>) -> Self {
         Self {
             source: Source::Lazy(recording),
         }

@@ -19,7 +19,9 @@ pub enum SourceKind {
 
 impl SourceKind {
     /// The kind of `path`: a directory, or a file by its first bytes (the `.rrd` stream
-    /// header, Arrow IPC's `ARROW1` magic or a stream's continuation marker).
+    /// header, Arrow IPC's `ARROW1` magic or a stream's continuation marker). An object
+    /// named by URL ([`crate::storage`]) is an `.rrd` (without a request: reading it
+    /// says whether it is one).
     ///
     /// # Errors
     /// [`OpenError::Io`] if `path` cannot be read, [`OpenError::UnknownFormat`] if its
@@ -29,6 +31,10 @@ impl SourceKind {
             path: path.to_owned(),
             source,
         };
+        if crate::storage::url_scheme(path).is_some() {
+            return Ok(Self::Rrd);
+        }
+        let path = crate::storage::local_path(path);
         if std::fs::metadata(path).map_err(io)?.is_dir() {
             return Ok(Self::ChunkDirectory);
         }

@@ -119,10 +119,12 @@ pub(super) fn read_stream_header<R: Read + Seek>(
 }
 
 /// Every stream's footer, from the last stream back to the first, returned in file
-/// order; `None` if a stream has no footer.
+/// order; `None` if a stream has no footer. With `check_stream_headers`, each stream's
+/// header is read and checked too.
 pub(super) fn read_footers<R: Read + Seek>(
     input: &mut R,
     stats: &mut LazyStats,
+    check_stream_headers: bool,
 ) -> Result<Option<Vec<Stream>>, RrdError> {
     let file_bytes = stats.file_bytes;
     let mut streams = Vec::new();
@@ -162,7 +164,9 @@ pub(super) fn read_footers<R: Read + Seek>(
                 footer.footer_start
             )));
         }
-        read_stream_header(input, start, stats)?;
+        if check_stream_headers {
+            read_stream_header(input, start, stats)?;
+        }
         let body = read_vec(input, body_at, footer.footer_len, file_bytes, stats)?;
         if frames::crc(&body) != footer.crc {
             return Err(footer_bad(format!(

@@ -19,7 +19,8 @@
 //! (this crate forbids it) and is undefined behaviour if another process truncates the
 //! file; and since payloads are LZ4-compressed, a decoded chunk is a copy either way.
 
-use std::io::{Read, Seek, SeekFrom};
+use std::io::{Seek, SeekFrom};
+use std::ops::Range;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -28,6 +29,7 @@ use arrow_buffer::Buffer;
 use super::error::{RrdError, RrdErrorKind};
 use super::footers::{LazyStats, find_store_info, read_footers, read_into, read_stream_header};
 use super::frames::StreamHeader;
+use super::input::RrdInput;
 use super::manifest::{Manifest, ManifestEntry};
 use super::messages::{ArrowMsg, Compression, StoreInfo};
 use super::payload;
@@ -35,6 +37,9 @@ use crate::query::{LatestAtQuery, QueryCell, RangeQuery, RangeResult};
 use crate::{
     ChunkId, ChunkStore, ComponentName, EntityPath, StoreConfig, TimeInt, TimeRange, Timeline,
 };
+
+/// Chunk bytes a query's load asks its input to fetch at once ([`RrdInput::prefetch`]).
+const PREFETCH_BATCH_BYTES: u64 = 64 << 20;
 
 /// An `.rrd` recording opened lazily: see the module documentation.
 ///
@@ -50,7 +55,8 @@ use crate::{
 /// ```
 pub struct LazyRecording<R = std::fs::File> {
     input: R,
-    header: StreamHeader,
+    /// `None` when opened from the footer alone ([`LazyRecording::from_reader_footer`]).
+    header: Option<StreamHeader>,
     store_info: Option<StoreInfo>,
     manifest: Manifest,
     /// Per entity, its entries (indices into the manifest), in file order.
@@ -58,6 +64,7 @@ pub struct LazyRecording<R = std::fs::File> {
     loaded: ahash::HashSet<ChunkId>,
     store: ChunkStore,
     stats: LazyStats,
+    footers_start: u64,
 }
 
 impl<R> std::fmt::Debug for LazyRecording<R> {
@@ -124,7 +131,7 @@ impl LazyRecording<std::fs::File> {
     }
 }
 
-impl<R: Read + Seek> LazyRecording<R> {
+impl<R: RrdInput> LazyRecording<R> {
     /// Opens a seekable input lazily; `Ok(None)` if it has no footer.
     ///
     /// # Errors
@@ -145,8 +152,33 @@ impl<R: Read + Seek> LazyRecording<R> {
     /// # Errors
     /// As [`LazyRecording::open_recording`].
     pub fn from_reader_recording(
+        input: R,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
+        Self::open_with(input, recording_id, true)
+    }
+
+    /// Opens the recording `recording_id` (or the only one) of a seekable input from its
+    /// footers alone, without reading the start of any stream: no stream header is
+    /// checked ([`LazyRecording::header`] is `None`) and no store info is looked for
+    /// ([`LazyRecording::store_info`] is `None`; the manifest's store id names the
+    /// recording). Over a network this is one read at the end of the input, where
+    /// [`LazyRecording::from_reader_recording`] also reads its start. `Ok(None)` if it has
+    /// no footer.
+    ///
+    /// # Errors
+    /// As [`LazyRecording::open_recording`].
+    pub fn from_reader_footer(
+        input: R,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
+        Self::open_with(input, recording_id, false)
+    }
+
+    fn open_with(
         mut input: R,
         recording_id: Option<&str>,
+        read_starts: bool,
     ) -> Result<Option<Self>, RrdError> {
         let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
         let file_bytes = input.seek(SeekFrom::End(0)).map_err(io(0))?;
@@ -154,10 +186,15 @@ impl<R: Read + Seek> LazyRecording<R> {
             file_bytes,
             ..LazyStats::default()
         };
-        let header = read_stream_header(&mut input, 0, &mut stats)?;
-        let Some(streams) = read_footers(&mut input, &mut stats)? else {
+        let header = if read_starts {
+            Some(read_stream_header(&mut input, 0, &mut stats)?)
+        } else {
+            None
+        };
+        let Some(streams) = read_footers(&mut input, &mut stats, read_starts)? else {
             return Ok(None);
         };
+        let footers_start = streams.iter().map(|s| s.end_at).min().unwrap_or(file_bytes);
         // Each recording's manifest, merged across streams, in file order.
         let mut manifests: Vec<Manifest> = Vec::new();
         for stream in &streams {
@@ -180,7 +217,11 @@ impl<R: Read + Seek> LazyRecording<R> {
         let Some(manifest) = manifests.into_iter().find(|m| m.store_id == chosen) else {
             return Ok(None);
         };
-        let store_info = find_store_info(&mut input, &streams, &chosen, &mut stats);
+        let store_info = if read_starts {
+            find_store_info(&mut input, &streams, &chosen, &mut stats)
+        } else {
+            None
+        };
         let mut by_entity: ahash::HashMap<EntityPath, Vec<usize>> = ahash::HashMap::default();
         for (i, entry) in manifest.entries.iter().enumerate() {
             by_entity
@@ -206,11 +247,35 @@ impl<R: Read + Seek> LazyRecording<R> {
             loaded: ahash::HashSet::default(),
             store,
             stats,
+            footers_start,
         }))
     }
 
-    /// The stream header: which Rerun version wrote the file.
-    pub fn header(&self) -> StreamHeader {
+    /// The same recording read from `f(input)` (the input, wrapped).
+    pub(crate) fn map_input<S>(self, f: impl FnOnce(R) -> S) -> LazyRecording<S> {
+        LazyRecording {
+            input: f(self.input),
+            header: self.header,
+            store_info: self.store_info,
+            manifest: self.manifest,
+            by_entity: self.by_entity,
+            loaded: self.loaded,
+            store: self.store,
+            stats: self.stats,
+            footers_start: self.footers_start,
+        }
+    }
+
+    /// Where the first of the input's footers starts: what opening it again reads is at
+    /// or after this byte (the stream footers and footers), with its start if
+    /// [`LazyRecording::from_reader_recording`] read it.
+    pub fn footers_start(&self) -> u64 {
+        self.footers_start
+    }
+
+    /// The stream header: which Rerun version wrote the file; `None` when opened from the
+    /// footer alone ([`LazyRecording::from_reader_footer`]).
+    pub fn header(&self) -> Option<StreamHeader> {
         self.header
     }
 
@@ -425,11 +490,44 @@ impl<R: Read + Seek> LazyRecording<R> {
     }
 
     fn load(&mut self, entries: &[usize]) -> Result<(), RrdError> {
-        // A compressed message's body is only read from, until its chunk is decompressed:
-        // one buffer serves every such message of the load. A new one for each (fresh
-        // pages, faulted in and zeroed by the kernel) cost about as much as the read. (A
-        // buffer kept per thread, across loads, measured slower than one per load, which
-        // the next load's allocations reuse once it is freed.)
+        let mut wanted: Vec<usize> = entries
+            .iter()
+            .copied()
+            .filter(|&i| !self.loaded.contains(&self.manifest.entries[i].chunk_id))
+            .collect();
+        wanted.sort_unstable();
+        wanted.dedup();
+        // The input is told each batch's ranges before they are read (an object in a
+        // bucket fetches them together); a batch is bounded so that what it fetched, held
+        // until read, stays small beside the chunks it decodes to.
+        let mut start = 0;
+        while start < wanted.len() {
+            let mut end = start;
+            let mut bytes = 0u64;
+            while end < wanted.len() && (end == start || bytes < PREFETCH_BATCH_BYTES) {
+                bytes = bytes.saturating_add(self.manifest.entries[wanted[end]].byte_size);
+                end += 1;
+            }
+            let batch = &wanted[start..end];
+            let mut ranges: Vec<Range<u64>> = batch
+                .iter()
+                .map(|&i| {
+                    let entry = &self.manifest.entries[i];
+                    entry.byte_offset..entry.byte_offset.saturating_add(entry.byte_size)
+                })
+                .collect();
+            ranges.sort_unstable_by_key(|r| (r.start, r.end));
+            let first = ranges.first().map_or(0, |r| r.start);
+            self.input
+                .prefetch(&ranges)
+                .map_err(|e| RrdError::new(first, RrdErrorKind::Io(e)))?;
+            self.load_batch(batch)?;
+            start = end;
+        }
+        Ok(())
+    }
+
+    fn load_batch(&mut self, entries: &[usize]) -> Result<(), RrdError> {
         let mut body = Vec::new();
         for &i in entries {
             let entry = &self.manifest.entries[i];

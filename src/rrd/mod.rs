@@ -13,6 +13,7 @@ mod error;
 mod footers;
 mod frames;
 pub mod index;
+mod input;
 mod lazy;
 mod log_msg;
 mod manifest;
@@ -30,6 +31,7 @@ pub use directory::{
 pub use error::{RrdError, RrdErrorKind};
 pub use footers::LazyStats;
 pub use frames::StreamHeader;
+pub use input::RrdInput;
 pub use lazy::LazyRecording;
 pub use log_msg::{DecodedLogMsg, LogMsg, LogMsgKind, LogScan, log_stream_header, scan_log};
 pub use manifest::{Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange};

@@ -400,7 +400,7 @@ impl ExecutionPlan for DatasetScanExec {
                     // One partition alone loads ahead on the dataset's threads; a limit
                     // wants no segment past its rows read.
                     let threads = if groups.len() == 1 && self.limit.is_none() {
-                        dataset.options().threads
+                        dataset.read_threads()
                     } else {
                         1
                     };

@@ -1,0 +1,80 @@
+//! A dataset over a prefix: its `.rrd` objects listed, and each opened, many at once.
+
+use futures::StreamExt;
+
+use super::{Location, ObjectReader, count_list, request_error, runtime};
+use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
+
+/// Objects opened at once when a dataset over a prefix opens (each is one GET).
+pub const OPENS_IN_FLIGHT: usize = 64;
+
+/// The `.rrd` objects directly under a prefix, sorted by key, and what to warn of.
+#[derive(Debug)]
+pub struct ListedObjects {
+    /// Each object: its location and what the listing says of it.
+    pub objects: Vec<(Location, object_store::ObjectMeta)>,
+    /// "Subdirectories" (common prefixes) that were not looked into.
+    pub subdirectories: usize,
+}
+
+/// Lists the `.rrd` objects directly under the prefix `url` (`s3://bucket/episodes/`):
+/// one paginated LIST (a page per 1,000 keys on S3).
+///
+/// # Errors
+/// As [`Location::resolve`], and a failed or denied LIST.
+pub fn list_rrd_objects(
+    url: &str,
+    options: &StorageOptions,
+) -> Result<ListedObjects, StorageError> {
+    let prefix = Location::resolve(url, options)?;
+    let store = std::sync::Arc::clone(&prefix.store);
+    let path = prefix.path.clone();
+    let listed = runtime::wait(async move {
+        let prefix = (!path.as_ref().is_empty()).then_some(&path);
+        store.list_with_delimiter(prefix).await
+    })
+    .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e)))?
+    .map_err(|e| request_error(url, &e))?;
+    // `list_with_delimiter` reads every page; the count is of the pages it needed.
+    for _ in 0..(listed.objects.len() + listed.common_prefixes.len())
+        .div_ceil(1000)
+        .max(1)
+    {
+        count_list();
+    }
+    let mut objects: Vec<(Location, object_store::ObjectMeta)> = listed
+        .objects
+        .into_iter()
+        .filter(|meta| {
+            meta.location
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("rrd"))
+        })
+        .map(|meta| (prefix.child(meta.location.clone()), meta))
+        .collect();
+    objects.sort_by(|a, b| a.1.location.cmp(&b.1.location));
+    Ok(ListedObjects {
+        objects,
+        subdirectories: listed.common_prefixes.len(),
+    })
+}
+
+/// Opens every listed object ([`ObjectReader`]: one GET of its end each), up to
+/// [`OPENS_IN_FLIGHT`] at once; one result per object, in order.
+pub fn open_all(listed: &ListedObjects) -> Vec<Result<ObjectReader, StorageError>> {
+    let objects = listed.objects.clone();
+    let urls: Vec<String> = objects.iter().map(|(l, _)| l.url.clone()).collect();
+    match runtime::wait(async move {
+        futures::stream::iter(objects)
+            .map(|(location, meta)| ObjectReader::open_async(location, Some(meta)))
+            .buffered(OPENS_IN_FLIGHT)
+            .collect::<Vec<_>>()
+            .await
+    }) {
+        Ok(results) => results,
+        Err(e) => urls
+            .into_iter()
+            .map(|url| Err(StorageError::new(url, StorageErrorKind::Request(e.clone()))))
+            .collect(),
+    }
+}

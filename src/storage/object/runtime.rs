@@ -1,0 +1,45 @@
+//! The runtime `object_store`'s futures run on, and the one way the crate's synchronous
+//! code waits for them.
+
+use std::future::Future;
+use std::sync::OnceLock;
+
+/// Runs `future` on the crate's runtime and waits for it on this thread. Safe to call
+/// from inside another Tokio runtime's task (the wait is a plain channel's, which never
+/// tries to drive a runtime), where `Runtime::block_on` would panic.
+pub(super) fn wait<F>(future: F) -> Result<F::Output, String>
+where
+    F: Future + Send + 'static,
+    F::Output: Send + 'static,
+{
+    let (sender, receiver) = std::sync::mpsc::sync_channel(1);
+    spawn(async move {
+        let _ = sender.send(future.await);
+    })?;
+    receiver
+        .recv()
+        .map_err(|_| "an object-store request was dropped before it finished".to_owned())
+}
+
+/// Starts `future` on the crate's runtime, without waiting for it.
+pub(super) fn spawn<F>(future: F) -> Result<(), String>
+where
+    F: Future<Output = ()> + Send + 'static,
+{
+    static RUNTIME: OnceLock<Result<tokio::runtime::Runtime, String>> = OnceLock::new();
+    let runtime = RUNTIME
+        .get_or_init(|| {
+            // Two workers: requests wait on the network, not on a core; the number of
+            // requests in flight is set by the callers, not by these threads.
+            tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .thread_name("chunkstore-storage")
+                .enable_all()
+                .build()
+                .map_err(|e| format!("cannot start the object-store runtime: {e}"))
+        })
+        .as_ref()
+        .map_err(Clone::clone)?;
+    drop(runtime.spawn(future));
+    Ok(())
+}

@@ -1,0 +1,151 @@
+//! The tool with URLs: sources and outputs in a bucket, credentials from the environment
+//! (as the clouds' own tools read them) or `--storage-option`, one line for each error.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use chunkstore::storage::StorageOptions;
+
+use super::{endpoint, options, prefix, turn, upload};
+use crate::common;
+
+/// The tool, with the test server's credentials in its environment.
+fn chunkstore(endpoint: &str, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args(args)
+        .env("AWS_ENDPOINT_URL", endpoint)
+        .env("AWS_ALLOW_HTTP", "true")
+        .env("AWS_ACCESS_KEY_ID", "key")
+        .env("AWS_SECRET_ACCESS_KEY", "secret")
+        .env("AWS_REGION", "us-east-1")
+        .output()
+        .unwrap()
+}
+
+fn stdout(output: &Output) -> String {
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout.clone()).unwrap()
+}
+
+/// Reads the whole object `url` into memory.
+fn download(url: &str, storage: &StorageOptions) -> Vec<u8> {
+    use std::io::Read as _;
+    let (mut input, _) = chunkstore::storage::open_stream(Path::new(url), storage).unwrap();
+    let mut bytes = Vec::new();
+    input.read_to_end(&mut bytes).unwrap();
+    bytes
+}
+
+#[test]
+fn every_output_goes_to_a_bucket_and_reads_back_as_the_local_one() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let prefix = prefix("cli");
+    let robot = common::robot_recording().join("a_robot.rrd");
+    let robot = robot.to_str().unwrap();
+    let dir = common::ScratchDir::new("storage-cli");
+
+    // convert: a local recording to an `.rrd` in the bucket, which reads back the same.
+    let converted = format!("{prefix}converted.rrd");
+    stdout(&chunkstore(&endpoint, &[robot, "convert", &converted]));
+    let at = ["latest-at", "frame_id", "30"];
+    assert_eq!(
+        stdout(&chunkstore(
+            &endpoint,
+            &[&[converted.as_str()], &at[..]].concat()
+        )),
+        stdout(&chunkstore(&endpoint, &[&[robot], &at[..]].concat())),
+    );
+    // Refused: writing over the source.
+    let refused = chunkstore(&endpoint, &[&converted, "convert", &converted]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("would overwrite the source"));
+
+    // dataframe --out: the same Parquet file as written locally.
+    let local = dir.join("table.parquet");
+    let remote = format!("{prefix}table.parquet");
+    stdout(&chunkstore(
+        &endpoint,
+        &[
+            robot,
+            "dataframe",
+            "frame_id",
+            "--out",
+            local.to_str().unwrap(),
+        ],
+    ));
+    stdout(&chunkstore(
+        &endpoint,
+        &[&converted, "dataframe", "frame_id", "--out", &remote],
+    ));
+    assert_eq!(download(&remote, &storage), std::fs::read(&local).unwrap());
+
+    // A dataset over a prefix: stats name the objects; --storage-option instead of the
+    // environment gives the same.
+    let episodes = dir.join("episodes");
+    std::fs::create_dir(&episodes).unwrap();
+    common::episodes(&episodes);
+    let dataset = format!("{prefix}episodes/");
+    for entry in std::fs::read_dir(&episodes).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_str().unwrap().to_owned();
+        upload(&path, &format!("{dataset}{name}"), &storage);
+    }
+    let stats = stdout(&chunkstore(&endpoint, &[&dataset, "stats"]));
+    assert!(
+        stats.contains(&format!("\"path\":\"{dataset}first.rrd\"")),
+        "{stats}"
+    );
+    let explicit = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args([&dataset, "stats", "--verbose"])
+        .args(["--storage-option", &format!("aws_endpoint={endpoint}")])
+        .args(["--storage-option", "aws_allow_http=true"])
+        .args(["--storage-option", "aws_access_key_id=key"])
+        .args(["--storage-option", "aws_secret_access_key=secret"])
+        .args(["--storage-option", "aws_region=us-east-1"])
+        .env_remove("AWS_ENDPOINT_URL")
+        .output()
+        .unwrap();
+    assert_eq!(stdout(&explicit), stats);
+    let said = String::from_utf8_lossy(&explicit.stderr);
+    assert!(said.contains("object storage: 3 GET"), "{said}");
+    assert!(said.contains("1 LIST"), "{said}");
+}
+
+#[test]
+fn bad_urls_and_options_exit_2_with_one_line() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let prefix = prefix("cli-errors");
+    let missing = format!("{prefix}missing.rrd");
+    for (args, expected) in [
+        (
+            vec![missing.as_str(), "stats"],
+            format!("error: {missing}: no such object"),
+        ),
+        (
+            vec![
+                missing.as_str(),
+                "stats",
+                "--storage-option",
+                "aws_endpoint_urll=x",
+            ],
+            "is not a storage option".to_owned(),
+        ),
+        (
+            vec![missing.as_str(), "stats", "--storage-option", "novalue"],
+            "\"novalue\" is not KEY=VALUE".to_owned(),
+        ),
+    ] {
+        let output = chunkstore(&endpoint, &args);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains(&expected), "{args:?}: {stderr}");
+    }
+}

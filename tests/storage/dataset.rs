@@ -1,0 +1,92 @@
+//! A dataset over a prefix: one LIST and one GET per segment to open, its answers the
+//! local dataset's, its chunks fetched in part.
+
+use std::path::Path;
+
+use arrow_array::RecordBatch;
+use chunkstore::DataframeQuery;
+use chunkstore::dataset::{Dataset, DatasetOptions};
+
+use super::{counted, endpoint, options, prefix, turn, upload};
+use crate::common;
+
+fn table(dataset: &Dataset, query: &DataframeQuery) -> RecordBatch {
+    let stream = dataset.dataframe(query).unwrap();
+    let schema = stream.schema();
+    let batches: Vec<RecordBatch> = stream.map(Result::unwrap).collect();
+    arrow_select::concat::concat_batches(&schema, &batches).unwrap()
+}
+
+fn upload_dir(dir: &Path, prefix: &str, storage: &chunkstore::storage::StorageOptions) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_str().unwrap().to_owned();
+        upload(&path, &format!("{prefix}{name}"), storage);
+    }
+}
+
+#[test]
+fn a_dataset_over_a_prefix_opens_with_one_list_and_one_get_per_segment() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let prefix = prefix("dataset");
+    let dir = common::ScratchDir::new("storage-dataset");
+    common::episodes(&dir);
+    upload_dir(&dir, &prefix, &storage);
+    // Not a segment: only `.rrd` objects directly under the prefix are.
+    upload(
+        &common::robot_recording().join("a_robot.rrd"),
+        &format!("{prefix}nested/a_robot.rrd"),
+        &storage,
+    );
+
+    let options = DatasetOptions::default().with_storage(storage.clone());
+    let (remote, open_cost) = counted(|| Dataset::open(Path::new(&prefix), &options));
+    let remote = remote.unwrap();
+    assert_eq!((open_cost.lists, open_cost.gets), (1, 3), "{open_cost}");
+    let warnings = remote.take_warnings();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("1 prefixes under it are not read")),
+        "{warnings:?}"
+    );
+    let local = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
+    let ids = |d: &Dataset| {
+        d.segments()
+            .iter()
+            .map(|s| (s.id.clone(), s.num_rows, s.num_chunks))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&remote), ids(&local));
+    assert!(
+        remote.segments()[0]
+            .path
+            .to_str()
+            .unwrap()
+            .starts_with(&prefix)
+    );
+
+    for query in [
+        DataframeQuery::new("frame"),
+        DataframeQuery::new("frame").with_fill_latest_at(true),
+    ] {
+        let (ours, cost) = counted(|| table(&remote, &query));
+        common::assert_same_table(&ours, &table(&local, &query), "the dataset's dataframe");
+        // The footers were kept from opening: a query fetches chunks, never a footer again,
+        // at most one coalesced GET per segment (these are small).
+        assert!(cost.gets <= 3, "{cost}");
+        assert_eq!(cost.lists, 0, "{cost}");
+    }
+}
+
+#[test]
+fn an_empty_prefix_is_an_error_naming_it() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let prefix = prefix("empty");
+    let options = DatasetOptions::default().with_storage(options(&endpoint));
+    let error = Dataset::open(Path::new(&prefix), &options).expect_err("no .rrd objects");
+    assert!(error.to_string().contains(&prefix), "{error}");
+}

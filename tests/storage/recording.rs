@@ -1,0 +1,210 @@
+//! One recording in a bucket: read lazily through ranged GETs, with the answers of the
+//! local file; an object rewritten while read; a file without a footer; bad URLs.
+
+use chunkstore::recording::{OpenOptions, Recording};
+use chunkstore::storage::{StorageError, StorageErrorKind};
+use chunkstore::{LatestAtQuery, RangeQuery, TimeInt, TimeRange};
+
+use super::{counted, endpoint, options, prefix, turn, upload, url};
+use crate::common;
+
+#[test]
+fn a_recording_in_a_bucket_answers_as_its_file_does_with_ranged_gets() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let prefix = prefix("recording");
+    let local = common::robot_recording().join("a_robot.rrd");
+    let remote = url(&prefix, "a_robot.rrd");
+    upload(&local, remote.to_str().unwrap(), &storage);
+    let file_bytes = std::fs::metadata(&local).unwrap().len();
+
+    let open = OpenOptions::default().with_storage(storage.clone());
+    let (opened, open_cost) = counted(|| Recording::open(&remote, &open, &mut ()));
+    let mut ours = opened.unwrap();
+    assert!(ours.is_lazy(), "a recording with a footer opens lazily");
+    // The end (footer), then the start (stream header and store info): 283 KB is more
+    // than the 64 KiB fetched from the end.
+    assert_eq!(open_cost.gets, 2, "{open_cost}");
+    assert!(open_cost.bytes_fetched < file_bytes / 2, "{open_cost}");
+    assert_eq!(
+        ours.store_info()
+            .map(|i| i.store_id.recording_id.to_string()),
+        Some("a0000000-0000-4000-8000-00000000000a".to_owned())
+    );
+
+    let mut theirs = Recording::open(&local, &OpenOptions::default(), &mut ()).unwrap();
+    let at = LatestAtQuery::new("frame_id", TimeInt::new(30).unwrap());
+    let range = RangeQuery::new(
+        "frame_id",
+        TimeRange::new(TimeInt::new(10).unwrap(), TimeInt::new(12).unwrap()),
+    );
+    let ((), query_cost) = counted(|| {
+        let entities = ours.reader().entity_paths();
+        assert_eq!(entities, theirs.reader().entity_paths());
+        for entity in &entities {
+            for component in ours.reader().component_names(entity) {
+                let a = ours
+                    .reader()
+                    .latest_at(&at, entity, component.as_str())
+                    .unwrap();
+                let b = theirs
+                    .reader()
+                    .latest_at(&at, entity, component.as_str())
+                    .unwrap();
+                assert_eq!(
+                    a.as_ref().map(|c| (c.row_id(), c.chunk_id(), c.time())),
+                    b.as_ref().map(|c| (c.row_id(), c.chunk_id(), c.time())),
+                    "{entity} {component}"
+                );
+                if let (Some(a), Some(b)) = (a, b) {
+                    assert_eq!(
+                        a.cell().to_data(),
+                        b.cell().to_data(),
+                        "{entity} {component}"
+                    );
+                }
+                let a = ours
+                    .reader()
+                    .range(&range, entity, component.as_str())
+                    .unwrap();
+                let b = theirs
+                    .reader()
+                    .range(&range, entity, component.as_str())
+                    .unwrap();
+                assert_eq!(a.num_rows(), b.num_rows(), "{entity} {component}");
+            }
+        }
+    });
+    let lazy = ours.lazy().unwrap().stats();
+    assert!(lazy.chunks_decoded < lazy.chunks_in_file, "{lazy:?}");
+    // Only the chunks the queries needed, fetched in coalesced GETs: never the object.
+    assert!(query_cost.bytes_fetched < file_bytes, "{query_cost}");
+    assert!(
+        query_cost.gets as usize <= lazy.chunks_decoded,
+        "{query_cost}, {lazy:?}"
+    );
+}
+
+#[test]
+fn an_object_rewritten_while_it_is_read_is_an_error_naming_it() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let prefix = prefix("rewritten");
+    let remote = url(&prefix, "run.rrd");
+    upload(
+        &common::robot_recording().join("a_robot.rrd"),
+        remote.to_str().unwrap(),
+        &storage,
+    );
+    let open = OpenOptions::default().with_storage(storage.clone());
+    let mut recording = Recording::open(&remote, &open, &mut ()).unwrap();
+
+    // Another version of the object, of another size and contents.
+    let dir = common::ScratchDir::new("storage-rewritten");
+    let other = common::write_recording(
+        &dir,
+        "other.rrd",
+        "another",
+        vec![common::scalar("/robot", "angle", 1, 1, 1.0)],
+    );
+    upload(&other, remote.to_str().unwrap(), &storage);
+
+    let at = LatestAtQuery::new("frame_id", TimeInt::new(30).unwrap());
+    let entity = chunkstore::EntityPath::parse("/world/robot").unwrap();
+    let error = recording
+        .reader()
+        .latest_at(&at, &entity, "Transform3D:translation")
+        .expect_err("the object changed since it was opened");
+    let text = error.to_string();
+    assert!(text.contains(remote.to_str().unwrap()), "{text}");
+    assert!(text.contains("changed"), "{text}");
+    let Some(kind) = std::error::Error::source(&error)
+        .and_then(|e| e.downcast_ref::<std::io::Error>())
+        .and_then(StorageError::from_io)
+        .map(|e| e.kind.clone())
+    else {
+        panic!("no storage error inside: {text}");
+    };
+    assert_eq!(kind, StorageErrorKind::Changed);
+}
+
+#[test]
+fn a_recording_without_a_footer_is_read_with_one_get() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let prefix = prefix("no-footer");
+    let dir = common::ScratchDir::new("storage-no-footer");
+    let file = common::write_without_footer(
+        &dir,
+        "cut.rrd",
+        "cut",
+        vec![
+            common::scalar("/robot", "angle", 1, 1, 1.0),
+            common::scalar("/robot", "angle", 2, 2, 2.0),
+        ],
+    );
+    let remote = url(&prefix, "cut.rrd");
+    upload(&file, remote.to_str().unwrap(), &storage);
+    let open = OpenOptions::default()
+        .with_storage(storage.clone())
+        .with_lazy(false);
+    let (recording, cost) = counted(|| Recording::open(&remote, &open, &mut ()));
+    let mut recording = recording.unwrap();
+    assert_eq!(cost.gets, 1, "{cost}");
+    assert_eq!(
+        cost.bytes_fetched,
+        std::fs::metadata(&file).unwrap().len(),
+        "{cost}"
+    );
+    assert_eq!(recording.load_all().unwrap().num_chunks(), 2);
+}
+
+#[test]
+fn missing_objects_and_unknown_options_are_one_line_naming_the_url() {
+    let Some(endpoint) = endpoint() else { return };
+    let _turn = turn();
+    let storage = options(&endpoint);
+    let missing = url(&prefix("missing"), "nothing-here.rrd");
+    let error = Recording::open(
+        &missing,
+        &OpenOptions::default().with_storage(storage.clone()),
+        &mut (),
+    )
+    .expect_err("no such object");
+    let text = error.to_string();
+    assert_eq!(text, format!("{}: no such object", missing.display()));
+
+    let misspelt = storage
+        .clone()
+        .with("aws_endpoint_urll", "http://example.invalid");
+    let error = Recording::open(
+        &missing,
+        &OpenOptions::default().with_storage(misspelt),
+        &mut (),
+    )
+    .expect_err("an unknown option");
+    assert!(
+        error
+            .to_string()
+            .contains("\"aws_endpoint_urll\" is not a storage option"),
+        "{error}"
+    );
+
+    // Nothing listens there: the request fails (after its retries) with one line.
+    let nowhere = storage.with("aws_endpoint", "http://127.0.0.1:9");
+    let error = Recording::open(
+        &missing,
+        &OpenOptions::default().with_storage(nowhere),
+        &mut (),
+    )
+    .expect_err("no server");
+    let text = error.to_string();
+    assert!(
+        text.starts_with(&format!("{}: ", missing.display())),
+        "{text}"
+    );
+    assert!(!text.contains('\n'), "{text}");
+}
