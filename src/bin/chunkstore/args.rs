@@ -31,11 +31,18 @@ pub struct Cli {
     #[command(flatten)]
     pub load: LoadArgs,
 
+    /// Say on stderr, when the command ends, what it asked of object storage (requests and
+    /// bytes).
+    #[arg(long, short = 'v', global = true)]
+    pub verbose: bool,
+
     /// An `.rrd` file, a directory of Arrow IPC chunk files, or one such file (told apart
     /// by their contents, not their names); `-` reads either kind of file from standard
     /// input. A directory of `.rrd` files is a dataset: each file a segment, named by its
     /// recording id (`dataframe`, `stats`, `sql`, `hive`, and `latest-at` and `range` with
-    /// `--segment`).
+    /// `--segment`). In object storage: `s3://bucket/run.rrd` (also `gs://`, `az://`,
+    /// `abfs://`, `https://`), and a prefix ending in `/` is a dataset
+    /// (`s3://bucket/episodes/`).
     pub source: PathBuf,
 
     #[command(subcommand)]
@@ -86,9 +93,24 @@ pub struct LoadArgs {
     /// decode only the chunks it needs.
     #[arg(long, global = true)]
     pub eager: bool,
+    /// An option of the object store a URL SOURCE or output is in (`aws_endpoint=URL`,
+    /// `aws_region=…`, `aws_allow_http=true`, `google_service_account=FILE`,
+    /// `azure_storage_account_name=…`), on top of the environment's `AWS_*`, `GOOGLE_*`
+    /// and `AZURE_*`; repeatable.
+    #[arg(long = "storage-option", global = true, value_name = "KEY=VALUE", value_parser = parse_storage_option)]
+    pub storage_options: Vec<(String, String)>,
+}
+
+fn parse_storage_option(text: &str) -> Result<(String, String), String> {
+    chunkstore::storage::StorageOptions::parse_pair(text)
 }
 
 impl LoadArgs {
+    /// The `--storage-option`s.
+    pub fn storage(&self) -> chunkstore::storage::StorageOptions {
+        self.storage_options.iter().cloned().collect()
+    }
+
     pub fn config(&self) -> Result<StoreConfig, String> {
         let mut config = StoreConfig::DEFAULT;
         if let Some(n) = self.max_rows {

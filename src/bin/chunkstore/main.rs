@@ -114,6 +114,10 @@ fn main() -> ExitCode {
     // then the tool exits as an interrupted program does. A SIGKILL leaves them: see
     // `chunkstore::output::remove_unfinished_outputs`.
     let _ = ctrlc::set_handler(|| {
+        // An upload is aborted first (its thread then exits): no parts left in a bucket.
+        if output::cancel_upload() {
+            return;
+        }
         chunkstore::output::remove_unfinished_outputs();
         eprintln!("error: interrupted");
         std::process::exit(130);
@@ -182,28 +186,41 @@ fn usage_error(error: &clap::Error) -> ExitCode {
 /// Runs the command on the SOURCE: each command answers for the kinds of source it
 /// reads (`commands/`).
 fn run(cli: &Cli) -> Result<(), Failure> {
+    output::set_storage(cli.load.storage());
     let source = Source::of(cli)?;
+    let result = run_command(cli, &source);
+    if cli.verbose {
+        #[cfg(feature = "object-store")]
+        eprintln!(
+            "object storage: {}",
+            chunkstore::storage::object::counters()
+        );
+    }
+    result
+}
+
+fn run_command(cli: &Cli, source: &Source) -> Result<(), Failure> {
     match &cli.command {
         Command::LatestAt {
             timeline,
             time,
             select,
-        } => latest_at::run(&source, timeline, time, select),
+        } => latest_at::run(source, timeline, time, select),
         Command::Range {
             timeline,
             min,
             max,
             select,
-        } => range::run(&source, timeline, (min, max), select),
-        Command::Stats => stats::run(&source),
-        Command::Print { json } => print::run(&source, *json),
+        } => range::run(source, timeline, (min, max), select),
+        Command::Stats => stats::run(source),
+        Command::Print { json } => print::run(source, *json),
         Command::Convert {
             out,
             application_id,
             recording_id,
-        } => convert::run(&source, out, application_id, recording_id.as_deref()),
-        Command::Dataframe(args) => dataframe::run(&source, args),
-        Command::Sql(args) => sql::run(&source, args),
-        Command::Hive(args) => hive::run(&source, args),
+        } => convert::run(source, out, application_id, recording_id.as_deref()),
+        Command::Dataframe(args) => dataframe::run(source, args),
+        Command::Sql(args) => sql::run(source, args),
+        Command::Hive(args) => hive::run(source, args),
     }
 }

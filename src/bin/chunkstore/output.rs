@@ -1,13 +1,17 @@
 //! Writing what the commands answer: lines to stdout (a reader that stops reading, as
 //! `| head` does, is no error), and tables to stdout or to a file (Parquet or Arrow IPC,
-//! by the file's name, written atomically).
+//! by the file's name, written atomically), a local one or an object named by URL
+//! ([`write_output`]).
 
 use std::io::Write as _;
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use arrow_array::RecordBatchReader;
 use arrow_schema::ArrowError;
 use chunkstore::parquet::{ParquetOptions, write_parquet_file};
+use chunkstore::storage::StorageOptions;
 use chunkstore::{TimeRange, TimeType, Timeline};
 
 use crate::Failure;
@@ -61,6 +65,14 @@ pub fn write_file(
     table: impl RecordBatchReader,
     parquet: &ParquetOptions,
 ) -> Result<(), Failure> {
+    write_output(out, |out| write_local_file(out, table, parquet))
+}
+
+fn write_local_file(
+    out: &Path,
+    table: impl RecordBatchReader,
+    parquet: &ParquetOptions,
+) -> Result<(), Failure> {
     let is_parquet = out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("parquet"));
@@ -86,4 +98,68 @@ pub fn stream_failure(error: &chunkstore::ipc::IpcError) -> Failure {
         }
         other => Failure::Message(format!("stdout: {other}")),
     }
+}
+
+/// The `--storage-option`s, for outputs named by URL: one set per run of the tool.
+static STORAGE: std::sync::OnceLock<StorageOptions> = std::sync::OnceLock::new();
+
+/// Sets the options of the object stores outputs are written to (once, at the start).
+pub fn set_storage(options: StorageOptions) {
+    let _ = STORAGE.set(options);
+}
+
+/// Set while an upload runs: Ctrl-C then cancels it ([`cancel_upload`]) rather than
+/// exiting at once, so that it is aborted and leaves nothing in the bucket.
+static UPLOADING: AtomicBool = AtomicBool::new(false);
+
+fn cancel_flag() -> &'static Arc<AtomicBool> {
+    static CANCEL: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
+    CANCEL.get_or_init(|| Arc::new(AtomicBool::new(false)))
+}
+
+/// For the Ctrl-C handler: cancels the upload that runs, if one does (it is then aborted
+/// and the command exits as interrupted); `false` if none runs.
+pub fn cancel_upload() -> bool {
+    if UPLOADING.load(Ordering::SeqCst) {
+        cancel_flag().store(true, Ordering::SeqCst);
+        return true;
+    }
+    false
+}
+
+/// Writes the output `out` with `write`: to the local path itself, or, for a URL, to a
+/// local staging file (removed after) that is then uploaded, appearing in the bucket whole
+/// or not at all (a multipart upload is completed only once every part is in, and aborted
+/// on an error or Ctrl-C).
+pub fn write_output(
+    out: &Path,
+    write: impl FnOnce(&Path) -> Result<(), Failure>,
+) -> Result<(), Failure> {
+    let is_url = chunkstore::storage::url_scheme(out).is_some();
+    let result = chunkstore::storage::write_output(
+        out,
+        STORAGE.get_or_init(StorageOptions::default),
+        cancel_flag(),
+        |staged| {
+            let written = write(staged);
+            // What follows is the upload: Ctrl-C now cancels it (before, it exits at once,
+            // removing the staging file).
+            UPLOADING.store(is_url, Ordering::SeqCst);
+            written
+        },
+    );
+    UPLOADING.store(false, Ordering::SeqCst);
+    if is_url && cancel_flag().load(Ordering::SeqCst) {
+        // The upload was aborted (nothing of it is in the bucket): exit as interrupted.
+        chunkstore::output::remove_unfinished_outputs();
+        eprintln!(
+            "error: interrupted (the upload to {} was aborted)",
+            out.display()
+        );
+        std::process::exit(130);
+    }
+    result.map_err(|error| match error {
+        chunkstore::storage::OutputError::Write(failure) => failure,
+        chunkstore::storage::OutputError::Upload(error) => Failure::Message(error.to_string()),
+    })
 }

@@ -47,7 +47,8 @@ impl Source {
         let mut options = load::Options::default()
             .with_config(config)
             .with_compact(cli.load.compact)
-            .with_skip_bad(cli.load.skip_bad);
+            .with_skip_bad(cli.load.skip_bad)
+            .with_storage(cli.load.storage());
         if let Some(recording) = &cli.load.recording {
             options = options.with_recording(recording.as_str());
         }
@@ -61,7 +62,14 @@ impl Source {
         let path = stdin
             .as_ref()
             .map_or_else(|| cli.source.clone(), |copy| copy.path().to_owned());
-        if path.is_dir() && chunkstore::dataset::is_dataset_dir(&path) {
+        let is_url = chunkstore::storage::url_scheme(&path).is_some();
+        // A URL ending in `/` is a prefix: a dataset of the `.rrd` objects under it.
+        let is_dataset = if is_url {
+            path.to_str().is_some_and(|text| text.ends_with('/'))
+        } else {
+            path.is_dir() && chunkstore::dataset::is_dataset_dir(&path)
+        };
+        if is_dataset {
             return DatasetSource::of(cli, path, &options).map(Self::Dataset);
         }
         // The options only a dataset takes.
@@ -122,7 +130,11 @@ impl RecordingSource {
 
 impl DatasetSource {
     fn of(cli: &Cli, dir: PathBuf, options: &load::Options) -> Result<Self, Failure> {
-        let ipc_files = chunkstore::ipc::chunk_files(&dir).map_err(|e| e.to_string())?;
+        let ipc_files = if chunkstore::storage::url_scheme(&dir).is_some() {
+            Vec::new()
+        } else {
+            chunkstore::ipc::chunk_files(&dir).map_err(|e| e.to_string())?
+        };
         if let Some(first) = ipc_files.first() {
             return Err(format!(
                 "{}: holds both .rrd files (a dataset) and Arrow IPC chunk files ({}, one \
@@ -141,7 +153,8 @@ impl DatasetSource {
         }
         let mut dataset_options = DatasetOptions::default()
             .with_config(options.config)
-            .with_skip_bad(options.skip_bad);
+            .with_skip_bad(options.skip_bad)
+            .with_storage(options.storage.clone());
         if let Some(dir) = &cli.load.index_cache {
             dataset_options = dataset_options.with_index_cache(dir);
         }
@@ -236,6 +249,15 @@ fn refuse_to_overwrite<'a>(
     out: &Path,
     inputs: impl IntoIterator<Item = (&'a Path, String)>,
 ) -> Result<(), Failure> {
+    if chunkstore::storage::url_scheme(out).is_some() {
+        // An object is the same as another by its URL (a bucket has no links).
+        for (input, name) in inputs {
+            if input == out {
+                return Err(format!("{}: the output would overwrite {name}", out.display()).into());
+            }
+        }
+        return Ok(());
+    }
     let Ok(written) = out.canonicalize() else {
         return Ok(());
     };

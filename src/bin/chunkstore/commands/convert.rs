@@ -85,9 +85,20 @@ fn convert(
     });
     if is_rrd {
         let bar = load::progress(chunks.len() as u64, "writing", false);
-        let result = chunkstore::rrd::write_rrd_file(out, &info, chunks, |_| bar.inc(1));
-        bar.finish_and_clear();
-        result.map_err(|e| crate::about_path(out, e))?;
+        crate::output::write_output(out, |out| {
+            let result = chunkstore::rrd::write_rrd_file(out, &info, chunks, |_| bar.inc(1));
+            bar.finish_and_clear();
+            result
+                .map(drop)
+                .map_err(|e| crate::about_path(out, e).into())
+        })?;
+    } else if chunkstore::storage::url_scheme(out).is_some() {
+        return Err(format!(
+            "{}: a directory of chunk files is written locally; to object storage, convert \
+             to an .rrd (a name ending in .rrd)",
+            out.display()
+        )
+        .into());
     } else {
         write_directory(out, &info, &chunks)?;
     }

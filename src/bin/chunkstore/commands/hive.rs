@@ -15,6 +15,14 @@ use crate::source::{self, Source};
 
 /// `hive DIR` of `source`.
 pub fn run(source: &Source, args: &HiveArgs) -> Result<(), Failure> {
+    if chunkstore::storage::url_scheme(&args.dir).is_some() {
+        return Err(format!(
+            "{}: a Hive copy is written to a local directory (to object storage: not yet; \
+             upload the directory with any tool)",
+            args.dir.display()
+        )
+        .into());
+    }
     check_new_dataset(&args.dir, &hive_layout(args))
         .map_err(|error| hive_failure(&args.dir, error))?;
     match source {
