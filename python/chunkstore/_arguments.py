@@ -4,7 +4,7 @@ takes: counts, contents rules, and a dataframe's keywords as one dict
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Optional, Union
+from typing import Any, Iterable, Mapping, Optional, Union
 
 from ._errors import InvalidInputError
 from ._times import I64_MAX, Time, to_time
@@ -84,3 +84,12 @@ def dataframe_args(
         "include_semantically_empty_columns": bool(include_semantically_empty_columns),
         "exact_index_values": bool(exact_index_values),
     }
+
+
+def storage_pairs(options: Optional[Mapping[str, str]]) -> Optional[list]:
+    """``storage_options`` as the native module takes them: ``(key, value)`` strings."""
+    if options is None:
+        return None
+    if not isinstance(options, Mapping):
+        raise InvalidInputError(f"storage_options must be a mapping of str to str, not {type(options).__name__}")
+    return [(str(key), str(value)) for key, value in options.items()]

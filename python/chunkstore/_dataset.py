@@ -4,10 +4,10 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any, Iterable, NamedTuple, Optional, Union
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, NamedTuple, Optional, Union
 
 from . import _chunkstore
-from ._arguments import dataframe_args, positive_or_zero
+from ._arguments import dataframe_args, positive_or_zero, storage_pairs
 from ._errors import InvalidInputError, UnknownTimelineError
 from ._times import Time, Timeline
 
@@ -121,6 +121,7 @@ def open_dataset(
     skip_bad: bool = False,
     memory_budget: Optional[int] = None,
     index_cache: Union[None, str, os.PathLike] = None,
+    storage_options: Optional[Mapping[str, str]] = None,
 ) -> Dataset:
     """Opens a dataset: a directory's regular ``.rrd`` files (or one ``.rrd`` file),
     each a segment named by its recording id, reading their footers only.
@@ -131,10 +132,16 @@ def open_dataset(
     index of each file without a footer is kept once it has been scanned, so that later
     opens read the index instead of the file (never written beside the data).
 
+    ``path`` may be a URL: a prefix ending in ``/`` (``s3://bucket/episodes/``) is a
+    dataset of the ``.rrd`` objects directly under it, listed once and opened many at a
+    time (one GET of each object's end). ``storage_options`` as for :func:`open`.
+
     Raises :class:`CorruptFileError` for a file that does not parse (or a directory
     without ``.rrd`` files), :class:`InvalidInputError` for two files of one recording.
     """
     cache = None if index_cache is None else os.fspath(index_cache)
     return Dataset(
-        _native=_chunkstore.open_dataset(os.fspath(path), skip_bad, positive_or_zero(memory_budget), cache)
+        _native=_chunkstore.open_dataset(
+            os.fspath(path), skip_bad, positive_or_zero(memory_budget), cache, storage_pairs(storage_options)
+        )
     )

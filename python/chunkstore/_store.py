@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import TYPE_CHECKING, Any, Iterable, Optional, Sequence, Union
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Optional, Sequence, Union
 
 from . import _chunkstore
-from ._arguments import contents_rules, dataframe_args, positive
+from ._arguments import contents_rules, dataframe_args, positive, storage_pairs
 from ._errors import InvalidInputError
 from ._times import Time, Timeline, to_time
 
@@ -235,16 +235,20 @@ class Store:
         path: Union[str, os.PathLike],
         application_id: str = "chunkstore",
         recording_id: Optional[str] = None,
+        *,
+        storage_options: Optional[Mapping[str, str]] = None,
     ) -> int:
         """Writes every chunk to an ``.rrd`` file that Rerun opens (atomically: the file
-        appears whole or not at all). Returns its size in bytes.
+        appears whole or not at all). Returns its size in bytes. ``path`` may be a URL
+        (``s3://bucket/run.rrd``; ``storage_options`` as for :func:`open`): the file is
+        written locally, then uploaded whole.
 
         The recording keeps the store info it was read with (its application and
         recording ids); ``recording_id`` renames it. A store that has none (built in
         memory, or from chunk files) is named ``application_id`` and ``recording_id``
         (default: the file's name). Writing over the file the store was opened from is
         refused (:class:`InvalidInputError`)."""
-        return self._native.write_rrd(os.fspath(path), application_id, recording_id)
+        return self._native.write_rrd(os.fspath(path), application_id, recording_id, storage_pairs(storage_options))
 
     def write_parquet(
         self,
@@ -259,15 +263,19 @@ class Store:
         include_tombstone_columns: bool = True,
         include_semantically_empty_columns: bool = True,
         exact_index_values: bool = False,
+        storage_options: Optional[Mapping[str, str]] = None,
     ) -> int:
         """Writes :meth:`dataframe`'s table (the same arguments) to a Parquet file
         (atomically), with the statistics engines prune by, beside :meth:`write_rrd`.
-        ``row_group_rows``: rows per row group at most. Returns the rows written."""
+        ``row_group_rows``: rows per row group at most. Returns the rows written. ``path``
+        may be a URL, as for :meth:`write_rrd`."""
         args = dataframe_args(
             self, index, contents, range, index_values, fill_latest_at, None,
             include_tombstone_columns, include_semantically_empty_columns, exact_index_values,
         )
-        return self._native.write_parquet(os.fspath(path), args, positive(row_group_rows, "row_group_rows"))
+        return self._native.write_parquet(
+            os.fspath(path), args, positive(row_group_rows, "row_group_rows"), storage_pairs(storage_options)
+        )
 
     def to_parquet(self, *args: Any, **kwargs: Any) -> int:
         """Deprecated: :meth:`write_parquet`, under the name it had before 0.2 (kept for
@@ -280,9 +288,22 @@ class Store:
         return self.write_parquet(*args, **kwargs)
 
 
-def open(path: Union[str, os.PathLike], *, lazy: bool = True, recording: Optional[str] = None) -> Store:
+def open(
+    path: Union[str, os.PathLike],
+    *,
+    lazy: bool = True,
+    recording: Optional[str] = None,
+    storage_options: Optional[Mapping[str, str]] = None,
+) -> Store:
     """Opens an ``.rrd`` file (lazily, through its footer, when it has one and ``lazy``
     is true), a directory of Arrow IPC chunk files, or one such file.
+
+    ``path`` may be a URL of an ``.rrd`` object: ``s3://bucket/run.rrd``, ``gs://``,
+    ``az://``, ``abfs://``, ``https://``. It is read as a local file is, through ranged
+    GETs of the chunks a query needs. Credentials, region and endpoint come from the
+    environment (``AWS_*``, ``GOOGLE_*``, ``AZURE_*``) and from ``storage_options``
+    (``{"aws_endpoint": ..., "aws_region": ...}``: the keys polars and deltalake take),
+    which win.
 
     A file can hold several recordings (streams concatenated, or several recordings in
     one stream): ``recording`` chooses one by its recording id; without it, such a file
@@ -291,4 +312,5 @@ def open(path: Union[str, os.PathLike], *, lazy: bool = True, recording: Optiona
     Raises ``FileNotFoundError`` (and other ``OSError``) from the file system, and
     :class:`CorruptFileError` for a file that does not parse.
     """
-    return Store(_native=_chunkstore.open(os.fspath(path), lazy, recording))
+    return Store(_native=_chunkstore.open(os.fspath(path), lazy, recording, storage_pairs(storage_options)))
+

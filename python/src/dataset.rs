@@ -20,17 +20,22 @@ pub struct NativeDataset {
 
 /// Opens a dataset: see the module docs.
 #[pyfunction]
-#[pyo3(signature = (path, skip_bad = false, memory_budget = None, index_cache = None))]
+#[pyo3(signature = (path, skip_bad = false, memory_budget = None, index_cache = None, storage_options = None))]
 pub fn open_dataset(
     py: Python<'_>,
     path: PathBuf,
     skip_bad: bool,
     memory_budget: Option<u64>,
     index_cache: Option<PathBuf>,
+    storage_options: Option<Vec<(String, String)>>,
 ) -> PyResult<NativeDataset> {
+    let storage: chunkstore::storage::StorageOptions =
+        storage_options.unwrap_or_default().into_iter().collect();
     py.detach(|| {
         no_panic(|| {
-            let mut options = DatasetOptions::default().with_skip_bad(skip_bad);
+            let mut options = DatasetOptions::default()
+                .with_skip_bad(skip_bad)
+                .with_storage(storage);
             if let Some(dir) = index_cache {
                 options = options.with_index_cache(dir);
             }
@@ -47,7 +52,9 @@ pub fn open_dataset(
 type SegmentTuple = (
     String,
     String,
-    PathBuf,
+    // The file's path, or an object's URL, as text (a `pathlib.Path` would fold a URL's
+    // `//`).
+    String,
     u64,
     u64,
     Vec<(String, String, i64, i64)>,
@@ -77,7 +84,7 @@ impl NativeDataset {
                 (
                     s.id.clone(),
                     s.application_id.clone(),
-                    s.path.clone(),
+                    s.path.to_string_lossy().into_owned(),
                     s.num_rows,
                     s.num_chunks,
                     timelines,

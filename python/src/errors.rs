@@ -22,7 +22,13 @@ pub fn invalid(message: impl Into<String>) -> PyErr {
 
 /// An I/O error as Python's own `OSError` subclass, the path named.
 pub fn os_error(path: &std::path::Path, error: std::io::Error) -> PyErr {
-    let error = std::io::Error::new(error.kind(), format!("{}: {error}", path.display()));
+    // An object's error names its URL itself.
+    let text = if chunkstore::storage::StorageError::from_io(&error).is_some() {
+        error.to_string()
+    } else {
+        format!("{}: {error}", path.display())
+    };
+    let error = std::io::Error::new(error.kind(), text);
     PyErr::from(error)
 }
 
@@ -31,6 +37,9 @@ pub fn rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
     if let RrdErrorKind::Io(io) = &error.kind
         && io.kind() != std::io::ErrorKind::UnexpectedEof
     {
+        if let Some(storage) = chunkstore::storage::StorageError::from_io(io) {
+            return os_error(path, storage.clone().into_io());
+        }
         return os_error(path, std::io::Error::new(io.kind(), io.to_string()));
     }
     CorruptFileError::new_err(format!("{}: {error}", path.display()))

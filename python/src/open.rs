@@ -5,26 +5,35 @@
 use std::path::{Path, PathBuf};
 
 use chunkstore::recording::{OpenOptions, Recording};
+use chunkstore::storage::StorageOptions;
 use pyo3::prelude::*;
 
 use crate::errors::{no_panic, open_error};
 use crate::store::NativeStore;
 
 /// Opens `path`: see the module docs. `lazy=False` decodes an `.rrd` whole at once;
-/// `recording` chooses one recording of a file that holds several.
+/// `recording` chooses one recording of a file that holds several; `storage_options`
+/// are the object store's, for a URL.
 #[pyfunction]
-#[pyo3(signature = (path, lazy = true, recording = None))]
+#[pyo3(signature = (path, lazy = true, recording = None, storage_options = None))]
 pub fn open(
     py: Python<'_>,
     path: PathBuf,
     lazy: bool,
     recording: Option<String>,
+    storage_options: Option<Vec<(String, String)>>,
 ) -> PyResult<NativeStore> {
-    py.detach(|| no_panic(|| open_path(&path, lazy, recording)))
+    let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
+    py.detach(|| no_panic(|| open_path(&path, lazy, recording, storage)))
 }
 
-fn open_path(path: &Path, lazy: bool, recording: Option<String>) -> PyResult<NativeStore> {
-    let mut options = OpenOptions::default().with_lazy(lazy);
+fn open_path(
+    path: &Path,
+    lazy: bool,
+    recording: Option<String>,
+    storage: StorageOptions,
+) -> PyResult<NativeStore> {
+    let mut options = OpenOptions::default().with_lazy(lazy).with_storage(storage);
     if let Some(recording) = recording {
         options = options.with_recording(recording);
     }

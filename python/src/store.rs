@@ -20,6 +20,7 @@ use arrow_schema::{DataType, Field, Schema};
 use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 use chunkstore::recording::{Recording, RecordingReader};
 use chunkstore::rrd::{StoreId, StoreInfo};
+use chunkstore::storage::{OutputError, StorageOptions};
 use chunkstore::{
     Chunk, ChunkStore, EntityPath, GcOptions, GcTarget, LatestAtQuery, RangeQuery, SharedStore,
     Snapshot, StoreConfig, StoreEvent, StoreView, TimeInt, TimeType,
@@ -85,6 +86,12 @@ impl NativeStore {
         let Some(source) = &self.source else {
             return Ok(());
         };
+        if chunkstore::storage::url_scheme(out).is_some() && out == source.as_path() {
+            return Err(invalid(format!(
+                "{}: the output would overwrite the store's source",
+                out.display()
+            )));
+        }
         let (Ok(source), Ok(out)) = (source.canonicalize(), out.canonicalize()) else {
             return Ok(()); // the output does not exist yet: nothing to overwrite
         };
@@ -533,14 +540,16 @@ impl NativeStore {
     /// Writes every chunk to an `.rrd` file (atomically); returns the bytes written. The
     /// recording keeps the store info it was read with; `recording_id` renames it (and
     /// names one that had none, as `application_id` does).
-    #[pyo3(signature = (path, application_id = "chunkstore", recording_id = None))]
+    #[pyo3(signature = (path, application_id = "chunkstore", recording_id = None, storage_options = None))]
     fn write_rrd(
         &self,
         py: Python<'_>,
         path: PathBuf,
         application_id: &str,
         recording_id: Option<String>,
+        storage_options: Option<Vec<(String, String)>>,
     ) -> PyResult<u64> {
+        let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
         py.detach(|| {
             no_panic(|| {
                 self.refuse_overwriting_source(&path)?;
@@ -555,21 +564,34 @@ impl NativeStore {
                 if let Some(recording_id) = recording_id {
                     info.store_id.recording_id = recording_id.into();
                 }
-                chunkstore::rrd::write_rrd_file(&path, &info, snapshot.export_chunks(), |_| {})
-                    .map_err(|e| rrd_error(&path, e))
+                written(
+                    &path,
+                    &storage,
+                    |out| {
+                        chunkstore::rrd::write_rrd_file(
+                            out,
+                            &info,
+                            snapshot.export_chunks(),
+                            |_| {},
+                        )
+                    },
+                    rrd_error,
+                )
             })
         })
     }
 
     /// Writes a dataframe view to a Parquet file (atomically); returns the rows written.
-    #[pyo3(signature = (path, args, row_group_rows = None))]
+    #[pyo3(signature = (path, args, row_group_rows = None, storage_options = None))]
     fn write_parquet(
         &self,
         py: Python<'_>,
         path: PathBuf,
         args: DataframeArgs,
         row_group_rows: Option<usize>,
+        storage_options: Option<Vec<(String, String)>>,
     ) -> PyResult<u64> {
+        let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
         let query = args.query()?;
         let sampled = args.is_sampled();
         let index = args.index();
@@ -587,15 +609,38 @@ impl NativeStore {
         py.detach(|| self.refuse_overwriting_source(&path))?;
         self.with_snapshot(py, move |view| {
             let stream = view.dataframe(&query).map_err(dataframe_error)?;
-            let summary = write_parquet_file(&path, stream, &options).map_err(|e| match e {
-                chunkstore::parquet::ParquetExportError::Io { path, source } => {
-                    os_error(&path, source)
-                }
-                other => Error::new_err(format!("{}: {other}", path.display())),
-            })?;
+            let summary = written(
+                &path,
+                &storage,
+                |out| write_parquet_file(out, stream, &options),
+                |out, e| match e {
+                    chunkstore::parquet::ParquetExportError::Io { path, source } => {
+                        os_error(&path, source)
+                    }
+                    other => Error::new_err(format!("{}: {other}", out.display())),
+                },
+            )?;
             Ok(summary.rows)
         })
     }
+}
+
+/// Writes the output `out` with `write` (a local file; for a URL, staged and uploaded
+/// whole: `chunkstore::storage::write_output`), `error` turning the writer's error into
+/// Python's.
+fn written<T, E>(
+    out: &Path,
+    storage: &StorageOptions,
+    write: impl FnOnce(&Path) -> Result<T, E>,
+    error: impl FnOnce(&Path, E) -> PyErr,
+) -> PyResult<T> {
+    // Python's Ctrl-C is not seen while the GIL is released: an upload runs to its end or
+    // its error (an error aborts it).
+    let never = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    chunkstore::storage::write_output(out, storage, &never, write).map_err(|e| match e {
+        OutputError::Write(e) => error(out, e),
+        OutputError::Upload(e) => os_error(out, e.into_io()),
+    })
 }
 
 /// The list type of a component's column, when no answer carries it: the type of its
