@@ -29,8 +29,7 @@ pub fn open_dataset(
     index_cache: Option<PathBuf>,
     storage_options: Option<Vec<(String, String)>>,
 ) -> PyResult<NativeDataset> {
-    let storage: chunkstore::storage::StorageOptions =
-        storage_options.unwrap_or_default().into_iter().collect();
+    let storage = crate::open::storage_from(storage_options);
     py.detach(|| {
         no_panic(|| {
             let mut options = DatasetOptions::default()

@@ -22,13 +22,10 @@ pub fn invalid(message: impl Into<String>) -> PyErr {
 
 /// An I/O error as Python's own `OSError` subclass, the path named.
 pub fn os_error(path: &std::path::Path, error: std::io::Error) -> PyErr {
-    // An object's error names its URL itself.
-    let text = if chunkstore::storage::StorageError::from_io(&error).is_some() {
-        error.to_string()
-    } else {
-        format!("{}: {error}", path.display())
-    };
-    let error = std::io::Error::new(error.kind(), text);
+    let error = std::io::Error::new(
+        error.kind(),
+        chunkstore::storage::io_error_text(path, &error),
+    );
     PyErr::from(error)
 }
 
@@ -37,10 +34,10 @@ pub fn rrd_error(path: &std::path::Path, error: RrdError) -> PyErr {
     if let RrdErrorKind::Io(io) = &error.kind
         && io.kind() != std::io::ErrorKind::UnexpectedEof
     {
-        if let Some(storage) = chunkstore::storage::StorageError::from_io(io) {
-            return os_error(path, storage.clone().into_io());
-        }
-        return os_error(path, std::io::Error::new(io.kind(), io.to_string()));
+        return PyErr::from(std::io::Error::new(
+            io.kind(),
+            chunkstore::storage::io_error_text(path, io),
+        ));
     }
     CorruptFileError::new_err(format!("{}: {error}", path.display()))
 }

@@ -23,8 +23,14 @@ pub fn open(
     recording: Option<String>,
     storage_options: Option<Vec<(String, String)>>,
 ) -> PyResult<NativeStore> {
-    let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
+    let storage = storage_from(storage_options);
     py.detach(|| no_panic(|| open_path(&path, lazy, recording, storage)))
+}
+
+/// The `storage_options` every function that names a source or an output takes: the
+/// Python side's `(key, value)` pairs (`_arguments.storage_pairs`), or none.
+pub fn storage_from(pairs: Option<Vec<(String, String)>>) -> StorageOptions {
+    pairs.into_iter().flatten().collect()
 }
 
 fn open_path(

@@ -549,7 +549,7 @@ impl NativeStore {
         recording_id: Option<String>,
         storage_options: Option<Vec<(String, String)>>,
     ) -> PyResult<u64> {
-        let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
+        let storage = crate::open::storage_from(storage_options);
         py.detach(|| {
             no_panic(|| {
                 self.refuse_overwriting_source(&path)?;
@@ -591,7 +591,7 @@ impl NativeStore {
         row_group_rows: Option<usize>,
         storage_options: Option<Vec<(String, String)>>,
     ) -> PyResult<u64> {
-        let storage: StorageOptions = storage_options.unwrap_or_default().into_iter().collect();
+        let storage = crate::open::storage_from(storage_options);
         let query = args.query()?;
         let sampled = args.is_sampled();
         let index = args.index();

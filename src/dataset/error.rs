@@ -110,11 +110,9 @@ impl From<OpenError> for DatasetError {
 impl fmt::Display for DatasetError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            // An object's error names its URL itself.
-            Self::Io { source, .. } if crate::storage::StorageError::from_io(source).is_some() => {
-                write!(f, "{source}")
+            Self::Io { path, source } => {
+                write!(f, "{}", crate::storage::io_error_text(path, source))
             }
-            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::NoRrdFiles { dir } if dir.as_os_str().is_empty() => {
                 write!(f, "a dataset needs at least one .rrd file")
             }

@@ -236,7 +236,6 @@ fn open_file(
     options: &DatasetOptions,
     warnings: &Mutex<Vec<String>>,
 ) -> Result<Opened, DatasetError> {
-    let open_error = |error| OpenError::rrd(path, error);
     let metadata = std::fs::metadata(path).map_err(|source| OpenError::Io {
         path: path.to_owned(),
         source,
@@ -268,15 +267,30 @@ fn open_file(
             }
             _ => load_whole(path, options, warnings, file_bytes),
         },
-        Err(error) if error.is_recording_choice() => Err(open_error(error).into()),
-        // A corrupt footer: the file may still be read whole, message by message.
-        Err(_) if options.skip_bad => load_whole(path, options, warnings, file_bytes),
-        Err(error) => Err(OpenError::Footer {
-            path: path.to_owned(),
-            error,
-        }
-        .into()),
+        Err(error) => footer_failed(path, error, options, warnings, file_bytes),
     }
+}
+
+/// A file whose footer could not be read: an error, or (`skip_bad`, a corrupt footer) the
+/// file read whole, message by message.
+fn footer_failed(
+    path: &Path,
+    error: crate::rrd::RrdError,
+    options: &DatasetOptions,
+    warnings: &Mutex<Vec<String>>,
+    file_bytes: u64,
+) -> Result<Opened, DatasetError> {
+    if error.is_recording_choice() {
+        return Err(OpenError::rrd(path, error).into());
+    }
+    if options.skip_bad {
+        return load_whole(path, options, warnings, file_bytes);
+    }
+    Err(OpenError::Footer {
+        path: path.to_owned(),
+        error,
+    }
+    .into())
 }
 
 fn load_whole(
@@ -385,12 +399,6 @@ pub(super) fn opened_object(
             })
         }
         Ok(None) => load_whole(path, options, warnings, file_bytes),
-        Err(error) if error.is_recording_choice() => Err(OpenError::rrd(path, error).into()),
-        Err(_) if options.skip_bad => load_whole(path, options, warnings, file_bytes),
-        Err(error) => Err(OpenError::Footer {
-            path: path.to_owned(),
-            error,
-        }
-        .into()),
+        Err(error) => footer_failed(path, error, options, warnings, file_bytes),
     }
 }

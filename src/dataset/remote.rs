@@ -10,26 +10,17 @@ use crate::recording::OpenError;
 impl Dataset {
     /// Opens the dataset a URL names ([`Dataset::open`]).
     pub(super) fn open_url(path: &Path, options: &DatasetOptions) -> Result<Self, DatasetError> {
+        if !crate::storage::is_prefix_url(path) {
+            return Self::open_files(&[path.to_owned()], options);
+        }
         #[cfg(feature = "object-store")]
-        {
-            if !crate::storage::object::is_prefix_url(path) {
-                return Self::open_files(&[path.to_owned()], options);
-            }
-            open_prefix(path, options)
-        }
+        return open_prefix(path, options);
         #[cfg(not(feature = "object-store"))]
-        {
-            // `open_input` says what is missing.
-            let source = match crate::storage::open_input(path, &options.storage) {
-                Err(error) => error,
-                Ok(_) => std::io::Error::other("object storage is not built in"),
-            };
-            Err(OpenError::Io {
-                path: path.to_owned(),
-                source,
-            }
-            .into())
+        Err(OpenError::Io {
+            path: path.to_owned(),
+            source: crate::storage::StorageError::needs_feature(path).into_io(),
         }
+        .into())
     }
 }
 

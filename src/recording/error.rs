@@ -202,11 +202,9 @@ impl OpenError {
 impl fmt::Display for OpenError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            // An object's error names its URL itself.
-            Self::Io { source, .. } if crate::storage::StorageError::from_io(source).is_some() => {
-                write!(f, "{source}")
+            Self::Io { path, source } => {
+                write!(f, "{}", crate::storage::io_error_text(path, source))
             }
-            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
             Self::UnknownFormat { path, head } if head.is_empty() => write!(
                 f,
                 "{}: the file is empty (neither an .rrd file nor Arrow IPC)",

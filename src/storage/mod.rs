@@ -125,6 +125,19 @@ pub fn url_scheme(path: &Path) -> Option<String> {
     (URL_SCHEMES.contains(&scheme.as_str()) && !rest.is_empty()).then_some(scheme)
 }
 
+/// Is `path` a URL naming a prefix (a dataset: the `.rrd` objects under it)? A URL ending
+/// in `/`.
+///
+/// ```
+/// use chunkstore::storage::is_prefix_url;
+/// assert!(is_prefix_url("s3://bucket/episodes/".as_ref()));
+/// assert!(!is_prefix_url("s3://bucket/episodes/run.rrd".as_ref()));
+/// assert!(!is_prefix_url("episodes/".as_ref()));
+/// ```
+pub fn is_prefix_url(path: &Path) -> bool {
+    url_scheme(path).is_some() && path.to_str().is_some_and(|text| text.ends_with('/'))
+}
+
 /// The local path a `file://` URL names (`file:///runs/a.rrd` is `/runs/a.rrd`); any
 /// other path as it is.
 pub fn local_path(path: &Path) -> &Path {
@@ -134,6 +147,16 @@ pub fn local_path(path: &Path) -> &Path {
             scheme.eq_ignore_ascii_case("file").then_some(rest)
         })
         .map_or(path, Path::new)
+}
+
+/// An I/O error on `path` as its message says it: `path: error`, or an object's error
+/// alone, which names its URL already.
+pub fn io_error_text(path: &Path, error: &std::io::Error) -> String {
+    if StorageError::from_io(error).is_some() {
+        error.to_string()
+    } else {
+        format!("{}: {error}", path.display())
+    }
 }
 
 /// What an `.rrd` is read from: a local file, or (feature `object-store`) an object.

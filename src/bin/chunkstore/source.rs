@@ -62,13 +62,9 @@ impl Source {
         let path = stdin
             .as_ref()
             .map_or_else(|| cli.source.clone(), |copy| copy.path().to_owned());
-        let is_url = chunkstore::storage::url_scheme(&path).is_some();
         // A URL ending in `/` is a prefix: a dataset of the `.rrd` objects under it.
-        let is_dataset = if is_url {
-            path.to_str().is_some_and(|text| text.ends_with('/'))
-        } else {
-            path.is_dir() && chunkstore::dataset::is_dataset_dir(&path)
-        };
+        let is_dataset = chunkstore::storage::is_prefix_url(&path)
+            || (path.is_dir() && chunkstore::dataset::is_dataset_dir(&path));
         if is_dataset {
             return DatasetSource::of(cli, path, &options).map(Self::Dataset);
         }

@@ -2,8 +2,8 @@
 
 use futures::StreamExt;
 
-use super::{Location, ObjectReader, count_list, request_error, runtime};
-use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
+use super::{Location, ObjectReader, count_lists, request_error, runtime};
+use crate::storage::{StorageError, StorageOptions};
 
 /// Objects opened at once when a dataset over a prefix opens (each is one GET).
 pub const OPENS_IN_FLIGHT: usize = 64;
@@ -29,19 +29,17 @@ pub fn list_rrd_objects(
     let prefix = Location::resolve(url, options)?;
     let store = std::sync::Arc::clone(&prefix.store);
     let path = prefix.path.clone();
-    let listed = runtime::wait(async move {
+    let listed = runtime::wait(url, async move {
         let prefix = (!path.as_ref().is_empty()).then_some(&path);
         store.list_with_delimiter(prefix).await
-    })
-    .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e)))?
+    })?
     .map_err(|e| request_error(url, &e))?;
     // `list_with_delimiter` reads every page; the count is of the pages it needed.
-    for _ in 0..(listed.objects.len() + listed.common_prefixes.len())
-        .div_ceil(1000)
-        .max(1)
-    {
-        count_list();
-    }
+    count_lists(
+        (listed.objects.len() + listed.common_prefixes.len())
+            .div_ceil(1000)
+            .max(1) as u64,
+    );
     let mut objects: Vec<(Location, object_store::ObjectMeta)> = listed
         .objects
         .into_iter()
@@ -64,7 +62,8 @@ pub fn list_rrd_objects(
 pub fn open_all(listed: &ListedObjects) -> Vec<Result<ObjectReader, StorageError>> {
     let objects = listed.objects.clone();
     let urls: Vec<String> = objects.iter().map(|(l, _)| l.url.clone()).collect();
-    match runtime::wait(async move {
+    let first = urls.first().cloned().unwrap_or_default();
+    match runtime::wait(&first, async move {
         futures::stream::iter(objects)
             .map(|(location, meta)| ObjectReader::open_async(location, Some(meta)))
             .buffered(OPENS_IN_FLIGHT)
@@ -72,9 +71,9 @@ pub fn open_all(listed: &ListedObjects) -> Vec<Result<ObjectReader, StorageError
             .await
     }) {
         Ok(results) => results,
-        Err(e) => urls
+        Err(error) => urls
             .into_iter()
-            .map(|url| Err(StorageError::new(url, StorageErrorKind::Request(e.clone()))))
+            .map(|url| Err(StorageError::new(url, error.kind.clone())))
             .collect(),
     }
 }

@@ -93,8 +93,8 @@ fn count_get(bytes: u64) {
     BYTES_FETCHED.fetch_add(bytes, Ordering::Relaxed);
 }
 
-fn count_list() {
-    LISTS.fetch_add(1, Ordering::Relaxed);
+fn count_lists(pages: u64) {
+    LISTS.fetch_add(pages, Ordering::Relaxed);
 }
 
 fn count_put(bytes: u64) {
@@ -296,9 +296,4 @@ fn request_error(url: &str, error: &object_store::Error) -> StorageError {
 /// `object_store`'s errors nest their causes over several lines; one line says it.
 fn one_line(text: &str) -> String {
     text.split_whitespace().collect::<Vec<_>>().join(" ")
-}
-
-/// Is `path` a URL naming a prefix (a dataset), by its text: it ends with `/`?
-pub fn is_prefix_url(path: &FsPath) -> bool {
-    path.to_str().is_some_and(|text| text.ends_with('/'))
 }

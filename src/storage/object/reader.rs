@@ -70,8 +70,7 @@ impl ObjectReader {
     pub fn open(url: &FsPath, options: &StorageOptions) -> Result<Self, StorageError> {
         let location = Location::of_path(url, options)?;
         let url = location.url.clone();
-        runtime::wait(Self::open_async(location, None))
-            .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e)))?
+        runtime::wait(&url, Self::open_async(location, None))?
     }
 
     /// Opens `location`: one GET of its end; with `listed` (its size and `ETag`, from a
@@ -182,7 +181,7 @@ impl ObjectReader {
             return Ok(());
         }
         let object = Arc::clone(&self.object);
-        let fetched = runtime::wait(async move {
+        let fetched = runtime::wait(self.url(), async move {
             futures::stream::iter(gets)
                 .map(|range| {
                     let object = Arc::clone(&object);
@@ -192,7 +191,7 @@ impl ObjectReader {
                 .collect::<Vec<_>>()
                 .await
         })
-        .map_err(|e| StorageError::new(self.url(), StorageErrorKind::Request(e)).into_io())?;
+        .map_err(StorageError::into_io)?;
         for result in fetched {
             self.prefetched.push(result.map_err(StorageError::into_io)?);
         }
@@ -252,8 +251,8 @@ impl Read for ObjectReader {
             let want = (out.len() as u64).max(MIN_FETCH);
             let range = self.position..self.position.saturating_add(want).min(size);
             let object = Arc::clone(&self.object);
-            let fetched = runtime::wait(async move { fetch(&object, range).await })
-                .map_err(|e| StorageError::new(self.url(), StorageErrorKind::Request(e)).into_io())?
+            let fetched = runtime::wait(self.url(), async move { fetch(&object, range).await })
+                .and_then(|fetched| fetched)
                 .map_err(StorageError::into_io)?;
             self.last_read = Some(fetched);
         }

@@ -4,25 +4,32 @@
 use std::future::Future;
 use std::sync::OnceLock;
 
-/// Runs `future` on the crate's runtime and waits for it on this thread. Safe to call
-/// from inside another Tokio runtime's task (the wait is a plain channel's, which never
-/// tries to drive a runtime), where `Runtime::block_on` would panic.
-pub(super) fn wait<F>(future: F) -> Result<F::Output, String>
+use crate::storage::{StorageError, StorageErrorKind};
+
+/// Runs `future`, a request on the object `url`, on the crate's runtime and waits for it
+/// on this thread. Safe to call from inside another Tokio runtime's task (the wait is a
+/// plain channel's, which never tries to drive a runtime), where `Runtime::block_on` would
+/// panic. The runtime failing to start, or dropping the request, is an error on `url`.
+pub(super) fn wait<F>(url: &str, future: F) -> Result<F::Output, StorageError>
 where
     F: Future + Send + 'static,
     F::Output: Send + 'static,
 {
     let (sender, receiver) = std::sync::mpsc::sync_channel(1);
-    spawn(async move {
+    spawn(url, async move {
         let _ = sender.send(future.await);
     })?;
-    receiver
-        .recv()
-        .map_err(|_| "an object-store request was dropped before it finished".to_owned())
+    receiver.recv().map_err(|_| {
+        StorageError::new(
+            url,
+            StorageErrorKind::Request("the request was dropped before it finished".into()),
+        )
+    })
 }
 
-/// Starts `future` on the crate's runtime, without waiting for it.
-pub(super) fn spawn<F>(future: F) -> Result<(), String>
+/// Starts `future`, a request on the object `url`, on the crate's runtime, without
+/// waiting for it.
+pub(super) fn spawn<F>(url: &str, future: F) -> Result<(), StorageError>
 where
     F: Future<Output = ()> + Send + 'static,
 {
@@ -39,7 +46,7 @@ where
                 .map_err(|e| format!("cannot start the object-store runtime: {e}"))
         })
         .as_ref()
-        .map_err(Clone::clone)?;
+        .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e.clone())))?;
     drop(runtime.spawn(future));
     Ok(())
 }

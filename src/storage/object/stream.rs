@@ -10,7 +10,7 @@ use futures::StreamExt;
 use object_store::ObjectStoreExt;
 
 use super::{Location, count_get, request_error, runtime};
-use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
+use crate::storage::{StorageError, StorageOptions};
 
 /// Pieces of the body received ahead of the reader (each what the connection delivered,
 /// typically tens of kilobytes).
@@ -34,18 +34,16 @@ impl ObjectStream {
     pub fn open(url: &FsPath, options: &StorageOptions) -> Result<Self, StorageError> {
         let location = Location::of_path(url, options)?;
         let url = location.url.clone();
-        let request_failed = |e| StorageError::new(&url, StorageErrorKind::Request(e));
-        let result = runtime::wait({
-            let location = location.clone();
-            async move { location.store.get(&location.path).await }
-        })
-        .map_err(request_failed)?
+        let result = runtime::wait(
+            &url,
+            async move { location.store.get(&location.path).await },
+        )?
         .map_err(|e| request_error(&url, &e))?;
         count_get(0);
         let size = result.meta.size;
         let (sender, pieces) = sync_channel(PIECES_AHEAD);
         let body_url = url.clone();
-        runtime::spawn(async move {
+        runtime::spawn(&url, async move {
             let mut body = result.into_stream();
             while let Some(piece) = body.next().await {
                 let piece = piece.map_err(|e| request_error(&body_url, &e));
@@ -59,8 +57,7 @@ impl ObjectStream {
                     break;
                 }
             }
-        })
-        .map_err(request_failed)?;
+        })?;
         Ok(Self {
             url,
             size,

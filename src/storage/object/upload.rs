@@ -53,18 +53,17 @@ pub fn upload_file(
         let mut bytes = Vec::new();
         input.read_to_end(&mut bytes).map_err(local)?;
         let len = bytes.len() as u64;
-        runtime::wait(async move {
+        runtime::wait(url, async move {
             location
                 .store
                 .put(&location.path, PutPayload::from(bytes))
                 .await
-        })
-        .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e)))?
+        })?
         .map_err(|e| request_error(url, &e))?;
         count_put(len);
         return Ok(());
     }
-    runtime::wait(async move {
+    runtime::wait(url, async move {
         let failed = |e: &object_store::Error| request_error(&url_owned, e);
         let upload = location
             .store
@@ -112,8 +111,7 @@ pub fn upload_file(
                 Err(error)
             }
         }
-    })
-    .map_err(|e| StorageError::new(url, StorageErrorKind::Request(e)))?
+    })?
 }
 
 /// Reads until `out` is full or the input ends; how much was read.
