@@ -6,7 +6,7 @@ use std::process::{Command, Output};
 
 use chunkstore::storage::StorageOptions;
 
-use super::{endpoint, options, prefix, turn, upload};
+use super::{bucket, upload};
 use crate::common;
 
 /// The tool, with the test server's credentials in its environment.
@@ -42,10 +42,9 @@ fn download(url: &str, storage: &StorageOptions) -> Vec<u8> {
 
 #[test]
 fn every_output_goes_to_a_bucket_and_reads_back_as_the_local_one() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let prefix = prefix("cli");
+    let Some((endpoint, storage, prefix, _turn)) = bucket("cli") else {
+        return;
+    };
     let robot = common::robot_recording().join("a_robot.rrd");
     let robot = robot.to_str().unwrap();
     let dir = common::ScratchDir::new("storage-cli");
@@ -119,9 +118,9 @@ fn every_output_goes_to_a_bucket_and_reads_back_as_the_local_one() {
 
 #[test]
 fn bad_urls_and_options_exit_2_with_one_line() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let prefix = prefix("cli-errors");
+    let Some((endpoint, _, prefix, _turn)) = bucket("cli-errors") else {
+        return;
+    };
     let missing = format!("{prefix}missing.rrd");
     for (args, expected) in [
         (

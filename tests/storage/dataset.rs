@@ -7,7 +7,7 @@ use arrow_array::RecordBatch;
 use chunkstore::DataframeQuery;
 use chunkstore::dataset::{Dataset, DatasetOptions};
 
-use super::{counted, endpoint, options, prefix, turn, upload};
+use super::{bucket, counted, upload};
 use crate::common;
 
 fn table(dataset: &Dataset, query: &DataframeQuery) -> RecordBatch {
@@ -27,10 +27,9 @@ fn upload_dir(dir: &Path, prefix: &str, storage: &chunkstore::storage::StorageOp
 
 #[test]
 fn a_dataset_over_a_prefix_opens_with_one_list_and_one_get_per_segment() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let prefix = prefix("dataset");
+    let Some((_, storage, prefix, _turn)) = bucket("dataset") else {
+        return;
+    };
     let dir = common::ScratchDir::new("storage-dataset");
     common::episodes(&dir);
     upload_dir(&dir, &prefix, &storage);
@@ -84,10 +83,10 @@ fn a_dataset_over_a_prefix_opens_with_one_list_and_one_get_per_segment() {
 
 #[test]
 fn an_empty_prefix_is_an_error_naming_it() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let prefix = prefix("empty");
-    let options = DatasetOptions::default().with_storage(options(&endpoint));
+    let Some((_, storage, prefix, _turn)) = bucket("empty") else {
+        return;
+    };
+    let options = DatasetOptions::default().with_storage(storage);
     let error = Dataset::open(Path::new(&prefix), &options).expect_err("no .rrd objects");
     assert!(error.to_string().contains(&prefix), "{error}");
 }

@@ -56,6 +56,16 @@ fn options(endpoint: &str) -> StorageOptions {
         .with("aws_region", "us-east-1")
 }
 
+/// A test's part of the S3 server: the endpoint, the options that reach it, a prefix of
+/// its own (`name`), and its turn (held until the test ends), once the tests before it are
+/// done; `None` without a server ([`endpoint`]).
+fn bucket(name: &str) -> Option<(String, StorageOptions, String, MutexGuard<'static, ()>)> {
+    let endpoint = endpoint()?;
+    let turn = turn();
+    let storage = options(&endpoint);
+    Some((endpoint, storage, prefix(name), turn))
+}
+
 /// One test at a time: the request counters are the process's.
 fn turn() -> MutexGuard<'static, ()> {
     static TURN: Mutex<()> = Mutex::new(());

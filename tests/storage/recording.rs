@@ -5,15 +5,14 @@ use chunkstore::recording::{OpenOptions, Recording};
 use chunkstore::storage::{StorageError, StorageErrorKind};
 use chunkstore::{LatestAtQuery, RangeQuery, TimeInt, TimeRange};
 
-use super::{counted, endpoint, options, prefix, turn, upload, url};
+use super::{bucket, counted, upload, url};
 use crate::common;
 
 #[test]
 fn a_recording_in_a_bucket_answers_as_its_file_does_with_ranged_gets() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let prefix = prefix("recording");
+    let Some((_, storage, prefix, _turn)) = bucket("recording") else {
+        return;
+    };
     let local = common::robot_recording().join("a_robot.rrd");
     let remote = url(&prefix, "a_robot.rrd");
     upload(&local, remote.to_str().unwrap(), &storage);
@@ -88,10 +87,9 @@ fn a_recording_in_a_bucket_answers_as_its_file_does_with_ranged_gets() {
 
 #[test]
 fn an_object_rewritten_while_it_is_read_is_an_error_naming_it() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let prefix = prefix("rewritten");
+    let Some((_, storage, prefix, _turn)) = bucket("rewritten") else {
+        return;
+    };
     let remote = url(&prefix, "run.rrd");
     upload(
         &common::robot_recording().join("a_robot.rrd"),
@@ -132,10 +130,9 @@ fn an_object_rewritten_while_it_is_read_is_an_error_naming_it() {
 
 #[test]
 fn a_recording_without_a_footer_is_read_with_one_get() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let prefix = prefix("no-footer");
+    let Some((_, storage, prefix, _turn)) = bucket("no-footer") else {
+        return;
+    };
     let dir = common::ScratchDir::new("storage-no-footer");
     let file = common::write_without_footer(
         &dir,
@@ -164,10 +161,10 @@ fn a_recording_without_a_footer_is_read_with_one_get() {
 
 #[test]
 fn missing_objects_and_unknown_options_are_one_line_naming_the_url() {
-    let Some(endpoint) = endpoint() else { return };
-    let _turn = turn();
-    let storage = options(&endpoint);
-    let missing = url(&prefix("missing"), "nothing-here.rrd");
+    let Some((_, storage, prefix, _turn)) = bucket("missing") else {
+        return;
+    };
+    let missing = url(&prefix, "nothing-here.rrd");
     let error = Recording::open(
         &missing,
         &OpenOptions::default().with_storage(storage.clone()),
