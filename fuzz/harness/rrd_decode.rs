@@ -126,6 +126,19 @@ pub fn rrd_decode(bytes: &[u8]) {
     }
     let _ = selector.finish();
 
+    // Opened from its footers alone (as an object in a bucket is): where the whole opening
+    // reads the footers, so does this one, to the same manifest, without a header or a
+    // store info; and a load through it never panics.
+    if let Ok(Some(whole)) = LazyRecording::from_reader(std::io::Cursor::new(bytes)) {
+        let mut footer = LazyRecording::from_reader_footer(std::io::Cursor::new(bytes), None)
+            .expect("the footers the whole opening read")
+            .expect("a footer");
+        assert_eq!(footer.manifest(), whole.manifest());
+        assert_eq!(footer.footers_start(), whole.footers_start());
+        assert!(footer.header().is_none() && footer.store_info().is_none());
+        let _ = footer.load_all();
+    }
+
     if let Ok(Some(mut lazy)) = LazyRecording::from_reader(std::io::Cursor::new(bytes)) {
         // Where the whole stream decoded cleanly and its manifest tells the truth about
         // every chunk, lazy answers must be the eager store's.
