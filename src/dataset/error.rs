@@ -92,6 +92,17 @@ pub enum DatasetError {
     /// it): [`Dataset::write_hive`](super::Dataset::write_hive).
     #[cfg(feature = "parquet")]
     Hive(crate::parquet::HiveExportError),
+    /// A Delta table of the dataset could not be written or appended to (no commit was
+    /// made, and nothing the write placed is left): [`Dataset::write_delta`](super::Dataset::write_delta).
+    #[cfg(feature = "parquet")]
+    Delta(crate::parquet::delta::DeltaError),
+}
+
+#[cfg(feature = "parquet")]
+impl From<crate::parquet::delta::DeltaError> for DatasetError {
+    fn from(error: crate::parquet::delta::DeltaError) -> Self {
+        Self::Delta(error)
+    }
 }
 
 #[cfg(feature = "parquet")]
@@ -169,6 +180,8 @@ impl fmt::Display for DatasetError {
             Self::Dataframe { segment, error } => write!(f, "segment {segment:?}: {error}"),
             #[cfg(feature = "parquet")]
             Self::Hive(error) => write!(f, "{error}"),
+            #[cfg(feature = "parquet")]
+            Self::Delta(error) => write!(f, "{error}"),
         }
     }
 }
@@ -182,6 +195,8 @@ impl std::error::Error for DatasetError {
             Self::Dataframe { error, .. } => Some(error),
             #[cfg(feature = "parquet")]
             Self::Hive(error) => Some(error),
+            #[cfg(feature = "parquet")]
+            Self::Delta(error) => Some(error),
             _ => None,
         }
     }

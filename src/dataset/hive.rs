@@ -23,13 +23,14 @@ use super::schema::Placed;
 use super::stream::PlannedRows;
 use super::{Dataset, DatasetError, SegmentInfo};
 use crate::DataframeQuery;
+use crate::parquet::delta::{DeltaCommit, DeltaWrite, TableStore, write_table};
 use crate::parquet::{
-    HiveExportError, HiveLayout, HiveSummary, bucket_query, check_new_dataset,
-    escape_partition_value, write_buckets, write_entities, write_new_directory,
+    HiveExportError, HiveLayout, HiveSummary, PartFile, bucket_key, bucket_query,
+    check_new_dataset, escape_partition_value, write_buckets, write_entities, write_new_directory,
 };
 
 /// The partition key of a segment's directory.
-pub const SEGMENT_PARTITION_KEY: &str = "segment";
+pub const SEGMENT_PARTITION_KEY: &str = crate::parquet::delta::SEGMENT_COLUMN;
 
 impl Dataset {
     /// Writes the dataset as a Hive-partitioned Parquet dataset in the new directory `dir`
@@ -66,6 +67,71 @@ impl Dataset {
         on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
     ) -> Result<HiveSummary, DatasetError> {
         check_new_dataset(dir, layout)?;
+        let plan = self.hive_plan(layout)?;
+        write_new_directory(dir, |partial| {
+            self.write_partitions(partial, layout, &plan, &PartFile::default(), on_segment)
+        })
+    }
+
+    /// Writes the dataset as a Delta Lake table (module docs of [`crate::parquet::delta`]):
+    /// a new table, or with `append`, one commit adding the dataset's segments to an
+    /// existing one (none of which it may hold already). The files are laid out as
+    /// [`Dataset::write_hive`] lays them out, and `on_segment` is called as it calls it.
+    ///
+    /// ```no_run
+    /// use chunkstore::dataset::{Dataset, DatasetOptions};
+    /// use chunkstore::parquet::HiveLayout;
+    /// use chunkstore::parquet::delta::LocalTable;
+    ///
+    /// let dataset = Dataset::open("episodes/".as_ref(), &DatasetOptions::default())?;
+    /// let layout = HiveLayout::ByEntity { timeline: None };
+    /// let table = LocalTable::new("episodes_delta");
+    /// let commit = dataset.write_delta(&table, &layout, false, &|_, _| {})?;
+    /// println!("version {}: {} rows", commit.version, commit.rows());
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// # Errors
+    /// What [`Dataset::write_hive`] refuses (but an existing `table` when appending), and
+    /// [`DatasetError::Delta`]: a table there already (or none, to append to), another
+    /// partitioning, a segment in it already, a column of another type, a type or name
+    /// Delta cannot hold, the store's errors.
+    pub fn write_delta(
+        &self,
+        table: &dyn TableStore,
+        layout: &HiveLayout,
+        append: bool,
+        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+    ) -> Result<DeltaCommit, DatasetError> {
+        if let HiveLayout::ByTimeBucket { width, .. } = layout
+            && *width < 1
+        {
+            return Err(HiveExportError::BucketWidth { width: *width }.into());
+        }
+        let plan = self.hive_plan(layout)?;
+        let partitions = match layout {
+            HiveLayout::ByEntity { .. } => vec![("entity".to_owned(), "string")],
+            HiveLayout::ByTimeBucket { timeline, .. } => vec![(bucket_key(timeline), "long")],
+        };
+        let write = DeltaWrite {
+            table,
+            append,
+            partitions,
+            segments: self.segments().iter().map(|s| s.id.clone()).collect(),
+            schema: Arc::clone(&plan.0),
+        };
+        write_table(&write, |staging, name| {
+            let part = PartFile {
+                name: name.to_owned(),
+                delta: true,
+            };
+            self.write_partitions(staging, layout, &plan, &part, on_segment)
+        })
+    }
+
+    /// What a copy's files hold (their schema) and, for a time bucket layout, the planned
+    /// rows of each segment with data on its timeline.
+    fn hive_plan(&self, layout: &HiveLayout) -> Result<PlannedRows, DatasetError> {
         match layout {
             HiveLayout::ByEntity { timeline } => {
                 if let Some(timeline) = timeline
@@ -73,20 +139,34 @@ impl Dataset {
                 {
                     return Err(self.unknown_index_error(timeline));
                 }
-                let schema = Arc::clone(&self.tables()?.chunks);
-                write_new_directory(dir, |partial| {
-                    self.entities_by_segment(partial, timeline.as_deref(), &schema, on_segment)
-                })
+                Ok((Arc::clone(&self.tables()?.chunks), Vec::new()))
             }
             HiveLayout::ByTimeBucket {
-                timeline,
-                width,
-                query,
+                timeline, query, ..
+            } => match query {
+                None => self.default_view(timeline),
+                Some(_) => self.plan_dataframe(&bucket_query(timeline, query.as_ref())?),
+            },
+        }
+    }
+
+    /// Writes the copy's files under `dir` as `plan` planned them.
+    fn write_partitions(
+        &self,
+        dir: &Path,
+        layout: &HiveLayout,
+        plan: &PlannedRows,
+        part: &PartFile,
+        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+    ) -> Result<HiveSummary, DatasetError> {
+        let (schema, segments) = plan;
+        match layout {
+            HiveLayout::ByEntity { timeline } => {
+                self.entities_by_segment(dir, timeline.as_deref(), schema, part, on_segment)
+            }
+            HiveLayout::ByTimeBucket {
+                timeline, width, ..
             } => {
-                let (schema, segments) = match query {
-                    None => self.default_view(timeline)?,
-                    Some(_) => self.plan_dataframe(&bucket_query(timeline, query.as_ref())?)?,
-                };
                 let empty = HiveSummary::default();
                 for (number, info) in self.segments().iter().enumerate() {
                     // `segments` is in segment order.
@@ -97,25 +177,20 @@ impl Dataset {
                         on_segment(info, &empty);
                     }
                 }
-                write_new_directory(dir, |partial| {
-                    super::threads::in_parallel(&segments, self.options().threads, |segment| {
-                        let (number, query, kept) = segment.clone();
-                        let info = &self.segments()[number];
-                        let rows = self.stream_segments(
-                            Arc::clone(&schema),
-                            vec![(number, query, kept)],
-                            1,
-                        );
-                        let mut summary = HiveSummary::default();
-                        let dir = segment_dir(partial, info);
-                        write_buckets(rows, &dir, timeline, *width, &mut summary)
-                            .map_err(|error| segment_failure(info, error))?;
-                        on_segment(info, &summary);
-                        Ok(summary)
-                    })
-                    .into_iter()
-                    .try_fold(HiveSummary::default(), merged)
+                super::threads::in_parallel(segments, self.options().threads, |segment| {
+                    let (number, query, kept) = segment.clone();
+                    let info = &self.segments()[number];
+                    let rows =
+                        self.stream_segments(Arc::clone(schema), vec![(number, query, kept)], 1);
+                    let mut summary = HiveSummary::default();
+                    let dir = segment_dir(dir, info);
+                    write_buckets(rows, &dir, timeline, *width, part, &mut summary)
+                        .map_err(|error| segment_failure(info, error))?;
+                    on_segment(info, &summary);
+                    Ok(summary)
                 })
+                .into_iter()
+                .try_fold(HiveSummary::default(), merged)
             }
         }
     }
@@ -150,6 +225,7 @@ impl Dataset {
         dir: &Path,
         timeline: Option<&str>,
         schema: &SchemaRef,
+        part: &PartFile,
         on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
     ) -> Result<HiveSummary, DatasetError> {
         let numbers: Vec<usize> = (0..self.segments().len()).collect();
@@ -172,7 +248,7 @@ impl Dataset {
             let timeline = timeline.filter(|t| snapshot.time_type(t).is_some());
             let id: Arc<str> = info.id.as_str().into();
             let shape = |table| Placed::new(table, Arc::clone(schema), Arc::clone(&id));
-            write_entities(&snapshot, &dir, timeline, shape, &mut summary)
+            write_entities(&snapshot, &dir, timeline, shape, part, &mut summary)
                 .map_err(|error| segment_failure(info, error))?;
             on_segment(info, &summary);
             Ok(summary)

@@ -200,6 +200,83 @@ pub fn escape_partition_value(value: &str) -> String {
     out
 }
 
+/// The value [`escape_partition_value`] escaped (a `%` not followed by two hex digits is
+/// kept as it is).
+///
+/// ```
+/// use chunkstore::parquet::{escape_partition_value, unescape_partition_value};
+/// assert_eq!(unescape_partition_value("%2Frobot%2Farm%201"), "/robot/arm 1");
+/// assert_eq!(unescape_partition_value(&escape_partition_value("é/%")), "é/%");
+/// ```
+pub fn unescape_partition_value(escaped: &str) -> String {
+    let bytes = escaped.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut at = 0;
+    while at < bytes.len() {
+        let hex = |b: u8| char::from(b).to_digit(16);
+        if bytes[at] == b'%'
+            && let (Some(high), Some(low)) = (
+                bytes.get(at + 1).copied().and_then(hex),
+                bytes.get(at + 2).copied().and_then(hex),
+            )
+        {
+            // Two hex digits are at most 255.
+            out.push(u8::try_from(high * 16 + low).unwrap_or(b'?'));
+            at += 3;
+        } else {
+            out.push(bytes[at]);
+            at += 1;
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// How a partition's file is written: its name in its directory, and whether its columns
+/// take a Delta table's types (`parquet/delta_types.rs`).
+#[derive(Clone, Debug)]
+pub(crate) struct PartFile {
+    /// The file's name.
+    pub name: String,
+    /// Cast the columns to their Delta types.
+    #[cfg(feature = "rrd")]
+    pub delta: bool,
+}
+
+impl Default for PartFile {
+    fn default() -> Self {
+        Self {
+            name: "part-0.parquet".into(),
+            #[cfg(feature = "rrd")]
+            delta: false,
+        }
+    }
+}
+
+impl PartFile {
+    /// Writes `reader` to `path` as this says.
+    #[cfg_attr(
+        not(feature = "rrd"),
+        expect(clippy::unused_self, reason = "Delta needs `rrd`")
+    )]
+    fn write(
+        &self,
+        path: &Path,
+        reader: impl RecordBatchReader,
+        options: &ParquetOptions,
+    ) -> Result<ParquetSummary, HiveExportError> {
+        #[cfg(feature = "rrd")]
+        if self.delta {
+            let typed = super::delta_types::DeltaTyped::new(reader).map_err(|e| {
+                HiveExportError::Write(ParquetExportError::Arrow(ArrowError::InvalidArgumentError(
+                    e.to_string(),
+                )))
+            })?;
+            return Ok(write_parquet_file(path, typed, options)?);
+        }
+        Ok(write_parquet_file(path, reader, options)?)
+    }
+}
+
 /// Writes `view` as a Hive-partitioned Parquet dataset in the new directory `dir` (which
 /// must not exist), laid out as `layout` says. An empty store writes an empty directory.
 ///
@@ -264,14 +341,19 @@ pub(crate) fn write_new_directory<E: From<HiveExportError>>(
     Ok(summary)
 }
 
-/// `dir/key=value/part-0.parquet` (the value escaped), its directories made.
-fn partition_file(dir: &Path, key: &str, value: &str) -> Result<PathBuf, HiveExportError> {
+/// `dir/key=value/<part file>` (the value escaped), its directories made.
+fn partition_file(
+    dir: &Path,
+    key: &str,
+    value: &str,
+    part: &PartFile,
+) -> Result<PathBuf, HiveExportError> {
     let partition = dir.join(format!("{key}={}", escape_partition_value(value)));
     std::fs::create_dir_all(&partition).map_err(|source| HiveExportError::Io {
         path: partition.clone(),
         source,
     })?;
-    Ok(partition.join("part-0.parquet"))
+    Ok(partition.join(&part.name))
 }
 
 fn by_entity(
@@ -280,7 +362,14 @@ fn by_entity(
     timeline: Option<&str>,
 ) -> Result<HiveSummary, HiveExportError> {
     let mut summary = HiveSummary::default();
-    write_entities(view, dir, timeline, |table| table, &mut summary)?;
+    write_entities(
+        view,
+        dir,
+        timeline,
+        |table| table,
+        &PartFile::default(),
+        &mut summary,
+    )?;
     Ok(summary)
 }
 
@@ -291,6 +380,7 @@ pub(crate) fn write_entities<R: RecordBatchReader>(
     dir: &Path,
     timeline: Option<&str>,
     shape: impl Fn(ChunkTableStream) -> R,
+    part: &PartFile,
     summary: &mut HiveSummary,
 ) -> Result<(), HiveExportError> {
     let mut entities = view.entity_paths();
@@ -301,8 +391,8 @@ pub(crate) fn write_entities<R: RecordBatchReader>(
             query = query.with_index(timeline);
         }
         let table = view.chunk_table(&query).map_err(HiveExportError::Table)?;
-        let path = partition_file(dir, "entity", &entity.to_string())?;
-        let written = write_parquet_file(&path, shape(table), &ParquetOptions::default())?;
+        let path = partition_file(dir, "entity", &entity.to_string(), part)?;
+        let written = part.write(&path, shape(table), &ParquetOptions::default())?;
         summary.files.push((path, written));
     }
     Ok(())
@@ -318,7 +408,14 @@ fn by_time_bucket(
     let query = bucket_query(timeline, query)?;
     let stream = view.dataframe(&query).map_err(HiveExportError::Table)?;
     let mut summary = HiveSummary::default();
-    write_buckets(stream, dir, timeline, width, &mut summary)?;
+    write_buckets(
+        stream,
+        dir,
+        timeline,
+        width,
+        &PartFile::default(),
+        &mut summary,
+    )?;
     Ok(summary)
 }
 
@@ -345,13 +442,14 @@ pub(crate) fn write_buckets(
     dir: &Path,
     timeline: &str,
     width: i64,
+    part: &PartFile,
     summary: &mut HiveSummary,
 ) -> Result<(), HiveExportError> {
     let schema = stream.schema();
     let index = schema
         .index_of(timeline)
         .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?;
-    let key = format!("{timeline}_bucket");
+    let key = bucket_key(timeline);
     let options = ParquetOptions::default().with_sorted_by(timeline);
     let mut pieces = Buckets {
         batches: Box::new(stream),
@@ -363,16 +461,21 @@ pub(crate) fn write_buckets(
         .next_bucket()
         .map_err(|e| HiveExportError::Write(ParquetExportError::Arrow(e)))?
     {
-        let path = partition_file(dir, &key, &bucket.to_string())?;
+        let path = partition_file(dir, &key, &bucket.to_string(), part)?;
         let reader = BucketReader {
             buckets: &mut pieces,
             bucket,
             schema: Arc::clone(&schema),
         };
-        let written = write_parquet_file(&path, reader, &options)?;
+        let written = part.write(&path, reader, &options)?;
         summary.files.push((path, written));
     }
     Ok(())
+}
+
+/// The partition key of `timeline`'s buckets: `<timeline>_bucket`.
+pub(crate) fn bucket_key(timeline: &str) -> String {
+    format!("{timeline}_bucket")
 }
 
 /// A dataframe's batches cut where the index crosses into the next bucket.

@@ -18,6 +18,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+#[cfg(feature = "rrd")]
+pub mod delta;
+#[cfg(feature = "rrd")]
+mod delta_types;
 mod file;
 mod hive;
 
@@ -27,7 +31,9 @@ pub use file::{
 };
 pub use hive::{
     HiveExportError, HiveLayout, HiveSummary, check_new_dataset, escape_partition_value,
-    write_hive_dataset,
+    unescape_partition_value, write_hive_dataset,
 };
 #[cfg(feature = "rrd")]
-pub(crate) use hive::{bucket_query, write_buckets, write_entities, write_new_directory};
+pub(crate) use hive::{
+    PartFile, bucket_key, bucket_query, write_buckets, write_entities, write_new_directory,
+};

@@ -250,6 +250,59 @@ fn hive_of_a_dataset_writes_a_partition_per_segment() {
     assert!(!out.join("unknown").exists());
 }
 
+/// Issue 71: `hive --delta` makes a Delta table (a partition per segment, then per
+/// entity), `--append` adds a recording as one more segment in the next commit and refuses
+/// it the second time, a recording of chunk files is refused, and `--append` needs
+/// `--delta`: each refusal one line.
+#[test]
+fn hive_delta_makes_a_table_and_appends_a_recording_as_a_segment() {
+    let dir = robot_dataset("dataset-delta");
+    let out = scratch_dir("dataset-delta-out");
+    let table = out.join("table");
+    let one = dir.join("one.rrd");
+    let two = dir.join("two.rrd");
+    let (_, said) = ok(&[
+        one.as_os_str(),
+        OsStr::new("hive"),
+        table.as_os_str(),
+        OsStr::new("--delta"),
+    ]);
+    assert!(
+        said.contains("committed version 0 of") && said.contains("of 1 segments"),
+        "{said}"
+    );
+    let append = [
+        two.as_os_str(),
+        OsStr::new("hive"),
+        table.as_os_str(),
+        OsStr::new("--delta"),
+        OsStr::new("--append"),
+    ];
+    let (_, said) = ok(&append);
+    assert!(said.contains("committed version 1 of"), "{said}");
+    assert!(table.join("_delta_log/00000000000000000001.json").is_file());
+    assert!(table.join("segment=second").is_dir());
+    let again = fails(&append);
+    assert!(
+        again.contains("segment \"second\" is in the table already"),
+        "{again}"
+    );
+    let chunks = fails(&[
+        common::robot_recording().join("chunks").as_os_str(),
+        OsStr::new("hive"),
+        out.join("chunks").as_os_str(),
+        OsStr::new("--delta"),
+    ]);
+    assert!(chunks.contains("convert"), "{chunks}");
+    let no_delta = fails(&[
+        one.as_os_str(),
+        OsStr::new("hive"),
+        table.as_os_str(),
+        OsStr::new("--append"),
+    ]);
+    assert!(no_delta.contains("--delta"), "{no_delta}");
+}
+
 /// Issue 36: `--index-cache DIR` keeps the index of a dataset's file without a footer in
 /// DIR (`stats` then says where), never beside the data; the next run answers alike from
 /// it. Given with one recording, it is refused in one line.

@@ -21,7 +21,10 @@ chunkstore names it (exit 2), and with ``--skip-bad`` warns and answers the rest
 Then past one machine: ``chunkstore DIR hive OUT`` (by segment and time bucket, and by
 segment and entity) read back by DuckDB (``read_parquet(..., hive_partitioning = true)``)
 and by DataFusion's listing table (the ``datafusion`` package) equals the dataset's own
-table, and an aggregation over it equals the same SQL run by ``chunkstore DIR sql``.
+table, and an aggregation over it equals the same SQL run by ``chunkstore DIR sql``. And
+the dataset as a Delta table in the S3 test server's bucket (``CHUNKSTORE_TEST_S3``):
+``hive s3://... --delta``, then two ``--append`` run at once; deltalake, Polars and
+DuckDB's ``delta_scan`` read it as the dataset's table.
 
 Usage: python tests/clients/dataset_catalog.py path/to/chunkstore   (Rerun is run with a
 temporary HOME.)
@@ -37,13 +40,24 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.ipc as ipc
 import rerun as rr
+from s3_env import s3_endpoint, s3_options, tool_env
 
 SEGMENTS = 30
+
+# Per segment, over a range of frames: chunkstore's SQL over the dataset and another
+# engine over a copy of it must agree.
+SEGMENT_AGGREGATE = (
+    "SELECT rerun_segment_id, count(*) AS n, min(frame) AS first, max(frame) AS last, "
+    "count(\"/robot/camera/points:Points3D:positions\") AS points "
+    "FROM {table} WHERE frame BETWEEN 3 AND 14 GROUP BY rerun_segment_id "
+    "ORDER BY rerun_segment_id"
+)
 
 
 def write_recordings(directory):
@@ -217,14 +231,16 @@ def compare(ours, theirs, index, fill):
 
 
 def plain(table):
-    """`table`'s columns as Python lists, durations as their integers (DuckDB reads an
-    Arrow duration back from Parquet as a plain integer), without partition columns."""
+    """`table`'s columns as Python lists, durations and timestamps as their integers
+    (DuckDB reads an Arrow duration back from Parquet as a plain integer; a Delta table
+    holds both as integers), without partition columns."""
     columns = {}
     for name in table.column_names:
-        if name in ("segment", "entity", "frame_bucket"):
+        if name in ("segment", "entity", "frame_bucket", "log_time_bucket"):
             continue
         column = table.column(name)
-        if pa.types.is_duration(column.type):
+        if pa.types.is_duration(column.type) or pa.types.is_timestamp(column.type):
+            # As a Delta table holds them (SEMANTICS.md section 15): their integers.
             column = column.cast(pa.int64())
         columns[name] = column.to_pylist()
     return columns
@@ -269,12 +285,7 @@ def check_hive(binary, directory, scratch, ours):
     assert plain(read_by_datafusion) == expected, "DataFusion's read of the Hive copy differs"
 
     # The same aggregation, by chunkstore over the dataset and by DuckDB over the copy.
-    query = (
-        "SELECT rerun_segment_id, count(*) AS n, min(frame) AS first, max(frame) AS last, "
-        "count(\"/robot/camera/points:Points3D:positions\") AS points "
-        "FROM {table} WHERE frame BETWEEN 3 AND 14 GROUP BY rerun_segment_id "
-        "ORDER BY rerun_segment_id"
-    )
+    query = SEGMENT_AGGREGATE
     ours_rows = sql_rows(binary, directory, query.format(table="frame"))
     duck_rows = duckdb.sql(
         query.format(table=f"read_parquet('{glob}', hive_partitioning = true)")
@@ -302,6 +313,95 @@ def check_hive(binary, directory, scratch, ours):
     )
 
 
+def duckdb_with_extensions():
+    """DuckDB 1.5.5 with httpfs and delta loaded from their PyPI packages (no download),
+    and the S3 test server's credentials as its secret."""
+    import duckdb
+    import duckdb_extension_delta
+    import duckdb_extension_httpfs
+
+    con = duckdb.connect()
+    for package in (duckdb_extension_httpfs, duckdb_extension_delta):
+        folder = os.path.join(os.path.dirname(package.__file__), "extensions", f"v{duckdb.__version__}")
+        (extension,) = os.listdir(folder)
+        con.execute(f"LOAD '{os.path.join(folder, extension)}'")
+    return con
+
+
+def check_delta(binary, directory, scratch, ours):
+    """The dataset as a Delta table in the S3 test server's bucket: made by one commit of
+    20 segments, then grown by two appends run at once (one of them commits after the
+    other), read by deltalake, Polars and DuckDB (`delta_scan`): each read equals the
+    dataset's table, and an aggregation over it equals chunkstore's SQL over the dataset.
+    A segment appended twice is one line and exit 2."""
+    import deltalake
+    import polars as pl
+
+    endpoint = s3_endpoint("the Delta table in a bucket")
+    if not endpoint:
+        return
+    env = tool_env(endpoint)
+    table = f"s3://chunkstore-test/catalog-delta-{os.getpid()}-{int(time.time())}/episodes/"
+    files = sorted(f for f in os.listdir(directory) if f.endswith(".rrd"))
+    parts = []
+    for n, names in enumerate([files[:20], files[20:25], files[25:]]):
+        part = os.path.join(scratch, f"part{n}")
+        os.makedirs(part)
+        for name in names:
+            os.symlink(os.path.join(directory, name), os.path.join(part, name))
+        parts.append(part)
+    layout = ["--delta", "--index", "frame", "--bucket", "8"]
+    subprocess.run([binary, parts[0], "hive", table, *layout], env=env, check=True)
+    appends = [
+        subprocess.Popen(
+            [binary, part, "hive", table, *layout, "--append"],
+            env=env,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for part in parts[1:]
+    ]
+    said = [append.communicate()[1] for append in appends]
+    assert all(append.returncode == 0 for append in appends), said
+    for line in said:
+        print(line.strip())
+    again = subprocess.run(
+        [binary, parts[2], "hive", table, *layout, "--append"], env=env, capture_output=True, text=True
+    )
+    assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
+    assert "is in the table already" in again.stderr, again.stderr
+
+    options = s3_options(endpoint)
+    expected = plain(ours)
+    order = [("rerun_segment_id", "ascending"), ("frame", "ascending")]
+    delta_table = deltalake.DeltaTable(table, storage_options=options)
+    assert delta_table.version() == 2, delta_table.version()
+    by_deltalake = delta_table.to_pyarrow_table().sort_by(order)
+    assert plain(by_deltalake) == expected, "deltalake's read of the Delta table differs"
+    by_polars = pl.read_delta(table, storage_options=options).sort(["rerun_segment_id", "frame"])
+    assert plain(by_polars.to_arrow()) == expected, "Polars' read of the Delta table differs"
+
+    con = duckdb_with_extensions()
+    host = endpoint.split("://", 1)[1]
+    con.execute(
+        f"CREATE SECRET (TYPE s3, KEY_ID 'key', SECRET 'secret', ENDPOINT '{host}', "
+        "URL_STYLE 'path', USE_SSL false, REGION 'us-east-1')"
+    )
+    scan = f"delta_scan('{table.rstrip('/')}')"
+    by_duckdb = con.execute(f"SELECT * FROM {scan} ORDER BY rerun_segment_id, frame").arrow()
+    if not isinstance(by_duckdb, pa.Table):
+        by_duckdb = by_duckdb.read_all()
+    assert plain(by_duckdb) == expected, "DuckDB's read of the Delta table differs"
+    query = SEGMENT_AGGREGATE
+    ours_rows = sql_rows(binary, directory, query.format(table="frame"))
+    duck_rows = con.execute(query.format(table=scan)).fetchall()
+    assert ours_rows == [tuple(row) for row in duck_rows], (ours_rows[:3], duck_rows[:3])
+    print(
+        f"Delta table in a bucket (3 commits, 2 of them racing) read by deltalake, Polars and "
+        f"DuckDB: {ours.num_rows} rows equal, {len(ours_rows)} segments' aggregates equal"
+    )
+
+
 def main():
     python = sys.argv[1] == "--python"
     binary = None if python else os.path.abspath(sys.argv[1])
@@ -316,7 +416,9 @@ def main():
         checked = check_tables(
             directory, lambda index, fill: chunkstore_table(binary, directory, index, fill, scratch)
         )
-        check_hive(binary, directory, scratch, chunkstore_table(binary, directory, "frame", False, scratch))
+        frame_table = chunkstore_table(binary, directory, "frame", False, scratch)
+        check_hive(binary, directory, scratch, frame_table)
+        check_delta(binary, directory, scratch, frame_table)
         # A corrupt file: Rerun skips it without a word; we name it, or skip it and say so.
         with open(os.path.join(directory, "corrupt.rrd"), "wb") as f:
             f.write(b"RRF2" + bytes(100))

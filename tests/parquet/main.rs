@@ -23,6 +23,8 @@ use parquet::file::statistics::Statistics;
 mod common;
 use common::ScratchDir;
 
+mod delta;
+
 fn collect(reader: impl RecordBatchReader) -> RecordBatch {
     let schema = reader.schema();
     let batches: Vec<RecordBatch> = reader.map(Result::unwrap).collect();

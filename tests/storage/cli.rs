@@ -148,3 +148,41 @@ fn bad_urls_and_options_exit_2_with_one_line() {
         assert!(stderr.contains(&expected), "{args:?}: {stderr}");
     }
 }
+
+/// `hive --delta` to a bucket: a table, then an append of the same segments refused in
+/// one line, a plain Hive copy to a bucket refused in one line (it could not appear at
+/// once), and `-v` counting one conditional PUT per commit beside the files'.
+#[test]
+fn hive_delta_writes_a_table_to_a_bucket_and_refuses_a_segment_twice() {
+    let Some((endpoint, _, prefix, _turn)) = bucket("cli-delta") else {
+        return;
+    };
+    let scratch = common::ScratchDir::new("storage-cli-delta");
+    let episodes = scratch.join("episodes");
+    std::fs::create_dir(&episodes).unwrap();
+    common::episodes(&episodes);
+    let episodes = episodes.to_str().unwrap();
+    let table = format!("{prefix}episodes/");
+    let made = chunkstore(&endpoint, &["-v", episodes, "hive", &table, "--delta"]);
+    let stderr = String::from_utf8_lossy(&made.stderr);
+    assert!(made.status.success(), "{stderr}");
+    assert!(stderr.contains("committed version 0 of"), "{stderr}");
+    assert!(stderr.contains("of 3 segments"), "{stderr}");
+    for (args, expected) in [
+        (
+            vec![episodes, "hive", table.as_str(), "--delta", "--append"],
+            "is in the table already",
+        ),
+        (
+            vec![episodes, "hive", table.as_str(), "--delta"],
+            "already exists",
+        ),
+        (vec![episodes, "hive", table.as_str()], "--delta"),
+    ] {
+        let output = chunkstore(&endpoint, &args);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+}

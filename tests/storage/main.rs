@@ -18,6 +18,7 @@ mod common;
 
 mod cli;
 mod dataset;
+mod delta;
 mod recording;
 
 use std::path::{Path, PathBuf};

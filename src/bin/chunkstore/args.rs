@@ -218,13 +218,15 @@ Examples:
   chunkstore recording.rrd hive by_entity/ --index frame_id
   chunkstore recording.rrd hive by_second/ --index log_time --bucket 1000000000
   chunkstore episodes/ hive episodes_hive/ --index frame --bucket 100   (a partition per segment)
+  chunkstore s3://bucket/episodes/ hive s3://bucket/tables/episodes/ --delta
+  chunkstore new_episode.rrd hive s3://bucket/tables/episodes/ --delta --append
   duckdb -c \"SELECT entity, count(*) FROM read_parquet('by_entity/**/*.parquet', \\
       hive_partitioning = true) GROUP BY entity\"";
 
 /// The arguments of `hive`.
 #[derive(Args, Debug)]
 pub struct HiveArgs {
-    /// The directory to create.
+    /// The directory to create (with `--delta`, also a URL: `s3://bucket/prefix/`).
     pub dir: PathBuf,
     /// The timeline: rows in its order within each entity's file, or the timeline whose
     /// index values `--bucket` groups.
@@ -235,6 +237,15 @@ pub struct HiveArgs {
     /// entity.
     #[arg(long, value_name = "WIDTH", requires = "index")]
     pub bucket: Option<i64>,
+    /// Write a Delta Lake table: the copy, partitioned by segment first (a recording is a
+    /// segment), with a `_delta_log/` that Spark, DuckDB, Polars and deltalake read as one
+    /// table. Committed at once, locally or in a bucket.
+    #[arg(long)]
+    pub delta: bool,
+    /// Add the source's segments to the existing Delta table DIR, as one commit (a segment
+    /// it holds already is refused).
+    #[arg(long, requires = "delta")]
+    pub append: bool,
 }
 
 const SQL_EXAMPLES: &str = "\

@@ -12,7 +12,7 @@
 //!            [--index-values V[,V...] [--exact]] [--fill-latest-at]
 //!            [--without-tombstones] [--without-empty-columns] [--out FILE]
 //! chunkstore [OPTIONS] <SOURCE> sql <QUERY> [--json | --out FILE | --full]
-//! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]]
+//! chunkstore [OPTIONS] <SOURCE> hive <DIR> [--index TIMELINE [--bucket WIDTH]] [--delta [--append]]
 //! chunkstore serve [SOURCE]... [--addr HOST:PORT] [--persist FILE.rrd] [--memory-limit BYTES]
 //!            [--read-mode follow|snapshot] [--token TOKEN]
 //! ```
@@ -34,7 +34,7 @@ use std::ffi::OsString;
 use std::process::ExitCode;
 
 use args::{Cli, Command};
-use commands::{convert, dataframe, hive, latest_at, print, range, sql, stats};
+use commands::{convert, dataframe, hive, hive_delta, latest_at, print, range, sql, stats};
 use source::Source;
 
 thread_local! {
@@ -221,6 +221,7 @@ fn run_command(cli: &Cli, source: &Source) -> Result<(), Failure> {
         } => convert::run(source, out, application_id, recording_id.as_deref()),
         Command::Dataframe(args) => dataframe::run(source, args),
         Command::Sql(args) => sql::run(source, args),
+        Command::Hive(args) if args.delta => hive_delta::run(source, args),
         Command::Hive(args) => hive::run(source, args),
     }
 }

@@ -127,6 +127,35 @@ pub fn cancel_upload() -> bool {
     false
 }
 
+/// A write's uploads start now (a Delta table's files are placed): from here until
+/// [`uploads_ended`], Ctrl-C cancels the upload in progress instead of exiting at once.
+pub fn uploads_started() {
+    UPLOADING.store(true, Ordering::SeqCst);
+}
+
+/// The end of what [`uploads_started`] began: if Ctrl-C cancelled an upload, the command
+/// exits as interrupted (the write has removed what it uploaded; `what` names it).
+pub fn uploads_ended(what: &str) {
+    UPLOADING.store(false, Ordering::SeqCst);
+    if cancel_flag().load(Ordering::SeqCst) {
+        chunkstore::output::remove_unfinished_outputs();
+        eprintln!("error: interrupted ({what})");
+        std::process::exit(130);
+    }
+}
+
+/// The cancel flag of uploads, for a writer that uploads itself.
+#[cfg(feature = "object-store")]
+pub fn upload_cancel() -> Arc<AtomicBool> {
+    Arc::clone(cancel_flag())
+}
+
+/// The `--storage-option`s of outputs.
+#[cfg(feature = "object-store")]
+pub fn storage() -> &'static StorageOptions {
+    STORAGE.get_or_init(StorageOptions::default)
+}
+
 /// Writes the output `out` with `write`: to the local path itself, or, for a URL, to a
 /// local staging file (removed after) that is then uploaded, appearing in the bucket whole
 /// or not at all (a multipart upload is completed only once every part is in, and aborted

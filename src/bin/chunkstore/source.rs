@@ -118,6 +118,26 @@ impl Source {
 }
 
 impl RecordingSource {
+    /// The recording as a dataset of one segment (its recording id), opened by its
+    /// footer: for the commands that write a dataset's table (`hive --delta`).
+    pub fn as_dataset(&self) -> Result<DatasetSource, Failure> {
+        if self.path.is_dir() {
+            return Err(format!(
+                "{}: a directory of chunk files; a table's segments are .rrd recordings                  (`convert` it to one first)",
+                self.path.display()
+            )
+            .into());
+        }
+        Ok(DatasetSource {
+            dir: self.path.clone(),
+            options: DatasetOptions::default()
+                .with_config(self.options.config)
+                .with_skip_bad(self.options.skip_bad)
+                .with_storage(self.options.storage.clone()),
+            segment: None,
+        })
+    }
+
     /// An error if writing `out` would overwrite the source.
     pub fn refuse_to_overwrite(&self, out: &Path) -> Result<(), Failure> {
         refuse_to_overwrite(out, [(self.path.as_path(), "the source".to_owned())])

@@ -77,3 +77,31 @@ pub fn open_all(listed: &ListedObjects) -> Vec<Result<ObjectReader, StorageError
             .collect(),
     }
 }
+
+/// Every object under the prefix `url`, however deep, with its size: its key relative to
+/// the prefix (as stored: a Hive partition's `%2F` stays as it is), sorted.
+///
+/// # Errors
+/// As [`Location::resolve`], and a failed or denied LIST.
+pub fn list_all(url: &str, options: &StorageOptions) -> Result<Vec<(String, u64)>, StorageError> {
+    let prefix = Location::resolve(url, options)?;
+    let store = std::sync::Arc::clone(&prefix.store);
+    let path = prefix.path.clone();
+    let listed = runtime::wait(url, async move {
+        let prefix = (!path.as_ref().is_empty()).then_some(&path);
+        store.list(prefix).collect::<Vec<_>>().await
+    })?;
+    count_lists(listed.len().div_ceil(1000).max(1) as u64);
+    let root = prefix.path.as_ref();
+    let mut objects = Vec::with_capacity(listed.len());
+    for meta in listed {
+        let meta = meta.map_err(|e| request_error(url, &e))?;
+        let key = meta.location.as_ref();
+        let relative = key
+            .strip_prefix(root)
+            .map_or(key, |k| k.trim_start_matches('/'));
+        objects.push((relative.to_owned(), meta.size));
+    }
+    objects.sort();
+    Ok(objects)
+}

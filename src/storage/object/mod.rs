@@ -11,6 +11,8 @@ mod list;
 mod reader;
 mod runtime;
 mod stream;
+#[cfg(feature = "parquet")]
+mod table;
 mod upload;
 
 use std::path::Path as FsPath;
@@ -21,9 +23,11 @@ use object_store::ObjectStore;
 use object_store::path::Path as ObjectPath;
 use parking_lot::Mutex;
 
-pub use list::{ListedObjects, OPENS_IN_FLIGHT, list_rrd_objects, open_all};
+pub use list::{ListedObjects, OPENS_IN_FLIGHT, list_all, list_rrd_objects, open_all};
 pub use reader::{ObjectReader, TAIL_GUESS};
 pub use stream::ObjectStream;
+#[cfg(feature = "parquet")]
+pub use table::ObjectTable;
 pub(crate) use upload::write_staged;
 pub use upload::{PART_BYTES, upload_file};
 

@@ -33,7 +33,18 @@ pub fn upload_file(
     options: &StorageOptions,
     cancel: Arc<AtomicBool>,
 ) -> Result<(), StorageError> {
-    let location = Location::resolve(url, options)?;
+    upload_to(file, Location::resolve(url, options)?, cancel)
+}
+
+/// [`upload_file`] to a resolved location (whose key may hold what a URL would decode,
+/// such as a Hive partition's `%2F`).
+pub(crate) fn upload_to(
+    file: &Path,
+    location: Location,
+    cancel: Arc<AtomicBool>,
+) -> Result<(), StorageError> {
+    let url = location.url.clone();
+    let url = url.as_str();
     if cancel.load(Ordering::Relaxed) {
         return Err(StorageError::new(
             url,

@@ -1,7 +1,8 @@
 //! `hive`: a Hive-partitioned Parquet dataset of the source (by entity, or by time bucket
 //! of a timeline's dataframe; of a dataset, a partition per segment first), which DuckDB,
 //! Polars, Spark and pyarrow read as one table. The new directory is checked before the
-//! source is read, and appears whole or not at all.
+//! source is read, and appears whole or not at all. With `--delta`, a Delta Lake table,
+//! in a directory or a bucket, made or appended to by one commit.
 
 use std::path::Path;
 
@@ -17,8 +18,8 @@ use crate::source::{self, Source};
 pub fn run(source: &Source, args: &HiveArgs) -> Result<(), Failure> {
     if chunkstore::storage::url_scheme(&args.dir).is_some() {
         return Err(format!(
-            "{}: a Hive copy is written to a local directory (to object storage: not yet; \
-             upload the directory with any tool)",
+            "{}: a Hive copy in a bucket is a Delta table (--delta), which readers see whole \
+             once committed; a plain copy is written to a local directory",
             args.dir.display()
         )
         .into());
@@ -49,7 +50,7 @@ fn of_recording(source: &Path, args: &HiveArgs, options: &Options) -> Result<(),
 }
 
 /// The layout `hive`'s arguments ask for.
-fn hive_layout(args: &HiveArgs) -> chunkstore::parquet::HiveLayout {
+pub fn hive_layout(args: &HiveArgs) -> chunkstore::parquet::HiveLayout {
     use chunkstore::parquet::HiveLayout;
     match (&args.index, args.bucket) {
         (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
@@ -64,7 +65,7 @@ fn hive_layout(args: &HiveArgs) -> chunkstore::parquet::HiveLayout {
 }
 
 /// A dataset that could not be written, as the tool words it.
-fn hive_failure(dir: &Path, error: chunkstore::parquet::HiveExportError) -> Failure {
+pub fn hive_failure(dir: &Path, error: chunkstore::parquet::HiveExportError) -> Failure {
     use chunkstore::parquet::HiveExportError;
     match error {
         HiveExportError::Exists { .. } => format!(

@@ -5,6 +5,7 @@
 pub mod convert;
 pub mod dataframe;
 pub mod hive;
+pub mod hive_delta;
 pub mod latest_at;
 pub mod print;
 pub mod range;
