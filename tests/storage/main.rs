@@ -19,6 +19,7 @@ mod common;
 mod cli;
 mod dataset;
 mod delta;
+mod faults;
 mod recording;
 
 use std::path::{Path, PathBuf};

@@ -95,12 +95,18 @@ impl ObjectReader {
         let failed = |e: &object_store::Error| request_error(&location.url, e);
         let result = match location.store.get_opts(&location.path, options).await {
             Ok(result) => result,
-            // An empty object has no last bytes: S3 answers a suffix range with 416.
-            Err(object_store::Error::Generic { .. }) if listed.is_none() => location
-                .store
-                .get_opts(&location.path, GetOptions::default())
-                .await
-                .map_err(|e| failed(&e))?,
+            // An empty object has no last bytes: S3 answers a suffix range with 416. Only
+            // then: any other failure (throttling after its retries, say) is the answer,
+            // not a reason to wait through the retries of another request.
+            Err(e @ object_store::Error::Generic { .. })
+                if listed.is_none() && e.to_string().contains("416 Range Not Satisfiable") =>
+            {
+                location
+                    .store
+                    .get_opts(&location.path, GetOptions::default())
+                    .await
+                    .map_err(|e| failed(&e))?
+            }
             Err(e) => return Err(failed(&e)),
         };
         let (meta, range) = (result.meta.clone(), result.range.clone());
