@@ -69,7 +69,11 @@ impl Dataset {
         check_new_dataset(dir, layout)?;
         let plan = self.hive_plan(layout)?;
         write_new_directory(dir, |partial| {
-            self.write_partitions(partial, layout, &plan, &PartFile::default(), on_segment)
+            let written = |info: &SegmentInfo, summary: &HiveSummary| {
+                on_segment(info, summary);
+                Ok(())
+            };
+            self.write_partitions(partial, layout, &plan, &PartFile::default(), &written)
         })
     }
 
@@ -120,12 +124,19 @@ impl Dataset {
             segments: self.segments().iter().map(|s| s.id.clone()).collect(),
             schema: Arc::clone(&plan.0),
         };
-        write_table(&write, |staging, name| {
+        write_table(&write, |staging, name, place| {
             let part = PartFile {
                 name: name.to_owned(),
                 delta: true,
             };
-            self.write_partitions(staging, layout, &plan, &part, on_segment)
+            // Each segment's files are placed as soon as they are written: the staging
+            // directory holds a few segments at a time, whatever the table's size.
+            let written = |info: &SegmentInfo, summary: &HiveSummary| {
+                place(summary)?;
+                on_segment(info, summary);
+                Ok(())
+            };
+            self.write_partitions(staging, layout, &plan, &part, &written)
         })
     }
 
@@ -150,19 +161,20 @@ impl Dataset {
         }
     }
 
-    /// Writes the copy's files under `dir` as `plan` planned them.
+    /// Writes the copy's files under `dir` as `plan` planned them, telling `on_written`
+    /// of each segment's (whose error stops the write).
     fn write_partitions(
         &self,
         dir: &Path,
         layout: &HiveLayout,
         plan: &PlannedRows,
         part: &PartFile,
-        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+        on_written: &OnWritten<'_>,
     ) -> Result<HiveSummary, DatasetError> {
         let (schema, segments) = plan;
         match layout {
             HiveLayout::ByEntity { timeline } => {
-                self.entities_by_segment(dir, timeline.as_deref(), schema, part, on_segment)
+                self.entities_by_segment(dir, timeline.as_deref(), schema, part, on_written)
             }
             HiveLayout::ByTimeBucket {
                 timeline, width, ..
@@ -174,7 +186,7 @@ impl Dataset {
                         .binary_search_by_key(&number, |(n, ..)| *n)
                         .is_err()
                     {
-                        on_segment(info, &empty);
+                        on_written(info, &empty)?;
                     }
                 }
                 super::threads::in_parallel(segments, self.options().threads, |segment| {
@@ -186,7 +198,7 @@ impl Dataset {
                     let dir = segment_dir(dir, info);
                     write_buckets(rows, &dir, timeline, *width, part, &mut summary)
                         .map_err(|error| segment_failure(info, error))?;
-                    on_segment(info, &summary);
+                    on_written(info, &summary)?;
                     Ok(summary)
                 })
                 .into_iter()
@@ -226,7 +238,7 @@ impl Dataset {
         timeline: Option<&str>,
         schema: &SchemaRef,
         part: &PartFile,
-        on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
+        on_written: &OnWritten<'_>,
     ) -> Result<HiveSummary, DatasetError> {
         let numbers: Vec<usize> = (0..self.segments().len()).collect();
         super::threads::in_parallel(&numbers, self.options().threads, |&number| {
@@ -250,13 +262,16 @@ impl Dataset {
             let shape = |table| Placed::new(table, Arc::clone(schema), Arc::clone(&id));
             write_entities(&snapshot, &dir, timeline, shape, part, &mut summary)
                 .map_err(|error| segment_failure(info, error))?;
-            on_segment(info, &summary);
+            on_written(info, &summary)?;
             Ok(summary)
         })
         .into_iter()
         .try_fold(HiveSummary::default(), merged)
     }
 }
+
+/// Told of each segment's files once they are written.
+type OnWritten<'a> = dyn Fn(&SegmentInfo, &HiveSummary) -> Result<(), DatasetError> + Sync + 'a;
 
 /// A segment's write that failed: a table it cannot give is the segment's error.
 fn segment_failure(info: &SegmentInfo, error: HiveExportError) -> DatasetError {

@@ -449,3 +449,84 @@ fn two_writers_racing_never_both_win_a_version_or_a_segment() {
         );
     }
 }
+
+/// A local table that records, at every file it places, how many staged files wait.
+struct Watching {
+    table: LocalTable,
+    waiting: std::sync::Mutex<Vec<usize>>,
+}
+
+impl chunkstore::parquet::delta::TableStore for Watching {
+    fn name(&self) -> String {
+        self.table.name()
+    }
+    fn check_new(&self) -> Result<(), DeltaError> {
+        self.table.check_new()
+    }
+    fn log_files(&self) -> Result<Vec<String>, DeltaError> {
+        self.table.log_files()
+    }
+    fn read_log(&self, name: &str) -> Result<Vec<u8>, DeltaError> {
+        self.table.read_log(name)
+    }
+    fn put_log_if_absent(&self, name: &str, bytes: Vec<u8>) -> Result<bool, DeltaError> {
+        self.table.put_log_if_absent(name, bytes)
+    }
+    fn staging_dir(&self) -> Result<chunkstore::parquet::delta::StagingDir, DeltaError> {
+        self.table.staging_dir()
+    }
+    fn place(&self, staged: &Path, relative: &str) -> Result<(), DeltaError> {
+        let root = staged
+            .ancestors()
+            .find(|a| {
+                a.file_name()
+                    .is_some_and(|n| n.to_string_lossy().contains(".partial-"))
+            })
+            .unwrap();
+        self.waiting.lock().unwrap().push(parquet_files(root).len());
+        self.table.place(staged, relative)
+    }
+    fn remove_placed(&self, relative: &str) {
+        self.table.remove_placed(relative);
+    }
+}
+
+/// A write places each segment's files once they are written: on one thread, the staging
+/// directory never holds more than the segment being placed, whatever the table's size.
+#[test]
+fn a_write_stages_one_segment_at_a_time() {
+    let scratch = ScratchDir::new("delta-staging");
+    let dir = episode_files(&scratch);
+    let files: Vec<PathBuf> = ["first.rrd", "second.rrd", "static_only.rrd"]
+        .iter()
+        .map(|n| dir.join(n))
+        .collect();
+    let dataset = Dataset::open_files(&files, &DatasetOptions::default().with_threads(1)).unwrap();
+    let watching = Watching {
+        table: LocalTable::new(scratch.join("table")),
+        waiting: std::sync::Mutex::default(),
+    };
+    let commit = dataset
+        .write_delta(&watching, &unordered(), false, &|_, _| {})
+        .unwrap();
+    let waiting = watching.waiting.into_inner().unwrap();
+    assert_eq!(waiting.len(), commit.files.len());
+    // rec-a has 3 entities, rec-b 3, rec-s 1: never all 7 staged at once.
+    let most = dataset
+        .segments()
+        .iter()
+        .map(|s| {
+            commit
+                .files
+                .iter()
+                .filter(|(f, _)| f.contains(&format!("segment={}/", s.id)))
+                .count()
+        })
+        .max()
+        .unwrap();
+    assert!(
+        waiting.iter().all(|&n| n <= most),
+        "{waiting:?}, a segment has at most {most}"
+    );
+    assert!(commit.files.len() > most);
+}

@@ -140,7 +140,10 @@ fn a_store_that_keeps_throttling_is_one_line_naming_the_url() {
     assert_eq!(server.requests(), 6, "one request and five retries");
     // Each wait of the backoff is at least its first, 100 ms.
     let waited = started.elapsed();
-    assert!(waited >= std::time::Duration::from_millis(500), "backoff: {waited:?}");
+    assert!(
+        waited >= std::time::Duration::from_millis(500),
+        "backoff: {waited:?}"
+    );
     assert!(text.starts_with(url), "{text}");
     assert!(text.contains("SlowDown") || text.contains("503"), "{text}");
     assert_eq!(text.lines().count(), 1, "{text}");

@@ -56,6 +56,7 @@ impl DeltaCommit {
 }
 
 /// A file staged for the commit: where it is, where it goes, and its `add`.
+#[derive(Clone)]
 struct Staged {
     file: PathBuf,
     relative: String,
@@ -63,16 +64,22 @@ struct Staged {
     summary: ParquetSummary,
 }
 
+/// How a write's files are placed as they are written: told of the files just written
+/// (under the staging directory), it places them.
+pub(crate) type Place<'a> = dyn Fn(&HiveSummary) -> Result<(), DeltaError> + Sync + 'a;
+
 /// Writes one commit to `write.table`: `files` writes the data files, in the Delta types,
 /// into the staging directory it is given, each named by the name it is given inside its
-/// partition directories, and says what it wrote.
+/// partition directories, calls the [`Place`] it is given with each batch of files it
+/// finished (a segment's, say: the staging directory then holds only what is not placed
+/// yet), and says what it wrote.
 ///
 /// # Errors
 /// [`DeltaError`] (through `E`): the table's state, its store's errors, a lost race on a
 /// segment; `files`' own.
 pub(crate) fn write_table<E: From<DeltaError>>(
     write: &DeltaWrite<'_>,
-    files: impl FnOnce(&Path, &str) -> Result<HiveSummary, E>,
+    files: impl FnOnce(&Path, &str, &Place<'_>) -> Result<HiveSummary, E>,
 ) -> Result<DeltaCommit, E> {
     let table = write.table;
     let schema = DeltaSchema::of(&write.schema).map_err(DeltaError::from)?;
@@ -102,23 +109,32 @@ pub(crate) fn write_table<E: From<DeltaError>>(
     };
     let staging = table.staging_dir()?;
     let name = format!("part-{}.parquet", random_uuid());
-    let summary = files(staging.path(), &name)?;
     let partition_fields = std::iter::once((SEGMENT_COLUMN, "string"))
         .chain(write.partitions.iter().map(|(n, t)| (n.as_str(), *t)))
         .map(|(name, delta_type)| {
             json!({ "name": name, "type": delta_type, "nullable": true, "metadata": {} })
         });
     let fields: Vec<Value> = partition_fields.chain(schema.fields).collect();
-    let staged = staged_files(staging.path(), summary)?;
-    let placed = place_all(table, &staged);
-    let result = placed.and_then(|()| commit(write, state, &fields, &partition_names, &staged));
+    let placed: Mutex<Vec<Staged>> = Mutex::new(Vec::new());
+    let place = |written: &HiveSummary| -> Result<(), DeltaError> {
+        let files = staged_files(staging.path(), written)?;
+        // Recorded first: a file that fails half-placed is removed with the rest.
+        placed.lock().extend(files.iter().cloned());
+        place_all(table, &files)
+    };
+    let result = files(staging.path(), &name, &place).and_then(|_| {
+        let mut staged = placed.lock();
+        // In the table's order, whichever thread placed them.
+        staged.sort_by(|a, b| a.relative.cmp(&b.relative));
+        Ok(commit(write, state, &fields, &partition_names, &staged)?)
+    });
     if result.is_err() {
-        for file in &staged {
+        for file in placed.lock().iter() {
             table.remove_placed(&file.relative);
         }
     }
     drop(staging);
-    Ok(result?)
+    result
 }
 
 /// The commit loop: the next version, written if absent; after a lost race, the winners
@@ -177,9 +193,9 @@ fn segment_of(add: &AddFile) -> Option<&str> {
 
 /// The staged files as the commit adds them: their paths in the table, their partition
 /// values read back from their directories' names.
-fn staged_files(staging: &Path, summary: HiveSummary) -> Result<Vec<Staged>, DeltaError> {
+fn staged_files(staging: &Path, summary: &HiveSummary) -> Result<Vec<Staged>, DeltaError> {
     let mut staged = Vec::with_capacity(summary.files.len());
-    for (file, written) in summary.files {
+    for (file, written) in summary.files.iter().cloned() {
         let relative = file.strip_prefix(staging).map_err(|_| {
             DeltaError::io(
                 file.display().to_string(),
@@ -230,7 +246,10 @@ fn place_all(table: &dyn TableStore, staged: &[Staged]) -> Result<(), DeltaError
                     let Some(file) = staged.get(next.fetch_add(1, Ordering::Relaxed)) else {
                         break;
                     };
-                    if let Err(e) = table.place(&file.file, &file.relative) {
+                    let placed = table.place(&file.file, &file.relative);
+                    // An upload leaves its staged copy (a move takes it): not kept.
+                    let _ = std::fs::remove_file(&file.file);
+                    if let Err(e) = placed {
                         failed.store(true, Ordering::Relaxed);
                         error.lock().get_or_insert(e);
                     }
