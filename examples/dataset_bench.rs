@@ -59,9 +59,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ["range", dir, budget] => range(dir, budget.parse()?),
         ["scan", dir, budget] => scan(dir, budget.parse()?),
         ["table", dir, budget] => table(dir, budget.parse()?),
+        #[cfg(all(feature = "object-store", feature = "parquet"))]
+        ["delta", dir, table] => delta(dir, table),
         _ => Err(
             "usage: dataset_bench generate DIR SEGMENTS MIB | open DIR | range DIR \
-                  BUDGET_MIB | scan DIR BUDGET_MIB | table DIR BUDGET_MIB"
+                  BUDGET_MIB | scan DIR BUDGET_MIB | table DIR BUDGET_MIB | delta DIR TABLE_URL"
                 .into(),
         ),
     }
@@ -193,13 +195,54 @@ impl Requests {
         {
             let c = chunkstore::storage::object::counters().since(&self.at);
             format!(
-                ",\"gets\":{},\"lists\":{},\"bytes_fetched\":{}",
-                c.gets, c.lists, c.bytes_fetched
+                ",\"gets\":{},\"lists\":{},\"bytes_fetched\":{},\"puts\":{},\"bytes_sent\":{}",
+                c.gets, c.lists, c.bytes_fetched, c.puts, c.bytes_sent
             )
         }
         #[cfg(not(feature = "object-store"))]
         String::new()
     }
+}
+
+/// The dataset's telemetry (every sensor's scalar on `frame`, not the point clouds) as a
+/// Delta table under the prefix `table`, a partition per segment and per tenth of
+/// `frame`'s span: what an analytics export of it is, for engines that read Delta (the
+/// storage bench's DuckDB run).
+#[cfg(all(feature = "object-store", feature = "parquet"))]
+fn delta(dir: &str, table: &str) -> Result<(), Box<dyn std::error::Error>> {
+    use chunkstore::parquet::HiveLayout;
+    let (dataset, _) = opened(dir, 0)?;
+    let span = dataset.time_range("frame").ok_or("no frame timeline")?;
+    let width = ((span.max().as_i64() - span.min().as_i64()) / 10).max(1);
+    let columns = std::iter::once("frame".to_owned())
+        .chain((0..ENTITIES).map(|s| format!("/robot/sensor{s}:scalar")));
+    let query = DataframeQuery::new("frame")
+        .with_contents(EntityPathFilter::parse(["/robot/**"]).expect("a valid filter"))
+        .with_columns(columns);
+    let layout = HiveLayout::ByTimeBucket {
+        timeline: "frame".into(),
+        width,
+        query: Some(query),
+    };
+    let store = chunkstore::storage::object::ObjectTable::new(
+        table,
+        &storage_options(),
+        Arc::new(std::sync::atomic::AtomicBool::new(false)),
+    )?;
+    let before = Requests::now();
+    let started = Instant::now();
+    let commit = dataset.write_delta(&store, &layout, false, &|_, _| {})?;
+    println!(
+        "{{\"delta\":{table:?},\"bucket_width\":{width},\"version\":{},\"files\":{},\"rows\":{},\"bytes\":{},\"seconds\":{:.3},\"peak_rss\":{}{}}}",
+        commit.version,
+        commit.files.len(),
+        commit.rows(),
+        commit.files.iter().map(|(_, f)| f.bytes).sum::<u64>(),
+        started.elapsed().as_secs_f64(),
+        common::peak_rss(),
+        before.since_json()
+    );
+    Ok(())
 }
 
 /// One scalar column of one entity, on `range` (or everywhere).

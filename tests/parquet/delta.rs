@@ -170,6 +170,21 @@ fn a_new_table_is_one_commit_naming_every_file() {
         assert_eq!(add["size"], std::fs::metadata(&file).unwrap().len());
         let stats: Value = serde_json::from_str(add["stats"].as_str().unwrap()).unwrap();
         assert_eq!(stats["numRecords"], batch.num_rows());
+        // The index's exact range and nulls, for readers to skip files by.
+        let frames = batch.column_by_name("frame").unwrap();
+        let frames = frames
+            .as_any()
+            .downcast_ref::<arrow_array::Int64Array>()
+            .unwrap();
+        assert_eq!(stats["nullCount"]["frame"], arrow_array::Array::null_count(frames), "{path}");
+        let present: Vec<i64> = frames.iter().flatten().collect();
+        if let (Some(low), Some(high)) = (present.iter().min(), present.iter().max()) {
+            assert_eq!(stats["minValues"]["frame"], *low, "{path}");
+            assert_eq!(stats["maxValues"]["frame"], *high, "{path}");
+        } else {
+            assert!(stats["minValues"].get("frame").is_none(), "{path}");
+        }
+        assert!(stats["minValues"].get("entity_path").is_none(), "text is not taken");
         rows += batch.num_rows() as u64;
         let values = add["partitionValues"].as_object().unwrap();
         let directories: Vec<(&str, String)> = on_disk

@@ -223,6 +223,7 @@ fn staged_files(staging: &Path, summary: &HiveSummary) -> Result<Vec<Staged>, De
                 partition_values,
                 size: written.bytes,
                 rows: written.rows,
+                stats: Some(super::stats::file_stats(&file, written.rows)?),
             },
             file,
             relative,

@@ -47,6 +47,8 @@ pub(crate) struct AddFile {
     pub size: u64,
     /// Its rows.
     pub rows: u64,
+    /// Its statistics (`stats`), where read; else the row count alone.
+    pub stats: Option<String>,
 }
 
 /// A table as its log says it is at `version`.
@@ -203,7 +205,8 @@ pub(crate) fn commit_text(
                 "size": add.size,
                 "modificationTime": now_ms,
                 "dataChange": true,
-                "stats": json!({ "numRecords": add.rows }).to_string(),
+                "stats": add.stats.clone()
+                    .unwrap_or_else(|| json!({ "numRecords": add.rows }).to_string()),
             }
         }));
     }
@@ -308,6 +311,7 @@ mod tests {
             partition_values: vec![("segment".into(), "a/b".into())],
             size: 10,
             rows: 2,
+            stats: None,
         }];
         let text = commit_text(true, Some(("id-1", &fields, &partitions)), &adds, 5);
         let mut state = TableState::default();

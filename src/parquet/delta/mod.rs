@@ -25,6 +25,7 @@ mod commit;
 mod error;
 mod local;
 pub(crate) mod log;
+mod stats;
 
 pub use commit::DeltaCommit;
 pub(crate) use commit::{DeltaWrite, write_table};
