@@ -15,9 +15,9 @@ use serde_json::Value;
 use super::common::{self, ScratchDir};
 use super::read_back;
 
-#[path = "../common/racing_table.rs"]
-mod racing_table;
-use racing_table::Racing;
+#[path = "../common/hooked_table.rs"]
+mod hooked_table;
+use hooked_table::Hooked;
 
 fn by_entity() -> HiveLayout {
     HiveLayout::ByEntity {
@@ -176,7 +176,11 @@ fn a_new_table_is_one_commit_naming_every_file() {
             .as_any()
             .downcast_ref::<arrow_array::Int64Array>()
             .unwrap();
-        assert_eq!(stats["nullCount"]["frame"], arrow_array::Array::null_count(frames), "{path}");
+        assert_eq!(
+            stats["nullCount"]["frame"],
+            arrow_array::Array::null_count(frames),
+            "{path}"
+        );
         let present: Vec<i64> = frames.iter().flatten().collect();
         if let (Some(low), Some(high)) = (present.iter().min(), present.iter().max()) {
             assert_eq!(stats["minValues"]["frame"], *low, "{path}");
@@ -184,7 +188,10 @@ fn a_new_table_is_one_commit_naming_every_file() {
         } else {
             assert!(stats["minValues"].get("frame").is_none(), "{path}");
         }
-        assert!(stats["minValues"].get("entity_path").is_none(), "text is not taken");
+        assert!(
+            stats["minValues"].get("entity_path").is_none(),
+            "text is not taken"
+        );
         rows += batch.num_rows() as u64;
         let values = add["partitionValues"].as_object().unwrap();
         let directories: Vec<(&str, String)> = on_disk
@@ -411,7 +418,7 @@ fn two_writers_racing_never_both_win_a_version_or_a_segment() {
         dataset_of(&scratch, &["static_only.rrd"])
             .write_delta(&LocalTable::new(&dir), &unordered(), false, &|_, _| {})
             .unwrap();
-        let racing = Racing::new(LocalTable::new(&dir), 2);
+        let racing = Hooked::racing(LocalTable::new(&dir), 2);
         let sources = if same_segment {
             [["second.rrd"], ["second.rrd"]]
         } else {
@@ -465,47 +472,6 @@ fn two_writers_racing_never_both_win_a_version_or_a_segment() {
     }
 }
 
-/// A local table that records, at every file it places, how many staged files wait.
-struct Watching {
-    table: LocalTable,
-    waiting: std::sync::Mutex<Vec<usize>>,
-}
-
-impl chunkstore::parquet::delta::TableStore for Watching {
-    fn name(&self) -> String {
-        self.table.name()
-    }
-    fn check_new(&self) -> Result<(), DeltaError> {
-        self.table.check_new()
-    }
-    fn log_files(&self) -> Result<Vec<String>, DeltaError> {
-        self.table.log_files()
-    }
-    fn read_log(&self, name: &str) -> Result<Vec<u8>, DeltaError> {
-        self.table.read_log(name)
-    }
-    fn put_log_if_absent(&self, name: &str, bytes: Vec<u8>) -> Result<bool, DeltaError> {
-        self.table.put_log_if_absent(name, bytes)
-    }
-    fn staging_dir(&self) -> Result<chunkstore::parquet::delta::StagingDir, DeltaError> {
-        self.table.staging_dir()
-    }
-    fn place(&self, staged: &Path, relative: &str) -> Result<(), DeltaError> {
-        let root = staged
-            .ancestors()
-            .find(|a| {
-                a.file_name()
-                    .is_some_and(|n| n.to_string_lossy().contains(".partial-"))
-            })
-            .unwrap();
-        self.waiting.lock().unwrap().push(parquet_files(root).len());
-        self.table.place(staged, relative)
-    }
-    fn remove_placed(&self, relative: &str) {
-        self.table.remove_placed(relative);
-    }
-}
-
 /// A write places each segment's files once they are written: on one thread, the staging
 /// directory never holds more than the segment being placed, whatever the table's size.
 #[test]
@@ -517,14 +483,27 @@ fn a_write_stages_one_segment_at_a_time() {
         .map(|n| dir.join(n))
         .collect();
     let dataset = Dataset::open_files(&files, &DatasetOptions::default().with_threads(1)).unwrap();
-    let watching = Watching {
+    // At every file placed, how many staged files wait.
+    let waiting = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = std::sync::Arc::clone(&waiting);
+    let watching = Hooked {
         table: LocalTable::new(scratch.join("table")),
-        waiting: std::sync::Mutex::default(),
+        before_commit: Box::new(|| {}),
+        before_place: Box::new(move |staged: &Path| {
+            let root = staged
+                .ancestors()
+                .find(|a| {
+                    a.file_name()
+                        .is_some_and(|n| n.to_string_lossy().contains(".partial-"))
+                })
+                .unwrap();
+            seen.lock().unwrap().push(parquet_files(root).len());
+        }),
     };
     let commit = dataset
         .write_delta(&watching, &unordered(), false, &|_, _| {})
         .unwrap();
-    let waiting = watching.waiting.into_inner().unwrap();
+    let waiting = waiting.lock().unwrap().clone();
     assert_eq!(waiting.len(), commit.files.len());
     // rec-a has 3 entities, rec-b 3, rec-s 1: never all 7 staged at once.
     let most = dataset

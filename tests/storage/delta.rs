@@ -17,9 +17,9 @@ use serde_json::Value;
 use super::{bucket, counted};
 use crate::common::{self, ScratchDir};
 
-#[path = "../common/racing_table.rs"]
-mod racing_table;
-use racing_table::Racing;
+#[path = "../common/hooked_table.rs"]
+mod hooked_table;
+use hooked_table::Hooked;
 
 const LAYOUT: HiveLayout = HiveLayout::ByEntity { timeline: None };
 
@@ -103,7 +103,7 @@ fn a_table_in_a_bucket_is_committed_once_appended_to_and_raced_for() {
 
     // Two writers adding the same segment at once: one commits, the other deletes its
     // files.
-    let racing = Racing::new(table(&url, &storage, false), 2);
+    let racing = Hooked::racing(table(&url, &storage, false), 2);
     let writers = [
         dataset_of(&scratch, &["second.rrd"]),
         dataset_of(&scratch, &["second.rrd"]),
