@@ -18,6 +18,9 @@ Clear, section 9), and gives other index columns in filled rows a maximum over t
 filled cells too (section 9). Then a corrupt file: Rerun skips it silently,
 chunkstore names it (exit 2), and with ``--skip-bad`` warns and answers the rest.
 
+The same files uploaded as they are to the S3 test server's bucket (``CHUNKSTORE_TEST_S3``)
+and read by ``chunkstore s3://.../dataset/ dataframe`` give the same tables.
+
 Then past one machine: ``chunkstore DIR hive OUT`` (by segment and time bucket, and by
 segment and entity) read back by DuckDB (``read_parquet(..., hive_partitioning = true)``)
 and by DataFusion's listing table (the ``datafusion`` package) equals the dataset's own
@@ -113,14 +116,14 @@ def rerun_table(directory, index, fill):
         return reader.to_arrow_table()
 
 
-def chunkstore_table(binary, directory, index, fill, scratch):
+def chunkstore_table(binary, directory, index, fill, scratch, env=None):
     out = os.path.join(scratch, f"table-{index}-{fill}.arrow")
     if os.path.exists(out):
         os.remove(out)
     args = [binary, directory, "dataframe", index, "--out", out]
     if fill:
         args.append("--fill-latest-at")
-    subprocess.run(args, check=True)
+    subprocess.run(args, check=True, env=env)
     with ipc.open_file(out) as reader:
         return reader.read_all()
 
@@ -313,6 +316,35 @@ def check_hive(binary, directory, scratch, ours):
     )
 
 
+def check_from_bucket(binary, directory, scratch):
+    """The same files, uploaded as they are to the S3 test server's bucket: chunkstore
+    reading the prefix (ranged GETs; the footerless file streamed) gives Rerun's tables
+    as it does from the directory (Rerun reads the directory)."""
+    import boto3
+
+    endpoint = s3_endpoint("the dataset judged from a bucket")
+    if not endpoint:
+        return 0
+    s3 = boto3.client(
+        "s3",
+        endpoint_url=endpoint,
+        aws_access_key_id="key",
+        aws_secret_access_key="secret",
+        region_name="us-east-1",
+    )
+    prefix = f"catalog-{os.getpid()}-{int(time.time())}/dataset/"
+    for name in sorted(os.listdir(directory)):
+        if name.endswith(".rrd"):
+            s3.upload_file(os.path.join(directory, name), "chunkstore-test", prefix + name)
+    url = f"s3://chunkstore-test/{prefix}"
+    env = tool_env(endpoint)
+    return check_tables(
+        directory,
+        lambda index, fill: chunkstore_table(binary, url, index, fill, scratch, env),
+        label="from the bucket: ",
+    )
+
+
 def duckdb_with_extensions():
     """DuckDB 1.5.5 with httpfs and delta loaded from their PyPI packages (no download),
     and the S3 test server's credentials as its secret."""
@@ -416,6 +448,7 @@ def main():
         checked = check_tables(
             directory, lambda index, fill: chunkstore_table(binary, directory, index, fill, scratch)
         )
+        checked += check_from_bucket(binary, directory, scratch)
         frame_table = chunkstore_table(binary, directory, "frame", False, scratch)
         check_hive(binary, directory, scratch, frame_table)
         check_delta(binary, directory, scratch, frame_table)
