@@ -26,7 +26,8 @@ use crate::DataframeQuery;
 use crate::parquet::delta::{DeltaCommit, DeltaWrite, TableStore, write_table};
 use crate::parquet::{
     HiveExportError, HiveLayout, HiveSummary, PartFile, bucket_key, bucket_query,
-    check_new_dataset, escape_partition_value, write_buckets, write_entities, write_new_directory,
+    check_bucket_width, check_new_dataset, escape_partition_value, write_buckets, write_entities,
+    write_new_directory,
 };
 
 /// The partition key of a segment's directory.
@@ -107,11 +108,7 @@ impl Dataset {
         append: bool,
         on_segment: &(dyn Fn(&SegmentInfo, &HiveSummary) + Sync),
     ) -> Result<DeltaCommit, DatasetError> {
-        if let HiveLayout::ByTimeBucket { width, .. } = layout
-            && *width < 1
-        {
-            return Err(HiveExportError::BucketWidth { width: *width }.into());
-        }
+        check_bucket_width(layout)?;
         let plan = self.hive_plan(layout)?;
         let partitions = match layout {
             HiveLayout::ByEntity { .. } => vec![("entity".to_owned(), "string")],

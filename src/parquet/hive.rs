@@ -135,6 +135,11 @@ pub fn check_new_dataset(dir: &Path, layout: &HiveLayout) -> Result<(), HiveExpo
             parent: parent.to_owned(),
         });
     }
+    check_bucket_width(layout)
+}
+
+/// A time bucket layout's width must be at least 1 ([`HiveExportError::BucketWidth`]).
+pub(crate) fn check_bucket_width(layout: &HiveLayout) -> Result<(), HiveExportError> {
     if let HiveLayout::ByTimeBucket { width, .. } = layout
         && *width < 1
     {

@@ -35,5 +35,6 @@ pub use hive::{
 };
 #[cfg(feature = "rrd")]
 pub(crate) use hive::{
-    PartFile, bucket_key, bucket_query, write_buckets, write_entities, write_new_directory,
+    PartFile, bucket_key, bucket_query, check_bucket_width, write_buckets, write_entities,
+    write_new_directory,
 };

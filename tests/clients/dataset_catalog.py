@@ -49,7 +49,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.ipc as ipc
 import rerun as rr
-from s3_env import s3_endpoint, s3_options, tool_env
+from s3_env import s3_client, s3_endpoint, s3_options, tool_env
 
 SEGMENTS = 30
 
@@ -320,18 +320,10 @@ def check_from_bucket(binary, directory, scratch):
     """The same files, uploaded as they are to the S3 test server's bucket: chunkstore
     reading the prefix (ranged GETs; the footerless file streamed) gives Rerun's tables
     as it does from the directory (Rerun reads the directory)."""
-    import boto3
-
     endpoint = s3_endpoint("the dataset judged from a bucket")
     if not endpoint:
         return 0
-    s3 = boto3.client(
-        "s3",
-        endpoint_url=endpoint,
-        aws_access_key_id="key",
-        aws_secret_access_key="secret",
-        region_name="us-east-1",
-    )
+    s3 = s3_client(endpoint)
     prefix = f"catalog-{os.getpid()}-{int(time.time())}/dataset/"
     for name in sorted(os.listdir(directory)):
         if name.endswith(".rrd"):

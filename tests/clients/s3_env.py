@@ -30,3 +30,16 @@ def s3_options(endpoint):
 def tool_env(endpoint):
     """The tool's environment with the server's settings."""
     return dict(os.environ, **s3_options(endpoint))
+
+
+def s3_client(endpoint):
+    """A boto3 S3 client of the server (to upload, and to list what a write left)."""
+    import boto3
+
+    return boto3.client(
+        "s3",
+        endpoint_url=endpoint,
+        aws_access_key_id=CREDENTIALS["AWS_ACCESS_KEY_ID"],
+        aws_secret_access_key=CREDENTIALS["AWS_SECRET_ACCESS_KEY"],
+        region_name=CREDENTIALS["AWS_REGION"],
+    )

@@ -20,7 +20,7 @@ import sys
 import tempfile
 import time
 
-from s3_env import s3_endpoint, tool_env
+from s3_env import s3_client, s3_endpoint, tool_env
 
 BUCKET = "chunkstore-test"
 
@@ -64,20 +64,12 @@ def interrupt_when(s3, process, ready, sig, timeout=60):
 
 
 def main():
-    import boto3
-
     binary = os.path.abspath(sys.argv[1])
     endpoint = s3_endpoint("interrupted outputs to a bucket")
     if not endpoint:
         return
     env = tool_env(endpoint)
-    s3 = boto3.client(
-        "s3",
-        endpoint_url=endpoint,
-        aws_access_key_id="key",
-        aws_secret_access_key="secret",
-        region_name="us-east-1",
-    )
+    s3 = s3_client(endpoint)
     slow = ["--storage-option", "chunkstore_added_latency_ms=300"]
     run = f"faults-{os.getpid()}-{int(time.time())}"
     with tempfile.TemporaryDirectory() as scratch:

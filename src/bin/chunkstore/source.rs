@@ -123,7 +123,8 @@ impl RecordingSource {
     pub fn as_dataset(&self) -> Result<DatasetSource, Failure> {
         if self.path.is_dir() {
             return Err(format!(
-                "{}: a directory of chunk files; a table's segments are .rrd recordings                  (`convert` it to one first)",
+                "{}: a directory of chunk files; a table's segments are .rrd recordings \
+                 (`convert` it to one first)",
                 self.path.display()
             )
             .into());

@@ -1,6 +1,7 @@
 //! [`DeltaError`]: why a Delta table could not be written.
 
 use crate::parquet::HiveExportError;
+use crate::parquet::delta_types::Unrepresentable;
 
 /// Why a Delta table could not be written or appended to. Nothing the write placed is
 /// left behind, and no commit was made.
@@ -102,15 +103,16 @@ impl std::fmt::Display for DeltaError {
                 f,
                 "column {column:?} is {table} in the table and {write} in the write"
             ),
-            Self::UnsupportedType { column, data_type } => write!(
-                f,
-                "column {column:?}: Delta has no type for Arrow's {data_type}"
-            ),
-            Self::ColumnName { column } => write!(
-                f,
-                "column {column:?}: a Delta column name cannot be empty or hold any of \
-                 ' ,;{{}}()\\n\\t='"
-            ),
+            // One wording with the file writer's (`delta_types`).
+            Self::UnsupportedType { column, data_type } => Unrepresentable::Type {
+                column: column.clone(),
+                data_type: data_type.clone(),
+            }
+            .fmt(f),
+            Self::ColumnName { column } => Unrepresentable::Name {
+                column: column.clone(),
+            }
+            .fmt(f),
             Self::UnsupportedTable { reason } => {
                 write!(f, "chunkstore does not append to this table: {reason}")
             }
@@ -139,9 +141,8 @@ impl std::error::Error for DeltaError {
     }
 }
 
-impl From<crate::parquet::delta_types::Unrepresentable> for DeltaError {
-    fn from(error: crate::parquet::delta_types::Unrepresentable) -> Self {
-        use crate::parquet::delta_types::Unrepresentable;
+impl From<Unrepresentable> for DeltaError {
+    fn from(error: Unrepresentable) -> Self {
         match error {
             Unrepresentable::Type { column, data_type } => {
                 Self::UnsupportedType { column, data_type }

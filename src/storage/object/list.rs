@@ -2,7 +2,7 @@
 
 use futures::StreamExt;
 
-use super::{Location, ObjectReader, count_lists, request_error, runtime};
+use super::{Location, ObjectReader, count_listed, request_error, runtime};
 use crate::storage::{StorageError, StorageOptions};
 
 /// Objects opened at once when a dataset over a prefix opens (each is one GET).
@@ -35,11 +35,7 @@ pub fn list_rrd_objects(
     })?
     .map_err(|e| request_error(url, &e))?;
     // `list_with_delimiter` reads every page; the count is of the pages it needed.
-    count_lists(
-        (listed.objects.len() + listed.common_prefixes.len())
-            .div_ceil(1000)
-            .max(1) as u64,
-    );
+    count_listed(listed.objects.len() + listed.common_prefixes.len());
     let mut objects: Vec<(Location, object_store::ObjectMeta)> = listed
         .objects
         .into_iter()
@@ -91,7 +87,7 @@ pub fn list_all(url: &str, options: &StorageOptions) -> Result<Vec<(String, u64)
         let prefix = (!path.as_ref().is_empty()).then_some(&path);
         store.list(prefix).collect::<Vec<_>>().await
     })?;
-    count_lists(listed.len().div_ceil(1000).max(1) as u64);
+    count_listed(listed.len());
     let root = prefix.path.as_ref();
     let mut objects = Vec::with_capacity(listed.len());
     for meta in listed {

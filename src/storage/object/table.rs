@@ -12,7 +12,7 @@ use futures::StreamExt;
 use object_store::path::Path as ObjectPath;
 use object_store::{ObjectStoreExt, PutMode, PutOptions, PutPayload};
 
-use super::{Location, count_get, count_lists, count_put, request_error, runtime};
+use super::{Location, count_get, count_listed, count_lists, count_put, request_error, runtime};
 use crate::parquet::delta::{DeltaError, StagingDir, TableStore};
 use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
 
@@ -106,7 +106,7 @@ impl TableStore for ObjectTable {
         })
         .map_err(storage_error)?
         .map_err(|e| storage_error(request_error(&dir.url, &e)))?;
-        count_lists(listed.objects.len().div_ceil(1000).max(1) as u64);
+        count_listed(listed.objects.len());
         Ok(listed
             .objects
             .into_iter()
