@@ -294,7 +294,10 @@ fn hive_delta_makes_a_table_and_appends_a_recording_as_a_segment() {
         OsStr::new("--delta"),
     ]);
     assert!(chunks.contains("convert"), "{chunks}");
-    assert!(!chunks.contains("  "), "one line, one space between words: {chunks}");
+    assert!(
+        !chunks.contains("  "),
+        "one line, one space between words: {chunks}"
+    );
     let no_delta = fails(&[
         one.as_os_str(),
         OsStr::new("hive"),
