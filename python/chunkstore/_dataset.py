@@ -52,6 +52,14 @@ class Dataset:
         """What was skipped so far (``skip_bad``), each once."""
         return self._native.take_warnings()
 
+    def read_stats(self) -> dict:
+        """What queries have read from the segments' files so far (opening aside):
+        ``segment_reads``, ``chunks_decoded``, ``bytes_read``, and for segments in a
+        bucket ``requests`` (GETs) and ``bytes_fetched`` (what they brought; 0 for local
+        files)."""
+        keys = ("segment_reads", "chunks_decoded", "bytes_read", "requests", "bytes_fetched")
+        return dict(zip(keys, self._native.read_stats()))
+
     def __len__(self) -> int:
         """Segments."""
         return len(self._native.segments())

@@ -75,6 +75,18 @@ class Store:
         are decoded)?"""
         return self._native.is_lazy()
 
+    def read_stats(self) -> Optional[dict]:
+        """What a store opened lazily has read from its source so far: ``chunks_in_file``,
+        ``chunks_decoded``, ``bytes_read``, and for an object in a bucket ``requests``
+        (GETs, the open's included) and ``bytes_fetched`` (what they brought; 0 for a
+        local file). Kept once the store is decoded whole. ``None`` for a store that was
+        never lazy."""
+        stats = self._native.read_stats()
+        if stats is None:
+            return None
+        keys = ("chunks_in_file", "chunks_decoded", "bytes_read", "requests", "bytes_fetched")
+        return dict(zip(keys, stats))
+
     def __len__(self) -> int:
         """Rows held (for a lazy recording: rows in the file)."""
         return self._native.counts()[0]

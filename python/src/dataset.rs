@@ -119,6 +119,19 @@ impl NativeDataset {
         self.dataset.take_warnings()
     }
 
+    /// What queries have read from the segments' files so far: `(segment reads, chunks
+    /// decoded, bytes read, requests, bytes fetched)`.
+    fn read_stats(&self) -> (u64, u64, u64, u64, u64) {
+        let read = self.dataset.read_stats();
+        (
+            read.segment_reads,
+            read.chunks_decoded,
+            read.bytes_read,
+            read.requests,
+            read.bytes_fetched,
+        )
+    }
+
     /// The dataset's table: see `chunkstore.Dataset.dataframe`.
     fn dataframe(
         &self,

@@ -19,7 +19,7 @@ use arrow_pyarrow::{PyArrowType, Table};
 use arrow_schema::{DataType, Field, Schema};
 use chunkstore::parquet::{ParquetOptions, write_parquet_file};
 use chunkstore::recording::{Recording, RecordingReader};
-use chunkstore::rrd::{StoreId, StoreInfo};
+use chunkstore::rrd::{LazyRecording, LazyStats, StoreId, StoreInfo};
 use chunkstore::storage::{OutputError, StorageOptions};
 use chunkstore::{
     Chunk, ChunkStore, EntityPath, GcOptions, GcTarget, LatestAtQuery, RangeQuery, SharedStore,
@@ -50,6 +50,9 @@ pub struct NativeStore {
     /// The file or directory the store was opened from, which no write may replace (a
     /// lazy store still reads it; a loaded one would lose its only copy).
     source: Option<PathBuf>,
+    /// What a lazy recording had read when it was decoded whole (its reads' cost stays
+    /// known once the store is loaded).
+    read_when_loaded: Mutex<Option<LazyStats>>,
 }
 
 impl NativeStore {
@@ -59,6 +62,7 @@ impl NativeStore {
             state: Mutex::new(State::Loaded(SharedStore::new(store))),
             store_info: Mutex::new(store_info),
             source: source.map(Path::to_owned),
+            read_when_loaded: Mutex::new(None),
         }
     }
 
@@ -77,6 +81,7 @@ impl NativeStore {
             state: Mutex::new(state),
             store_info: Mutex::new(store_info),
             source: Some(source),
+            read_when_loaded: Mutex::new(None),
         })
     }
 
@@ -111,6 +116,7 @@ impl NativeStore {
             // Decoded in place first: a chunk that fails leaves the recording lazy (and
             // usable), where `into_store` would have consumed it; then it decodes nothing.
             recording.load_all().map_err(open_error)?;
+            *self.read_when_loaded.lock() = recording.lazy().map(LazyRecording::stats);
             let loaded = State::Loaded(SharedStore::new(ChunkStore::new()));
             if let State::Lazy(recording) = std::mem::replace(&mut *state, loaded) {
                 let store = recording.into_store().map_err(open_error)?;
@@ -288,6 +294,25 @@ impl NativeStore {
     /// Is the store still reading its recording lazily?
     fn is_lazy(&self, py: Python<'_>) -> bool {
         py.detach(|| matches!(&*self.state.lock(), State::Lazy(_)))
+    }
+
+    /// What a store opened lazily has read from its source so far: `(chunks in the
+    /// file, chunks decoded, bytes read, requests, bytes fetched)`; `None` for a store
+    /// that was never lazy.
+    fn read_stats(&self, py: Python<'_>) -> Option<(usize, usize, u64, u64, u64)> {
+        py.detach(|| {
+            let stats = match &*self.state.lock() {
+                State::Lazy(recording) => recording.lazy().map(LazyRecording::stats),
+                State::Loaded(_) => *self.read_when_loaded.lock(),
+            }?;
+            Some((
+                stats.chunks_in_file,
+                stats.chunks_decoded,
+                stats.bytes_read,
+                stats.requests,
+                stats.bytes_fetched,
+            ))
+        })
     }
 
     /// Inserts one record batch in Rerun's chunk layout; returns its rows.

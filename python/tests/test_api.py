@@ -60,8 +60,13 @@ def test_a_lazy_store_decodes_only_what_a_query_needs():
     store = chunkstore.open(RRD)
     store.latest_at("frame_id", 30, ROBOT, TRANSLATION)
     assert store.is_lazy  # still lazy: nothing needed every chunk
+    read = store.read_stats()
+    assert 0 < read["chunks_decoded"] < read["chunks_in_file"], read
+    assert (read["requests"], read["bytes_fetched"]) == (0, 0), "a local file"
     store.dataframe("frame_id").read_all()
     assert not store.is_lazy
+    assert store.read_stats()["chunks_decoded"] == read["chunks_in_file"]
+    assert chunkstore.open(RRD, lazy=False).read_stats() is None
     assert len(store) == 261
     assert store.heap_bytes > 200_000  # the images alone are about that
 

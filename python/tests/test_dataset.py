@@ -24,6 +24,7 @@ def test_a_dataset_is_each_segments_table_in_turn(episodes):
     assert [s.id for s in segments] == ["a0000000-0000-4000-8000-00000000000a", "second"]
     assert len(dataset) == 2
     assert {t.name for t in dataset.timelines()} == {"frame_id", "log_time", "sim_time"}
+    assert dataset.read_stats()["segment_reads"] == 0, "opening reads no chunk"
     for fill in (False, True):
         table = dataset.dataframe("frame_id", fill_latest_at=fill).read_all()
         assert table.schema.names[0] == "rerun_segment_id"
@@ -39,6 +40,9 @@ def test_a_dataset_is_each_segments_table_in_turn(episodes):
             for name in part.schema.names:
                 assert piece.column(name).combine_chunks().equals(part.column(name).combine_chunks()), name
             start += part.num_rows
+    read = dataset.read_stats()
+    assert read["segment_reads"] >= 2 and read["chunks_decoded"] > 0, read
+    assert (read["requests"], read["bytes_fetched"]) == (0, 0), "local files"
 
 
 def test_a_dataset_takes_times_and_contents_as_a_store_does(episodes):

@@ -37,9 +37,20 @@ def test_a_recording_written_to_a_bucket_reads_back_as_the_file(prefix):
     assert local.write_rrd(url, storage_options=OPTIONS) > 0
     remote = chunkstore.open(url, storage_options=OPTIONS)
     assert remote.is_lazy
+    opened = remote.read_stats()
+    # The end, then the start (stream header and store info): nothing decoded yet.
+    assert (opened["requests"], opened["chunks_decoded"]) == (2, 0), opened
     assert remote.entities() == local.entities()
     for entity in local.entities():
         assert remote.latest_at("frame_id", 30, entity).equals(local.latest_at("frame_id", 30, entity)), entity
+    read = remote.read_stats()
+    # Only the chunks the queries needed: at most one GET each, never the whole object.
+    assert 0 < read["chunks_decoded"] < read["chunks_in_file"], read
+    assert 0 < read["requests"] - opened["requests"] <= read["chunks_decoded"], read
+    assert read["bytes_fetched"] < os.path.getsize(RRD), read
+    # Kept once the store is decoded whole, which reads the rest.
+    remote.heap_bytes
+    assert remote.read_stats()["chunks_decoded"] == read["chunks_in_file"]
     # Refused: writing over the source.
     with pytest.raises(chunkstore.InvalidInputError, match="overwrite"):
         remote.write_rrd(url, storage_options=OPTIONS)
@@ -55,6 +66,11 @@ def test_a_dataset_over_a_prefix_is_the_dataset_of_its_files(prefix, tmp_path):
     assert [s.id for s in remote.segments()] == ["episode-0", "episode-1", "episode-2"]
     assert [s.path for s in remote.segments()] == [prefix + f"episode-{n}.rrd" for n in range(3)]
     assert remote.dataframe("frame_id").read_all().equals(on_disk.dataframe("frame_id").read_all())
+    read, read_on_disk = remote.read_stats(), on_disk.read_stats()
+    assert read["chunks_decoded"] > 0 and read_on_disk["chunks_decoded"] > 0, (read, read_on_disk)
+    assert 0 < read["requests"] <= read["chunks_decoded"], read
+    assert read["bytes_fetched"] > 0, read
+    assert (read_on_disk["requests"], read_on_disk["bytes_fetched"]) == (0, 0), read_on_disk
 
 
 def test_missing_objects_and_bad_options_raise_typed_errors(prefix):

@@ -285,6 +285,12 @@ pub struct ReadStats {
     pub chunks_decoded: u64,
     /// Bytes read from the files.
     pub bytes_read: u64,
+    /// GET requests made to an object store for them (0 for local files): one per
+    /// coalesced range of the chunks a query needs, or one for a whole object.
+    pub requests: u64,
+    /// Bytes those requests brought (0 for local files; see
+    /// [`LazyStats::bytes_fetched`](crate::rrd::LazyStats::bytes_fetched)).
+    pub bytes_fetched: u64,
 }
 
 impl ReadStats {
@@ -293,6 +299,20 @@ impl ReadStats {
         self.segment_reads += other.segment_reads;
         self.chunks_decoded += other.chunks_decoded;
         self.bytes_read += other.bytes_read;
+        self.requests += other.requests;
+        self.bytes_fetched += other.bytes_fetched;
+    }
+
+    /// What was read between `earlier` and these counts.
+    #[must_use]
+    pub fn since(&self, earlier: &Self) -> Self {
+        Self {
+            segment_reads: self.segment_reads - earlier.segment_reads,
+            chunks_decoded: self.chunks_decoded - earlier.chunks_decoded,
+            bytes_read: self.bytes_read - earlier.bytes_read,
+            requests: self.requests - earlier.requests,
+            bytes_fetched: self.bytes_fetched - earlier.bytes_fetched,
+        }
     }
 }
 

@@ -24,13 +24,8 @@ pub(crate) struct SegmentRead {
 }
 
 impl Dataset {
-    /// Counts a read in the dataset's stats; returns it alone.
-    fn count_read(&self, chunks: u64, bytes: u64) -> ReadStats {
-        let this = ReadStats {
-            segment_reads: 1,
-            chunks_decoded: chunks,
-            bytes_read: bytes,
-        };
+    /// Counts a read of one segment in the dataset's stats; returns it alone.
+    fn count_read(&self, this: ReadStats) -> ReadStats {
         self.inner.read.lock().add(this);
         this
     }
@@ -50,7 +45,15 @@ impl Dataset {
         };
         let mut observer = Warnings(&self.inner.warnings);
         let loaded = LoadedRecording::load(&segment.path, &options, &mut observer)?;
-        let read = self.count_read(segment.num_chunks, segment.file_bytes);
+        // An object is read whole in one streamed GET.
+        let streamed = crate::storage::url_scheme(&segment.path).is_some();
+        let read = self.count_read(ReadStats {
+            segment_reads: 1,
+            chunks_decoded: segment.num_chunks,
+            bytes_read: segment.file_bytes,
+            requests: u64::from(streamed),
+            bytes_fetched: if streamed { segment.file_bytes } else { 0 },
+        });
         let snapshot = loaded.store.snapshot();
         self.inner.cache.lock().insert(number, snapshot.clone());
         Ok((snapshot, read))
@@ -98,13 +101,21 @@ impl Dataset {
             return Ok(None);
         };
         let segment = &self.inner.segments[number];
+        // The reader may carry the requests of the dataset's open (its footer's GET).
+        let opened = lazy.stats();
         let picked = pick(lazy.manifest());
         let store = lazy
             .load_where(|entry| picked.chunks.contains(&entry.chunk_id))
             .map_err(|error| OpenError::rrd(&segment.path, error))?;
         let snapshot = store.snapshot();
         let stats = lazy.stats();
-        let read = self.count_read(stats.chunks_decoded as u64, stats.bytes_read);
+        let read = self.count_read(ReadStats {
+            segment_reads: 1,
+            chunks_decoded: stats.chunks_decoded as u64,
+            bytes_read: stats.bytes_read,
+            requests: stats.requests - opened.requests,
+            bytes_fetched: stats.bytes_fetched - opened.bytes_fetched,
+        });
         Ok(Some((snapshot, read, picked)))
     }
 

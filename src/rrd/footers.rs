@@ -23,6 +23,12 @@ pub struct LazyStats {
     pub chunks_in_file: usize,
     /// Chunks decoded so far.
     pub chunks_decoded: usize,
+    /// GET requests made to read it (the open's included); 0 for a local file.
+    pub requests: u64,
+    /// Bytes those requests brought (0 for a local file). Not `bytes_read`: the open
+    /// fetches the object's end in one piece, and ranges close together are fetched in
+    /// one GET with the gap between them.
+    pub bytes_fetched: u64,
 }
 
 /// Reads `out.len()` bytes at `at`, checked against the file's size first.

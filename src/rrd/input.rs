@@ -30,6 +30,23 @@ pub trait RrdInput: Read + Seek {
         let _ = ranges;
         Ok(())
     }
+
+    /// What reading this input has cost in requests so far: nothing for a local file; an
+    /// object counts its GETs and the bytes they brought (see [`Fetched`]).
+    fn fetched(&self) -> Fetched {
+        Fetched::default()
+    }
+}
+
+/// Requests an input made over the network and the bytes they brought, counted by the
+/// input itself (so two queries at once each see their own).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Fetched {
+    /// GET requests (the open's included).
+    pub requests: u64,
+    /// Bytes the GETs brought: more than were read where neighbouring ranges were
+    /// fetched in one GET with the gap between them.
+    pub bytes: u64,
 }
 
 impl RrdInput for std::fs::File {}
@@ -41,5 +58,9 @@ impl<R: Read + Seek> RrdInput for BufReader<R> {}
 impl<R: RrdInput + ?Sized> RrdInput for Box<R> {
     fn prefetch(&mut self, ranges: &[Range<u64>]) -> std::io::Result<()> {
         (**self).prefetch(ranges)
+    }
+
+    fn fetched(&self) -> Fetched {
+        (**self).fetched()
     }
 }

@@ -293,7 +293,12 @@ impl<R: RrdInput> LazyRecording<R> {
 
     /// What has been read so far.
     pub fn stats(&self) -> LazyStats {
-        self.stats
+        let fetched = self.input.fetched();
+        LazyStats {
+            requests: fetched.requests,
+            bytes_fetched: fetched.bytes,
+            ..self.stats
+        }
     }
 
     /// The chunks decoded so far, in a store.

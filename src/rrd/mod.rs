@@ -31,7 +31,7 @@ pub use directory::{
 pub use error::{RrdError, RrdErrorKind};
 pub use footers::LazyStats;
 pub use frames::StreamHeader;
-pub use input::RrdInput;
+pub use input::{Fetched, RrdInput};
 pub use lazy::LazyRecording;
 pub use log_msg::{DecodedLogMsg, LogMsg, LogMsgKind, LogScan, log_stream_header, scan_log};
 pub use manifest::{Manifest, ManifestComponent, ManifestEntry, ManifestTimeRange};

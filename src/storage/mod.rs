@@ -23,7 +23,7 @@ use std::path::Path;
 
 pub use error::{StorageError, StorageErrorKind};
 
-use crate::rrd::RrdInput;
+use crate::rrd::{Fetched, RrdInput};
 
 /// The URL schemes that name objects.
 pub const URL_SCHEMES: [&str; 9] = [
@@ -209,6 +209,14 @@ impl RrdInput for Input {
             Self::File(file) => file.prefetch(ranges),
             #[cfg(feature = "object-store")]
             Self::Object(object) => object.prefetch(ranges),
+        }
+    }
+
+    fn fetched(&self) -> Fetched {
+        match self {
+            Self::File(file) => file.fetched(),
+            #[cfg(feature = "object-store")]
+            Self::Object(object) => object.fetched(),
         }
     }
 }

@@ -114,6 +114,23 @@ fn every_output_goes_to_a_bucket_and_reads_back_as_the_local_one() {
     let said = String::from_utf8_lossy(&explicit.stderr);
     assert!(said.contains("object storage: 3 GET"), "{said}");
     assert!(said.contains("1 LIST"), "{said}");
+
+    // EXPLAIN ANALYZE shows a dataset scan's requests: one coalesced GET per segment
+    // with rows on `frame` (two of the three), and what they brought.
+    #[cfg(feature = "datafusion")]
+    {
+        let plan = stdout(&chunkstore(
+            &endpoint,
+            &[
+                &dataset,
+                "sql",
+                "EXPLAIN ANALYZE SELECT count(*) FROM frame",
+            ],
+        ));
+        assert!(plan.contains("requests=2"), "{plan}");
+        assert!(plan.contains("bytes_fetched="), "{plan}");
+        assert!(!plan.contains("bytes_fetched=0"), "{plan}");
+    }
 }
 
 #[test]

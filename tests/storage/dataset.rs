@@ -67,6 +67,7 @@ fn a_dataset_over_a_prefix_opens_with_one_list_and_one_get_per_segment() {
             .starts_with(&prefix)
     );
 
+    let (mut gets, mut bytes_fetched) = (0, 0);
     for query in [
         DataframeQuery::new("frame"),
         DataframeQuery::new("frame").with_fill_latest_at(true),
@@ -78,7 +79,18 @@ fn a_dataset_over_a_prefix_opens_with_one_list_and_one_get_per_segment() {
         // (planning keeps what it read for the segments read first, as many as read at once).
         assert_eq!(cost.gets, 2, "{cost}");
         assert_eq!(cost.lists, 0, "{cost}");
+        (gets, bytes_fetched) = (gets + cost.gets, bytes_fetched + cost.bytes_fetched);
     }
+    // The dataset counts its own requests as the process does; a local one makes none.
+    let read = remote.read_stats();
+    assert_eq!(
+        (read.requests, read.bytes_fetched),
+        (gets, bytes_fetched),
+        "{read:?}"
+    );
+    let local_read = local.read_stats();
+    assert_eq!((local_read.requests, local_read.bytes_fetched), (0, 0));
+    assert!(local_read.chunks_decoded > 0);
 }
 
 #[test]

@@ -83,6 +83,18 @@ fn a_recording_in_a_bucket_answers_as_its_file_does_with_ranged_gets() {
         query_cost.gets as usize <= lazy.chunks_decoded,
         "{query_cost}, {lazy:?}"
     );
+    // The recording counts its own requests as the process does (the open's included);
+    // a local file makes none.
+    assert_eq!(
+        (lazy.requests, lazy.bytes_fetched),
+        (
+            open_cost.gets + query_cost.gets,
+            open_cost.bytes_fetched + query_cost.bytes_fetched
+        ),
+        "{lazy:?}"
+    );
+    let local_lazy = theirs.lazy().unwrap().stats();
+    assert_eq!((local_lazy.requests, local_lazy.bytes_fetched), (0, 0));
 }
 
 #[test]

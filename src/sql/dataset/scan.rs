@@ -82,10 +82,12 @@ pub(super) enum DatasetSource {
     },
 }
 
-/// Reads a dataset's table ([`register_dataset`](super::register_dataset)) segment by segment, each partition on a
-/// thread of its own. `EXPLAIN` shows what was pushed down and how many segments and
-/// chunks are left to read; `EXPLAIN ANALYZE` also shows `segments_read`,
-/// `chunks_decoded` and `bytes_read` (what was read from the files) and `rows_built`.
+/// Reads a dataset's table ([`register_dataset`](super::register_dataset)) segment by
+/// segment, each partition on a thread of its own. `EXPLAIN` shows what was pushed down
+/// and how many segments and chunks are left to read; `EXPLAIN ANALYZE` also shows
+/// `segments_read`, `chunks_decoded` and `bytes_read` (what was read from the files),
+/// `requests` and `bytes_fetched` (the GETs of segments in an object store, and what they
+/// brought) and `rows_built`.
 #[derive(Debug)]
 pub struct DatasetScanExec {
     dataset: Dataset,
@@ -239,16 +241,29 @@ struct ReadMetrics {
     segments: Count,
     chunks: Count,
     bytes: Count,
+    requests: Count,
+    bytes_fetched: Count,
 }
 
 impl ReadMetrics {
+    fn new(metrics: &ExecutionPlanMetricsSet, partition: usize) -> Self {
+        let counter = |name| MetricBuilder::new(metrics).counter(name, partition);
+        Self {
+            segments: counter("segments_read"),
+            chunks: counter("chunks_decoded"),
+            bytes: counter("bytes_read"),
+            requests: counter("requests"),
+            bytes_fetched: counter("bytes_fetched"),
+        }
+    }
+
     fn add(&self, read: ReadStats) {
-        self.segments
-            .add(usize::try_from(read.segment_reads).unwrap_or(usize::MAX));
-        self.chunks
-            .add(usize::try_from(read.chunks_decoded).unwrap_or(usize::MAX));
-        self.bytes
-            .add(usize::try_from(read.bytes_read).unwrap_or(usize::MAX));
+        let add = |count: &Count, n: u64| count.add(usize::try_from(n).unwrap_or(usize::MAX));
+        add(&self.segments, read.segment_reads);
+        add(&self.chunks, read.chunks_decoded);
+        add(&self.bytes, read.bytes_read);
+        add(&self.requests, read.requests);
+        add(&self.bytes_fetched, read.bytes_fetched);
     }
 }
 
@@ -265,11 +280,7 @@ impl Iterator for CountedStream {
     fn next(&mut self) -> Option<Self::Item> {
         let next = self.stream.next();
         let now = self.stream.read_stats();
-        self.metrics.add(ReadStats {
-            segment_reads: now.segment_reads - self.reported.segment_reads,
-            chunks_decoded: now.chunks_decoded - self.reported.chunks_decoded,
-            bytes_read: now.bytes_read - self.reported.bytes_read,
-        });
+        self.metrics.add(now.since(&self.reported));
         self.reported = now;
         next
     }
@@ -382,11 +393,7 @@ impl ExecutionPlan for DatasetScanExec {
                 partition + 1
             )));
         }
-        let metrics = ReadMetrics {
-            segments: MetricBuilder::new(&self.metrics).counter("segments_read", partition),
-            chunks: MetricBuilder::new(&self.metrics).counter("chunks_decoded", partition),
-            bytes: MetricBuilder::new(&self.metrics).counter("bytes_read", partition),
-        };
+        let metrics = ReadMetrics::new(&self.metrics, partition);
         let rows_built = MetricBuilder::new(&self.metrics).counter("rows_built", partition);
         let dataset = self.dataset.clone();
         let stream_schema = Arc::clone(&self.stream_schema);

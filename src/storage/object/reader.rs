@@ -11,6 +11,7 @@ use futures::StreamExt;
 use object_store::{GetOptions, GetRange, ObjectMeta};
 
 use super::{Location, count_get, request_error, runtime};
+use crate::rrd::Fetched;
 use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
 
 /// Bytes fetched from the end of an object when it is opened: a footer of up to about
@@ -47,7 +48,8 @@ struct Object {
 /// [`StorageErrorKind::Changed`], never a mix of two versions. What was fetched is kept
 /// (the end for good, a prefetch until the next one), and reads are answered from it.
 ///
-/// Cloning is cheap and makes no request: the clone shares what was fetched at open.
+/// Cloning is cheap and makes no request: the clone shares what was fetched at open, and
+/// starts from the counts of requests the original had made ([`ObjectReader::fetched`]).
 #[derive(Clone, Debug)]
 pub struct ObjectReader {
     object: Arc<Object>,
@@ -59,6 +61,8 @@ pub struct ObjectReader {
     /// object through this keeps a bounded part of it.
     prefetched: Vec<(u64, Bytes)>,
     last_read: Option<(u64, Bytes)>,
+    /// The requests this reader made, and their bytes.
+    fetched: Fetched,
 }
 
 impl ObjectReader {
@@ -112,6 +116,10 @@ impl ObjectReader {
         let (meta, range) = (result.meta.clone(), result.range.clone());
         let bytes = result.bytes().await.map_err(|e| failed(&e))?;
         count_get(bytes.len() as u64);
+        let fetched = Fetched {
+            requests: 1,
+            bytes: bytes.len() as u64,
+        };
         Ok(Self {
             object: Arc::new(Object {
                 location,
@@ -122,6 +130,7 @@ impl ObjectReader {
             kept: vec![(range.start, bytes)],
             prefetched: Vec::new(),
             last_read: None,
+            fetched,
         })
     }
 
@@ -138,6 +147,11 @@ impl ObjectReader {
     /// The object's `ETag` when opened, which every read must match.
     pub fn e_tag(&self) -> Option<&str> {
         self.object.e_tag.as_deref()
+    }
+
+    /// The GETs this reader made (its open's included) and the bytes they brought.
+    pub fn fetched(&self) -> Fetched {
+        self.fetched
     }
 
     /// Keeps only what was fetched at or after `at` (a footer's start: what opening it
@@ -199,9 +213,17 @@ impl ObjectReader {
         })
         .map_err(StorageError::into_io)?;
         for result in fetched {
-            self.prefetched.push(result.map_err(StorageError::into_io)?);
+            let (start, bytes) = result.map_err(StorageError::into_io)?;
+            self.count(&bytes);
+            self.prefetched.push((start, bytes));
         }
         Ok(())
+    }
+
+    /// Counts a GET that brought `bytes`.
+    fn count(&mut self, bytes: &Bytes) {
+        self.fetched.requests += 1;
+        self.fetched.bytes += bytes.len() as u64;
     }
 
     /// Is all of `range` among what was fetched?
@@ -260,6 +282,7 @@ impl Read for ObjectReader {
             let fetched = runtime::wait(self.url(), async move { fetch(&object, range).await })
                 .and_then(|fetched| fetched)
                 .map_err(StorageError::into_io)?;
+            self.count(&fetched.1);
             self.last_read = Some(fetched);
         }
         let available = self.find(self.position).unwrap_or_default();
