@@ -20,6 +20,9 @@ pub mod chunk_build;
 pub mod cli_args;
 #[path = "damaged_log.rs"]
 pub mod damaged_log;
+#[cfg(feature = "parquet")]
+#[path = "delta_log.rs"]
+pub mod delta_log;
 #[path = "entity_path.rs"]
 pub mod entity_path;
 #[path = "ipc_batch_decoder.rs"]

@@ -121,6 +121,17 @@ fn cli_args_corpus_replays_without_panics() {
     replay_corpus("cli_args", harness::cli_args::cli_args);
 }
 
+/// The seeds are a real table's log (written by `hive --delta`) and edits of it that the
+/// append must refuse (a checkpoint, a newer protocol, another partitioning, a segment it
+/// adds, a column of another type, a gap in versions, no `metaData`, broken JSON) or take
+/// (a second commit with a remove, a column of the write's type, files that are not
+/// commits).
+#[cfg(feature = "parquet")]
+#[test]
+fn delta_log_corpus_replays_without_panics() {
+    replay_corpus("delta_log", harness::delta_log::delta_log);
+}
+
 /// What each crash must give now (the root causes are in `tests/fuzz_crashes/README.md`).
 enum Expected {
     /// Decoding the bytes as Arrow IPC gives an error this accepts.

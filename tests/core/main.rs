@@ -1,5 +1,5 @@
 //! The library's integration tests that need no optional feature but `ipc` and `rrd` (and
-//! `cli` for a few fuzz replays), in one test binary: each links the whole arrow stack, and
+//! `cli` or `parquet` for a few fuzz replays), in one test binary: each links the whole arrow stack, and
 //! one binary links it once (as DataFusion's `core_integration` does). Each module is one
 //! subject; `cargo test --test core <module>::` runs one.
 //!

@@ -405,6 +405,23 @@ fn an_append_adds_segments_in_one_commit_and_refuses_what_does_not_fit() {
         std::fs::remove_file(dir.join(file)).unwrap();
     }
     assert_eq!(parquet_files(&dir), files, "no refused write left a file");
+
+    // A log with commits but no `metaData` describes no table.
+    let bare = scratch.join("bare");
+    std::fs::create_dir_all(bare.join("_delta_log")).unwrap();
+    std::fs::write(
+        bare.join("_delta_log/00000000000000000000.json"),
+        "{\"commitInfo\":{}}\n",
+    )
+    .unwrap();
+    let error = again
+        .write_delta(&LocalTable::new(&bare), &by_entity(), true, &|_, _| {})
+        .unwrap_err();
+    assert!(
+        matches!(&error, DatasetError::Delta(DeltaError::BadLog { reason, .. }) if reason.contains("no metaData")),
+        "{error}"
+    );
+    assert!(parquet_files(&bare).is_empty());
 }
 
 /// Two writers commit at once: with different segments both land, one after the other

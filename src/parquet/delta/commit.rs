@@ -94,6 +94,13 @@ pub(crate) fn write_table<E: From<DeltaError>>(
             }
             .into());
         }
+        if !state.has_metadata {
+            return Err(DeltaError::BadLog {
+                file: entry_name(0),
+                reason: "no metaData action in the whole log: it describes no table".into(),
+            }
+            .into());
+        }
         if state.partition_columns != partition_names {
             return Err(DeltaError::Partitions {
                 table: state.partition_columns,
@@ -306,11 +313,33 @@ fn merged_fields(table: &[Value], write: &[Value]) -> Result<(Vec<Value>, bool),
     Ok((merged, changed))
 }
 
+/// A Delta type as a person reads it: `long`, `array<double>`, `struct<x: float>`,
+/// `map<string, long>` (the log's JSON where it is none of these).
 fn type_text(delta_type: Option<&Value>) -> String {
-    match delta_type {
-        Some(Value::String(text)) => text.clone(),
-        Some(other) => other.to_string(),
-        None => "untyped".into(),
+    let Some(delta_type) = delta_type else {
+        return "untyped".into();
+    };
+    if let Value::String(text) = delta_type {
+        return text.clone();
+    }
+    let part = |key: &str| type_text(delta_type.get(key));
+    match delta_type.get("type").and_then(Value::as_str) {
+        Some("array") => format!("array<{}>", part("elementType")),
+        Some("map") => format!("map<{}, {}>", part("keyType"), part("valueType")),
+        Some("struct") => {
+            let fields: Vec<String> = delta_type
+                .get("fields")
+                .and_then(Value::as_array)
+                .into_iter()
+                .flatten()
+                .map(|f| {
+                    let name = f.get("name").and_then(Value::as_str).unwrap_or("?");
+                    format!("{name}: {}", type_text(f.get("type")))
+                })
+                .collect();
+            format!("struct<{}>", fields.join(", "))
+        }
+        _ => delta_type.to_string(),
     }
 }
 
@@ -364,4 +393,31 @@ fn catch_up(table: &dyn TableStore, state: &mut TableState) -> Result<(), DeltaE
         state.apply(version, &name, &text)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::json;
+
+    use super::type_text;
+
+    #[test]
+    fn nested_types_read_as_a_person_writes_them() {
+        let list = json!({"type": "array", "elementType": "double", "containsNull": true});
+        assert_eq!(type_text(Some(&list)), "array<double>");
+        let nested = json!({
+            "type": "struct",
+            "fields": [
+                {"name": "x", "type": list, "nullable": true, "metadata": {}},
+                {"name": "m", "type": {"type": "map", "keyType": "string", "valueType": "long"}},
+            ]
+        });
+        assert_eq!(
+            type_text(Some(&nested)),
+            "struct<x: array<double>, m: map<string, long>>"
+        );
+        assert_eq!(type_text(Some(&json!("long"))), "long");
+        assert_eq!(type_text(Some(&json!({"type": 7}))), "{\"type\":7}");
+        assert_eq!(type_text(None), "untyped");
+    }
 }

@@ -159,8 +159,9 @@ impl From<HiveExportError> for DeltaError {
 }
 
 impl DeltaError {
-    /// The store's error at `path`.
-    pub(crate) fn io(path: impl Into<String>, source: std::io::Error) -> Self {
+    /// The store's error at `path`: what a [`TableStore`](super::TableStore) of one's own
+    /// returns when its storage fails.
+    pub fn io(path: impl Into<String>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
             source,

@@ -64,6 +64,8 @@ pub(crate) struct TableState {
     pub partition_columns: Vec<String>,
     /// The live data files (relative URI path) and their `segment` partition value.
     pub files: BTreeMap<String, Option<String>>,
+    /// Was a `metaData` action read (every table's first commit has one)?
+    pub has_metadata: bool,
 }
 
 impl TableState {
@@ -153,6 +155,7 @@ impl TableState {
         if let Some(id) = metadata.get("id").and_then(Value::as_str) {
             id.clone_into(&mut self.id);
         }
+        self.has_metadata = true;
         Ok(())
     }
 }
