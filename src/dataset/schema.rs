@@ -82,45 +82,20 @@ impl Dataset {
     /// a thousand recordings of one shape reads one. A segment without a footer is always
     /// read (it was read whole on opening, and is usually in the cache).
     fn segments_adding_columns(&self) -> Vec<usize> {
-        type Key = (crate::EntityPath, crate::ComponentName, Option<String>);
         let numbers: Vec<usize> = (0..self.segments().len()).collect();
-        let keys = super::threads::in_parallel(&numbers, self.options().threads, |&number| {
-            if !self.reads_in_part(number) {
-                return Ok(None);
-            }
-            let Some(lazy) = self.footer(number)? else {
-                return Ok(None);
-            };
-            let mut keys: HashSet<Key> = HashSet::new();
-            for entry in &lazy.manifest().entries {
-                for component in &entry.components {
-                    if entry.is_static || component.ranges.is_empty() {
-                        keys.insert((entry.entity_path.clone(), component.name.clone(), None));
-                    }
-                    for range in &component.ranges {
-                        keys.insert((
-                            entry.entity_path.clone(),
-                            component.name.clone(),
-                            Some(range.timeline.name().to_owned()),
-                        ));
-                    }
-                }
-            }
-            Ok::<_, DatasetError>(Some(keys))
-        });
-        let mut seen: HashMap<String, HashSet<Key>> = HashMap::new();
-        let mut seen_anywhere: HashSet<Key> = HashSet::new();
+        let keys = self.column_keys(&numbers);
+        let mut seen: HashMap<String, HashSet<ColumnKey>> = HashMap::new();
+        let mut seen_anywhere: HashSet<ColumnKey> = HashSet::new();
         let mut adding = Vec::new();
         for (number, keys) in numbers.into_iter().zip(keys) {
             // A footer that cannot be read: the segment is read, so that its fault is
             // reported (or skipped) where it is.
-            let keys = keys.unwrap_or_default();
             let segment = &self.segments()[number];
             let Some(keys) = keys else {
                 adding.push(number);
                 continue;
             };
-            let covered = |given: &HashSet<Key>| keys.is_subset(given);
+            let covered = |given: &HashSet<ColumnKey>| keys.is_subset(given);
             let adds = !covered(&seen_anywhere)
                 || segment
                     .timelines
@@ -137,6 +112,41 @@ impl Dataset {
             }
         }
         adding
+    }
+
+    /// Per segment (by number), the columns its footer's manifest says it has: each
+    /// (entity, component, timeline) it holds, with no timeline for static data. `None`
+    /// where the segment is read whole (no footer, or `skip_bad`) or its footer cannot be
+    /// read (it is then read, so that its fault is reported, or skipped, where it is).
+    /// A dataset in a bucket kept its segments' footers from opening: no request.
+    pub(super) fn column_keys(&self, numbers: &[usize]) -> Vec<Option<HashSet<ColumnKey>>> {
+        super::threads::in_parallel(numbers, self.options().threads, |&number| {
+            self.columns_of(number)
+        })
+    }
+
+    /// One segment's [`Dataset::column_keys`].
+    pub(super) fn columns_of(&self, number: usize) -> Option<HashSet<ColumnKey>> {
+        if !self.reads_in_part(number) {
+            return None;
+        }
+        let lazy = self.footer(number).ok()??;
+        let mut keys: HashSet<ColumnKey> = HashSet::new();
+        for entry in &lazy.manifest().entries {
+            for component in &entry.components {
+                if entry.is_static || component.ranges.is_empty() {
+                    keys.insert((entry.entity_path.clone(), component.name.clone(), None));
+                }
+                for range in &component.ranges {
+                    keys.insert((
+                        entry.entity_path.clone(),
+                        component.name.clone(),
+                        Some(range.timeline.name().to_owned()),
+                    ));
+                }
+            }
+        }
+        Some(keys)
     }
 
     /// One segment's dataframe schema on each of its timelines, and its chunk table's.
@@ -177,6 +187,10 @@ impl Dataset {
         of(&snapshot)
     }
 }
+
+/// A column as a segment's manifest names it: an entity's component on a timeline (`None`:
+/// static).
+pub(super) type ColumnKey = (EntityPath, ComponentName, Option<String>);
 
 /// The union of the segments' dataframe schemas, each column's field from the first
 /// segment (in id order) that has it.

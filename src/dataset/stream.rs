@@ -7,18 +7,21 @@
 //! segment id, then the index and every other timeline by name, then the data columns by
 //! entity (part by part, in natural order) and component. A column a segment lacks is
 //! null in its rows. Planning loads each segment whose data is on the index (a segment
-//! without it gives no rows, as a dataframe of it would be refused, and is never loaded);
-//! what it read is kept for the rows' pass only for the segments the rows start with.
+//! without it gives no rows, as a dataframe of it would be refused, and is never loaded),
+//! but one of the shape of a segment planned before it (by their footers): that one's
+//! schema is its. What planning read is kept for the rows' pass only for the segments
+//! the rows start with.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::sync::mpsc;
 
 use arrow_array::{RecordBatch, RecordBatchReader};
 use arrow_schema::{ArrowError, SchemaRef};
+use parking_lot::Mutex;
 
-use super::schema::{Placed, SchemaUnion, project};
+use super::schema::{ColumnKey, Placed, SchemaUnion, project};
 use super::{Dataset, DatasetError, ReadStats};
 use crate::{DataframeQuery, DataframeStream};
 
@@ -65,7 +68,7 @@ impl Dataset {
         let room = AtomicU64::new(self.options().memory_budget);
         let no_room = AtomicU64::new(0);
         let positions: Vec<(usize, usize)> = with_index.iter().copied().enumerate().collect();
-        let plans = super::threads::in_parallel(&positions, threads, |&(position, number)| {
+        let plan = |&(position, number): &(usize, usize)| {
             let segment_id = &self.segments()[number].id;
             let room = if position < threads { &room } else { &no_room };
             let super::SegmentRead { snapshot, keep, .. } =
@@ -84,12 +87,57 @@ impl Dataset {
                         segment: segment_id.clone(),
                         error,
                     })?;
-            Ok(Some((number, schema, keep.then_some(snapshot))))
-        });
+            Ok(Some((schema, keep.then_some(snapshot))))
+        };
+        // A segment of the same shape as one planned before it (the same columns, by the
+        // manifests, on the same timelines) has its schema: it is not read for planning
+        // unless its read is kept for the rows. In a bucket, that read was a GET per
+        // segment (half of a range's), for a chunk the rows seldom need.
+        let same_as: Vec<Option<usize>> = self
+            .shapes(&with_index)
+            .into_iter()
+            .enumerate()
+            .map(|(position, first)| {
+                first.filter(|&first| first != position && position >= threads)
+            })
+            .collect();
+        let read: Vec<(usize, usize)> = positions
+            .iter()
+            .copied()
+            .filter(|&(position, _)| same_as[position].is_none())
+            .collect();
+        let mut plans: Vec<Option<PlannedSegment>> = vec![None; positions.len()];
+        for (&(position, _), planned) in read
+            .iter()
+            .zip(super::threads::in_parallel(&read, threads, plan))
+        {
+            plans[position] = Some(planned?);
+        }
+        // Those whose first of their shape was skipped (`skip_bad`) are read after all.
+        let unplanned: Vec<(usize, usize)> = positions
+            .iter()
+            .copied()
+            .filter(|&(position, _)| {
+                same_as[position].is_some_and(|first| matches!(plans[first], Some(None)))
+            })
+            .collect();
+        for (&(position, _), planned) in unplanned
+            .iter()
+            .zip(super::threads::in_parallel(&unplanned, threads, plan))
+        {
+            plans[position] = Some(planned?);
+        }
         let mut union = SchemaUnion::default();
-        let mut planned = Vec::with_capacity(plans.len());
-        for plan in plans {
-            if let Some((number, schema, kept)) = plan? {
+        let mut planned = Vec::with_capacity(positions.len());
+        for &(position, number) in &positions {
+            let plan = match &plans[position] {
+                Some(plan) => plan.clone(),
+                // Of the shape of an earlier segment: its schema, nothing kept.
+                None => same_as[position]
+                    .and_then(|first| plans[first].clone().flatten())
+                    .map(|(schema, _)| (schema, None)),
+            };
+            if let Some((schema, kept)) = plan {
                 union.add(&self.segments()[number].id, &schema)?;
                 planned.push((number, schema, kept));
             }
@@ -115,6 +163,37 @@ impl Dataset {
             })
             .collect();
         Ok((schema, segments))
+    }
+
+    /// The shapes of these segments (by number), in their order, each as the number of
+    /// the first segment here of that shape (so that only the distinct shapes are held);
+    /// `None` for a segment read whole or whose footer cannot be read
+    /// ([`Dataset::column_keys`]).
+    fn shapes(&self, numbers: &[usize]) -> Vec<Option<usize>> {
+        // Each distinct shape: its id, and the least position of a segment of it.
+        let distinct: Mutex<HashMap<Shape, (usize, usize)>> = Mutex::default();
+        let positions: Vec<usize> = (0..numbers.len()).collect();
+        let ids = super::threads::in_parallel(&positions, self.options().threads, |&at| {
+            let number = numbers[at];
+            let timelines = self.segments()[number]
+                .timelines
+                .iter()
+                .map(|(t, _)| (t.name().to_owned(), t.time_type()))
+                .collect();
+            let shape: Shape = (self.columns_of(number)?.into_iter().collect(), timelines);
+            let mut distinct = distinct.lock();
+            let next_id = distinct.len();
+            let (id, least) = distinct.entry(shape).or_insert((next_id, at));
+            *least = (*least).min(at);
+            Some(*id)
+        });
+        let mut least_of = vec![0; distinct.lock().len()];
+        for (id, least) in distinct.into_inner().into_values() {
+            least_of[id] = least;
+        }
+        ids.into_iter()
+            .map(|id| id.map(|id| least_of[id]))
+            .collect()
     }
 
     /// The rows of these segments (by number, each with its own query, and what planning
@@ -170,6 +249,13 @@ pub struct DatasetStream {
     /// What its loads read from the files.
     read: ReadStats,
 }
+
+/// What planning learnt of a segment: its schema, and its read if kept for the rows.
+type PlannedSegment = Option<(SchemaRef, Option<crate::Snapshot>)>;
+
+/// A segment's shape: the columns its manifest names and its timelines. Two segments of
+/// one shape have one dataframe schema for any query (when their columns' types agree).
+type Shape = (BTreeSet<ColumnKey>, Vec<(String, crate::TimeType)>);
 
 /// A dataframe's table and the segments that give its rows: [`Dataset::plan_dataframe`].
 pub(crate) type PlannedRows = (

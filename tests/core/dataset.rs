@@ -249,6 +249,56 @@ fn a_dataset_query_reads_only_what_it_needs_and_answers_alike() {
     }
 }
 
+/// Segments of one shape (by their footers) after the first thread's are not read to plan
+/// the table: each segment of a range query is read once, for the chunk its rows need,
+/// and the table is each segment's own.
+#[test]
+fn segments_of_one_shape_are_read_once_each() {
+    let dir = ScratchDir::new("dataset-one-shape");
+    let mut files = Vec::new();
+    let ids: Vec<String> = (0..5).map(|n| format!("run-{n}")).collect();
+    for (n, id) in (0..5u8).zip(&ids) {
+        let early = scalars("/e", "x", &[(1, 1, Some(vec![f64::from(n)]))]);
+        let late = scalars("/e", "x", &[(10, 2, Some(vec![10.0 + f64::from(n)]))]);
+        let file = write_recording(&dir, &format!("{id}.rrd"), id, vec![early, late]);
+        files.push((id.as_str(), file));
+    }
+    let one_thread = DatasetOptions::default().with_threads(1);
+    let dataset = Dataset::open(&dir, &one_thread).unwrap();
+    let late = chunkstore::TimeRange::new(TimeInt::new(10).unwrap(), TimeInt::new(10).unwrap());
+    let query = DataframeQuery::new("frame").with_range(late);
+    let table = read_all(dataset.dataframe(&query).unwrap());
+    assert_eq!(equals_own_tables(&table, &files, &query), 5);
+    let read = dataset.read_stats();
+    // The first segment's planning read is kept for its rows; the others are read for
+    // their rows alone: one chunk each.
+    assert_eq!(read.segment_reads, 5, "{read:?}");
+    assert!(read.chunks_decoded <= 6, "{read:?}");
+
+    // A segment of that shape whose column has another type is not read to plan the
+    // table either: the conflict is the error of the rows' pass when it reaches it,
+    // naming the column and the segment.
+    let booleans = Chunk::try_new(
+        ChunkId::new(),
+        crate::common::path("/e"),
+        vec![crate::common::rid(3)],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(vec![10])) as ArrayRef,
+        )],
+        vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
+    )
+    .unwrap();
+    write_recording(&dir, "run-9.rrd", "run-9", vec![booleans]);
+    let dataset = Dataset::open(&dir, &one_thread).unwrap();
+    let rows: Result<Vec<_>, _> = dataset.dataframe(&query).unwrap().collect();
+    let error = rows.unwrap_err().to_string();
+    assert!(
+        error.contains("\"/e:x\"") && error.contains("\"run-9\""),
+        "{error}"
+    );
+}
+
 /// A projection keeps the segment id first and the table's order; a name the table lacks
 /// is refused.
 #[test]
@@ -331,7 +381,9 @@ fn bad_datasets_are_named_errors() {
     )
     .unwrap();
     write_recording(&dir, "d.rrd", "third", vec![booleans]);
-    let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
+    // Each segment read to plan the table (as many threads as segments, each keeping its
+    // read for the rows): the conflict is planning's error.
+    let dataset = Dataset::open(&dir, &DatasetOptions::default().with_threads(8)).unwrap();
     let error = dataset
         .dataframe(&DataframeQuery::new("frame"))
         .unwrap_err();
