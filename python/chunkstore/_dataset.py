@@ -52,6 +52,30 @@ class Dataset:
         """What was skipped so far (``skip_bad``), each once."""
         return self._native.take_warnings()
 
+    def write_delta(
+        self,
+        table: Union[str, os.PathLike],
+        *,
+        index: Optional[str] = None,
+        bucket: Optional[int] = None,
+        append: bool = False,
+        storage_options: Optional[Mapping[str, str]] = None,
+    ) -> dict:
+        """Writes the dataset as a Delta Lake table that Spark, DuckDB, Polars and
+        ``deltalake`` read (``docs/SEMANTICS.md`` section 15): ``table`` is a new directory
+        or a bucket's prefix (``s3://bucket/tables/episodes/``), or with ``append=True`` an
+        existing table the dataset's segments are added to, as one commit (a segment in
+        it already is refused, as is another partitioning). Partitioned by ``segment``,
+        then by ``entity`` (rows ordered on ``index`` if given), or with ``index`` and
+        ``bucket`` by ``<index>_bucket`` every ``bucket`` index values. Returns the
+        commit: ``version``, ``rows``, ``files``, ``segments`` and ``retries`` (commits
+        other writers made first). Raises ``FileExistsError`` for a new table where
+        something is, ``InvalidInputError`` for what the table refuses."""
+        version, rows, files, segments, retries = self._native.write_delta(
+            os.fspath(table), index, bucket, append, storage_pairs(storage_options)
+        )
+        return {"version": version, "rows": rows, "files": files, "segments": segments, "retries": retries}
+
     def read_stats(self) -> dict:
         """What queries have read from the segments' files so far (opening aside):
         ``segment_reads``, ``chunks_decoded``, ``bytes_read``, and for segments in a

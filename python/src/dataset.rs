@@ -119,6 +119,59 @@ impl NativeDataset {
         self.dataset.take_warnings()
     }
 
+    /// Writes the dataset as a Delta Lake table at `table` (a directory or a bucket's
+    /// prefix), or with `append` adds its segments to the one there: partitioned by
+    /// segment, then by entity, or with `index` and `bucket` by `bucket` index values.
+    /// Gives `(version, rows, files, segments, retries)`.
+    #[pyo3(signature = (table, index = None, bucket = None, append = false, storage_options = None))]
+    #[allow(clippy::too_many_arguments, reason = "Python keyword arguments")]
+    fn write_delta(
+        &self,
+        py: Python<'_>,
+        table: PathBuf,
+        index: Option<String>,
+        bucket: Option<i64>,
+        append: bool,
+        storage_options: Option<Vec<(String, String)>>,
+    ) -> PyResult<(u64, u64, usize, Vec<String>, usize)> {
+        use chunkstore::parquet::HiveLayout;
+        let storage = crate::open::storage_from(storage_options);
+        let layout = match (index, bucket) {
+            (Some(index), Some(width)) => HiveLayout::ByTimeBucket {
+                timeline: index.into(),
+                width,
+                query: None,
+            },
+            (None, Some(_)) => {
+                return Err(crate::errors::invalid(
+                    "bucket needs an index: the timeline whose values it groups",
+                ));
+            }
+            (index, None) => HiveLayout::ByEntity {
+                timeline: index.map(Into::into),
+            },
+        };
+        py.detach(|| {
+            no_panic(|| {
+                // Nothing cancels a write from Python: Ctrl-C is seen when it returns.
+                let never = std::sync::Arc::default();
+                let store = chunkstore::storage::delta_table(&table, &storage, never)
+                    .map_err(|e| crate::errors::os_error(&table, e.into_io()))?;
+                let commit = self
+                    .dataset
+                    .write_delta(store.as_ref(), &layout, append, &|_, _| {})
+                    .map_err(dataset_error)?;
+                Ok((
+                    commit.version,
+                    commit.rows(),
+                    commit.files.len(),
+                    commit.segments,
+                    commit.retries,
+                ))
+            })
+        })
+    }
+
     /// What queries have read from the segments' files so far: `(segment reads, chunks
     /// decoded, bytes read, requests, bytes fetched)`.
     fn read_stats(&self) -> (u64, u64, u64, u64, u64) {

@@ -137,6 +137,12 @@ pub fn dataset_error(error: chunkstore::dataset::DatasetError) -> PyErr {
         DatasetError::Open(error) => open_error(*error),
         DatasetError::UnknownIndex(unknown) => unknown_timeline(&unknown),
         DatasetError::Dataframe { error, .. } => dataframe_error(error),
+        DatasetError::Delta(chunkstore::parquet::delta::DeltaError::Io { path, source }) => {
+            os_error(std::path::Path::new(&path), source)
+        }
+        error @ DatasetError::Delta(chunkstore::parquet::delta::DeltaError::Exists { .. }) => {
+            pyo3::exceptions::PyFileExistsError::new_err(error.to_string())
+        }
         error @ (DatasetError::NotRrd { .. }
         | DatasetError::NoRecordingId { .. }
         | DatasetError::NoRrdFiles { .. }) => CorruptFileError::new_err(error.to_string()),

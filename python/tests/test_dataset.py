@@ -127,3 +127,45 @@ def test_an_index_cache_is_written_only_for_files_without_a_footer(tmp_path, epi
     assert dataset.dataframe("frame_id").read_all().num_rows == (
         chunkstore.open_dataset(episodes).dataframe("frame_id").read_all().num_rows
     )
+
+
+def test_write_delta_makes_a_table_and_appends_to_it(tmp_path, episodes):
+    import json
+
+    import pyarrow.parquet as pq
+
+    dataset = chunkstore.open_dataset(episodes)
+    first = tmp_path / "dataset-one"
+    first.mkdir()
+    (first / "one.rrd").write_bytes((episodes / "one.rrd").read_bytes())
+    table = tmp_path / "table"
+    made = chunkstore.open_dataset(first).write_delta(table, index="frame_id", bucket=10)
+    assert made["version"] == 0 and made["segments"] == ["a0000000-0000-4000-8000-00000000000a"], made
+    # The same segment again, and a new table where one is, are refused.
+    with pytest.raises(chunkstore.InvalidInputError, match="in the table already"):
+        dataset.write_delta(table, index="frame_id", bucket=10, append=True)
+    with pytest.raises(FileExistsError):
+        dataset.write_delta(table, index="frame_id", bucket=10)
+    with pytest.raises(chunkstore.InvalidInputError, match="bucket needs an index"):
+        dataset.write_delta(tmp_path / "other", bucket=10)
+    # The other segment, appended: one commit.
+    second = tmp_path / "dataset-two"
+    second.mkdir()
+    (second / "two.rrd").write_bytes((episodes / "two.rrd").read_bytes())
+    appended = chunkstore.open_dataset(second).write_delta(table, index="frame_id", bucket=10, append=True)
+    assert appended["version"] == 1 and appended["segments"] == ["second"], appended
+    # Every file a commit adds holds the rows it says; together, the dataset's table.
+    adds = [
+        json.loads(line)["add"]
+        for entry in sorted((table / "_delta_log").iterdir())
+        for line in entry.read_text().splitlines()
+        if '"add"' in line
+    ]
+    assert len(adds) == made["files"] + appended["files"]
+    rows = 0
+    for add in adds:
+        path = table / add["path"].replace("%25", "%")
+        stats = json.loads(add["stats"])
+        assert pq.read_metadata(path).num_rows == stats["numRecords"]
+        rows += stats["numRecords"]
+    assert rows == made["rows"] + appended["rows"] == dataset.dataframe("frame_id").read_all().num_rows

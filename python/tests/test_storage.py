@@ -83,3 +83,28 @@ def test_missing_objects_and_bad_options_raise_typed_errors(prefix):
         chunkstore.open(RRD).write_rrd(missing, storage_options={**OPTIONS, "aws_secret_access_key": "wrong"})
     with pytest.raises(chunkstore.InvalidInputError, match="storage_options"):
         chunkstore.open(missing, storage_options=["aws_region"])
+
+
+def test_write_delta_to_a_bucket_commits_once_per_write(prefix, tmp_path):
+    import json
+
+    from pyarrow import fs
+
+    local = chunkstore.open(RRD)
+    local.write_rrd(tmp_path / "one.rrd")
+    table = prefix + "table/"
+    made = chunkstore.open_dataset(tmp_path).write_delta(table, storage_options=OPTIONS)
+    assert made["version"] == 0 and made["files"] > 0, made
+    with pytest.raises(chunkstore.InvalidInputError, match="in the table already"):
+        chunkstore.open_dataset(tmp_path).write_delta(table, append=True, storage_options=OPTIONS)
+    s3 = fs.S3FileSystem(
+        access_key="key", secret_key="secret", region="us-east-1",
+        endpoint_override=ENDPOINT, scheme="http",
+    )
+    root = table[len("s3://"):]
+    entries = s3.get_file_info(fs.FileSelector(root + "_delta_log"))
+    assert [e.base_name for e in entries] == ["00000000000000000000.json"]
+    with s3.open_input_stream(entries[0].path) as log:
+        adds = [json.loads(line)["add"] for line in log.read().decode().splitlines() if '"add"' in line]
+    assert len(adds) == made["files"]
+    assert sum(json.loads(a["stats"])["numRecords"] for a in adds) == made["rows"]

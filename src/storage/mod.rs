@@ -325,3 +325,31 @@ pub fn write_output<T, E>(
         Err(OutputError::Upload(StorageError::needs_feature(out)))
     }
 }
+
+/// The Delta table `dir` names (features `parquet`; `object-store` for a URL): a local
+/// directory ([`LocalTable`](crate::parquet::delta::LocalTable)), or a prefix in a bucket
+/// (`object::ObjectTable`), whose uploads stop when `cancel` is set (the write then
+/// deletes what it uploaded).
+///
+/// # Errors
+/// A URL that names no object store, or whose scheme needs the `object-store` feature.
+#[cfg(feature = "parquet")]
+pub fn delta_table(
+    dir: &Path,
+    options: &StorageOptions,
+    cancel: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> Result<Box<dyn crate::parquet::delta::TableStore>, StorageError> {
+    if url_scheme(dir).is_none() {
+        return Ok(Box::new(crate::parquet::delta::LocalTable::new(
+            local_path(dir),
+        )));
+    }
+    #[cfg(feature = "object-store")]
+    return object::ObjectTable::new(&dir.to_string_lossy(), options, cancel)
+        .map(|table| Box::new(table) as Box<dyn crate::parquet::delta::TableStore>);
+    #[cfg(not(feature = "object-store"))]
+    {
+        let _ = (options, cancel);
+        Err(StorageError::needs_feature(dir))
+    }
+}

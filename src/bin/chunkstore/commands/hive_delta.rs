@@ -6,7 +6,7 @@ use std::path::Path;
 
 use chunkstore::dataset::{Dataset, DatasetError};
 use chunkstore::parquet::HiveLayout;
-use chunkstore::parquet::delta::{DeltaCommit, DeltaError, LocalTable, StagingDir, TableStore};
+use chunkstore::parquet::delta::{DeltaCommit, DeltaError, StagingDir, TableStore};
 
 use crate::Failure;
 use crate::args::HiveArgs;
@@ -64,29 +64,15 @@ fn write(
 
 /// The table `dir` names: a local directory, or a prefix in a bucket.
 fn table_store(dir: &Path) -> Result<Box<dyn TableStore>, Failure> {
-    if chunkstore::storage::url_scheme(dir).is_none() {
-        return Ok(Box::new(LocalTable::new(chunkstore::storage::local_path(
-            dir,
-        ))));
-    }
     #[cfg(feature = "object-store")]
-    {
-        let url = dir.to_string_lossy();
-        let table = chunkstore::storage::object::ObjectTable::new(
-            &url,
-            output::storage(),
-            output::upload_cancel(),
-        )
-        .map_err(|e| e.to_string())?;
-        Ok(Box::new(table))
-    }
+    let (storage, cancel) = (output::storage().clone(), output::upload_cancel());
+    // (A URL is then refused by `delta_table`, naming the feature it needs.)
     #[cfg(not(feature = "object-store"))]
-    Err(chunkstore::storage::StorageError::new(
-        dir.display().to_string(),
-        chunkstore::storage::StorageErrorKind::NeedsFeature,
-    )
-    .to_string()
-    .into())
+    let (storage, cancel) = (
+        chunkstore::storage::StorageOptions::default(),
+        std::sync::Arc::default(),
+    );
+    chunkstore::storage::delta_table(dir, &storage, cancel).map_err(|e| e.to_string().into())
 }
 
 /// A write that failed, as the tool words it.
