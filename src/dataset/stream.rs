@@ -113,7 +113,9 @@ impl Dataset {
         {
             plans[position] = Some(planned?);
         }
-        // Those whose first of their shape was skipped (`skip_bad`) are read after all.
+        // Those whose first of their shape gave nothing are read after all. (Defensive:
+        // only `skip_bad` skips a segment, and it reads every segment whole, so none has
+        // a shape.)
         let unplanned: Vec<(usize, usize)> = positions
             .iter()
             .copied()
@@ -165,8 +167,9 @@ impl Dataset {
         Ok((schema, segments))
     }
 
-    /// The shapes of these segments (by number), in their order, each as the number of
-    /// the first segment here of that shape (so that only the distinct shapes are held);
+    /// The shapes of these segments (by number), in their order, each given as the
+    /// position in `numbers` of the first segment of that shape (so that only the
+    /// distinct shapes are held);
     /// `None` for a segment read whole or whose footer cannot be read
     /// ([`Dataset::column_keys`]).
     fn shapes(&self, numbers: &[usize]) -> Vec<Option<usize>> {
