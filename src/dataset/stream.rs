@@ -113,31 +113,19 @@ impl Dataset {
         {
             plans[position] = Some(planned?);
         }
-        // Those whose first of their shape gave nothing are read after all. (Defensive:
-        // only `skip_bad` skips a segment, and it reads every segment whole, so none has
-        // a shape.)
-        let unplanned: Vec<(usize, usize)> = positions
-            .iter()
-            .copied()
-            .filter(|&(position, _)| {
-                same_as[position].is_some_and(|first| matches!(plans[first], Some(None)))
-            })
-            .collect();
-        for (&(position, _), planned) in unplanned
-            .iter()
-            .zip(super::threads::in_parallel(&unplanned, threads, plan))
-        {
-            plans[position] = Some(planned?);
-        }
         let mut union = SchemaUnion::default();
         let mut planned = Vec::with_capacity(positions.len());
         for &(position, number) in &positions {
-            let plan = match &plans[position] {
-                Some(plan) => plan.clone(),
-                // Of the shape of an earlier segment: its schema, nothing kept.
-                None => same_as[position]
-                    .and_then(|first| plans[first].clone().flatten())
-                    .map(|(schema, _)| (schema, None)),
+            // Of the shape of an earlier segment: its schema, nothing kept.
+            let first_schema = same_as[position]
+                .and_then(|first| plans[first].as_ref()?.as_ref())
+                .map(|(schema, _)| (Arc::clone(schema), None));
+            let plan = match (&plans[position], first_schema) {
+                (Some(plan), _) => plan.clone(),
+                (None, Some(reused)) => Some(reused),
+                // Its shape's first gave nothing (skipped: only `skip_bad` skips, and it
+                // reads segments whole, which have no shape): read after all.
+                (None, None) => plan(&(position, number))?,
             };
             if let Some((schema, kept)) = plan {
                 union.add(&self.segments()[number].id, &schema)?;
