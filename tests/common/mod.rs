@@ -175,6 +175,22 @@ pub fn scalars(entity: &str, component: &str, rows: &[(i64, u128, Option<Vec<f64
     .unwrap()
 }
 
+/// A one-row chunk at `frame = time` of one `List<Boolean>` component holding `value`
+/// (a column of another type than [`scalars`]' floats).
+pub fn boolean(entity: &str, component: &str, time: i64, row_id: u128, value: bool) -> Chunk {
+    Chunk::try_new(
+        ChunkId::new(),
+        path(entity),
+        vec![rid(row_id)],
+        vec![(
+            Timeline::sequence("frame"),
+            Arc::new(Int64Array::from(vec![time])) as ArrayRef,
+        )],
+        vec![(component.into(), bool_list(&[Some(value)]))],
+    )
+    .unwrap()
+}
+
 /// A one-row scalar chunk at `frame = time`.
 pub fn scalar(entity: &str, component: &str, time: i64, row_id: u128, value: f64) -> Chunk {
     scalars(entity, component, &[(time, row_id, Some(vec![value]))])

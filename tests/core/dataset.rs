@@ -9,13 +9,12 @@
 )]
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
-use arrow_array::{Array, ArrayRef, Int64Array, RecordBatch, StringArray};
+use arrow_array::{Array, RecordBatch, StringArray};
 use arrow_select::concat::concat_batches;
 use chunkstore::SEGMENT_ID_COLUMN;
 use chunkstore::dataset::{Dataset, DatasetError, DatasetOptions};
-use chunkstore::{Chunk, ChunkId, ChunkStore, DataframeQuery, LatestAtQuery, TimeInt, Timeline};
+use chunkstore::{ChunkStore, DataframeQuery, LatestAtQuery, TimeInt};
 
 use crate::common::{ScratchDir, clear, scalars, write_recording, write_without_footer};
 
@@ -278,17 +277,7 @@ fn segments_of_one_shape_are_read_once_each() {
     // A segment of that shape whose column has another type is not read to plan the
     // table either: the conflict is the error of the rows' pass when it reaches it,
     // naming the column and the segment.
-    let booleans = Chunk::try_new(
-        ChunkId::new(),
-        crate::common::path("/e"),
-        vec![crate::common::rid(3)],
-        vec![(
-            Timeline::sequence("frame"),
-            Arc::new(Int64Array::from(vec![10])) as ArrayRef,
-        )],
-        vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
-    )
-    .unwrap();
+    let booleans = crate::common::boolean("/e", "x", 10, 3, true);
     write_recording(&dir, "run-9.rrd", "run-9", vec![booleans]);
     let dataset = Dataset::open(&dir, &one_thread).unwrap();
     let rows: Result<Vec<_>, _> = dataset.dataframe(&query).unwrap().collect();
@@ -369,17 +358,7 @@ fn bad_datasets_are_named_errors() {
 
     // The same column as a list of booleans elsewhere.
     write_recording(&dir, "c.rrd", "other", vec![clear("/e", Some(3), 3, false)]);
-    let booleans = Chunk::try_new(
-        ChunkId::new(),
-        crate::common::path("/e"),
-        vec![crate::common::rid(4)],
-        vec![(
-            Timeline::sequence("frame"),
-            Arc::new(Int64Array::from(vec![4])) as ArrayRef,
-        )],
-        vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
-    )
-    .unwrap();
+    let booleans = crate::common::boolean("/e", "x", 4, 4, true);
     write_recording(&dir, "d.rrd", "third", vec![booleans]);
     // Each segment read to plan the table (as many threads as segments, each keeping its
     // read for the rows): the conflict is planning's error.

@@ -400,9 +400,6 @@ mod pruning_model {
 /// the column and the segment.
 #[test]
 fn a_column_of_two_types_is_the_error_of_the_query_that_meets_it() {
-    use arrow_array::ArrayRef;
-    use chunkstore::{Chunk, ChunkId, Timeline};
-
     let dir = ScratchDir::new("sql-dataset-type-conflict");
     write_recording(
         &dir,
@@ -410,17 +407,7 @@ fn a_column_of_two_types_is_the_error_of_the_query_that_meets_it() {
         "first",
         vec![scalars("/e", "x", &[(1, 1, Some(vec![1.0]))])],
     );
-    let booleans = Chunk::try_new(
-        ChunkId::new(),
-        crate::common::path("/e"),
-        vec![crate::common::rid(2)],
-        vec![(
-            Timeline::sequence("frame"),
-            Arc::new(Int64Array::from(vec![2])) as ArrayRef,
-        )],
-        vec![("x".into(), crate::common::bool_list(&[Some(true)]))],
-    )
-    .unwrap();
+    let booleans = crate::common::boolean("/e", "x", 2, 2, true);
     write_recording(&dir, "b.rrd", "second", vec![booleans]);
     let dataset = Dataset::open(&dir, &DatasetOptions::default()).unwrap();
     let ctx = context(&dataset, 1);
