@@ -1,12 +1,13 @@
 """A dataset in an S3 bucket against the same dataset on local disk (issue 71's targets).
 
-    python benches/storage_dataset.py DIR ENDPOINT [RUNS] [--no-download]
+    python benches/storage_dataset.py DIR ENDPOINT [RUNS] [--no-download] [--part-mib=N]
 
 DIR is a dataset directory (`cargo run --release --example dataset_bench -- generate DIR
 1000 10`), ENDPOINT an S3 server (`scripts/s3_test_server.sh start target/s3-venv /tmp/s3`;
 keys `key`/`secret`). Needs boto3 (to upload and to download). Uploads DIR to
-`s3://bench/<dir name>/` once, then runs `dataset_bench open` and `range` (release build,
-feature `object-store`, each a process) RUNS times (default 3) each way:
+`s3://bench/<dir name>/` once, then runs `dataset_bench open` and `range` (each a process;
+`cargo build --release --example dataset_bench --features object-store,parquet`) RUNS
+times (default 3) each way:
 
 - `local`: the directory;
 - `bucket`: the prefix, through ranged GETs;
@@ -20,6 +21,13 @@ feature `object-store`, each a process) RUNS times (default 3) each way:
   `add` stats) in the same bucket, which
   `dataset_bench delta` writes once (its time, requests and bytes printed). Its requests
   and bytes are counted by a proxy between DuckDB and the server, in one more run.
+
+`--part-mib=N` uploads each object in parts of N MiB (default 8, boto3's own) to
+`s3://bench/<dir name>-<N>mib-parts/`. SeaweedFS stores an object in pieces of its
+upload's parts and reads a whole piece for any ranged GET in it: on an object never read
+before, a GET of 1 KiB costs it about 4 ms of CPU with 8 MiB parts and 1.5 ms with 1 MiB
+parts, whatever the range's length (a server's own cost, which S3 does not charge per
+part; `docs/performance-log.md`, 2026-12-07).
 
 Prints one JSON line per run and, at the end, the medians.
 """
@@ -39,6 +47,7 @@ import http.server
 import threading
 
 import boto3
+from boto3.s3.transfer import TransferConfig
 
 BENCH = "target/release/examples/dataset_bench"
 
@@ -53,13 +62,14 @@ def s3(endpoint):
     )
 
 
-def upload(client, directory, prefix):
+def upload(client, directory, prefix, part_mib):
     names = sorted(n for n in os.listdir(directory) if n.endswith(".rrd"))
     listed = client.list_objects_v2(Bucket="bench", Prefix=prefix + "/", MaxKeys=2000).get("KeyCount", 0)
     if listed >= len(names):
         return
+    parts = TransferConfig(multipart_threshold=part_mib << 20, multipart_chunksize=part_mib << 20)
     with concurrent.futures.ThreadPoolExecutor(16) as pool:
-        list(pool.map(lambda n: client.upload_file(os.path.join(directory, n), "bench", f"{prefix}/{n}"), names))
+        list(pool.map(lambda n: client.upload_file(os.path.join(directory, n), "bench", f"{prefix}/{n}", Config=parts), names))
 
 
 def download(client, prefix, into):
@@ -149,14 +159,16 @@ def main():
         client.create_bucket(Bucket="bench")
     except Exception:
         pass
-    prefix = os.path.basename(os.path.normpath(directory))
-    upload(client, directory, prefix)
+    name = os.path.basename(os.path.normpath(directory))
+    part_mib = next((int(a.split("=")[1]) for a in sys.argv if a.startswith("--part-mib=")), 8)
+    prefix = name if part_mib == 8 else f"{name}-{part_mib}mib-parts"
+    upload(client, directory, prefix, part_mib)
     url = f"s3://bench/{prefix}/"
     base = dict(os.environ, AWS_ENDPOINT_URL=endpoint, AWS_ALLOW_HTTP="true", AWS_ACCESS_KEY_ID="key", AWS_SECRET_ACCESS_KEY="secret", AWS_REGION="us-east-1")
     slow = dict(base, STORAGE_OPTIONS="chunkstore_added_latency_ms=20")
     explicit = dict(base, STORAGE_OPTIONS=f"aws_endpoint={endpoint},aws_allow_http=true")
-    table = f"s3://bench/{prefix}_telemetry_by_tenth"
-    if client.list_objects_v2(Bucket="bench", Prefix=f"{prefix}_telemetry_by_tenth/_delta_log/").get("KeyCount", 0) == 0:
+    table = f"s3://bench/{name}_telemetry_by_tenth"
+    if client.list_objects_v2(Bucket="bench", Prefix=f"{name}_telemetry_by_tenth/_delta_log/").get("KeyCount", 0) == 0:
         made = subprocess.run([BENCH, "delta", directory, table + "/"], env=explicit, check=True, capture_output=True, text=True)
         print(made.stdout.strip(), flush=True)
     results = {}

@@ -63,9 +63,11 @@ use crate::{EntityPath, Snapshot, StoreConfig, TimeRange, TimeType, Timeline};
 use cache::SegmentCache;
 
 /// Segments read at once, at least, from a dataset in an object store
-/// ([`Dataset::read_threads`]): with 20 ms a request, 16 keep a 1% range of a thousand
-/// segments near 2 s where the machine's 2 threads took 30.
-pub const OBJECT_READ_THREADS: usize = 16;
+/// ([`Dataset::read_threads`]). A read there mostly waits: with 20 ms added to each
+/// request, a 1% range of a thousand segments took 30 s on the machine's 2 threads, 2.1 s
+/// on 16 and 1.4–1.5 s on 64 (1.3 s with no latency added, where the two cores are the
+/// bound); 128 were no faster and held 50 MiB more (docs/performance-log.md).
+pub const OBJECT_READ_THREADS: usize = 64;
 
 /// How to open a dataset: from [`DatasetOptions::default`] with the `with_*` methods (the
 /// struct may gain fields).
@@ -409,11 +411,19 @@ impl Dataset {
     /// on the network far longer than it decodes).
     pub fn read_threads(&self) -> usize {
         let threads = self.inner.options.threads.max(1);
-        #[cfg(feature = "object-store")]
-        if self.inner.objects.iter().any(Option::is_some) {
+        if self.in_object_store() {
             return threads.max(OBJECT_READ_THREADS);
         }
         threads
+    }
+
+    /// Whether any segment is read from an object store (each read a request).
+    pub(crate) fn in_object_store(&self) -> bool {
+        #[cfg(feature = "object-store")]
+        if self.inner.objects.iter().any(Option::is_some) {
+            return true;
+        }
+        false
     }
 
     /// Opens one segment as a recording (lazily through its footer where it has one), for

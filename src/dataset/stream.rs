@@ -92,13 +92,16 @@ impl Dataset {
         // A segment of the same shape as one planned before it (the same columns, by the
         // manifests, on the same timelines) has its schema: it is not read for planning
         // unless its read is kept for the rows. In a bucket, that read was a GET per
-        // segment (half of a range's), for a chunk the rows seldom need.
+        // segment (half of a range's), for a chunk the rows seldom need; so there even the
+        // first segments are not read to be kept: with 64 read at once, keeping theirs
+        // fetched 6% more than the range needs.
+        let keeps_first = if self.in_object_store() { 0 } else { threads };
         let same_as: Vec<Option<usize>> = self
             .shapes(&with_index)
             .into_iter()
             .enumerate()
             .map(|(position, first)| {
-                first.filter(|&first| first != position && position >= threads)
+                first.filter(|&first| first != position && position >= keeps_first)
             })
             .collect();
         let read: Vec<(usize, usize)> = positions
