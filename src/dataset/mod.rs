@@ -94,8 +94,9 @@ pub struct DatasetOptions {
     /// Where to keep the index of each file without a footer (`dataset/index_cache.rs`):
     /// such a file is scanned once and its detached index written here (never beside the
     /// data), so that later opens read the index, not the file, and queries read the file
-    /// in part. `None` (the default): such a file is read whole at every open. Not used
-    /// with `skip_bad`, which reads such a file whole to skip what is bad in it.
+    /// in part. An object in a bucket is known by its URL, size and `ETag`. `None` (the
+    /// default): such a file is read whole at every open. Not used with `skip_bad`, which
+    /// reads such a file whole to skip what is bad in it.
     pub index_cache: Option<PathBuf>,
     /// Options of the object store a dataset named by URL is in ([`crate::storage`]).
     pub storage: StorageOptions,
@@ -418,6 +419,13 @@ impl Dataset {
     }
 
     /// Whether any segment is read from an object store (each read a request).
+    #[cfg_attr(
+        not(feature = "object-store"),
+        expect(
+            clippy::unused_self,
+            reason = "no segment is in one without the feature"
+        )
+    )]
     pub(crate) fn in_object_store(&self) -> bool {
         #[cfg(feature = "object-store")]
         if self.inner.objects.iter().any(Option::is_some) {
