@@ -1,5 +1,6 @@
 //! The body of the `rrd_decode` fuzz target: arbitrary bytes as an `.rrd` stream, read
-//! three ways (from memory, streamed from a reader, and opened lazily through a footer).
+//! four ways (from memory, streamed from a reader, opened lazily through a footer, and
+//! scanned into a detached index).
 //! Nothing may panic; the two eager readers (from memory, runs of small chunks decode a
 //! phase at a time) must agree item for item (chunk ids, error offsets and kinds); a lazy recording, where the bytes open as one, must answer a latest-at as a
 //! store holding every chunk its manifest lists does; the chunks then go through
@@ -81,6 +82,44 @@ fn kind_of(error: &rrd::RrdError) -> std::mem::Discriminant<rrd::RrdErrorKind> {
     std::mem::discriminant(&error.kind)
 }
 
+/// Scanned as a file without a footer is, in one pass (an object's body as it arrives):
+/// the index lists the scanned chunks in order, each placed within the stream, each chunk
+/// read back through it.
+fn scanned_into_an_index(bytes: &[u8]) {
+    if let Ok((scanned, index)) = rrd::index::scan_stream_and_index(bytes, Vec::new())
+        && scanned.store_info.is_some()
+    {
+        let mut through = LazyRecording::with_index(
+            std::io::Cursor::new(bytes),
+            std::io::Cursor::new(index),
+            None,
+        )
+        .expect("the index it wrote reads")
+        .expect("an index has a footer");
+        let entries = &through.manifest().entries;
+        let ids: Vec<ChunkId> = entries.iter().map(|e| e.chunk_id).collect();
+        let scanned_ids: Vec<ChunkId> = scanned.chunks.iter().map(|c| c.id()).collect();
+        assert_eq!(ids, scanned_ids);
+        for entry in entries {
+            assert!(entry.byte_size > 0, "{entry:?}");
+            assert!(
+                entry.byte_offset + entry.byte_size <= bytes.len() as u64,
+                "{entry:?}"
+            );
+        }
+        assert_eq!(through.stats().file_bytes, bytes.len() as u64);
+        // The stream decoded cleanly, so each chunk decodes again where the index places
+        // it; only the store may refuse one (a component of two types, say).
+        if let Err(error) = through.load_all() {
+            assert!(
+                matches!(error.kind, rrd::RrdErrorKind::Footer { .. })
+                    && !error.to_string().contains("the manifest says"),
+                "{error}"
+            );
+        }
+    }
+}
+
 pub fn rrd_decode(bytes: &[u8]) {
     let from_memory = rrd::read_rrd(Buffer::from(bytes.to_vec()), true);
     let streamed = rrd::read_rrd_from(bytes, true);
@@ -138,6 +177,8 @@ pub fn rrd_decode(bytes: &[u8]) {
         assert!(footer.header().is_none() && footer.store_info().is_none());
         let _ = footer.load_all();
     }
+
+    scanned_into_an_index(bytes);
 
     if let Ok(Some(mut lazy)) = LazyRecording::from_reader(std::io::Cursor::new(bytes)) {
         // Where the whole stream decoded cleanly and its manifest tells the truth about

@@ -398,7 +398,16 @@ pub(super) fn opened_object(
                 object,
             })
         }
-        Ok(None) => load_whole(path, options, warnings, file_bytes),
+        Ok(None) => {
+            #[cfg(feature = "object-store")]
+            if let (Some(dir), Some(object), false) =
+                (&options.index_cache, object, options.skip_bad)
+                && let Some(opened) = index_cache::open_indexed_object(path, object, dir, options)
+            {
+                return opened;
+            }
+            load_whole(path, options, warnings, file_bytes)
+        }
         Err(error) => footer_failed(path, error, options, warnings, file_bytes),
     }
 }

@@ -75,11 +75,14 @@ impl Dataset {
         let segment = &self.inner.segments[number];
         #[cfg(feature = "object-store")]
         if let Some(object) = &self.inner.objects[number] {
-            // Its footer was fetched when the dataset opened: no request.
-            return LazyRecording::from_reader_footer(
-                Input::Object(object.clone()),
-                Some(&segment.id),
-            )
+            // Its footer (or its index) was read when the dataset opened: no request.
+            let input = Input::Object(object.clone());
+            return match &segment.index_file {
+                Some(index) => std::fs::File::open(index)
+                    .map_err(|e| crate::rrd::RrdError::new(0, crate::rrd::RrdErrorKind::Io(e)))
+                    .and_then(|index| LazyRecording::with_index(input, index, Some(&segment.id))),
+                None => LazyRecording::from_reader_footer(input, Some(&segment.id)),
+            }
             .map_err(|error| OpenError::rrd(&segment.path, error).into());
         }
         match &segment.index_file {

@@ -7,11 +7,10 @@
 //! then read as lazily as one with a footer. The index is never written beside the data:
 //! its caller names where it goes.
 
-use std::io::{BufReader, Read, Seek, SeekFrom, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::Path;
 use std::sync::Arc;
 
-use super::frames::{MESSAGE_HEADER_LEN, parse_message_header};
 use super::{RrdError, RrdErrorKind, RrdItem, RrdReader, RrdWriter, StoreInfo, StoreKind};
 use crate::Chunk;
 
@@ -35,15 +34,25 @@ pub struct Scanned {
 /// that reads cleanly), [`RrdErrorKind::SeveralRecordings`] for a file of more than one
 /// recording, and the index's write errors (as [`RrdErrorKind::Io`]).
 pub fn scan_and_index<W: Write>(path: &Path, index: W) -> Result<(Scanned, W), RrdError> {
-    let io = |at: u64| move |e: std::io::Error| RrdError::new(at, RrdErrorKind::Io(e));
-    let file = std::fs::File::open(path).map_err(io(0))?;
-    let mut headers = std::fs::File::open(path).map_err(io(0))?;
-    let reader = RrdReader::new(BufReader::new(file))?;
+    let file = std::fs::File::open(path).map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
+    scan_stream_and_index(BufReader::new(file), index)
+}
+
+/// [`scan_and_index`] of a file read once from start to end, as it arrives (an object's
+/// body, a pipe): nothing in it is read twice.
+///
+/// # Errors
+/// As [`scan_and_index`].
+pub fn scan_stream_and_index<R: Read, W: Write>(
+    input: R,
+    index: W,
+) -> Result<(Scanned, W), RrdError> {
+    let mut reader = RrdReader::new(input)?;
     let mut store_info = None;
     let mut chunks = Vec::new();
     let mut placed = Vec::new();
     let mut recordings: Vec<String> = Vec::new();
-    for item in reader {
+    while let Some(item) = reader.next() {
         match item? {
             // The recording's own (a blueprint's store info may come first).
             RrdItem::StoreInfo(info)
@@ -60,7 +69,16 @@ pub fn scan_and_index<W: Write>(path: &Path, index: W) -> Result<(Scanned, W), R
                 if !recordings.contains(&id) {
                     recordings.push(id);
                 }
-                let len = body_len(&mut headers, offset)?;
+                // A reader of a stream (not of a buffer) reads one message per item: it
+                // stops where this chunk's body ends.
+                let len = reader.position().checked_sub(offset).ok_or_else(|| {
+                    RrdError::new(
+                        offset,
+                        RrdErrorKind::Footer {
+                            reason: "the scan read past a chunk it had not given".to_owned(),
+                        },
+                    )
+                })?;
                 placed.push((offset, len));
                 chunks.push(Arc::new(chunk));
             }
@@ -86,16 +104,4 @@ pub fn scan_and_index<W: Write>(path: &Path, index: W) -> Result<(Scanned, W), R
         None => index,
     };
     Ok((Scanned { store_info, chunks }, index))
-}
-
-/// The length of the message whose body starts at `body_at`, from its header.
-fn body_len(input: &mut (impl Read + Seek), body_at: u64) -> Result<u64, RrdError> {
-    // A chunk's body comes after its header, so this never saturates on a reader's offset.
-    let at = body_at.saturating_sub(MESSAGE_HEADER_LEN as u64);
-    let mut header = [0u8; MESSAGE_HEADER_LEN];
-    input
-        .seek(SeekFrom::Start(at))
-        .and_then(|_| input.read_exact(&mut header))
-        .map_err(|e| RrdError::new(at, RrdErrorKind::Io(e)))?;
-    Ok(parse_message_header(&header).1)
 }

@@ -19,7 +19,7 @@
 //! (this crate forbids it) and is undefined behaviour if another process truncates the
 //! file; and since payloads are LZ4-compressed, a decoded chunk is a copy either way.
 
-use std::io::{Seek, SeekFrom};
+use std::io::SeekFrom;
 use std::ops::Range;
 use std::path::Path;
 use std::sync::Arc;
@@ -118,20 +118,36 @@ impl LazyRecording<std::fs::File> {
         index: &Path,
         recording_id: Option<&str>,
     ) -> Result<Option<Self>, RrdError> {
-        let Some(mut lazy) = Self::open_recording(index, recording_id)? else {
-            return Ok(None);
-        };
-        let mut data =
-            std::fs::File::open(path).map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
-        lazy.stats.file_bytes = data
-            .seek(SeekFrom::End(0))
-            .map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
-        lazy.input = data;
-        Ok(Some(lazy))
+        let io = |e| RrdError::new(0, RrdErrorKind::Io(e));
+        let index = std::fs::File::open(index).map_err(io)?;
+        let data = std::fs::File::open(path).map_err(io)?;
+        LazyRecording::with_index(data, index, recording_id)
     }
 }
 
 impl<R: RrdInput> LazyRecording<R> {
+    /// Opens the data `input` lazily through its detached index `index` (the index's
+    /// bytes), as [`LazyRecording::open_indexed`] opens a file (the input may be an object
+    /// in a bucket: only the chunks a query needs are read from it).
+    ///
+    /// # Errors
+    /// As [`LazyRecording::open_indexed`].
+    pub fn with_index<I: RrdInput>(
+        mut input: R,
+        index: I,
+        recording_id: Option<&str>,
+    ) -> Result<Option<Self>, RrdError> {
+        let Some(lazy) = LazyRecording::from_reader_recording(index, recording_id)? else {
+            return Ok(None);
+        };
+        let file_bytes = input
+            .seek(SeekFrom::End(0))
+            .map_err(|e| RrdError::new(0, RrdErrorKind::Io(e)))?;
+        let mut lazy = lazy.map_input(|_| input);
+        lazy.stats.file_bytes = file_bytes;
+        Ok(Some(lazy))
+    }
+
     /// Opens a seekable input lazily; `Ok(None)` if it has no footer.
     ///
     /// # Errors

@@ -139,6 +139,17 @@ impl ObjectReader {
         &self.object.location.url
     }
 
+    /// Where the object is.
+    pub fn location(&self) -> &Location {
+        &self.object.location
+    }
+
+    /// Whether the open fetched the whole object (one smaller than [`TAIL_GUESS`]): it is
+    /// then read with no request.
+    pub fn fetched_whole(&self) -> bool {
+        self.covered(&(0..self.object.size))
+    }
+
     /// The object's size, as it was when opened.
     pub fn size(&self) -> u64 {
         self.object.size

@@ -7,10 +7,10 @@ use std::sync::mpsc::{Receiver, sync_channel};
 
 use bytes::Bytes;
 use futures::StreamExt;
-use object_store::ObjectStoreExt;
+use object_store::GetOptions;
 
-use super::{Location, count_get, request_error, runtime};
-use crate::storage::{StorageError, StorageOptions};
+use super::{Location, ObjectReader, count_get, request_error, runtime};
+use crate::storage::{StorageError, StorageErrorKind, StorageOptions};
 
 /// Pieces of the body received ahead of the reader (each what the connection delivered,
 /// typically tens of kilobytes).
@@ -33,13 +33,37 @@ impl ObjectStream {
     /// As [`super::ObjectReader::open`].
     pub fn open(url: &FsPath, options: &StorageOptions) -> Result<Self, StorageError> {
         let location = Location::of_path(url, options)?;
+        Self::start(location, GetOptions::default(), None)
+    }
+
+    /// Starts the GET of the whole object `reader` reads, at the version it opened
+    /// (`If-Match` its `ETag`, and its size checked).
+    ///
+    /// # Errors
+    /// As [`super::ObjectReader::open`]; [`StorageErrorKind::Changed`] if the object was
+    /// replaced since `reader` opened it.
+    pub fn of_version(reader: &ObjectReader) -> Result<Self, StorageError> {
+        let options = GetOptions {
+            if_match: reader.e_tag().map(str::to_owned),
+            ..GetOptions::default()
+        };
+        Self::start(reader.location().clone(), options, Some(reader.size()))
+    }
+
+    fn start(
+        location: Location,
+        options: GetOptions,
+        size: Option<u64>,
+    ) -> Result<Self, StorageError> {
         let url = location.url.clone();
-        let result = runtime::wait(
-            &url,
-            async move { location.store.get(&location.path).await },
-        )?
+        let result = runtime::wait(&url, async move {
+            location.store.get_opts(&location.path, options).await
+        })?
         .map_err(|e| request_error(&url, &e))?;
         count_get(0);
+        if size.is_some_and(|size| size != result.meta.size) {
+            return Err(StorageError::new(&url, StorageErrorKind::Changed));
+        }
         let size = result.meta.size;
         let (sender, pieces) = sync_channel(PIECES_AHEAD);
         let body_url = url.clone();
