@@ -67,8 +67,15 @@ impl LoadedRecording {
                 loaded.load_directory(path, observer)?;
             }
             SourceKind::IpcFile => {
+                let bytes =
+                    crate::storage::read_whole(path, &options.storage).map_err(|source| {
+                        OpenError::Io {
+                            path: path.to_owned(),
+                            source,
+                        }
+                    })?;
                 let chunks =
-                    crate::ipc::read_chunks_from_path(path).map_err(|error| OpenError::Ipc {
+                    crate::ipc::read_chunks_from_bytes(&bytes).map_err(|error| OpenError::Ipc {
                         path: path.to_owned(),
                         error,
                     })?;
@@ -225,10 +232,7 @@ impl LoadedRecording {
         dir: &Path,
         observer: &mut dyn LoadObserver,
     ) -> Result<(), OpenError> {
-        let files = crate::ipc::chunk_files(dir).map_err(|error| OpenError::Ipc {
-            path: dir.to_owned(),
-            error,
-        })?;
+        let files = chunk_files(dir, &self.options.storage)?;
         if files.is_empty() {
             return Err(OpenError::NoChunkFiles {
                 dir: dir.to_owned(),
@@ -241,7 +245,13 @@ impl LoadedRecording {
         observer.started(files.len() as u64, ProgressUnit::Files);
         for (done, file) in files.iter().enumerate() {
             observer.progressed(done as u64 + 1);
-            let chunks = match crate::ipc::read_chunks_from_path(file) {
+            let read = crate::storage::read_whole(file, &self.options.storage)
+                .map_err(|source| crate::ipc::IpcError::Io {
+                    path: file.clone(),
+                    source,
+                })
+                .and_then(|bytes| crate::ipc::read_chunks_from_bytes(&bytes));
+            let chunks = match read {
                 Ok(chunks) => chunks,
                 Err(error) => {
                     let fault = LoadFault::File {
@@ -271,5 +281,40 @@ impl LoadedRecording {
             observer.skipped(fault);
         }
         Ok(())
+    }
+}
+
+/// The chunk files of the directory `dir`, or of the prefix a URL ending in `/` names
+/// (the Arrow IPC objects directly under it: one LIST), sorted by name.
+fn chunk_files(
+    dir: &Path,
+    storage: &crate::storage::StorageOptions,
+) -> Result<Vec<std::path::PathBuf>, OpenError> {
+    if crate::storage::url_scheme(dir).is_none() {
+        return crate::ipc::chunk_files(dir).map_err(|error| OpenError::Ipc {
+            path: dir.to_owned(),
+            error,
+        });
+    }
+    #[cfg(feature = "object-store")]
+    return crate::storage::object::list_rrd_objects(&dir.to_string_lossy(), storage)
+        .map(|listed| {
+            listed
+                .chunk_files
+                .into_iter()
+                .map(std::path::PathBuf::from)
+                .collect()
+        })
+        .map_err(|error| OpenError::Io {
+            path: dir.to_owned(),
+            source: error.into_io(),
+        });
+    #[cfg(not(feature = "object-store"))]
+    {
+        let _ = storage;
+        Err(OpenError::Io {
+            path: dir.to_owned(),
+            source: crate::storage::StorageError::needs_feature(dir).into_io(),
+        })
     }
 }

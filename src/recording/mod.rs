@@ -325,7 +325,26 @@ impl Recording {
 /// The recording a directory of chunk files names (`convert` writes it), checked against
 /// the one asked for.
 fn directory_store_info(dir: &Path, options: &OpenOptions) -> Result<Option<StoreInfo>, OpenError> {
-    crate::rrd::read_directory_recording(dir, options.recording.as_deref()).map_err(|error| {
+    let chosen = if crate::storage::url_scheme(dir).is_some() {
+        // A prefix: its store info is the object of that name under it, if there is one.
+        let url = format!("{}{}", dir.display(), crate::rrd::STORE_INFO_FILE);
+        match crate::storage::read_whole(Path::new(&url), &options.storage) {
+            Ok(bytes) => crate::rrd::decode_directory_store_info(&bytes).map(Some),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => {
+                return Err(OpenError::Io {
+                    path: PathBuf::from(url),
+                    source,
+                });
+            }
+        }
+        .and_then(|info| {
+            crate::rrd::choose_directory_recording(info.as_ref(), options.recording.as_deref())
+        })
+    } else {
+        crate::rrd::read_directory_recording(dir, options.recording.as_deref())
+    };
+    chosen.map_err(|error| {
         if error.is_recording_choice() {
             OpenError::Recording {
                 path: dir.to_owned(),

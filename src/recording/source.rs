@@ -1,5 +1,6 @@
-//! What a source is, told by its contents (never its name): an `.rrd` stream, a single Arrow
-//! IPC file or stream, or a directory of chunk files.
+//! What a source is, told by its contents (a local file never by its name): an `.rrd`
+//! stream, a single Arrow IPC file or stream, or a directory of chunk files. An object
+//! named by URL is told by its name, without a request.
 
 use std::io::Read as _;
 use std::path::Path;
@@ -20,8 +21,10 @@ pub enum SourceKind {
 impl SourceKind {
     /// The kind of `path`: a directory, or a file by its first bytes (the `.rrd` stream
     /// header, Arrow IPC's `ARROW1` magic or a stream's continuation marker). An object
-    /// named by URL ([`crate::storage`]) is an `.rrd` (without a request: reading it
-    /// says whether it is one).
+    /// named by URL ([`crate::storage`]) is told by its name, without a request: a prefix
+    /// (ending in `/`) is a directory of chunk files, an object ending in an Arrow IPC
+    /// extension ([`crate::ipc::IPC_EXTENSIONS`]) an IPC file, any other an `.rrd`
+    /// (reading it says whether it is one).
     ///
     /// # Errors
     /// [`OpenError::Io`] if `path` cannot be read, [`OpenError::UnknownFormat`] if its
@@ -31,8 +34,14 @@ impl SourceKind {
             path: path.to_owned(),
             source,
         };
+        if crate::storage::is_prefix_url(path) {
+            return Ok(Self::ChunkDirectory);
+        }
         if crate::storage::url_scheme(path).is_some() {
-            return Ok(Self::Rrd);
+            let is_ipc = path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                crate::ipc::IPC_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str())
+            });
+            return Ok(if is_ipc { Self::IpcFile } else { Self::Rrd });
         }
         let path = crate::storage::local_path(path);
         if std::fs::metadata(path).map_err(io)?.is_dir() {

@@ -17,14 +17,19 @@ pub const STORE_INFO_FILE: &str = "store_info.pb";
 /// # Errors
 /// If the file exists but cannot be read or decoded ([`RrdError::offset`] is within it).
 pub fn read_directory_store_info(dir: &Path) -> Result<Option<StoreInfo>, RrdError> {
-    let bytes = match std::fs::read(dir.join(STORE_INFO_FILE)) {
-        Ok(bytes) => bytes,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(RrdError::new(0, RrdErrorKind::Io(e))),
-    };
-    StoreInfo::decode_set_store_info(&bytes)
-        .map(Some)
-        .map_err(|(at, kind)| RrdError::new(at as u64, kind))
+    match std::fs::read(dir.join(STORE_INFO_FILE)) {
+        Ok(bytes) => decode_directory_store_info(&bytes).map(Some),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(RrdError::new(0, RrdErrorKind::Io(e))),
+    }
+}
+
+/// The store info a [`STORE_INFO_FILE`] holds (`bytes`, read from wherever it is kept).
+///
+/// # Errors
+/// If it does not decode ([`RrdError::offset`] is within it).
+pub fn decode_directory_store_info(bytes: &[u8]) -> Result<StoreInfo, RrdError> {
+    StoreInfo::decode_set_store_info(bytes).map_err(|(at, kind)| RrdError::new(at as u64, kind))
 }
 
 /// The recording of a directory of chunk files ([`read_directory_store_info`]), checked
@@ -37,9 +42,20 @@ pub fn read_directory_recording(
     dir: &Path,
     recording_id: Option<&str>,
 ) -> Result<Option<StoreInfo>, RrdError> {
-    let info = read_directory_store_info(dir)?;
+    choose_directory_recording(read_directory_store_info(dir)?.as_ref(), recording_id)
+}
+
+/// A directory's recording (its store info, if it has one: `info`), checked against the
+/// one asked for, as [`read_directory_recording`] checks it.
+///
+/// # Errors
+/// [`RrdErrorKind::NoSuchRecording`].
+pub fn choose_directory_recording(
+    info: Option<&StoreInfo>,
+    recording_id: Option<&str>,
+) -> Result<Option<StoreInfo>, RrdError> {
     let mut selector = super::RecordingSelector::new(recording_id);
-    if let Some(info) = &info {
+    if let Some(info) = info {
         selector.observe(info);
     }
     selector.finish().map_err(|kind| RrdError::new(0, kind))

@@ -25,8 +25,8 @@ mod recordings;
 mod writer;
 
 pub use directory::{
-    STORE_INFO_FILE, read_directory_recording, read_directory_store_info,
-    write_directory_store_info,
+    STORE_INFO_FILE, choose_directory_recording, decode_directory_store_info,
+    read_directory_recording, read_directory_store_info, write_directory_store_info,
 };
 pub use error::{RrdError, RrdErrorKind};
 pub use footers::LazyStats;

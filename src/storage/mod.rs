@@ -242,6 +242,21 @@ pub fn open_input(path: &Path, options: &StorageOptions) -> std::io::Result<Inpu
     std::fs::File::open(local_path(path)).map(Input::File)
 }
 
+/// The whole of `path`: a local file, or the object its URL names (one GET).
+///
+/// # Errors
+/// As [`open_input`], and the read's own.
+pub fn read_whole(path: &Path, options: &StorageOptions) -> std::io::Result<Vec<u8>> {
+    if url_scheme(path).is_none() {
+        return std::fs::read(local_path(path));
+    }
+    let (mut stream, size) = open_stream(path, options)?;
+    // The size the store gave, as a first guess only: the body itself says how long it is.
+    let mut bytes = Vec::with_capacity(usize::try_from(size.min(64 << 20)).unwrap_or(0));
+    stream.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
 /// Opens `path` to be read once, start to end: a local file, or one GET of the object its
 /// URL names, its body read as it arrives. Gives the reader and the size.
 ///

@@ -203,3 +203,89 @@ fn hive_delta_writes_a_table_to_a_bucket_and_refuses_a_segment_twice() {
         assert!(stderr.contains(expected), "{args:?}: {stderr}");
     }
 }
+
+/// `print` streams an `.rrd` object (one GET), and an object named like an Arrow IPC file
+/// (`.arrow`) is read as one: both say what the same local files say.
+#[test]
+fn print_and_ipc_files_read_objects_as_local_files() {
+    let Some((endpoint, storage, prefix, _turn)) = bucket("cli-print") else {
+        return;
+    };
+    let robot = common::robot_recording().join("a_robot.rrd");
+    let robot_url = format!("{prefix}a_robot.rrd");
+    upload(&robot, &robot_url, &storage);
+    let robot = robot.to_str().unwrap();
+    let printed = stdout(&chunkstore(&endpoint, &[robot, "print", "--json"]));
+    assert!(printed.lines().count() > 10, "{printed}");
+    let counted = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
+        .args([&robot_url, "print", "--json", "--verbose"])
+        .env("AWS_ENDPOINT_URL", &endpoint)
+        .env("AWS_ALLOW_HTTP", "true")
+        .env("AWS_ACCESS_KEY_ID", "key")
+        .env("AWS_SECRET_ACCESS_KEY", "secret")
+        .env("AWS_REGION", "us-east-1")
+        .output()
+        .unwrap();
+    assert_eq!(stdout(&counted), printed);
+    let said = String::from_utf8_lossy(&counted.stderr);
+    assert!(said.contains("object storage: 1 GET"), "{said}");
+
+    let chunk = common::robot_chunk_files()[3].clone();
+    let chunk_url = format!("{prefix}chunk.arrow");
+    upload(&chunk, &chunk_url, &storage);
+    let chunk = chunk.to_str().unwrap();
+    for args in [&["print", "--json"][..], &["stats"][..]] {
+        assert_eq!(
+            stdout(&chunkstore(
+                &endpoint,
+                &[&[chunk_url.as_str()], args].concat()
+            )),
+            stdout(&chunkstore(&endpoint, &[&[chunk], args].concat())),
+            "{args:?}"
+        );
+    }
+    // Not there: one line naming it.
+    let missing = chunkstore(&endpoint, &[&format!("{prefix}missing.arrow"), "stats"]);
+    assert_eq!(missing.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&missing.stderr);
+    assert_eq!(said.lines().count(), 1, "{said}");
+    assert!(said.contains("missing.arrow"), "{said}");
+}
+
+/// A prefix holding Arrow IPC chunk files and no `.rrd` is one recording's chunk
+/// directory, as a local directory of them is; holding both kinds is refused as locally.
+#[test]
+fn a_prefix_of_chunk_files_is_a_chunk_directory() {
+    let Some((endpoint, storage, prefix, _turn)) = bucket("cli-chunks") else {
+        return;
+    };
+    let local = common::robot_recording().join("chunks");
+    let chunks = format!("{prefix}chunks/");
+    for file in common::robot_chunk_files() {
+        let name = file.file_name().unwrap().to_str().unwrap().to_owned();
+        upload(&file, &format!("{chunks}{name}"), &storage);
+    }
+    let local = local.to_str().unwrap();
+    for args in [
+        &["print", "--json"][..],
+        &["latest-at", "frame_id", "30"][..],
+        &["range", "frame_id", "10", "40"][..],
+    ] {
+        assert_eq!(
+            stdout(&chunkstore(&endpoint, &[&[chunks.as_str()], args].concat())),
+            stdout(&chunkstore(&endpoint, &[&[local], args].concat())),
+            "{args:?}"
+        );
+    }
+    // An `.rrd` beside them: both kinds, refused with one line.
+    upload(
+        &common::robot_recording().join("a_robot.rrd"),
+        &format!("{chunks}a_robot.rrd"),
+        &storage,
+    );
+    let both = chunkstore(&endpoint, &[&chunks, "stats"]);
+    assert_eq!(both.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&both.stderr);
+    assert_eq!(said.lines().count(), 1, "{said}");
+    assert!(said.contains("holds both"), "{said}");
+}

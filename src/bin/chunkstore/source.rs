@@ -37,6 +37,10 @@ pub struct DatasetSource {
     options: DatasetOptions,
     /// `--segment`: the segment `latest-at` and `range` read.
     segment: Option<String>,
+    /// A prefix's listing, made to tell a dataset from a chunk directory: opening the
+    /// dataset does not list it again.
+    #[cfg(feature = "object-store")]
+    listed: Option<chunkstore::storage::object::ListedObjects>,
 }
 
 impl Source {
@@ -62,11 +66,18 @@ impl Source {
         let path = stdin
             .as_ref()
             .map_or_else(|| cli.source.clone(), |copy| copy.path().to_owned());
-        // A URL ending in `/` is a prefix: a dataset of the `.rrd` objects under it.
-        let is_dataset = chunkstore::storage::is_prefix_url(&path)
-            || (path.is_dir() && chunkstore::dataset::is_dataset_dir(&path));
+        // A URL ending in `/` is a prefix: a dataset of the `.rrd` objects under it, or,
+        // where it holds Arrow IPC files and no `.rrd`, one recording's chunk directory.
+        let listed = prefix_listing(&path, &options)?;
+        let is_dataset = match &listed {
+            Some(listed) => holds_a_dataset(listed),
+            None => {
+                chunkstore::storage::is_prefix_url(&path)
+                    || (path.is_dir() && chunkstore::dataset::is_dataset_dir(&path))
+            }
+        };
         if is_dataset {
-            return DatasetSource::of(cli, path, &options).map(Self::Dataset);
+            return DatasetSource::of(cli, path, &options, listed).map(Self::Dataset);
         }
         // The options only a dataset takes.
         let dataset_only = [
@@ -121,7 +132,7 @@ impl RecordingSource {
     /// The recording as a dataset of one segment (its recording id), opened by its
     /// footer: for the commands that write a dataset's table (`hive --delta`).
     pub fn as_dataset(&self) -> Result<DatasetSource, Failure> {
-        if self.path.is_dir() {
+        if self.path.is_dir() || chunkstore::storage::is_prefix_url(&self.path) {
             return Err(format!(
                 "{}: a directory of chunk files; a table's segments are .rrd recordings \
                  (`convert` it to one first)",
@@ -136,6 +147,8 @@ impl RecordingSource {
                 .with_skip_bad(self.options.skip_bad)
                 .with_storage(self.options.storage.clone()),
             segment: None,
+            #[cfg(feature = "object-store")]
+            listed: None,
         })
     }
 
@@ -145,12 +158,73 @@ impl RecordingSource {
     }
 }
 
+/// The listing of `path` if it is a prefix URL (one LIST), to tell what it holds.
+#[cfg(feature = "object-store")]
+fn prefix_listing(path: &Path, options: &load::Options) -> Result<Option<Listed>, Failure> {
+    if !chunkstore::storage::is_prefix_url(path) {
+        return Ok(None);
+    }
+    chunkstore::storage::object::list_rrd_objects(&path.to_string_lossy(), &options.storage)
+        .map(Some)
+        .map_err(|e| e.to_string().into())
+}
+
+#[cfg(not(feature = "object-store"))]
+#[expect(
+    clippy::unnecessary_wraps,
+    reason = "the same signature as with the feature, where it lists"
+)]
+fn prefix_listing(_path: &Path, _options: &load::Options) -> Result<Option<Listed>, Failure> {
+    Ok(None)
+}
+
+#[cfg(feature = "object-store")]
+type Listed = chunkstore::storage::object::ListedObjects;
+/// Without the feature nothing is listed.
+#[cfg(not(feature = "object-store"))]
+type Listed = std::convert::Infallible;
+
+/// A prefix is a dataset unless it holds chunk files and no `.rrd` (then a recording's
+/// chunk directory; holding neither, it is the dataset's error to name).
+#[cfg(feature = "object-store")]
+fn holds_a_dataset(listed: &Listed) -> bool {
+    !listed.objects.is_empty() || listed.chunk_files.is_empty()
+}
+
+#[cfg(not(feature = "object-store"))]
+#[expect(
+    clippy::trivially_copy_pass_by_ref,
+    reason = "by reference as with the feature; nothing is listed without it"
+)]
+fn holds_a_dataset(listed: &Listed) -> bool {
+    match *listed {}
+}
+
+#[cfg(feature = "object-store")]
+fn listed_chunk_files(listed: &Listed) -> Vec<PathBuf> {
+    listed.chunk_files.iter().map(PathBuf::from).collect()
+}
+
+#[cfg(not(feature = "object-store"))]
+#[expect(
+    clippy::trivially_copy_pass_by_ref,
+    reason = "by reference as with the feature; nothing is listed without it"
+)]
+fn listed_chunk_files(listed: &Listed) -> Vec<PathBuf> {
+    match *listed {}
+}
+
 impl DatasetSource {
-    fn of(cli: &Cli, dir: PathBuf, options: &load::Options) -> Result<Self, Failure> {
-        let ipc_files = if chunkstore::storage::url_scheme(&dir).is_some() {
-            Vec::new()
-        } else {
-            chunkstore::ipc::chunk_files(&dir).map_err(|e| e.to_string())?
+    fn of(
+        cli: &Cli,
+        dir: PathBuf,
+        options: &load::Options,
+        listed: Option<Listed>,
+    ) -> Result<Self, Failure> {
+        let ipc_files = match &listed {
+            Some(listed) => listed_chunk_files(listed),
+            None if chunkstore::storage::url_scheme(&dir).is_some() => Vec::new(),
+            None => chunkstore::ipc::chunk_files(&dir).map_err(|e| e.to_string())?,
         };
         if let Some(first) = ipc_files.first() {
             return Err(format!(
@@ -182,6 +256,8 @@ impl DatasetSource {
             dir,
             options: dataset_options,
             segment: cli.load.segment.clone(),
+            #[cfg(feature = "object-store")]
+            listed,
         })
     }
 
@@ -193,7 +269,14 @@ impl DatasetSource {
         one_segment: bool,
         command: impl FnOnce(&Dataset) -> Result<(), Failure>,
     ) -> Result<(), Failure> {
-        let dataset = Dataset::open(&self.dir, &self.options).map_err(|e| message(&e))?;
+        #[cfg(feature = "object-store")]
+        let opened = match &self.listed {
+            Some(listed) => Dataset::open_listed(&self.dir, listed, &self.options),
+            None => Dataset::open(&self.dir, &self.options),
+        };
+        #[cfg(not(feature = "object-store"))]
+        let opened = Dataset::open(&self.dir, &self.options);
+        let dataset = opened.map_err(|e| message(&e))?;
         if one_segment {
             let others = dataset.take_warnings();
             if !others.is_empty() {

@@ -1,4 +1,5 @@
-//! A dataset over a prefix: its `.rrd` objects listed, and each opened, many at once.
+//! A dataset over a prefix: its `.rrd` objects listed, and each opened, many at once; a
+//! recording's chunk files over a prefix, listed.
 
 use futures::StreamExt;
 
@@ -8,13 +9,18 @@ use crate::storage::{StorageError, StorageOptions};
 /// Objects opened at once when a dataset over a prefix opens (each is one GET).
 pub const OPENS_IN_FLIGHT: usize = 64;
 
-/// The `.rrd` objects directly under a prefix, sorted by key, and what to warn of.
+/// The `.rrd` objects directly under a prefix, sorted by key, what to warn of, and the
+/// Arrow IPC chunk files beside them (a prefix of those and no `.rrd` is one recording's
+/// chunk directory).
 #[derive(Debug)]
 pub struct ListedObjects {
     /// Each object: its location and what the listing says of it.
     pub objects: Vec<(Location, object_store::ObjectMeta)>,
     /// "Subdirectories" (common prefixes) that were not looked into.
     pub subdirectories: usize,
+    /// The objects named like Arrow IPC files ([`crate::ipc::IPC_EXTENSIONS`]), by URL,
+    /// sorted.
+    pub chunk_files: Vec<String>,
 }
 
 /// Lists the `.rrd` objects directly under the prefix `url` (`s3://bucket/episodes/`):
@@ -38,18 +44,30 @@ pub fn list_rrd_objects(
     count_listed(listed.objects.len() + listed.common_prefixes.len());
     let mut objects: Vec<(Location, object_store::ObjectMeta)> = listed
         .objects
-        .into_iter()
+        .iter()
         .filter(|meta| {
             meta.location
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("rrd"))
         })
-        .map(|meta| (prefix.child(meta.location.clone()), meta))
+        .map(|meta| (prefix.child(meta.location.clone()), meta.clone()))
         .collect();
     objects.sort_by(|a, b| a.1.location.cmp(&b.1.location));
+    let mut chunk_files: Vec<String> = listed
+        .objects
+        .iter()
+        .filter(|meta| {
+            meta.location.extension().is_some_and(|e| {
+                crate::ipc::IPC_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str())
+            })
+        })
+        .map(|meta| prefix.child(meta.location.clone()).url)
+        .collect();
+    chunk_files.sort();
     Ok(ListedObjects {
         objects,
         subdirectories: listed.common_prefixes.len(),
+        chunk_files,
     })
 }
 

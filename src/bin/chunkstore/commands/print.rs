@@ -14,7 +14,7 @@ use crate::{Failure, load, one_line};
 /// `print` of `source` (a recording: a dataset has no one source order).
 pub fn run(source: &Source, json: bool) -> Result<(), Failure> {
     match source {
-        Source::Recording(recording) => print(&recording.path, json, recording.options.skip_bad),
+        Source::Recording(recording) => print(&recording.path, json, &recording.options),
         Source::Dataset(dataset) => Err(dataset.unanswered()),
     }
 }
@@ -71,13 +71,16 @@ fn chunk_line(chunk: &Chunk, json: bool) -> String {
 }
 
 /// Lists the source's chunks in source order, streaming (nothing is stored).
-fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
+fn print(source: &Path, json: bool, options: &load::Options) -> Result<(), Failure> {
     let mut out = stdout();
     let name = source.display();
+    let skip_bad = options.skip_bad;
     match SourceKind::detect(source).map_err(|e| e.to_string())? {
         SourceKind::Rrd => {
-            let file = std::fs::File::open(source).map_err(|e| format!("{name}: {e}"))?;
-            let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, file))
+            // A file, or an object streamed in one GET.
+            let (input, _) = chunkstore::storage::open_stream(source, &options.storage)
+                .map_err(|e| chunkstore::storage::io_error_text(source, &e))?;
+            let reader = RrdReader::new(std::io::BufReader::with_capacity(1 << 20, input))
                 .map_err(|e| format!("{name}: {e}"))?;
             load::warn_if_newer(reader.header(), source);
             for item in reader {
@@ -100,7 +103,8 @@ fn print(source: &Path, json: bool, skip_bad: bool) -> Result<(), Failure> {
         SourceKind::ChunkDirectory | SourceKind::IpcFile => {
             let options = load::Options::default()
                 .with_config(chunkstore::StoreConfig::COMPACTION_OFF)
-                .with_skip_bad(skip_bad);
+                .with_skip_bad(skip_bad)
+                .with_storage(options.storage.clone());
             let loaded = load::load_in_order(source, &options)?;
             for chunk in &loaded.in_source_order {
                 write_line(&mut out, &chunk_line(chunk, json))?;
