@@ -114,30 +114,35 @@ fn assert_same_as_rerun(ours: &RecordBatch, theirs: &RecordBatch, index: &str, w
 #[test]
 fn sampled_tables_equal_rerun_latest_at() {
     for store in stores() {
-        for timeline in TIMELINES {
-            let theirs = oracle(&format!("latest_at__{timeline}.arrow"));
-            assert_eq!(theirs.len(), 1);
-            let theirs = &theirs[0];
-            let probes = theirs.column_by_name(timeline).unwrap().to_data();
-            let probes: Vec<TimeInt> = arrow_array::Int64Array::from(
-                probes
-                    .into_builder()
-                    .data_type(arrow_schema::DataType::Int64)
-                    .build()
-                    .unwrap(),
-            )
-            .values()
-            .iter()
-            .map(|&t| time(t))
-            .collect();
-            for fill in [false, true] {
-                let query = DataframeQuery::new(timeline)
-                    .with_index_values(probes.iter().copied())
-                    .with_fill_latest_at(fill)
-                    .with_batch_rows(7);
-                let ours = table(&store, &query);
-                assert_same_as_rerun(&ours, theirs, timeline, &format!("latest_at {timeline}"));
-            }
+        sampled_tables_equal(&store);
+    }
+}
+
+/// `store`'s dataframes at Rerun's latest-at probes are Rerun's tables.
+pub(crate) fn sampled_tables_equal(store: &ChunkStore) {
+    for timeline in TIMELINES {
+        let theirs = oracle(&format!("latest_at__{timeline}.arrow"));
+        assert_eq!(theirs.len(), 1);
+        let theirs = &theirs[0];
+        let probes = theirs.column_by_name(timeline).unwrap().to_data();
+        let probes: Vec<TimeInt> = arrow_array::Int64Array::from(
+            probes
+                .into_builder()
+                .data_type(arrow_schema::DataType::Int64)
+                .build()
+                .unwrap(),
+        )
+        .values()
+        .iter()
+        .map(|&t| time(t))
+        .collect();
+        for fill in [false, true] {
+            let query = DataframeQuery::new(timeline)
+                .with_index_values(probes.iter().copied())
+                .with_fill_latest_at(fill)
+                .with_batch_rows(7);
+            let ours = table(store, &query);
+            assert_same_as_rerun(&ours, theirs, timeline, &format!("latest_at {timeline}"));
         }
     }
 }
@@ -145,26 +150,31 @@ fn sampled_tables_equal_rerun_latest_at() {
 #[test]
 fn range_tables_equal_rerun_ranges() {
     for store in stores() {
-        for timeline in TIMELINES {
-            let theirs = oracle(&format!("range__{timeline}.arrow"));
-            let json = oracle_json(&format!("range__{timeline}.json"));
-            let ranges = json["ranges"].as_array().unwrap();
-            assert_eq!(ranges.len(), theirs.len());
-            for (range, theirs) in ranges.iter().zip(&theirs) {
-                let lo = time(range["lo"].as_i64().unwrap());
-                let hi = time(range["hi"].as_i64().unwrap());
-                for batch_rows in [1, 5, 1000] {
-                    let query = DataframeQuery::new(timeline)
-                        .with_range(TimeRange::new(lo, hi))
-                        .with_batch_rows(batch_rows);
-                    let ours = table(&store, &query);
-                    assert_same_as_rerun(
-                        &ours,
-                        theirs,
-                        timeline,
-                        &format!("range {timeline} [{lo}, {hi}]"),
-                    );
-                }
+        range_tables_equal(&store);
+    }
+}
+
+/// `store`'s dataframes over Rerun's ranges are Rerun's tables.
+pub(crate) fn range_tables_equal(store: &ChunkStore) {
+    for timeline in TIMELINES {
+        let theirs = oracle(&format!("range__{timeline}.arrow"));
+        let json = oracle_json(&format!("range__{timeline}.json"));
+        let ranges = json["ranges"].as_array().unwrap();
+        assert_eq!(ranges.len(), theirs.len());
+        for (range, theirs) in ranges.iter().zip(&theirs) {
+            let lo = time(range["lo"].as_i64().unwrap());
+            let hi = time(range["hi"].as_i64().unwrap());
+            for batch_rows in [1, 5, 1000] {
+                let query = DataframeQuery::new(timeline)
+                    .with_range(TimeRange::new(lo, hi))
+                    .with_batch_rows(batch_rows);
+                let ours = table(store, &query);
+                assert_same_as_rerun(
+                    &ours,
+                    theirs,
+                    timeline,
+                    &format!("range {timeline} [{lo}, {hi}]"),
+                );
             }
         }
     }

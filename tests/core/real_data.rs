@@ -148,7 +148,7 @@ fn latest_at_matches_rerun_on_every_probe_and_timeline() {
     }
 }
 
-fn latest_at_matches(store: &ChunkStore) {
+pub(crate) fn latest_at_matches(store: &ChunkStore) {
     let expected_columns = temporal_view_columns(store);
     let mut num_checked = 0;
     for timeline in TIMELINES {
@@ -189,7 +189,7 @@ fn range_matches_rerun_on_every_range_and_timeline() {
     }
 }
 
-fn range_matches(store: &ChunkStore) {
+pub(crate) fn range_matches(store: &ChunkStore) {
     let mut num_checked = 0;
     for timeline in TIMELINES {
         let json: serde_json::Value = serde_json::from_slice(
@@ -264,7 +264,7 @@ fn static_answers_match_rerun() {
     }
 }
 
-fn static_answers_match(store: &ChunkStore) {
+pub(crate) fn static_answers_match(store: &ChunkStore) {
     let batches = oracle("static.arrow");
     let (_, columns) = split_table(&batches[0], None);
     assert_eq!(columns.len(), 2);

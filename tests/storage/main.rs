@@ -22,6 +22,13 @@ mod delta;
 mod faults;
 mod recording;
 
+// The judges of local files, Rerun 0.41's own answers, asked of the same files read from
+// the bucket (`recording::rerun_answers_hold_for_the_recording_read_from_a_bucket`).
+#[path = "../core/dataframe_oracle.rs"]
+mod dataframe_oracle;
+#[path = "../core/real_data.rs"]
+mod real_data;
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;

@@ -217,3 +217,34 @@ fn missing_objects_and_unknown_options_are_one_line_naming_the_url() {
     );
     assert!(!text.contains('\n'), "{text}");
 }
+
+/// Rerun 0.41's own answers on the robot recording (the judges of the local files,
+/// `tests/core/real_data.rs` and `tests/core/dataframe_oracle.rs`) hold for the same
+/// files read from the bucket: its `.rrd` through ranged GETs, and its chunk files as a
+/// prefix (a chunk directory).
+#[test]
+fn rerun_answers_hold_for_the_recording_read_from_a_bucket() {
+    let Some((_, storage, prefix, _turn)) = bucket("oracle") else {
+        return;
+    };
+    let rrd = url(&prefix, "a_robot.rrd");
+    upload(
+        &common::robot_recording().join("a_robot.rrd"),
+        rrd.to_str().unwrap(),
+        &storage,
+    );
+    for file in common::robot_chunk_files() {
+        let name = file.file_name().unwrap().to_str().unwrap().to_owned();
+        upload(&file, &format!("{prefix}chunks/{name}"), &storage);
+    }
+    let open = OpenOptions::default().with_storage(storage);
+    for source in [rrd, url(&prefix, "chunks/")] {
+        let recording = Recording::open(&source, &open, &mut ()).unwrap();
+        let store = recording.into_store().unwrap();
+        crate::real_data::latest_at_matches(&store);
+        crate::real_data::range_matches(&store);
+        crate::real_data::static_answers_match(&store);
+        crate::dataframe_oracle::sampled_tables_equal(&store);
+        crate::dataframe_oracle::range_tables_equal(&store);
+    }
+}
