@@ -281,3 +281,65 @@ fn a_prefix_of_chunk_files_is_a_chunk_directory() {
     assert_eq!(said.lines().count(), 1, "{said}");
     assert!(said.contains("holds both"), "{said}");
 }
+
+/// `serve` preloads a SOURCE named by URL: it listens once the object is loaded, and a
+/// missing one stops it before it listens, with one line naming the object.
+#[cfg(feature = "server")]
+#[test]
+fn serve_preloads_a_source_from_a_bucket() {
+    use std::io::BufRead as _;
+    use std::process::Stdio;
+
+    let Some((endpoint, storage, prefix, _turn)) = bucket("cli-serve") else {
+        return;
+    };
+    let robot_url = format!("{prefix}a_robot.rrd");
+    upload(
+        &common::robot_recording().join("a_robot.rrd"),
+        &robot_url,
+        &storage,
+    );
+    let serve = |source: &str| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_chunkstore"));
+        command
+            .args([
+                "serve",
+                source,
+                "--addr",
+                "127.0.0.1:0",
+                "--read-mode",
+                "snapshot",
+            ])
+            .args(["--storage-option", &format!("aws_endpoint={endpoint}")])
+            .args(["--storage-option", "aws_allow_http=true"])
+            .env("AWS_ACCESS_KEY_ID", "key")
+            .env("AWS_SECRET_ACCESS_KEY", "secret")
+            .env("AWS_REGION", "us-east-1")
+            .env_remove("AWS_ENDPOINT_URL");
+        command
+    };
+    let mut server = serve(&robot_url)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufReader::new(server.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let _ = server.kill();
+    let _ = server.wait();
+    assert!(
+        line.starts_with("listening on rerun+http://127.0.0.1:"),
+        "{line:?}"
+    );
+
+    let missing = serve(&format!("{prefix}missing.rrd")).output().unwrap();
+    assert_eq!(missing.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&missing.stderr);
+    assert_eq!(said.lines().count(), 1, "{said}");
+    assert!(
+        said.contains("missing.rrd") && said.contains("no such object"),
+        "{said}"
+    );
+}

@@ -48,7 +48,8 @@ preloaded SOURCEs or a --persist log), or keep the default loopback address.";
 #[command(name = "chunkstore serve", version, after_help = SERVE_EXAMPLES)]
 pub struct ServeArgs {
     /// Recordings to load before listening: `.rrd` files or directories of Arrow IPC
-    /// chunk files. They are served, not written to the --persist log.
+    /// chunk files, local or named by URL (`s3://…`, as any SOURCE). They are served, not
+    /// written to the --persist log.
     pub sources: Vec<PathBuf>,
     /// Address to listen on, `HOST:PORT` (`localhost:9876`, `0.0.0.0:9876`; `:0` picks a
     /// free port, and the line printed on start says which).
@@ -77,6 +78,10 @@ pub struct ServeArgs {
     /// an eighth of --memory-limit; at most half of it.
     #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
     pub max_message_bytes: Option<u64>,
+    /// An option of the object store a URL SOURCE is in, as for any command
+    /// (`aws_endpoint=URL`, …); repeatable.
+    #[arg(long = "storage-option", value_name = "KEY=VALUE", value_parser = chunkstore::storage::StorageOptions::parse_pair)]
+    pub storage_options: Vec<(String, String)>,
 }
 
 /// The smallest `--memory-limit`: below it, the server's own buffers alone break it.
@@ -169,6 +174,8 @@ pub struct ServerState {
     /// The SOURCEs loaded before serving: loaded again when memory is rebuilt from the
     /// log after a failed write.
     sources: Vec<PathBuf>,
+    /// Of the object store URL SOURCEs are in.
+    storage: chunkstore::storage::StorageOptions,
     /// Set once the server is stopping: live readers end their streams.
     pub stopping: tokio::sync::watch::Sender<bool>,
     /// Held (shared) while a message is ingested and (exclusively) while memory is rebuilt
@@ -234,6 +241,8 @@ pub struct StateOptions {
     pub read_mode: ReadMode,
     pub max_write_streams: usize,
     pub max_message_bytes: usize,
+    /// Of the object store URL sources are in.
+    pub storage: chunkstore::storage::StorageOptions,
 }
 
 impl ServerState {
@@ -261,7 +270,7 @@ impl ServerState {
         )
         .map_err(|e| e.to_string())?;
         for source in &sources {
-            preload(&hub, source)?;
+            preload(&hub, source, &options.storage)?;
         }
         if let Some(log) = &persist {
             let report = log.replay_into(&hub);
@@ -286,6 +295,7 @@ impl ServerState {
             live,
             persist,
             sources,
+            storage: options.storage.clone(),
             stopping: tokio::sync::watch::Sender::new(false),
             write_gate: parking_lot::RwLock::new(()),
             memory_limit: options.memory_limit,
@@ -336,6 +346,7 @@ fn run(args: &ServeArgs) -> Result<(), String> {
             read_mode: args.read_mode,
             max_write_streams: args.max_write_streams,
             max_message_bytes,
+            storage: args.storage_options.iter().cloned().collect(),
         },
     )?;
     if args.token.is_none() && !args.addr.ip().is_loopback() {
@@ -374,11 +385,16 @@ fn run(args: &ServeArgs) -> Result<(), String> {
 
 /// Loads one SOURCE into the hub: an `.rrd` file message by message (every recording and
 /// blueprint it holds), a chunk directory or IPC file as one recording.
-fn preload(hub: &StoreHub, source: &std::path::Path) -> Result<(), String> {
+fn preload(
+    hub: &StoreHub,
+    source: &std::path::Path,
+    storage: &chunkstore::storage::StorageOptions,
+) -> Result<(), String> {
     use chunkstore::recording::{LoadedRecording, OpenOptions, SourceKind};
     let kind = SourceKind::detect(source).map_err(|e| e.to_string())?;
     if kind == SourceKind::Rrd {
-        let bytes = std::fs::read(source).map_err(|e| crate::about_path(source, e))?;
+        let bytes = chunkstore::storage::read_whole(source, storage)
+            .map_err(|e| chunkstore::storage::io_error_text(source, &e))?;
         let scan = chunkstore::rrd::scan_log(&arrow_buffer::Buffer::from(bytes));
         if let Some(fault) = &scan.fault {
             return Err(crate::about_path(source, fault));
@@ -389,8 +405,9 @@ fn preload(hub: &StoreHub, source: &std::path::Path) -> Result<(), String> {
         }
         return Ok(());
     }
-    let loaded = LoadedRecording::load(source, &OpenOptions::default(), &mut ())
-        .map_err(|e| crate::about_path(source, e))?;
+    let open = OpenOptions::default().with_storage(storage.clone());
+    let loaded =
+        LoadedRecording::load(source, &open, &mut ()).map_err(|e| crate::about_path(source, e))?;
     let info = loaded.store_info.clone().unwrap_or_else(|| {
         let name = source
             .file_name()

@@ -303,6 +303,7 @@ fn options() -> StateOptions {
         read_mode: ReadMode::Snapshot,
         max_write_streams: 8,
         max_message_bytes: 1 << 20,
+        storage: chunkstore::storage::StorageOptions::default(),
     }
 }
 

@@ -146,7 +146,7 @@ impl ServerState {
         }
         self.hub.clear();
         for source in &self.sources {
-            if let Err(e) = preload(&self.hub, source) {
+            if let Err(e) = preload(&self.hub, source, &self.storage) {
                 eprintln!("warning: loading {} again: {e}", source.display());
             }
         }
