@@ -32,6 +32,8 @@ mod dataset;
 mod segments;
 #[cfg(feature = "server")]
 mod server;
+#[cfg(feature = "server")]
+mod web;
 
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_current_thread()

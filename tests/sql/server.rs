@@ -17,18 +17,18 @@ use tonic::transport::Channel;
 
 use super::common;
 
-const WRITE: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/WriteMessages";
-const READ: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/ReadMessages";
+pub(super) const WRITE: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/WriteMessages";
+pub(super) const READ: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/ReadMessages";
 
 /// The server, killed (SIGKILL) when dropped.
-struct Server {
+pub(super) struct Server {
     child: Child,
-    url: String,
+    pub(super) url: String,
     stderr: PathBuf,
 }
 
 impl Server {
-    fn start(dir: &Path, args: &[&str]) -> Self {
+    pub(super) fn start(dir: &Path, args: &[&str]) -> Self {
         let stderr = dir.join(format!("stderr-{}.txt", chunkstore::RowId::new().as_u128()));
         let mut child = Command::new(env!("CARGO_BIN_EXE_chunkstore"))
             .arg("serve")
@@ -116,7 +116,7 @@ impl Decoder for RawDecoder {
 }
 
 /// One `WriteMessages` stream of `requests` (encoded envelopes).
-async fn write(server: &Server, requests: Vec<Vec<u8>>) -> Result<(), tonic::Status> {
+pub(super) async fn write(server: &Server, requests: Vec<Vec<u8>>) -> Result<(), tonic::Status> {
     let mut grpc = tonic::client::Grpc::new(server.channel().await);
     grpc.ready().await.unwrap();
     let stream = futures::stream::iter(requests);
@@ -130,7 +130,7 @@ async fn write(server: &Server, requests: Vec<Vec<u8>>) -> Result<(), tonic::Sta
 }
 
 /// Every message `ReadMessages` sends (the server must end the stream: snapshot mode).
-async fn read_all(server: &Server) -> Vec<LogMsg> {
+pub(super) async fn read_all(server: &Server) -> Vec<LogMsg> {
     let mut grpc = tonic::client::Grpc::new(server.channel().await);
     grpc.ready().await.unwrap();
     let response = grpc
@@ -195,11 +195,11 @@ fn envelope(msg: &LogMsg) -> Vec<u8> {
     msg.encode_envelope()
 }
 
-fn info_msg(id: &StoreId) -> Vec<u8> {
+pub(super) fn info_msg(id: &StoreId) -> Vec<u8> {
     envelope(&LogMsg::from_store_info(&StoreInfo::new(id.clone())))
 }
 
-fn chunk_msg(id: &StoreId, entity: &str, frame: i64, value: f64) -> Vec<u8> {
+pub(super) fn chunk_msg(id: &StoreId, entity: &str, frame: i64, value: f64) -> Vec<u8> {
     let chunk = common::scalar(
         entity,
         "x",
@@ -210,7 +210,7 @@ fn chunk_msg(id: &StoreId, entity: &str, frame: i64, value: f64) -> Vec<u8> {
     envelope(&LogMsg::from_chunk(id, &chunk, true).unwrap())
 }
 
-fn runtime() -> tokio::runtime::Runtime {
+pub(super) fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -218,7 +218,7 @@ fn runtime() -> tokio::runtime::Runtime {
         .unwrap()
 }
 
-fn temp_dir(name: &str) -> PathBuf {
+pub(super) fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("chunkstore-server-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();

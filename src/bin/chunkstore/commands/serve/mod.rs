@@ -8,6 +8,7 @@ mod flight;
 mod persist;
 mod proxy;
 mod statement;
+mod web;
 mod write;
 
 use std::ffi::OsString;
@@ -78,6 +79,11 @@ pub struct ServeArgs {
     /// an eighth of --memory-limit; at most half of it.
     #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
     pub max_message_bytes: Option<u64>,
+    /// A web page origin (`https://viewer.example.com`) allowed to call the server from a
+    /// browser (grpc-web, as Rerun's web viewer speaks), besides pages served from this
+    /// machine (`localhost`, `127.0.0.1`, `[::1]`, any port); `*` allows any; repeatable.
+    #[arg(long = "cors-allow-origin", value_name = "ORIGIN")]
+    pub cors_allow_origins: Vec<String>,
     /// An option of the object store a URL SOURCE is in, as for any command
     /// (`aws_endpoint=URL`, …); repeatable.
     #[arg(long = "storage-option", value_name = "KEY=VALUE", value_parser = chunkstore::storage::StorageOptions::parse_pair)]
@@ -376,6 +382,7 @@ fn run(args: &ServeArgs) -> Result<(), String> {
         stop,
         queries.handle().clone(),
         (stream_window, connection_window),
+        web::AllowedOrigins::new(&args.cors_allow_origins),
     ));
     queries.shutdown_background();
     // A history still being read out on a blocking thread is not waited for.
@@ -497,6 +504,7 @@ async fn serve(
     stop: Arc<tokio::sync::Notify>,
     queries: tokio::runtime::Handle,
     (stream_window, connection_window): (u32, u32),
+    origins: web::AllowedOrigins,
 ) -> Result<(), String> {
     let listener = tokio::net::TcpListener::bind(addr)
         .await
@@ -548,10 +556,15 @@ async fn serve(
     // HTTP/2's default flow-control windows (64 KiB) let a client send one window, then
     // wait a round trip for more: an SDK streaming 60 kB chunks ran at a third of its
     // speed. Large windows let it stream; a write stream still holds one message at a time.
+    // A browser speaks grpc-web over HTTP/1.1 (or HTTP/2) on the same port: CORS answers
+    // its preflights first, then grpc-web calls are translated to gRPC.
     let server = tonic::transport::Server::builder()
         .tcp_nodelay(true)
         .initial_stream_window_size(Some(stream_window))
         .initial_connection_window_size(Some(connection_window))
+        .accept_http1(true)
+        .layer(origins.layer())
+        .layer(tonic_web::GrpcWebLayer::new())
         .add_service(proxy_service)
         .add_service(flight_service)
         .serve_with_incoming_shutdown(incoming, shutdown);
