@@ -76,6 +76,47 @@ impl ChunkStore {
         self.finish_mutation(events)
     }
 
+    /// Retention: removes every row older than `span` behind the newest time on
+    /// `timeline`, i.e. whose time there is below `newest − span` (a
+    /// [`ChunkStore::drop_time_range`] up to it), so that the timeline keeps the last
+    /// `span` of data. Static data and rows without `timeline` stay. Returns the events
+    /// (none if nothing is that old, or the store has no data on `timeline`).
+    ///
+    /// ```
+    /// # use std::sync::Arc;
+    /// # use arrow_array::{ArrayRef, Float64Array};
+    /// # use chunkstore::*;
+    /// let mut store = ChunkStore::new();
+    /// let frame = Timeline::sequence("frame");
+    /// for t in 0..10 {
+    ///     let chunk = ChunkBuilder::new(ChunkId::new(), EntityPath::parse("/e")?)
+    ///         .with_row(RowId::new(), [(frame.clone(), t)],
+    ///                   [("x", Arc::new(Float64Array::from(vec![1.0])) as ArrayRef)])
+    ///         .build()?;
+    ///     store.insert(Arc::new(chunk))?;
+    /// }
+    /// store.retain_recent("frame", 3); // keeps frames 6 to 9
+    /// let range = store.time_range("frame").unwrap();
+    /// assert_eq!((range.min().as_i64(), range.max().as_i64()), (6, 9));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn retain_recent(&mut self, timeline: &str, span: u64) -> Vec<StoreEvent> {
+        let Some(held) = self.time_range(timeline) else {
+            return Vec::new();
+        };
+        let newest = i128::from(held.max().as_i64());
+        // The oldest time kept; everything below goes.
+        let keep_from = newest - i128::from(span);
+        if keep_from <= i128::from(held.min().as_i64()) {
+            return Vec::new();
+        }
+        let below = i64::try_from(keep_from - 1).unwrap_or(i64::MAX);
+        self.drop_time_range(
+            timeline,
+            TimeRange::new(crate::TimeInt::MIN, crate::TimeInt::saturating(below)),
+        )
+    }
+
     /// Removes all of `entity`'s data, static included, and its Clears; with `recursive`,
     /// its descendants' too. Returns the events.
     pub fn drop_entity(&mut self, entity: &EntityPath, recursive: bool) -> Vec<StoreEvent> {

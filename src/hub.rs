@@ -20,7 +20,7 @@ use crate::rrd::{DecodedLogMsg, LogMsg, RrdError, StoreId, StoreInfo, StoreKind}
 use crate::sanity::{Structure, ensure};
 use crate::{
     Chunk, ChunkStore, ConfigError, GcOptions, InsertError, SanityError, SharedStore, Snapshot,
-    StoreConfig,
+    StoreConfig, Timeline,
 };
 
 /// What the hub's listener is told of each accepted message: its sequence number and the
@@ -295,6 +295,34 @@ impl StoreHub {
             .collect()
     }
 
+    /// Drops every recording whose recording id is `recording_id` (of any application),
+    /// its store info included; returns their store ids (none if it held no such
+    /// recording). The listener is not told: nothing is logged. A later chunk of the same
+    /// recording opens it anew.
+    pub fn drop_recording(&self, recording_id: &str) -> Vec<StoreId> {
+        let mut state = self.state.lock();
+        let (dropped, kept): (Vec<HubEntry>, Vec<HubEntry>) = std::mem::take(&mut state.recordings)
+            .into_iter()
+            .partition(|entry| &*entry.info.store_id.recording_id == recording_id);
+        state.recordings = kept;
+        let by_id = state
+            .recordings
+            .iter()
+            .enumerate()
+            .map(|(index, entry)| (entry.info.store_id.clone(), index))
+            .collect();
+        state.by_id = by_id;
+        dropped
+            .into_iter()
+            .map(|entry| entry.info.store_id)
+            .collect()
+    }
+
+    /// How many recordings the hub holds (blueprints aside).
+    pub fn recording_count(&self) -> usize {
+        self.state.lock().recordings.len()
+    }
+
     /// The sequence number of the last accepted message (0 before the first).
     pub fn last_seq(&self) -> u64 {
         self.state.lock().seq
@@ -375,6 +403,41 @@ impl StoreHub {
         }
         outcome.bytes_after = bytes_of(&stores);
         outcome
+    }
+
+    /// Retention across the hub: every recording's timeline for which `span_of` gives a
+    /// span keeps only its last span of data ([`ChunkStore::retain_recent`], measured from
+    /// that recording's own newest time there). Blueprints are not touched. Returns the
+    /// chunks removed (a chunk partly kept counts, and is replaced by its kept rows).
+    pub fn retain_recent(&self, span_of: impl Fn(&Timeline) -> Option<u64>) -> usize {
+        let stores: Vec<SharedStore> = {
+            let state = self.state.lock();
+            state.recordings.iter().map(|e| e.store.clone()).collect()
+        };
+        let mut removed = 0;
+        for store in &stores {
+            let rules: Vec<(Timeline, u64)> = store
+                .snapshot()
+                .view()
+                .timelines()
+                .into_iter()
+                .filter_map(|timeline| span_of(&timeline).map(|span| (timeline, span)))
+                .collect();
+            if rules.is_empty() {
+                continue;
+            }
+            let events = store.write(|s: &mut ChunkStore| {
+                rules
+                    .iter()
+                    .flat_map(|(timeline, span)| s.retain_recent(timeline.name(), *span))
+                    .collect::<Vec<_>>()
+            });
+            removed += events
+                .iter()
+                .filter(|e| matches!(e, crate::StoreEvent::Deletion { .. }))
+                .count();
+        }
+        removed
     }
 
     /// Checks the hub's own invariants (its index of recordings, its blueprint figure)
@@ -653,5 +716,78 @@ mod tests {
         // Under the limit: nothing to do.
         let again = hub.collect_garbage(limit);
         assert_eq!(again.chunks_dropped, 0);
+    }
+
+    #[test]
+    fn retention_measures_each_recording_from_its_own_newest_time() {
+        let hub = StoreHub::new(StoreConfig::DEFAULT).unwrap();
+        let (a, b) = (
+            StoreId::recording("app", "a"),
+            StoreId::recording("app", "b"),
+        );
+        for frame in 0..20 {
+            hub.ingest(&LogMsg::from_chunk(&a, &chunk("/x", frame, 1.0), true).unwrap())
+                .unwrap();
+        }
+        for frame in 0..5 {
+            hub.ingest(&LogMsg::from_chunk(&b, &chunk("/y", frame, 1.0), true).unwrap())
+                .unwrap();
+        }
+        let removed = hub.retain_recent(|t| (t.name() == "frame").then_some(3));
+        assert!(removed > 0);
+        let ranges: Vec<_> = hub
+            .recordings()
+            .iter()
+            .map(|r| {
+                let range = r.snapshot.view().time_range("frame").unwrap();
+                (
+                    range.min().as_i64(),
+                    range.max().as_i64(),
+                    r.snapshot.stats().num_rows(),
+                )
+            })
+            .collect();
+        assert_eq!(ranges, [(16, 19, 4), (1, 4, 4)]);
+        // A timeline the rule does not cover is untouched.
+        assert_eq!(hub.retain_recent(|t| (t.name() == "other").then_some(0)), 0);
+        hub.sanity_check().unwrap();
+    }
+
+    #[test]
+    fn a_dropped_recording_is_gone_and_the_others_stay_reachable() {
+        let hub = StoreHub::new(StoreConfig::DEFAULT).unwrap();
+        let ids = ["a", "b", "c"].map(|id| StoreId::recording("app", id));
+        for (frame, id) in (0..).zip(&ids) {
+            hub.ingest(&LogMsg::from_store_info(&StoreInfo::new(id.clone())))
+                .unwrap();
+            hub.ingest(&LogMsg::from_chunk(id, &chunk("/x", frame, 1.0), true).unwrap())
+                .unwrap();
+        }
+        assert_eq!(hub.drop_recording("b"), [ids[1].clone()]);
+        assert!(hub.drop_recording("b").is_empty());
+        hub.sanity_check().unwrap();
+        let left: Vec<_> = hub
+            .recordings()
+            .iter()
+            .map(|r| r.info.store_id.clone())
+            .collect();
+        assert_eq!(left, [ids[0].clone(), ids[2].clone()]);
+        // The one after it is still found by id: a chunk goes into it, not a new one.
+        hub.ingest(&LogMsg::from_chunk(&ids[2], &chunk("/x", 9, 1.0), true).unwrap())
+            .unwrap();
+        assert_eq!(hub.recording_count(), 2);
+        assert_eq!(hub.recordings()[1].snapshot.stats().num_rows(), 2);
+        // The replay has no trace of it: two store infos, no chunk of "b".
+        let replayed: Vec<LogMsg> = hub.replay().into_messages().map(Result::unwrap).collect();
+        let infos = replayed
+            .iter()
+            .filter(|m| m.kind() == LogMsgKind::SetStoreInfo);
+        assert_eq!(infos.count(), 2);
+        assert!(
+            replayed
+                .iter()
+                .all(|m| m.store_id().unwrap() != Some(ids[1].clone()))
+        );
+        hub.sanity_check().unwrap();
     }
 }

@@ -304,6 +304,7 @@ impl Harness {
                 self.drop_time_range(*timeline, *min, *max)?;
             }
             Op::DropEntity { entity, recursive } => self.drop_entity(*entity, *recursive)?,
+            Op::Retain { timeline, span } => self.retain_recent(*timeline, *span)?,
             Op::RrdRoundTrip { at } => self.check_rrd_round_trip(*at)?,
             Op::Run {
                 entity,
@@ -495,6 +496,49 @@ impl Harness {
         self.model
             .clears
             .retain(|(_, _, times, _)| !times.is_some_and(|times| in_range(times[timeline])));
+        Ok(())
+    }
+
+    /// Retention, checked against the model's own newest time on the timeline: the rows
+    /// (and Clears) below `newest − span` go, the newest time stays.
+    fn retain_recent(&mut self, timeline: usize, span: u64) -> Result<(), TestCaseError> {
+        let on_timeline = |timelines: u8| timelines & (1 << timeline) != 0;
+        let newest = self
+            .model
+            .rows
+            .iter()
+            .filter(|(_, timelines, _)| on_timeline(*timelines))
+            .map(|(_, _, row)| row.times[timeline])
+            .chain(
+                self.model
+                    .clears
+                    .iter()
+                    .filter_map(|(_, _, times, _)| times.and_then(|times| times[timeline])),
+            )
+            .max();
+        let name = TIMELINES[timeline].0;
+        let events = self.store.retain_recent(name, span);
+        self.replay(&events)?;
+        let Some(newest) = newest else {
+            prop_assert!(
+                events.is_empty(),
+                "retention dropped data from an empty timeline"
+            );
+            return Ok(());
+        };
+        let keep_from = i128::from(newest) - i128::from(span);
+        let old = |time: Option<i64>| time.is_some_and(|t| i128::from(t) < keep_from);
+        self.model.rows.retain(|(_, timelines, row)| {
+            !old(on_timeline(*timelines).then_some(row.times[timeline]))
+        });
+        self.model
+            .clears
+            .retain(|(_, _, times, _)| !times.is_some_and(|times| old(times[timeline])));
+        prop_assert_eq!(
+            self.store.time_range(name).map(|r| r.max().as_i64()),
+            Some(newest),
+            "retention moved the newest time"
+        );
         Ok(())
     }
 

@@ -240,11 +240,11 @@ proptest! {
                 }
             }
             // Nothing dropped or collected since: every row was held already.
-            if !ops.iter().any(|op| matches!(op, Op::Gc(_) | Op::DropTimeRange { .. } | Op::DropEntity { .. })) {
+            if !ops.iter().any(|op| matches!(op, Op::Gc(_) | Op::DropTimeRange { .. } | Op::DropEntity { .. } | Op::Retain { .. })) {
                 prop_assert_eq!(harness.store.to_string(), listing);
             }
             harness.full_sweep()?;
-            if !ops.iter().any(|op| matches!(op, Op::Gc(_) | Op::DropTimeRange { .. } | Op::DropEntity { .. })) {
+            if !ops.iter().any(|op| matches!(op, Op::Gc(_) | Op::DropTimeRange { .. } | Op::DropEntity { .. } | Op::Retain { .. })) {
                 prop_assert_eq!(all_answers(&harness.store), answers);
             }
         }
@@ -342,6 +342,36 @@ proptest! {
             let expected: Vec<_> = before
                 .into_iter()
                 .filter(|(_, times)| !times[timeline].is_some_and(|t| min <= t && t <= max))
+                .collect();
+            prop_assert_eq!(rows_held(&harness.store), expected);
+            harness.full_sweep()?;
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
+
+    /// Retention keeps exactly the rows at `newest − span` or later on the timeline (and
+    /// every row without it, static ones included), where `newest` is the latest time any
+    /// held row has there.
+    #[test]
+    fn retain_recent_keeps_exactly_the_last_span(
+        ops in ops(),
+        shuffles in shuffles(),
+        timeline in 0..3usize,
+        span in 0..8u64,
+    ) {
+        for config in CONFIGS {
+            let mut harness = run_with(config, &ops, &shuffles)?;
+            let before = rows_held(&harness.store);
+            let newest = before.iter().filter_map(|(_, times)| times[timeline]).max();
+            harness.apply(&Op::Retain { timeline, span }, &mut shuffles.iter().copied().cycle())?;
+            let expected: Vec<_> = before
+                .into_iter()
+                .filter(|(_, times)| {
+                    times[timeline].is_none_or(|t| newest.is_none_or(|n| i128::from(t) >= i128::from(n) - i128::from(span)))
+                })
                 .collect();
             prop_assert_eq!(rows_held(&harness.store), expected);
             harness.full_sweep()?;

@@ -57,6 +57,11 @@ pub(crate) enum Op {
         entity: usize,
         recursive: bool,
     },
+    /// Retention: `retain_recent(timeline, span)`.
+    Retain {
+        timeline: usize,
+        span: u64,
+    },
     /// On-demand compaction: `compact()`, or `compact_group_by_group` (whose events, one
     /// group's at a time, must replay as `compact()`'s do).
     Compact {
@@ -238,6 +243,7 @@ pub(crate) fn op() -> impl Strategy<Value = Op> {
             min,
             max: min.saturating_add(len),
         });
+    let retain = (0..3usize, 0..8u64).prop_map(|(timeline, span)| Op::Retain { timeline, span });
     let drop_entity = (0..ENTITIES.len(), any::<bool>())
         .prop_map(|(entity, recursive)| Op::DropEntity { entity, recursive });
     prop_oneof![
@@ -254,6 +260,7 @@ pub(crate) fn op() -> impl Strategy<Value = Op> {
         2 => gc,
         2 => drop_range,
         2 => drop_entity,
+        2 => retain,
         2 => any::<bool>().prop_map(|group_by_group| Op::Compact { group_by_group }),
         2 => query_time().prop_map(|at| Op::RrdRoundTrip { at }),
         4 => dataframe_op().prop_map(Op::Dataframe),
