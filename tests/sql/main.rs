@@ -29,6 +29,10 @@ use proptest::prelude::*;
 mod common;
 use common::assert_same_table;
 mod dataset;
+#[cfg(feature = "server")]
+mod lifecycle;
+#[cfg(feature = "server")]
+mod observe;
 mod segments;
 #[cfg(feature = "server")]
 mod server;

@@ -22,7 +22,8 @@ pub(super) const READ: &str = "/rerun.sdk_comms.v1alpha1.MessageProxyService/Rea
 
 /// The server, killed (SIGKILL) when dropped.
 pub(super) struct Server {
-    child: Child,
+    pub(super) child: Child,
+    /// `http://HOST:PORT`, or `https://…` when it speaks TLS.
     pub(super) url: String,
     stderr: PathBuf,
 }
@@ -42,9 +43,12 @@ impl Server {
         BufReader::new(child.stdout.take().unwrap())
             .read_line(&mut line)
             .unwrap();
-        let host = line
-            .trim()
-            .strip_prefix("listening on rerun+http://")
+        let line = line.trim();
+        let (scheme, rest) = match line.strip_prefix("listening on rerun+https://") {
+            Some(rest) => ("https", Some(rest)),
+            None => ("http", line.strip_prefix("listening on rerun+http://")),
+        };
+        let host = rest
             .and_then(|rest| rest.strip_suffix("/proxy"))
             .unwrap_or_else(|| {
                 panic!(
@@ -55,16 +59,16 @@ impl Server {
             .to_owned();
         Self {
             child,
-            url: format!("http://{host}"),
+            url: format!("{scheme}://{host}"),
             stderr,
         }
     }
 
-    fn stderr(&self) -> String {
+    pub(super) fn stderr(&self) -> String {
         std::fs::read_to_string(&self.stderr).unwrap_or_default()
     }
 
-    async fn channel(&self) -> Channel {
+    pub(super) async fn channel(&self) -> Channel {
         Channel::from_shared(self.url.clone())
             .unwrap()
             .connect()
@@ -81,9 +85,9 @@ impl Drop for Server {
 }
 
 #[derive(Clone, Copy, Default)]
-struct Raw;
-struct RawEncoder;
-struct RawDecoder;
+pub(super) struct Raw;
+pub(super) struct RawEncoder;
+pub(super) struct RawDecoder;
 
 impl Codec for Raw {
     type Encode = Vec<u8>;
@@ -117,11 +121,25 @@ impl Decoder for RawDecoder {
 
 /// One `WriteMessages` stream of `requests` (encoded envelopes).
 pub(super) async fn write(server: &Server, requests: Vec<Vec<u8>>) -> Result<(), tonic::Status> {
+    write_as(server, requests, None).await
+}
+
+/// One `WriteMessages` stream of `requests`, with `token` as a bearer token if given.
+pub(super) async fn write_as(
+    server: &Server,
+    requests: Vec<Vec<u8>>,
+    token: Option<&str>,
+) -> Result<(), tonic::Status> {
     let mut grpc = tonic::client::Grpc::new(server.channel().await);
     grpc.ready().await.unwrap();
-    let stream = futures::stream::iter(requests);
+    let mut request = tonic::Request::new(futures::stream::iter(requests));
+    if let Some(token) = token {
+        request
+            .metadata_mut()
+            .insert("authorization", format!("Bearer {token}").parse().unwrap());
+    }
     grpc.client_streaming::<_, Vec<u8>, Vec<u8>, _>(
-        tonic::Request::new(stream),
+        request,
         tonic::codegen::http::uri::PathAndQuery::from_static(WRITE),
         Raw,
     )
@@ -149,7 +167,7 @@ pub(super) async fn read_all(server: &Server) -> Vec<LogMsg> {
 }
 
 /// A query's batches through Flight SQL, with `token` as a bearer token if given.
-async fn query(
+pub(super) async fn query(
     server: &Server,
     sql: &str,
     token: Option<&str>,
@@ -169,7 +187,7 @@ async fn query(
 }
 
 /// `(segment, rows)` of `SELECT rerun_segment_id, count(*) ... GROUP BY 1 ORDER BY 1`.
-async fn counts(server: &Server, table: &str) -> Vec<(String, i64)> {
+pub(super) async fn counts(server: &Server, table: &str) -> Vec<(String, i64)> {
     let sql = format!("SELECT rerun_segment_id, count(*) AS n FROM {table} GROUP BY 1 ORDER BY 1");
     let batches = query(server, &sql, None).await.unwrap();
     let mut out = Vec::new();
@@ -470,7 +488,7 @@ fn sigterm_stops_the_server_while_a_follow_reader_is_connected() {
 }
 
 /// A `WriteMessages` stream that sends nothing until `release` is dropped, then `then`.
-fn open_idle_stream(
+pub(super) fn open_idle_stream(
     channel: Channel,
     then: Vec<Vec<u8>>,
 ) -> (

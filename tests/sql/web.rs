@@ -10,10 +10,10 @@ use chunkstore::rrd::{LogMsg, StoreId};
 use super::server::{READ, Server, WRITE, chunk_msg, info_msg, read_all, runtime, temp_dir};
 
 /// An HTTP/1.1 answer: status, headers (names in lower case) and body (de-chunked).
-struct Answer {
-    status: u16,
+pub(super) struct Answer {
+    pub(super) status: u16,
     headers: Vec<(String, String)>,
-    body: Vec<u8>,
+    pub(super) body: Vec<u8>,
 }
 
 impl Answer {
@@ -25,7 +25,7 @@ impl Answer {
     }
 }
 
-/// One request on a connection of its own (`Connection: close`).
+/// One request to the server on a connection of its own (`Connection: close`).
 fn http1(
     server: &Server,
     method: &str,
@@ -33,7 +33,23 @@ fn http1(
     headers: &[(&str, &str)],
     body: &[u8],
 ) -> Answer {
-    let host = server.url.trim_start_matches("http://");
+    http1_to(
+        server.url.trim_start_matches("http://"),
+        method,
+        path,
+        headers,
+        body,
+    )
+}
+
+/// One request to `host` (`HOST:PORT`) on a connection of its own.
+pub(super) fn http1_to(
+    host: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Answer {
     let mut stream = std::net::TcpStream::connect(host).unwrap();
     let mut request = format!("{method} {path} HTTP/1.1\r\nhost: {host}\r\nconnection: close\r\n");
     for (name, value) in headers {

@@ -72,7 +72,7 @@ pub fn peer_name(peer: Option<SocketAddr>) -> String {
 
 /// One line on stderr for a stream refused or ended.
 pub fn log_refusal(peer: Option<SocketAddr>, status: &Status) {
-    eprintln!(
+    tracing::warn!(
         "log stream from {} ended: {} ({:?})",
         peer_name(peer),
         status.message(),
@@ -87,6 +87,11 @@ impl Admission {
             slots: Arc::new(Semaphore::new(max_streams)),
             streams: Mutex::new(Streams::default()),
         })
+    }
+
+    /// Streams admitted and still open.
+    pub fn open_streams(&self) -> usize {
+        self.streams.lock().open.len()
     }
 
     /// Admits a stream from `peer`, or says why not. When every slot is taken, the stream

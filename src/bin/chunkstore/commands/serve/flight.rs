@@ -31,8 +31,11 @@ use futures::{Stream, StreamExt as _, TryStreamExt as _};
 use prost::Message as _;
 use tonic::{Request, Response, Status};
 
-use super::ServerState;
 use super::statement::{Statement, StatementTicket, parameter_schema, schema_bytes};
+use super::{ServerState, recordings};
+
+/// Flight's gRPC service name (Flight SQL is carried in it).
+pub const SERVICE: &str = <arrow_flight::flight_service_server::FlightServiceServer<SqlService> as tonic::server::NamedService>::NAME;
 
 const CATALOG: &str = "datafusion";
 const SCHEMA: &str = "public";
@@ -55,14 +58,19 @@ impl SqlService {
     fn session(&self) -> Result<SessionContext, Status> {
         let ctx =
             SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
-        let segments: Vec<(String, chunkstore::Snapshot)> = self
-            .state
-            .hub
-            .recordings()
-            .into_iter()
-            .map(|r| (r.info.store_id.recording_id.to_string(), r.snapshot))
+        let recordings = self.state.hub.recordings();
+        let segments: Vec<(String, chunkstore::Snapshot)> = recordings
+            .iter()
+            .map(|r| (r.info.store_id.recording_id.to_string(), r.snapshot.clone()))
             .collect();
         chunkstore::sql::register_segments(&ctx, &segments).map_err(query_error)?;
+        // A timeline named `recordings` keeps its table.
+        if !ctx.table_exist(recordings::TABLE).map_err(query_error)? {
+            let table = recordings::table(&recordings)
+                .map_err(|e| Status::internal(format!("the recordings table: {e}")))?;
+            ctx.register_batch(recordings::TABLE, table)
+                .map_err(query_error)?;
+        }
         Ok(ctx)
     }
 
@@ -88,6 +96,7 @@ impl SqlService {
     ) -> Result<datafusion::dataframe::DataFrame, Status> {
         let ctx = self.session()?;
         let statement = statement.clone();
+        let state = Arc::clone(&self.state);
         self.on_queries(async move {
             let frame = ctx.sql(&statement.numbered_sql()).await.map_err(|error| {
                 unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error))
@@ -98,6 +107,7 @@ impl SqlService {
             }
         })
         .await
+        .inspect_err(|_| state.metrics.query_failed())
     }
 
     async fn statement_info(
@@ -130,7 +140,9 @@ impl SqlService {
         advertised: Option<Arc<Schema>>,
     ) -> Result<Response<DoGetStream>, Status> {
         let sql = &statement.sql;
+        let started = std::time::Instant::now();
         let mut planning = Abandoned::new(sql, "while it was planned");
+        // A plan that fails is counted by `plan`.
         let frame = self.plan(statement).await?;
         let planned = Arc::new(frame.schema().as_arrow().clone());
         let (plan, task) = self
@@ -139,7 +151,8 @@ impl SqlService {
                 let plan = frame.create_physical_plan().await.map_err(query_error)?;
                 Ok((plan, task))
             })
-            .await?;
+            .await
+            .inspect_err(|_| self.state.metrics.query_failed())?;
         planning.finished = true;
         // Run on a task of its own, batches handed over through a small channel: an
         // operator that computes for minutes inside one poll (an aggregate over a cross
@@ -167,6 +180,9 @@ impl SqlService {
             abandoned: Abandoned::new(sql, "before the query's end"),
             producer,
             batches: 0,
+            state: Arc::clone(&self.state),
+            started,
+            failed: false,
         };
         let (schema, batches): (_, DoGetBatches) = match advertised {
             Some(advertised) if advertised.fields() != planned.fields() => {
@@ -212,9 +228,10 @@ impl Abandoned {
 impl Drop for Abandoned {
     fn drop(&mut self) {
         if !self.finished {
-            eprintln!(
+            tracing::info!(
                 "query stopped: its client left {} ({})",
-                self.when, self.sql
+                self.when,
+                self.sql
             );
         }
     }
@@ -228,6 +245,10 @@ struct Watched {
     /// The task that runs the query.
     producer: tokio::task::JoinHandle<()>,
     batches: u64,
+    /// Where the query's latency and failure are counted.
+    state: Arc<ServerState>,
+    started: std::time::Instant,
+    failed: bool,
 }
 
 impl Drop for Watched {
@@ -245,8 +266,17 @@ impl Stream for Watched {
     ) -> std::task::Poll<Option<Self::Item>> {
         let polled = Pin::new(&mut self.inner).poll_next(cx);
         match &polled {
-            std::task::Poll::Ready(None) => self.abandoned.finished = true,
-            std::task::Poll::Ready(Some(_)) => self.batches += 1,
+            std::task::Poll::Ready(None) => {
+                self.abandoned.finished = true;
+                if !self.failed {
+                    self.state.metrics.queries.observe(self.started.elapsed());
+                }
+            }
+            std::task::Poll::Ready(Some(Err(_))) => {
+                self.failed = true;
+                self.state.metrics.query_failed();
+            }
+            std::task::Poll::Ready(Some(Ok(_))) => self.batches += 1,
             std::task::Poll::Pending => {}
         }
         polled
@@ -562,4 +592,44 @@ impl FlightSqlService for SqlService {
     }
 
     async fn register_sql_info(&self, _id: i32, _result: &SqlInfo) {}
+
+    /// [`recordings::DROP_ACTION`]: drops a recording (behind the token, as every call).
+    async fn do_action_fallback(
+        &self,
+        request: Request<arrow_flight::Action>,
+    ) -> Result<
+        Response<<Self as arrow_flight::flight_service_server::FlightService>::DoActionStream>,
+        Status,
+    > {
+        let action = request.into_inner();
+        if action.r#type != recordings::DROP_ACTION {
+            return Err(Status::invalid_argument(format!(
+                "unknown action {:?}: this server's own is {:?}",
+                action.r#type,
+                recordings::DROP_ACTION
+            )));
+        }
+        let id = std::str::from_utf8(&action.body)
+            .map_err(|_| Status::invalid_argument("a recording id is UTF-8 text"))?
+            .to_owned();
+        let state = Arc::clone(&self.state);
+        let dropped = tokio::task::spawn_blocking(move || state.drop_recording(&id))
+            .await
+            .map_err(|e| Status::internal(format!("a server task failed: {e}")))??;
+        let result = arrow_flight::Result {
+            body: dropped.into(),
+        };
+        Ok(Response::new(Box::pin(futures::stream::once(async move {
+            Ok(result)
+        }))))
+    }
+
+    async fn list_custom_actions(&self) -> Option<Vec<Result<arrow_flight::ActionType, Status>>> {
+        Some(vec![Ok(arrow_flight::ActionType {
+            r#type: recordings::DROP_ACTION.to_owned(),
+            description: "Drops a recording from memory and from the --persist log; the body \
+                          is its recording id (rerun_segment_id)."
+                .to_owned(),
+        })])
+    }
 }

@@ -1,12 +1,18 @@
 //! `chunkstore serve`: Rerun's gRPC log protocol in ([`proxy`]), Arrow Flight SQL out
-//! ([`flight`]), on one port, over a [`StoreHub`]; with `--persist`, an append-only `.rrd`
-//! log that every acknowledged message is in ([`persist`]). `docs/SERVER.md` is the
+//! ([`flight`]), on one port ([`listen`]), over a [`StoreHub`]; with `--persist`, an
+//! append-only `.rrd` log that every acknowledged message is in ([`persist`]); what it is
+//! doing in [`metrics`] and log lines (`tracing`, `RUST_LOG`). `docs/SERVER.md` is the
 //! user's page.
 
 mod admission;
 mod flight;
+mod http;
+mod listen;
+mod metrics;
 mod persist;
 mod proxy;
+mod recordings;
+mod retention;
 mod statement;
 mod web;
 mod write;
@@ -29,7 +35,8 @@ const SERVE_EXAMPLES: &str = "\
 Examples:
   chunkstore serve
   chunkstore serve robot.rrd --persist live.rrd --memory-limit 2GiB
-  chunkstore serve --addr 0.0.0.0:9876 --token s3cret
+  chunkstore serve --addr 0.0.0.0:9876 --token s3cret --tls-cert cert.pem --tls-key key.pem
+  chunkstore serve --metrics-addr 127.0.0.1:9100
 
 Log into it from Rerun's SDK (Python):
   rr.init(\"robot\"); rr.connect_grpc(\"rerun+http://127.0.0.1:9876/proxy\")
@@ -41,7 +48,9 @@ Save what it holds with Rerun's CLI (with --read-mode snapshot, which ends the r
 A token (--token) protects every call: Flight SQL clients send it as
 `authorization: Bearer TOKEN`. Rerun's SDK cannot send one, so a token-protected server
 takes no logging from it: use a token for a server that only answers queries (of
-preloaded SOURCEs or a --persist log), or keep the default loopback address.";
+preloaded SOURCEs or a --persist log), or keep the default loopback address.
+
+Log lines go to stderr; RUST_LOG sets their level (`warn`, `info` the default, `debug`).";
 
 /// Serve recordings live: Rerun SDKs log into it (Rerun's gRPC proxy protocol) and SQL
 /// clients query it (Arrow Flight SQL), on one port.
@@ -84,6 +93,22 @@ pub struct ServeArgs {
     /// machine (`localhost`, `127.0.0.1`, `[::1]`, any port); `*` allows any; repeatable.
     #[arg(long = "cors-allow-origin", value_name = "ORIGIN")]
     pub cors_allow_origins: Vec<String>,
+    /// Speak TLS with this certificate chain (PEM); clients then connect to
+    /// `rerun+https://` and `grpc+tls://`. Needs --tls-key.
+    #[arg(long, value_name = "FILE.pem", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM: PKCS#8, PKCS#1 or SEC1).
+    #[arg(long, value_name = "FILE.pem", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Keep only the last SPAN of data behind the newest time: `1h` on every time
+    /// timeline (timestamps, durations), `frame=100000` or `log_time=30m` on one
+    /// timeline; repeatable, a named timeline's rule wins. Applied once a second.
+    #[arg(long, value_name = "[TIMELINE=]SPAN", value_parser = retention::parse_rule)]
+    pub retention: Vec<retention::Rule>,
+    /// Answer Prometheus (`GET /metrics`) and HTTP probes (`GET /health`) on this
+    /// address, plain HTTP without the token (keep it on a private network).
+    #[arg(long, value_name = "HOST:PORT", value_parser = parse_addr)]
+    pub metrics_addr: Option<SocketAddr>,
     /// An option of the object store a URL SOURCE is in, as for any command
     /// (`aws_endpoint=URL`, …); repeatable.
     #[arg(long = "storage-option", value_name = "KEY=VALUE", value_parser = chunkstore::storage::StorageOptions::parse_pair)]
@@ -197,6 +222,10 @@ pub struct ServerState {
     collecting: AtomicBool,
     /// A log rewrite is under way.
     rewriting: AtomicBool,
+    /// What the server has done, for `--metrics-addr`.
+    pub metrics: metrics::Metrics,
+    /// `--retention`.
+    retention: Vec<retention::Rule>,
 }
 
 impl ServerState {
@@ -218,26 +247,122 @@ impl ServerState {
         // One collection at a time: two streams crossing the limit together would each
         // collect the whole excess. Under the budget, it measures and returns.
         if !self.collecting.swap(true, Ordering::AcqRel) {
-            self.hub.collect_garbage(store_budget(limit));
+            self.collect_garbage(limit);
             self.collecting.store(false, Ordering::Release);
         }
+        self.rewrite_log_if_large();
+    }
+
+    /// Rewrites the log, on a thread of its own, once it holds much more than the stores
+    /// (more than four times the memory limit, or without one, four times what the stores
+    /// hold, and at least 64 MiB): garbage collection and retention dropped the rest.
+    pub fn rewrite_log_if_large(self: &Arc<Self>) {
+        let base = self.memory_limit.unwrap_or_else(|| self.hub.heap_bytes());
         if let Some(log) = &self.persist
-            && log.len() > limit.saturating_mul(4).max(64 << 20)
+            && log.len() > base.saturating_mul(4).max(64 << 20)
             && !self.rewriting.swap(true, Ordering::AcqRel)
         {
             let state = Arc::clone(self);
             let log = Arc::clone(log);
             std::thread::spawn(move || {
                 match log.rewrite(&state.hub) {
-                    Ok((before, after)) => eprintln!(
-                        "rewrote {}: {before} bytes to {after} (what the stores hold)",
-                        log.path().display()
-                    ),
-                    Err(e) => eprintln!("warning: rewriting {}: {e}", log.path().display()),
+                    Ok((before, after)) => {
+                        state.metrics.log_rewritten();
+                        tracing::info!(
+                            "rewrote {}: {before} bytes to {after} (what the stores hold)",
+                            log.path().display()
+                        );
+                    }
+                    Err(e) => tracing::warn!("rewriting {}: {e}", log.path().display()),
                 }
                 state.rewriting.store(false, Ordering::Release);
             });
         }
+    }
+}
+
+impl ServerState {
+    /// Drops the recordings of `recording_id` and, with a log, rewrites it without them
+    /// before returning, so that a restart does not bring them back. Returns a line
+    /// saying what was dropped. Blocking (the rewrite).
+    pub fn drop_recording(&self, recording_id: &str) -> Result<String, tonic::Status> {
+        let dropped = self.hub.drop_recording(recording_id);
+        if dropped.is_empty() {
+            return Err(tonic::Status::not_found(format!(
+                "no recording {recording_id:?} here (SELECT rerun_segment_id FROM recordings)"
+            )));
+        }
+        if let Some(log) = &self.persist {
+            // One rewrite at a time: wait for one under way.
+            while self.rewriting.swap(true, Ordering::AcqRel) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let rewritten = log.rewrite(&self.hub);
+            self.rewriting.store(false, Ordering::Release);
+            if let Err(e) = rewritten {
+                return Err(tonic::Status::unavailable(format!(
+                    "dropped {recording_id:?} from memory, but rewriting {} failed ({e}): it \
+                     comes back on restart",
+                    log.path().display()
+                )));
+            }
+        }
+        let line = format!(
+            "dropped recording {recording_id:?} ({} stores)",
+            dropped.len()
+        );
+        tracing::info!("{line}");
+        Ok(line)
+    }
+
+    /// Whether `--retention` was given.
+    pub fn has_retention(&self) -> bool {
+        !self.retention.is_empty()
+    }
+
+    /// Applies `--retention` to every recording (blocking: it rewrites chunks).
+    pub fn apply_retention(&self) {
+        if self.retention.is_empty() {
+            return;
+        }
+        let removed = self
+            .hub
+            .retain_recent(|timeline| retention::span_of(&self.retention, timeline));
+        if removed > 0 {
+            self.metrics.retained(removed);
+            tracing::debug!("retention: removed {removed} chunks of data older than its span");
+        }
+    }
+
+    /// Brings the stores under their share of `limit`; a pass that dropped data is
+    /// counted and leaves a log line.
+    fn collect_garbage(&self, limit: u64) {
+        let outcome = self.hub.collect_garbage(store_budget(limit));
+        if outcome.chunks_dropped > 0 {
+            let freed = outcome.bytes_before.saturating_sub(outcome.bytes_after);
+            self.metrics.collected(freed, outcome.chunks_dropped);
+            tracing::info!(
+                "garbage collection: dropped {} chunks, {freed} bytes; the stores hold {} \
+                 bytes of {}",
+                outcome.chunks_dropped,
+                outcome.bytes_after,
+                store_budget(limit)
+            );
+        }
+    }
+
+    /// The metrics, with the figures of this moment.
+    pub fn metrics_text(&self) -> String {
+        let gauges = metrics::Gauges {
+            store_bytes: self.hub.heap_bytes(),
+            store_budget: self.memory_limit.map(store_budget),
+            memory_limit: self.memory_limit,
+            recordings: self.hub.recording_count(),
+            write_streams: self.admission.open_streams(),
+            log_bytes: self.persist.as_ref().map(|log| log.len()),
+        };
+        self.metrics
+            .render(&gauges, self.persist.as_ref().map(|log| log.sync_latency()))
     }
 }
 
@@ -249,6 +374,8 @@ pub struct StateOptions {
     pub max_message_bytes: usize,
     /// Of the object store URL sources are in.
     pub storage: chunkstore::storage::StorageOptions,
+    /// `--retention`.
+    pub retention: Vec<retention::Rule>,
 }
 
 impl ServerState {
@@ -281,7 +408,7 @@ impl ServerState {
         if let Some(log) = &persist {
             let report = log.replay_into(&hub);
             if report.messages > 0 || report.skipped > 0 {
-                eprintln!(
+                tracing::info!(
                     "read {} messages back from {}{}",
                     report.messages,
                     log.path().display(),
@@ -293,10 +420,7 @@ impl ServerState {
                 );
             }
         }
-        if let Some(limit) = options.memory_limit {
-            hub.collect_garbage(store_budget(limit));
-        }
-        Ok(Arc::new(Self {
+        let state = Arc::new(Self {
             hub,
             live,
             persist,
@@ -311,7 +435,14 @@ impl ServerState {
             bytes_since_check: AtomicU64::new(0),
             collecting: AtomicBool::new(false),
             rewriting: AtomicBool::new(false),
-        }))
+            metrics: metrics::Metrics::default(),
+            retention: options.retention.clone(),
+        });
+        state.apply_retention();
+        if let Some(limit) = options.memory_limit {
+            state.collect_garbage(limit);
+        }
+        Ok(state)
     }
 }
 
@@ -323,6 +454,10 @@ pub fn main(args: &[OsString]) -> ExitCode {
         Ok(parsed) => parsed,
         Err(error) => return crate::usage_error(&error),
     };
+    if let Err(message) = start_logging() {
+        eprintln!("error: {}", crate::one_line(&message));
+        return ExitCode::from(2);
+    }
     match run(&parsed) {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
@@ -340,6 +475,18 @@ fn run(args: &ServeArgs) -> Result<(), String> {
     if args.token.as_deref() == Some("") {
         return Err("--token must not be empty".to_owned());
     }
+    let tls = match (&args.tls_cert, &args.tls_key) {
+        (Some(cert), Some(key)) => {
+            let read = |path: &PathBuf| {
+                std::fs::read(path).map_err(|e| crate::about_path(path, e.to_string()))
+            };
+            Some(tonic::transport::Identity::from_pem(
+                read(cert)?,
+                read(key)?,
+            ))
+        }
+        _ => None,
+    };
     let persist = match &args.persist {
         Some(path) => Some(Arc::new(persist::PersistLog::create_or_append(path)?)),
         None => None,
@@ -353,12 +500,19 @@ fn run(args: &ServeArgs) -> Result<(), String> {
             max_write_streams: args.max_write_streams,
             max_message_bytes,
             storage: args.storage_options.iter().cloned().collect(),
+            retention: args.retention.clone(),
         },
     )?;
     if args.token.is_none() && !args.addr.ip().is_loopback() {
-        eprintln!(
-            "warning: listening on {} without --token: anyone who reaches this address can \
-             read and write every recording",
+        tracing::warn!(
+            "listening on {} without --token: anyone who reaches this address can read and \
+             write every recording",
+            args.addr
+        );
+    } else if tls.is_none() && !args.addr.ip().is_loopback() {
+        tracing::warn!(
+            "listening on {} without TLS: the token and the data cross the network in \
+             clear (--tls-cert, --tls-key)",
             args.addr
         );
     }
@@ -374,20 +528,38 @@ fn run(args: &ServeArgs) -> Result<(), String> {
         .enable_all()
         .build()
         .map_err(|e| format!("starting the query runtime: {e}"))?;
-    let stop = stop_signal()?;
-    let served = runtime.block_on(serve(
-        state,
-        args.addr,
-        args.token.clone(),
-        stop,
-        queries.handle().clone(),
-        (stream_window, connection_window),
-        web::AllowedOrigins::new(&args.cors_allow_origins),
-    ));
+    let stop = listen::stop_signal()?;
+    let listen = listen::Listen {
+        addr: args.addr,
+        token: args.token.clone(),
+        tls,
+        windows: (stream_window, connection_window),
+        origins: web::AllowedOrigins::new(&args.cors_allow_origins),
+        metrics_addr: args.metrics_addr,
+    };
+    let served = runtime.block_on(listen::serve(state, listen, stop, queries.handle().clone()));
     queries.shutdown_background();
     // A history still being read out on a blocking thread is not waited for.
     runtime.shutdown_timeout(SHUTDOWN_GRACE);
     served
+}
+
+/// Log lines to stderr, at the level `RUST_LOG` names (`info` without it), with no
+/// colours (they often go to a file).
+fn start_logging() -> Result<(), String> {
+    use tracing_subscriber::EnvFilter;
+    let filter = match std::env::var("RUST_LOG") {
+        Ok(directives) if !directives.is_empty() => EnvFilter::try_new(&directives)
+            .map_err(|e| format!("RUST_LOG={directives:?} is not a log filter: {e}"))?,
+        _ => EnvFilter::new("info"),
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .with_target(false)
+        .try_init()
+        .map_err(|e| format!("starting the log: {e}"))
 }
 
 /// Loads one SOURCE into the hub: an `.rrd` file message by message (every recording and
@@ -423,170 +595,6 @@ fn preload(
     });
     hub.adopt(info, loaded.store)
         .map_err(|e| crate::about_path(source, e))
-}
-
-/// Waits for SIGTERM or Ctrl-C on a thread of its own, so that a runtime whose threads
-/// are all busy (a query's CPU work) still hears it; then notifies the returned handle, and
-/// if the process has not ended [`SHUTDOWN_GRACE`] and two seconds later, ends it.
-fn stop_signal() -> Result<Arc<tokio::sync::Notify>, String> {
-    let stop = Arc::new(tokio::sync::Notify::new());
-    let notify = Arc::clone(&stop);
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| format!("starting the signal thread: {e}"))?;
-    // Registered before this returns: a signal from now on is heard.
-    let mut terminate = runtime
-        .block_on(async {
-            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        })
-        .map_err(|e| format!("listening for SIGTERM: {e}"))?;
-    std::thread::Builder::new()
-        .name("stop-signal".to_owned())
-        .spawn(move || {
-            runtime.block_on(async {
-                tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
-                    _ = terminate.recv() => {}
-                }
-            });
-            notify.notify_one();
-            std::thread::sleep(SHUTDOWN_GRACE + Duration::from_secs(2));
-            eprintln!("warning: the server did not stop in time after the stop signal; exiting");
-            std::process::exit(1);
-        })
-        .map_err(|e| format!("starting the signal thread: {e}"))?;
-    Ok(stop)
-}
-
-/// The lines a started server prints: on stderr, notes and the Flight SQL URL; then on
-/// stdout the URL loggers connect to, which is how a script learns the port.
-fn announce(local: SocketAddr, read_mode: ReadMode) {
-    // On every interface (0.0.0.0, ::), clients connect to one of the machine's own
-    // addresses: the line shows loopback, which works here.
-    let shown = if local.ip().is_unspecified() {
-        let loopback: std::net::IpAddr = if local.is_ipv4() {
-            std::net::Ipv4Addr::LOCALHOST.into()
-        } else {
-            std::net::Ipv6Addr::LOCALHOST.into()
-        };
-        SocketAddr::new(loopback, local.port())
-    } else {
-        local
-    };
-    // Notes first: a script that reads the line below may stop the server at once.
-    if local.ip().is_unspecified() {
-        eprintln!(
-            "listening on every interface ({local}): from other machines, use this one's \
-             address with port {}",
-            local.port()
-        );
-    }
-    if read_mode == ReadMode::Follow {
-        eprintln!(
-            "readers follow live data until they leave: `rerun --save FILE --connect` keeps \
-             running (stop it with Ctrl-C), or start the server with --read-mode snapshot"
-        );
-    }
-    eprintln!("Flight SQL on grpc://{shown}");
-    println!("listening on rerun+http://{shown}/proxy");
-    // The line above is how a script learns the port: make sure it is out.
-    {
-        use std::io::Write as _;
-        let _ = std::io::stdout().flush();
-    }
-}
-
-async fn serve(
-    state: Arc<ServerState>,
-    addr: SocketAddr,
-    token: Option<String>,
-    stop: Arc<tokio::sync::Notify>,
-    queries: tokio::runtime::Handle,
-    (stream_window, connection_window): (u32, u32),
-    origins: web::AllowedOrigins,
-) -> Result<(), String> {
-    let listener = tokio::net::TcpListener::bind(addr)
-        .await
-        .map_err(|e| format!("listening on {addr}: {e}"))?;
-    let local = listener
-        .local_addr()
-        .map_err(|e| format!("listening on {addr}: {e}"))?;
-    announce(local, state.read_mode);
-    if let Some(log) = state.persist.clone() {
-        let state = Arc::clone(&state);
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_secs(1));
-            loop {
-                tick.tick().await;
-                let log = Arc::clone(&log);
-                let state = Arc::clone(&state);
-                let _ = tokio::task::spawn_blocking(move || {
-                    if let Err(e) = log.sync_if_dirty() {
-                        eprintln!("warning: syncing {}: {e}", log.path().display());
-                        state.recover_log();
-                    }
-                })
-                .await;
-            }
-        });
-    }
-    let auth = proxy::BearerCheck::new(token);
-    let proxy_service = tonic::service::interceptor::InterceptedService::new(
-        proxy::ProxyService::new(Arc::clone(&state)),
-        auth.clone(),
-    );
-    let flight_service = tonic::service::interceptor::InterceptedService::new(
-        arrow_flight::flight_service_server::FlightServiceServer::new(flight::SqlService::new(
-            Arc::clone(&state),
-            queries,
-        ))
-        .max_decoding_message_size(state.max_message_bytes)
-        .max_encoding_message_size(usize::MAX),
-        auth,
-    );
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
-    let stopping = Arc::clone(&state);
-    let shutdown = async move {
-        stop.notified().await;
-        // Live readers end their streams, so that the graceful stop does not wait for
-        // them (a follow reader never ends by itself).
-        stopping.stopping.send_replace(true);
-    };
-    // HTTP/2's default flow-control windows (64 KiB) let a client send one window, then
-    // wait a round trip for more: an SDK streaming 60 kB chunks ran at a third of its
-    // speed. Large windows let it stream; a write stream still holds one message at a time.
-    // A browser speaks grpc-web over HTTP/1.1 (or HTTP/2) on the same port: CORS answers
-    // its preflights first, then grpc-web calls are translated to gRPC.
-    let server = tonic::transport::Server::builder()
-        .tcp_nodelay(true)
-        .initial_stream_window_size(Some(stream_window))
-        .initial_connection_window_size(Some(connection_window))
-        .accept_http1(true)
-        .layer(origins.layer())
-        .layer(tonic_web::GrpcWebLayer::new())
-        .add_service(proxy_service)
-        .add_service(flight_service)
-        .serve_with_incoming_shutdown(incoming, shutdown);
-    let mut stopped = state.stopping.subscribe();
-    let outcome = tokio::select! {
-        result = server => result,
-        () = async {
-            let _ = stopped.wait_for(|stopping| *stopping).await;
-            tokio::time::sleep(SHUTDOWN_GRACE).await;
-        } => {
-            eprintln!(
-                "warning: calls still open {} s after the stop signal were cut off",
-                SHUTDOWN_GRACE.as_secs()
-            );
-            Ok(())
-        }
-    };
-    if let Some(log) = &state.persist {
-        log.sync()
-            .map_err(|e| format!("{}: {e}", log.path().display()))?;
-    }
-    outcome.map_err(|e| format!("serving on {local}: {e}"))
 }
 
 #[cfg(test)]

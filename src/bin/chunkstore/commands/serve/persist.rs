@@ -34,6 +34,8 @@ use chunkstore::hub::StoreHub;
 use chunkstore::rrd::{LogMsg, log_stream_header, scan_log};
 use parking_lot::Mutex;
 
+use super::metrics::Histogram;
+
 /// Frames smaller than this are gathered in memory and written together.
 const BUFFER_CAPACITY: usize = 1 << 20;
 
@@ -139,6 +141,8 @@ pub struct PersistLog {
     /// Held for the whole of a sync: one at a time, so that one's success never follows
     /// another's unreported failure on the same file.
     sync_lock: Mutex<()>,
+    /// How long syncs take.
+    sync_latency: Histogram,
 }
 
 struct LogFile {
@@ -256,8 +260,8 @@ impl PersistLog {
                     scan.valid_len
                 ));
             }
-            eprintln!(
-                "warning: {name}: dropped a torn last message ({} bytes from byte {}, a write \
+            tracing::warn!(
+                "{name}: dropped a torn last message ({} bytes from byte {}, a write \
                  cut short): {fault}",
                 total - scan.valid_len,
                 scan.valid_len
@@ -286,6 +290,7 @@ impl PersistLog {
             path: path.to_owned(),
             file: Mutex::new(log),
             sync_lock: Mutex::new(()),
+            sync_latency: Histogram::default(),
         };
         persist.sync().map_err(|e| format!("{name}: {e}"))?;
         Ok(persist)
@@ -330,7 +335,7 @@ impl PersistLog {
                 Ok(_) => report.messages += 1,
                 Err(e) => {
                     report.skipped += 1;
-                    eprintln!("warning: {}: message {i} skipped: {e}", self.path.display());
+                    tracing::warn!("{}: message {i} skipped: {e}", self.path.display());
                 }
             }
         }
@@ -377,7 +382,9 @@ impl PersistLog {
             file.flush()?;
             (file.written, file.epoch, file.device.syncer())
         };
+        let started = std::time::Instant::now();
         let outcome = syncer();
+        self.sync_latency.observe(started.elapsed());
         let mut file = self.file.lock();
         if let Err(e) = outcome {
             if file.epoch == epoch && file.failed.is_none() {
@@ -393,6 +400,11 @@ impl PersistLog {
         file.refuse()?;
         file.synced = file.synced.max(target);
         Ok(epoch)
+    }
+
+    /// How long syncs took.
+    pub fn sync_latency(&self) -> &Histogram {
+        &self.sync_latency
     }
 
     /// [`PersistLog::sync`] if anything was appended since the last.

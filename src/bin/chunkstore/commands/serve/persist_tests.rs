@@ -304,6 +304,7 @@ fn options() -> StateOptions {
         max_write_streams: 8,
         max_message_bytes: 1 << 20,
         storage: chunkstore::storage::StorageOptions::default(),
+        retention: Vec::new(),
     }
 }
 

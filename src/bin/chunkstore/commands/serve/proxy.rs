@@ -28,7 +28,8 @@ use super::admission;
 use super::write::blocking;
 use super::{Live, ReadMode, ServerState};
 
-const SERVICE: &str = "rerun.sdk_comms.v1alpha1.MessageProxyService";
+/// The service's gRPC name.
+pub const SERVICE: &str = "rerun.sdk_comms.v1alpha1.MessageProxyService";
 
 /// Passes message bytes through: requests arrive as [`Buffer`]s (no copy past tonic's
 /// own), responses leave as encoded bytes.
@@ -172,7 +173,15 @@ async fn write_messages(
         loop {
             let first = writer.index == 0;
             let next = tokio::select! {
-                next = stream.message() => next?,
+                // A client gone mid-stream (reset, broken connection) is named as such.
+                next = stream.message() => next.map_err(|status| Status::new(
+                    status.code(),
+                    format!(
+                        "the client's stream broke after {} messages: {}",
+                        writer.index,
+                        status.message()
+                    ),
+                ))?,
                 () = admitted.give_way.notified() => {
                     return Err(Status::unavailable(format!(
                         "ended to make room for a new log stream after {} s or more without \
@@ -192,6 +201,7 @@ async fn write_messages(
             };
             admitted.touch();
             let msg = LogMsg::decode_envelope(&bytes).map_err(|e| {
+                state.metrics.refused("");
                 Status::invalid_argument(format!("message {} of this stream: {e}", writer.index))
             })?;
             // What the stores grow by: a compressed body may decode to many times its size.
@@ -243,7 +253,9 @@ fn read_messages(state: &Arc<ServerState>) -> MessageStream {
     let mut stopping = state.stopping.subscribe();
     let replay = state.hub.replay();
     let follow = state.read_mode == ReadMode::Follow;
+    let counted = Arc::clone(state);
     tokio::spawn(async move {
+        let _open = counted.metrics.read_stream();
         let history_seq = replay.seq;
         let history_tx = tx.clone();
         let sent = tokio::task::spawn_blocking(move || {

@@ -7,11 +7,11 @@
 use std::sync::Arc;
 
 use chunkstore::hub::IngestError;
-use chunkstore::rrd::LogMsg;
+use chunkstore::rrd::{DecodedLogMsg, LogMsg};
 use tonic::Status;
 
 use super::persist::RollBack;
-use super::{Live, ServerState, preload, store_budget};
+use super::{Live, ServerState, preload};
 
 /// One write stream's progress.
 pub struct WriteStream {
@@ -64,6 +64,17 @@ impl ServerState {
     /// [`ServerState::recover_log`] if [`ServerState::log_failed`] (off the async
     /// threads: it may rebuild memory).
     pub fn write(&self, stream: &mut WriteStream, msg: &LogMsg) -> Result<(), Status> {
+        // Decoded here rather than by the hub, to count rows by recording.
+        let decoded = msg.decode().map_err(IngestError::Decode);
+        let (recording, rows) = match &decoded {
+            Ok(DecodedLogMsg::Chunk { store_id, chunk }) => {
+                (Some(&store_id.recording_id), chunk.num_rows() as u64)
+            }
+            Ok(DecodedLogMsg::StoreInfo(info)) => (Some(&info.store_id.recording_id), 0),
+            Ok(DecodedLogMsg::BlueprintChunk { store_id }) => (Some(&store_id.recording_id), 0),
+            _ => (None, 0),
+        };
+        let recording: Arc<str> = recording.map_or_else(|| Arc::from(""), Arc::clone);
         let ingested = {
             let _gate = self.write_gate.read();
             if let Some(log) = &self.persist {
@@ -71,23 +82,25 @@ impl ServerState {
                 if *stream.epoch.get_or_insert(epoch) != epoch || log.failure().is_some() {
                     Err(None)
                 } else {
-                    self.hub.ingest(msg).map_err(Some)
+                    decoded.and_then(|d| self.hub.apply(msg, d)).map_err(Some)
                 }
             } else {
-                self.hub.ingest(msg).map_err(Some)
+                decoded.and_then(|d| self.hub.apply(msg, d)).map_err(Some)
             }
         };
         let index = stream.index;
         match ingested {
             Ok(_) => {
                 stream.index += 1;
+                self.metrics.ingested(&recording, rows, msg.decoded_len());
                 Ok(())
             }
             Err(None) => Err(rolled_back(index)),
             Err(Some(error)) => {
+                self.metrics.refused(&recording);
                 let status = refused(index, &error);
                 if matches!(error, IngestError::Listener(_)) {
-                    eprintln!("warning: {}", status.message());
+                    tracing::warn!("{}", status.message());
                 }
                 Err(status)
             }
@@ -104,7 +117,7 @@ impl ServerState {
             Ok(epoch) if stream.epoch.is_none_or(|first| first == epoch) => Ok(()),
             Ok(_) => Err(rolled_back(stream.index)),
             Err(e) => {
-                eprintln!("warning: syncing {}: {e}", log.path().display());
+                tracing::warn!("syncing {}: {e}", log.path().display());
                 self.recover_log();
                 Err(Status::unavailable(format!(
                     "syncing the server's log: {e}; nothing of this stream is acknowledged"
@@ -132,29 +145,29 @@ impl ServerState {
         match log.roll_back() {
             RollBack::Healthy | RollBack::Retried(Err(_)) => return,
             RollBack::Retried(Ok(())) => {
-                eprintln!("{name}: cut back to its durable bytes; taking writes again");
+                tracing::info!("{name}: cut back to its durable bytes; taking writes again");
                 return;
             }
-            RollBack::Dropped(Ok(())) => eprintln!(
-                "warning: {name}: a write failed; the messages after the last sync were \
+            RollBack::Dropped(Ok(())) => tracing::warn!(
+                "{name}: a write failed; the messages after the last sync were \
                  dropped (none was acknowledged) and the log takes writes again"
             ),
-            RollBack::Dropped(Err(e)) => eprintln!(
-                "warning: {name}: a write failed and the log could not be cut back to its \
+            RollBack::Dropped(Err(e)) => tracing::warn!(
+                "{name}: a write failed and the log could not be cut back to its \
                  durable bytes ({e}); no writes are taken until it can"
             ),
         }
         self.hub.clear();
         for source in &self.sources {
             if let Err(e) = preload(&self.hub, source, &self.storage) {
-                eprintln!("warning: loading {} again: {e}", source.display());
+                tracing::warn!("loading {} again: {e}", source.display());
             }
         }
         if let Err(e) = log.restore_durable(&self.hub) {
-            eprintln!("warning: {name}: reading back its durable messages: {e}");
+            tracing::warn!("{name}: reading back its durable messages: {e}");
         }
         if let Some(limit) = self.memory_limit {
-            self.hub.collect_garbage(store_budget(limit));
+            self.collect_garbage(limit);
         }
         let _ = self.live.send(Live::RolledBack);
     }
