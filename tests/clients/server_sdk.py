@@ -457,10 +457,16 @@ def check_tls_and_metrics():
     assert scraped["chunkstore_query_seconds_count"] >= 1, scraped
     with urllib.request.urlopen(f"http://{metrics}/health", timeout=10) as answer:
         assert answer.status == 200 and answer.read() == b"serving\n"
+    # pyarrow's own Flight client drops the recording (docs/SERVER.md's example).
+    import pyarrow.flight as fl
+    client = fl.connect(server.flight)
+    said = [r.body.to_pybytes() for r in client.do_action(fl.Action("chunkstore.drop_recording", b"counted"))]
+    assert b'dropped recording "counted"' in said[0], said
+    assert server.sql("SELECT count(*) AS n FROM recordings")["n"].to_pylist() == [0]
     server.proc.send_signal(signal.SIGTERM)
     assert server.proc.wait(timeout=15) == 0, server.stderr()[-2000:]
     print(f"TLS: ADBC over grpc+tls answered as the file for 2 tables and refused the server without "
-          f"the CA; metrics counted {counted:.0f} rows the SDK logged")
+          f"the CA; metrics counted {counted:.0f} rows the SDK logged; pyarrow.flight dropped the recording")
 
 
 if __name__ == "__main__":

@@ -130,6 +130,15 @@ fn the_recordings_table_lists_them_and_a_dropped_one_stays_dropped() {
 | r2               | other          | 1    | 42          | 42         | true |
 +------------------+----------------+------+-------------+------------+------+";
         assert_eq!(text, expected);
+        // Queries only: contexts are shared, so nothing may create, insert or set.
+        for sql in [
+            "CREATE TABLE t AS SELECT 1",
+            "INSERT INTO recordings SELECT * FROM recordings",
+            "SET datafusion.execution.batch_size = 1",
+        ] {
+            let refused = super::server::query(&server, sql, Some("s3cret")).await;
+            assert!(refused.is_err(), "{sql} was run");
+        }
         // Without the token, nothing is dropped; an unknown id is NOT_FOUND.
         let refused = drop_recording(&server, "r1", None).await.unwrap_err();
         assert_eq!(refused.code(), tonic::Code::Unauthenticated);

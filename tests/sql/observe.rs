@@ -8,6 +8,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use arrow_array::Array as _;
+use arrow_array::Int64Array;
 use chunkstore::rrd::StoreId;
 use tonic::transport::{Certificate, Channel, ClientTlsConfig};
 
@@ -177,6 +178,62 @@ fn metrics_and_health_answer_and_follow_the_data() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `SELECT count(*) FROM frame`.
+async fn count(server: &Server) -> i64 {
+    let batches = query(server, "SELECT count(*) AS n FROM frame", None)
+        .await
+        .unwrap();
+    let n = batches[0]
+        .column(0)
+        .as_any()
+        .downcast_ref::<Int64Array>()
+        .unwrap();
+    n.value(0)
+}
+
+#[test]
+fn queries_share_a_context_until_the_data_changes() {
+    let dir = temp_dir("sessions");
+    let rt = runtime();
+    let server = Server::start(&dir, &["--metrics-addr", "127.0.0.1:0"]);
+    let host = metrics_host(&server);
+    let built = || {
+        let samples = scrape(&host);
+        let built = value(&samples, "chunkstore_query_sessions_built_total").unwrap();
+        // A count, exact in an f64.
+        #[expect(
+            clippy::cast_possible_truncation,
+            clippy::cast_sign_loss,
+            reason = "a count"
+        )]
+        let built = built as u64;
+        built
+    };
+    let r1 = StoreId::recording("app", "r1");
+    rt.block_on(async {
+        write_as(
+            &server,
+            vec![info_msg(&r1), chunk_msg(&r1, "/a", 0, 1.0)],
+            None,
+        )
+        .await
+        .unwrap();
+        assert_eq!(count(&server).await, 1);
+        let first = built();
+        for _ in 0..3 {
+            assert_eq!(count(&server).await, 1);
+        }
+        assert_eq!(built(), first, "queries on unchanged data built contexts");
+        write_as(&server, vec![chunk_msg(&r1, "/a", 9, 9.0)], None)
+            .await
+            .unwrap();
+        assert_eq!(count(&server).await, 2, "the new row is seen");
+        assert_eq!(built(), first + 1);
+    });
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// SIGTERM with a log stream open: health turns to 503, the open stream may still finish
 /// within the grace period, the log is synced and the process exits 0.
 #[test]
@@ -257,7 +314,7 @@ fn sigterm_lets_an_open_stream_finish_then_exits_0() {
         let n = batches[0]
             .column(0)
             .as_any()
-            .downcast_ref::<arrow_array::Int64Array>()
+            .downcast_ref::<Int64Array>()
             .unwrap()
             .value(0);
         assert_eq!(n, 1);

@@ -26,6 +26,7 @@ use arrow_flight::sql::{
 };
 use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, Ticket};
 use arrow_schema::Schema;
+use chunkstore::rrd::StoreId;
 use datafusion::prelude::{SessionConfig, SessionContext};
 use futures::{Stream, StreamExt as _, TryStreamExt as _};
 use prost::Message as _;
@@ -54,11 +55,27 @@ impl SqlService {
         Self { state, queries }
     }
 
-    /// A query context over the recordings as they are now.
+    /// A query context over the recordings as they are now: the last one made, while no
+    /// recording changed since (building one registers every recording's tables).
     fn session(&self) -> Result<SessionContext, Status> {
+        let recordings = self.state.hub.recordings();
+        let key: Vec<(StoreId, u64)> = recordings
+            .iter()
+            .map(|r| (r.info.store_id.clone(), r.snapshot.version()))
+            .collect();
+        let sessions = &self.state.query_sessions;
+        let generation = sessions
+            .generation
+            .load(std::sync::atomic::Ordering::Acquire);
+        if let Some(cached) = sessions.last.lock().as_ref()
+            && cached.generation == generation
+            && cached.key == key
+        {
+            return Ok(cached.ctx.clone());
+        }
+        self.state.metrics.session_built();
         let ctx =
             SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
-        let recordings = self.state.hub.recordings();
         let segments: Vec<(String, chunkstore::Snapshot)> = recordings
             .iter()
             .map(|r| (r.info.store_id.recording_id.to_string(), r.snapshot.clone()))
@@ -71,6 +88,11 @@ impl SqlService {
             ctx.register_batch(recordings::TABLE, table)
                 .map_err(query_error)?;
         }
+        sessions.keep(CachedSession {
+            generation,
+            key,
+            ctx: ctx.clone(),
+        });
         Ok(ctx)
     }
 
@@ -98,9 +120,18 @@ impl SqlService {
         let statement = statement.clone();
         let state = Arc::clone(&self.state);
         self.on_queries(async move {
-            let frame = ctx.sql(&statement.numbered_sql()).await.map_err(|error| {
-                unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error))
-            })?;
+            // Queries only: contexts are shared between clients, and the tables are the
+            // recordings (nothing to create, insert into or set).
+            let read_only = datafusion::execution::context::SQLOptions::new()
+                .with_allow_ddl(false)
+                .with_allow_dml(false)
+                .with_allow_statements(false);
+            let frame = ctx
+                .sql_with_options(&statement.numbered_sql(), read_only)
+                .await
+                .map_err(|error| {
+                    unknown_table_named(&ctx, &error).unwrap_or_else(|| query_error(error))
+                })?;
             match statement.parameters {
                 Some(values) => frame.with_param_values(values).map_err(query_error),
                 None => Ok(frame),
@@ -204,6 +235,41 @@ impl SqlService {
             .build(batches)
             .map_err(Status::from);
         Ok(Response::new(Box::pin(stream)))
+    }
+}
+
+/// The query context last made, shared by the queries that follow while no recording
+/// changes. Forgotten ([`QuerySessions::forget`]) when data is dropped, so that it does not
+/// keep what a collection freed.
+#[derive(Default)]
+pub struct QuerySessions {
+    /// Bumped by every [`QuerySessions::forget`]: a context made before is not kept.
+    generation: std::sync::atomic::AtomicU64,
+    last: parking_lot::Mutex<Option<CachedSession>>,
+}
+
+struct CachedSession {
+    generation: u64,
+    /// Every recording's id and its snapshot's version when the context was made.
+    key: Vec<(StoreId, u64)>,
+    ctx: SessionContext,
+}
+
+impl QuerySessions {
+    /// Drops the context kept (and the snapshots it holds).
+    pub fn forget(&self) {
+        self.generation
+            .fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+        *self.last.lock() = None;
+    }
+
+    /// Keeps `made` unless a [`QuerySessions::forget`] came after it began: checked under
+    /// the lock `forget` clears under, so a context of forgotten data is never kept.
+    fn keep(&self, made: CachedSession) {
+        let mut last = self.last.lock();
+        if self.generation.load(std::sync::atomic::Ordering::Acquire) == made.generation {
+            *last = Some(made);
+        }
     }
 }
 

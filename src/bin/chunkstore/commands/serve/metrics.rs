@@ -79,6 +79,7 @@ pub struct Metrics {
     retention_removed_chunks: AtomicU64,
     read_streams: AtomicU64,
     queries_failed: AtomicU64,
+    sessions_built: AtomicU64,
     /// Queries answered, from the call to the last batch sent.
     pub queries: Histogram,
 }
@@ -145,6 +146,11 @@ impl Metrics {
     /// A query that ended in an error (planning or running it).
     pub fn query_failed(&self) {
         self.queries_failed.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// A query context was built (not reused).
+    pub fn session_built(&self) {
+        self.sessions_built.fetch_add(1, Ordering::Relaxed);
     }
 
     /// Counts a read stream open until the guard is dropped.
@@ -241,6 +247,12 @@ impl Metrics {
                 "chunkstore_log_rewrites_total",
                 "Rewrites of the write-ahead log down to what the stores hold.",
                 load(&self.log_rewrites),
+            ),
+            (
+                "chunkstore_query_sessions_built_total",
+                "Query contexts built over the recordings (one is reused while they do not \
+                 change).",
+                load(&self.sessions_built),
             ),
             (
                 "chunkstore_query_errors_total",

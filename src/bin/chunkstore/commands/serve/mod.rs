@@ -226,6 +226,8 @@ pub struct ServerState {
     pub metrics: metrics::Metrics,
     /// `--retention`.
     retention: Vec<retention::Rule>,
+    /// The query context Flight SQL reuses while the recordings do not change.
+    pub query_sessions: flight::QuerySessions,
 }
 
 impl ServerState {
@@ -244,6 +246,8 @@ impl ServerState {
             return;
         }
         self.bytes_since_check.store(0, Ordering::Relaxed);
+        // A kept query context holds the chunks compaction has since replaced.
+        self.query_sessions.forget();
         // One collection at a time: two streams crossing the limit together would each
         // collect the whole excess. Under the budget, it measures and returns.
         if !self.collecting.swap(true, Ordering::AcqRel) {
@@ -287,6 +291,7 @@ impl ServerState {
     /// saying what was dropped. Blocking (the rewrite).
     pub fn drop_recording(&self, recording_id: &str) -> Result<String, tonic::Status> {
         let dropped = self.hub.drop_recording(recording_id);
+        self.query_sessions.forget();
         if dropped.is_empty() {
             return Err(tonic::Status::not_found(format!(
                 "no recording {recording_id:?} here (SELECT rerun_segment_id FROM recordings)"
@@ -329,6 +334,7 @@ impl ServerState {
             .hub
             .retain_recent(|timeline| retention::span_of(&self.retention, timeline));
         if removed > 0 {
+            self.query_sessions.forget();
             self.metrics.retained(removed);
             tracing::debug!("retention: removed {removed} chunks of data older than its span");
         }
@@ -339,6 +345,7 @@ impl ServerState {
     fn collect_garbage(&self, limit: u64) {
         let outcome = self.hub.collect_garbage(store_budget(limit));
         if outcome.chunks_dropped > 0 {
+            self.query_sessions.forget();
             let freed = outcome.bytes_before.saturating_sub(outcome.bytes_after);
             self.metrics.collected(freed, outcome.chunks_dropped);
             tracing::info!(
@@ -437,6 +444,7 @@ impl ServerState {
             rewriting: AtomicBool::new(false),
             metrics: metrics::Metrics::default(),
             retention: options.retention.clone(),
+            query_sessions: flight::QuerySessions::default(),
         });
         state.apply_retention();
         if let Some(limit) = options.memory_limit {

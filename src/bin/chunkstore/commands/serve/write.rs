@@ -158,6 +158,7 @@ impl ServerState {
             ),
         }
         self.hub.clear();
+        self.query_sessions.forget();
         for source in &self.sources {
             if let Err(e) = preload(&self.hub, source, &self.storage) {
                 tracing::warn!("loading {} again: {e}", source.display());
