@@ -101,20 +101,33 @@ impl ChunkStore {
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn retain_recent(&mut self, timeline: &str, span: u64) -> Vec<StoreEvent> {
-        let Some(held) = self.time_range(timeline) else {
-            return Vec::new();
-        };
-        let newest = i128::from(held.max().as_i64());
-        // The oldest time kept; everything below goes.
-        let keep_from = newest - i128::from(span);
-        if keep_from <= i128::from(held.min().as_i64()) {
-            return Vec::new();
-        }
-        let below = i64::try_from(keep_from - 1).unwrap_or(i64::MAX);
-        self.drop_time_range(
-            timeline,
-            TimeRange::new(crate::TimeInt::MIN, crate::TimeInt::saturating(below)),
-        )
+        self.retain_recent_on(&[(timeline, span)])
+    }
+
+    /// Retention on several timelines at once: each `(timeline, span)` as
+    /// [`ChunkStore::retain_recent`], every newest time measured before anything is
+    /// removed (so that the order of the rules does not matter: a row that one rule
+    /// removes does not move another timeline's newest time first). A row goes if any rule
+    /// removes it.
+    pub fn retain_recent_on(&mut self, rules: &[(&str, u64)]) -> Vec<StoreEvent> {
+        let ranges: Vec<(&str, TimeRange)> = rules
+            .iter()
+            .filter_map(|&(timeline, span)| {
+                let held = self.time_range(timeline)?;
+                // The oldest time kept; everything below goes.
+                let keep_from = i128::from(held.max().as_i64()) - i128::from(span);
+                if keep_from <= i128::from(held.min().as_i64()) {
+                    return None;
+                }
+                let below = i64::try_from(keep_from - 1).unwrap_or(i64::MAX);
+                let range = TimeRange::new(crate::TimeInt::MIN, crate::TimeInt::saturating(below));
+                Some((timeline, range))
+            })
+            .collect();
+        ranges
+            .into_iter()
+            .flat_map(|(timeline, range)| self.drop_time_range(timeline, range))
+            .collect()
     }
 
     /// Removes all of `entity`'s data, static included, and its Clears; with `recursive`,

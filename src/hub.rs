@@ -406,8 +406,8 @@ impl StoreHub {
     }
 
     /// Retention across the hub: every recording's timeline for which `span_of` gives a
-    /// span keeps only its last span of data ([`ChunkStore::retain_recent`], measured from
-    /// that recording's own newest time there). Blueprints are not touched. Returns the
+    /// span keeps only its last span of data ([`ChunkStore::retain_recent_on`], measured
+    /// from that recording's own newest times, all taken before anything is removed). Blueprints are not touched. Returns the
     /// chunks removed (a chunk partly kept counts, and is replaced by its kept rows).
     pub fn retain_recent(&self, span_of: impl Fn(&Timeline) -> Option<u64>) -> usize {
         let stores: Vec<SharedStore> = {
@@ -426,12 +426,8 @@ impl StoreHub {
             if rules.is_empty() {
                 continue;
             }
-            let events = store.write(|s: &mut ChunkStore| {
-                rules
-                    .iter()
-                    .flat_map(|(timeline, span)| s.retain_recent(timeline.name(), *span))
-                    .collect::<Vec<_>>()
-            });
+            let rules: Vec<(&str, u64)> = rules.iter().map(|(t, span)| (t.name(), *span)).collect();
+            let events = store.write(|s: &mut ChunkStore| s.retain_recent_on(&rules));
             removed += events
                 .iter()
                 .filter(|e| matches!(e, crate::StoreEvent::Deletion { .. }))

@@ -5,11 +5,15 @@
 //! message changes nothing (the sequence number and every recording's rows stay); the hub
 //! stays sane; a decoded message's envelope round-trips, and its decoded length lies
 //! between its body's and what LZ4 can expand that to; and replaying the hub's history
-//! into a fresh hub gives the same recordings with the same rows. The same bytes are also
-//! scanned as an `.rrd` log (what `--persist` reads back at start).
+//! into a fresh hub gives the same recordings with the same rows. Then what the server's
+//! `--retention` and its drop action do: retention keeps the hub sane, never adds rows and
+//! keeps every recording's newest time on every timeline; a dropped recording is gone and
+//! the rest stay. The same bytes are also scanned as an `.rrd` log (what `--persist` reads
+//! back at start).
 
 use arrow_buffer::Buffer;
 use chunkstore::StoreConfig;
+use chunkstore::TimeInt;
 use chunkstore::hub::StoreHub;
 use chunkstore::rrd::{LogMsg, scan_log};
 
@@ -67,4 +71,60 @@ pub fn log_msg(bytes: &[u8]) {
         rows(&hub),
         "the replay holds what the hub held"
     );
+
+    // Retention on every timeline at once (every newest time measured before anything
+    // goes): what is left on a timeline lies within the span behind its newest time before.
+    let before = (rows(&hub), newest(&hub));
+    let retained = bytes.len() as u64 % 8;
+    hub.retain_recent(|_| Some(retained));
+    hub.sanity_check()
+        .expect("the hub stays sane after retention");
+    for ((id, after), (_, was)) in rows(&hub).iter().zip(&before.0) {
+        assert!(after <= was, "retention added rows to {id}");
+    }
+    for (recording, was) in hub.recordings().iter().zip(&before.1) {
+        for (timeline, newest) in was {
+            let (Some(left), Some(newest)) =
+                (recording.snapshot.view().time_range(timeline), newest)
+            else {
+                continue;
+            };
+            let oldest_kept = i128::from(newest.as_i64()) - i128::from(retained);
+            assert!(
+                i128::from(left.min().as_i64()) >= oldest_kept,
+                "retention left {timeline} data older than its span"
+            );
+        }
+    }
+    if let Some(first) = hub.recordings().first() {
+        let id = first.info.store_id.recording_id.clone();
+        let held = hub.recording_count();
+        let dropped = hub.drop_recording(&id);
+        assert!(!dropped.is_empty(), "a held recording was not dropped");
+        assert_eq!(hub.recording_count(), held - dropped.len());
+        assert!(rows(&hub).iter().all(|(other, _)| other.as_str() != &*id));
+        hub.sanity_check().expect("the hub stays sane after a drop");
+    }
+}
+
+/// Every recording's newest time on each of its timelines.
+fn newest(hub: &StoreHub) -> Vec<Vec<(String, Option<TimeInt>)>> {
+    hub.recordings()
+        .iter()
+        .map(|r| {
+            r.snapshot
+                .view()
+                .timelines()
+                .iter()
+                .map(|t| {
+                    let newest = r
+                        .snapshot
+                        .view()
+                        .time_range(t.name())
+                        .map(chunkstore::TimeRange::max);
+                    (t.name().to_owned(), newest)
+                })
+                .collect()
+        })
+        .collect()
 }

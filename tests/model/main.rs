@@ -379,6 +379,50 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
+
+    /// Retention on two timelines at once: a row stays only if no rule removes it, each
+    /// rule's newest time measured before anything went (the rules' order does not matter).
+    #[test]
+    fn retain_recent_on_measures_every_rule_before_removing(
+        ops in ops(),
+        shuffles in shuffles(),
+        first in 0..3usize,
+        second in 0..3usize,
+        spans in (0..8u64, 0..8u64),
+    ) {
+        for config in CONFIGS {
+            let mut harness = run_with(config, &ops, &shuffles)?;
+            let before = rows_held(&harness.store);
+            let newest = |timeline: usize| before.iter().filter_map(|(_, times)| times[timeline]).max();
+            let rules = [(first, spans.0), (second, spans.1)];
+            let cutoffs: Vec<(usize, Option<i128>)> = rules
+                .iter()
+                .map(|&(t, span)| (t, newest(t).map(|n| i128::from(n) - i128::from(span))))
+                .collect();
+            let named: Vec<(&str, u64)> = rules.iter().map(|&(t, span)| (TIMELINES[t].0, span)).collect();
+            let events = harness.store.retain_recent_on(&named);
+            harness.store.sanity_check().map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(events.is_empty(), rows_held(&harness.store) == before);
+            let expected: Vec<_> = before
+                .into_iter()
+                .filter(|(_, times)| {
+                    cutoffs.iter().all(|&(t, cutoff)| {
+                        times[t].is_none_or(|time| cutoff.is_none_or(|c| i128::from(time) >= c))
+                    })
+                })
+                .collect();
+            prop_assert_eq!(rows_held(&harness.store), expected.clone());
+            let mut named = named;
+            named.reverse();
+            let mut reversed = run_with(config, &ops, &shuffles)?;
+            reversed.store.retain_recent_on(&named);
+            prop_assert_eq!(rows_held(&reversed.store), expected);
+        }
+    }
+}
+
 fn static_row_ids(store: &ChunkStore) -> Vec<u128> {
     let mut ids: Vec<u128> = store
         .chunks_unordered()
