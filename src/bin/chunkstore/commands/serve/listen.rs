@@ -11,6 +11,9 @@ use std::time::Duration;
 
 use super::{ReadMode, SHUTDOWN_GRACE, ServerState, flight, http, proxy, web};
 
+/// How long a TLS client may take to finish its handshake.
+const TLS_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// How the server listens: [`serve`]'s settings from the command line.
 pub struct Listen {
     pub addr: SocketAddr,
@@ -125,7 +128,13 @@ pub async fn serve(
     let tls_on = tls.is_some();
     if let Some(identity) = tls {
         builder = builder
-            .tls_config(tonic::transport::ServerTlsConfig::new().identity(identity))
+            // A client that opens a connection and never finishes its handshake is
+            // dropped rather than held.
+            .tls_config(
+                tonic::transport::ServerTlsConfig::new()
+                    .identity(identity)
+                    .timeout(TLS_HANDSHAKE_TIMEOUT),
+            )
             .map_err(|e| format!("--tls-cert/--tls-key: {}", error_chain(&e)))?;
     }
     let listener = tokio::net::TcpListener::bind(addr)
