@@ -26,8 +26,7 @@ use arrow_flight::sql::{
 };
 use arrow_flight::{FlightDescriptor, FlightEndpoint, FlightInfo, Ticket};
 use arrow_schema::Schema;
-use chunkstore::rrd::StoreId;
-use datafusion::prelude::{SessionConfig, SessionContext};
+use datafusion::prelude::SessionContext;
 use futures::{Stream, StreamExt as _, TryStreamExt as _};
 use prost::Message as _;
 use tonic::{Request, Response, Status};
@@ -55,45 +54,13 @@ impl SqlService {
         Self { state, queries }
     }
 
-    /// A query context over the recordings as they are now: the last one made, while no
-    /// recording changed since (building one registers every recording's tables).
+    /// A query context over the recordings as they are now
+    /// ([`super::session::QuerySessions::current`]).
     fn session(&self) -> Result<SessionContext, Status> {
-        let recordings = self.state.hub.recordings();
-        let key: Vec<(StoreId, u64)> = recordings
-            .iter()
-            .map(|r| (r.info.store_id.clone(), r.snapshot.version()))
-            .collect();
-        let sessions = &self.state.query_sessions;
-        let generation = sessions
-            .generation
-            .load(std::sync::atomic::Ordering::Acquire);
-        if let Some(cached) = sessions.last.lock().as_ref()
-            && cached.generation == generation
-            && cached.key == key
-        {
-            return Ok(cached.ctx.clone());
-        }
-        self.state.metrics.session_built();
-        let ctx =
-            SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
-        let segments: Vec<(String, chunkstore::Snapshot)> = recordings
-            .iter()
-            .map(|r| (r.info.store_id.recording_id.to_string(), r.snapshot.clone()))
-            .collect();
-        chunkstore::sql::register_segments(&ctx, &segments).map_err(query_error)?;
-        // A timeline named `recordings` keeps its table.
-        if !ctx.table_exist(recordings::TABLE).map_err(query_error)? {
-            let table = recordings::table(&recordings)
-                .map_err(|e| Status::internal(format!("the recordings table: {e}")))?;
-            ctx.register_batch(recordings::TABLE, table)
-                .map_err(query_error)?;
-        }
-        sessions.keep(CachedSession {
-            generation,
-            key,
-            ctx: ctx.clone(),
-        });
-        Ok(ctx)
+        self.state
+            .query_sessions
+            .current(&self.state.hub, &self.state.metrics)
+            .map_err(query_error)
     }
 
     /// Runs `work` on the query runtime: DataFusion's planning and execution are CPU work
@@ -235,41 +202,6 @@ impl SqlService {
             .build(batches)
             .map_err(Status::from);
         Ok(Response::new(Box::pin(stream)))
-    }
-}
-
-/// The query context last made, shared by the queries that follow while no recording
-/// changes. Forgotten ([`QuerySessions::forget`]) when data is dropped, so that it does not
-/// keep what a collection freed.
-#[derive(Default)]
-pub struct QuerySessions {
-    /// Bumped by every [`QuerySessions::forget`]: a context made before is not kept.
-    generation: std::sync::atomic::AtomicU64,
-    last: parking_lot::Mutex<Option<CachedSession>>,
-}
-
-struct CachedSession {
-    generation: u64,
-    /// Every recording's id and its snapshot's version when the context was made.
-    key: Vec<(StoreId, u64)>,
-    ctx: SessionContext,
-}
-
-impl QuerySessions {
-    /// Drops the context kept (and the snapshots it holds).
-    pub fn forget(&self) {
-        self.generation
-            .fetch_add(1, std::sync::atomic::Ordering::AcqRel);
-        *self.last.lock() = None;
-    }
-
-    /// Keeps `made` unless a [`QuerySessions::forget`] came after it began: checked under
-    /// the lock `forget` clears under, so a context of forgotten data is never kept.
-    fn keep(&self, made: CachedSession) {
-        let mut last = self.last.lock();
-        if self.generation.load(std::sync::atomic::Ordering::Acquire) == made.generation {
-            *last = Some(made);
-        }
     }
 }
 

@@ -13,6 +13,7 @@ mod persist;
 mod proxy;
 mod recordings;
 mod retention;
+mod session;
 mod statement;
 mod web;
 mod write;
@@ -227,7 +228,7 @@ pub struct ServerState {
     /// `--retention`.
     retention: Vec<retention::Rule>,
     /// The query context Flight SQL reuses while the recordings do not change.
-    pub query_sessions: flight::QuerySessions,
+    pub query_sessions: session::QuerySessions,
 }
 
 impl ServerState {
@@ -444,7 +445,7 @@ impl ServerState {
             rewriting: AtomicBool::new(false),
             metrics: metrics::Metrics::default(),
             retention: options.retention.clone(),
-            query_sessions: flight::QuerySessions::default(),
+            query_sessions: session::QuerySessions::default(),
         });
         state.apply_retention();
         if let Some(limit) = options.memory_limit {
