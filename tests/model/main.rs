@@ -347,10 +347,6 @@ proptest! {
             harness.full_sweep()?;
         }
     }
-}
-
-proptest! {
-    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
 
     /// Retention keeps exactly the rows at `newest − span` or later on the timeline (and
     /// every row without it, static ones included), where `newest` is the latest time any
@@ -365,22 +361,12 @@ proptest! {
         for config in CONFIGS {
             let mut harness = run_with(config, &ops, &shuffles)?;
             let before = rows_held(&harness.store);
-            let newest = before.iter().filter_map(|(_, times)| times[timeline]).max();
             harness.apply(&Op::Retain { timeline, span }, &mut shuffles.iter().copied().cycle())?;
-            let expected: Vec<_> = before
-                .into_iter()
-                .filter(|(_, times)| {
-                    times[timeline].is_none_or(|t| newest.is_none_or(|n| i128::from(t) >= i128::from(n) - i128::from(span)))
-                })
-                .collect();
+            let expected = retained(before, &[(timeline, span)]);
             prop_assert_eq!(rows_held(&harness.store), expected);
             harness.full_sweep()?;
         }
     }
-}
-
-proptest! {
-    #![proptest_config(ProptestConfig { cases: cases(PROPERTY_CASES), max_shrink_iters: 4096, failure_persistence: common::seed_file("model/main.txt"), ..ProptestConfig::default() })]
 
     /// Retention on two timelines at once: a row stays only if no rule removes it, each
     /// rule's newest time measured before anything went (the rules' order does not matter).
@@ -395,24 +381,12 @@ proptest! {
         for config in CONFIGS {
             let mut harness = run_with(config, &ops, &shuffles)?;
             let before = rows_held(&harness.store);
-            let newest = |timeline: usize| before.iter().filter_map(|(_, times)| times[timeline]).max();
             let rules = [(first, spans.0), (second, spans.1)];
-            let cutoffs: Vec<(usize, Option<i128>)> = rules
-                .iter()
-                .map(|&(t, span)| (t, newest(t).map(|n| i128::from(n) - i128::from(span))))
-                .collect();
             let named: Vec<(&str, u64)> = rules.iter().map(|&(t, span)| (TIMELINES[t].0, span)).collect();
             let events = harness.store.retain_recent_on(&named);
             harness.store.sanity_check().map_err(|e| TestCaseError::fail(e.to_string()))?;
             prop_assert_eq!(events.is_empty(), rows_held(&harness.store) == before);
-            let expected: Vec<_> = before
-                .into_iter()
-                .filter(|(_, times)| {
-                    cutoffs.iter().all(|&(t, cutoff)| {
-                        times[t].is_none_or(|time| cutoff.is_none_or(|c| i128::from(time) >= c))
-                    })
-                })
-                .collect();
+            let expected = retained(before, &rules);
             prop_assert_eq!(rows_held(&harness.store), expected.clone());
             let mut named = named;
             named.reverse();
@@ -421,6 +395,28 @@ proptest! {
             prop_assert_eq!(rows_held(&reversed.store), expected);
         }
     }
+}
+
+/// The naive answer of retention: of `rows` (`rows_held`), those that no `(timeline,
+/// span)` rule removes, each rule's newest time taken from all of `rows` first.
+fn retained(
+    rows: Vec<(u128, [Option<i64>; 3])>,
+    rules: &[(usize, u64)],
+) -> Vec<(u128, [Option<i64>; 3])> {
+    let cutoffs: Vec<(usize, Option<i128>)> = rules
+        .iter()
+        .map(|&(timeline, span)| {
+            let newest = rows.iter().filter_map(|(_, times)| times[timeline]).max();
+            (timeline, newest.map(|n| i128::from(n) - i128::from(span)))
+        })
+        .collect();
+    rows.into_iter()
+        .filter(|(_, times)| {
+            cutoffs.iter().all(|&(timeline, cutoff)| {
+                times[timeline].is_none_or(|t| cutoff.is_none_or(|c| i128::from(t) >= c))
+            })
+        })
+        .collect()
 }
 
 fn static_row_ids(store: &ChunkStore) -> Vec<u128> {

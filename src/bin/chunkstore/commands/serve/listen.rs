@@ -165,11 +165,7 @@ pub async fn serve(
     );
     // Probes ask without a token: health says nothing about the data.
     let (health, health_service) = tonic_health::server::health_reporter();
-    for service in ["", proxy::SERVICE, flight::SERVICE] {
-        health
-            .set_service_status(service, tonic_health::ServingStatus::Serving)
-            .await;
-    }
+    set_health(&health, tonic_health::ServingStatus::Serving).await;
     let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
     let stopping = Arc::clone(&state);
     let shutdown = async move {
@@ -178,11 +174,7 @@ pub async fn serve(
             "stopping: no new connections; open calls have {} s",
             SHUTDOWN_GRACE.as_secs()
         );
-        for service in ["", proxy::SERVICE, flight::SERVICE] {
-            health
-                .set_service_status(service, tonic_health::ServingStatus::NotServing)
-                .await;
-        }
+        set_health(&health, tonic_health::ServingStatus::NotServing).await;
         // Live readers end their streams, so that the graceful stop does not wait for
         // them (a follow reader never ends by itself).
         stopping.stopping.send_replace(true);
@@ -222,6 +214,16 @@ pub async fn serve(
             .map_err(|e| format!("{}: {e}", log.path().display()))?;
     }
     outcome.map_err(|e| format!("serving on {local}: {e}"))
+}
+
+/// Says `status` for the whole server (`""`) and each of its services.
+async fn set_health(
+    health: &tonic_health::server::HealthReporter,
+    status: tonic_health::ServingStatus,
+) {
+    for service in ["", proxy::SERVICE, flight::SERVICE] {
+        health.set_service_status(service, status).await;
+    }
 }
 
 /// Starts the `--metrics-addr` listener; it stops with the server. Returns its address.

@@ -332,7 +332,7 @@ fn run_session(disk: &Arc<Mutex<Disk>>, steps: &[Step]) -> Session {
                     .entry(*n)
                     .or_insert_with(|| state.begin_stream().ok());
                 if let Some(writer) = stream
-                    && state.write(writer, msg).is_err()
+                    && state.write(writer, msg, msg.decoded_len()).is_err()
                 {
                     *stream = None;
                     if state.log_failed() {

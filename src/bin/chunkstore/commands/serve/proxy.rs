@@ -210,7 +210,7 @@ async fn write_messages(
             // of well under a millisecond for the SDK's chunks: done on this worker
             // thread, as other streams are on the others (handing the thread over per
             // message, with `block_in_place`, cost more than the work).
-            state.write(&mut writer, &msg)?;
+            state.write(&mut writer, &msg, len)?;
             state.after_ingest(len);
         }
         Ok::<(), Status>(())

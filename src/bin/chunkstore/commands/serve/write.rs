@@ -60,10 +60,16 @@ impl ServerState {
     }
 
     /// Ingests one message of `stream` (decoded and validated, then stored and appended
-    /// to the log). A refused message ends the stream. After an error, the caller calls
-    /// [`ServerState::recover_log`] if [`ServerState::log_failed`] (off the async
-    /// threads: it may rebuild memory).
-    pub fn write(&self, stream: &mut WriteStream, msg: &LogMsg) -> Result<(), Status> {
+    /// to the log), counting `decoded_len` ([`LogMsg::decoded_len`], which the caller
+    /// has for the memory check) in the metrics. A refused message ends the stream. After
+    /// an error, the caller calls [`ServerState::recover_log`] if
+    /// [`ServerState::log_failed`] (off the async threads: it may rebuild memory).
+    pub fn write(
+        &self,
+        stream: &mut WriteStream,
+        msg: &LogMsg,
+        decoded_len: u64,
+    ) -> Result<(), Status> {
         // Decoded here rather than by the hub, to count rows by recording.
         let decoded = msg.decode().map_err(IngestError::Decode);
         let (recording, rows) = match &decoded {
@@ -77,13 +83,12 @@ impl ServerState {
         let recording: Arc<str> = recording.map_or_else(|| Arc::from(""), Arc::clone);
         let ingested = {
             let _gate = self.write_gate.read();
-            if let Some(log) = &self.persist {
+            let rolled_back = self.persist.as_ref().is_some_and(|log| {
                 let epoch = log.epoch();
-                if *stream.epoch.get_or_insert(epoch) != epoch || log.failure().is_some() {
-                    Err(None)
-                } else {
-                    decoded.and_then(|d| self.hub.apply(msg, d)).map_err(Some)
-                }
+                *stream.epoch.get_or_insert(epoch) != epoch || log.failure().is_some()
+            });
+            if rolled_back {
+                Err(None)
             } else {
                 decoded.and_then(|d| self.hub.apply(msg, d)).map_err(Some)
             }
@@ -92,7 +97,7 @@ impl ServerState {
         match ingested {
             Ok(_) => {
                 stream.index += 1;
-                self.metrics.ingested(&recording, rows, msg.decoded_len());
+                self.metrics.ingested(&recording, rows, decoded_len);
                 Ok(())
             }
             Err(None) => Err(rolled_back(index)),
