@@ -302,18 +302,59 @@ impl LogMsg {
                         store_id: msg.store_id,
                     });
                 }
-                let payload = payload::PayloadBytes::Shared(
-                    self.body
-                        .slice_with_length(msg.payload.start, msg.payload.len()),
-                );
-                let chunk = payload::decode_message_chunk(&msg, payload, 0)?;
                 Ok(DecodedLogMsg::Chunk {
+                    chunk: self.payload_chunk(&msg)?,
                     store_id: msg.store_id,
-                    chunk,
                 })
             }
             LogMsgKind::BlueprintActivationCommand => Ok(DecodedLogMsg::BlueprintActivation),
         }
+    }
+
+    /// The chunk an `ArrowMsg` carries, whatever its store's kind: for a hub that keeps a
+    /// blueprint's latest state instead of every message that built it.
+    ///
+    /// # Errors
+    /// As [`LogMsg::decode`]; a message of another kind is a [`RrdErrorKind::Protobuf`].
+    pub(crate) fn decode_any_chunk(&self) -> Result<(StoreId, Chunk), RrdError> {
+        if self.kind != LogMsgKind::ArrowMsg {
+            return Err(RrdError::new(
+                0,
+                RrdErrorKind::Protobuf {
+                    reason: format!("a {:?} message carries no chunk", self.kind),
+                },
+            ));
+        }
+        let msg = ArrowMsg::decode(self.body.as_slice()).map_err(at_offset)?;
+        Ok((msg.store_id.clone(), self.payload_chunk(&msg)?))
+    }
+
+    /// The chunk in the payload of `msg`, this message's `ArrowMsg` header: decompressed,
+    /// decoded and validated as a chunk read from a file is.
+    fn payload_chunk(&self, msg: &ArrowMsg) -> Result<Chunk, RrdError> {
+        let payload = payload::PayloadBytes::Shared(
+            self.body
+                .slice_with_length(msg.payload.start, msg.payload.len()),
+        );
+        payload::decode_message_chunk(msg, payload, 0)
+    }
+
+    /// The blueprint a `BlueprintActivationCommand` names (its field 1); `None` for any
+    /// other message, or a command without a readable id.
+    pub(crate) fn activated_blueprint(&self) -> Option<StoreId> {
+        if self.kind != LogMsgKind::BlueprintActivationCommand {
+            return None;
+        }
+        let mut fields = FieldReader::new(self.body.as_slice());
+        let mut id = None;
+        while let Ok(Some(field)) = fields.next_field() {
+            if field.number == 1 {
+                id = field
+                    .nested("BlueprintActivationCommand", StoreId::decode)
+                    .ok();
+            }
+        }
+        id
     }
 
     /// The message as an `.rrd` frame: its 16-byte header, then the body. Appending frames

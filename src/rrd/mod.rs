@@ -19,7 +19,7 @@ mod log_msg;
 mod manifest;
 mod messages;
 mod payload;
-mod protobuf;
+pub(crate) mod protobuf;
 mod reader;
 mod recordings;
 mod writer;

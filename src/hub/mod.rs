@@ -6,15 +6,23 @@
 //! - Each recording (a `StoreKind::Recording` store id) gets its own [`SharedStore`], so
 //!   readers query snapshots while writers go on.
 //! - Blueprint messages (a viewer's layout) are kept apart, as they came, and never enter a
-//!   store: they are replayed, never queried.
+//!   recording's store: they are replayed, never queried. Past a bound they are brought
+//!   down to each blueprint's latest state (see [`BLUEPRINT_COMPACT_FLOOR`]), so that a
+//!   hub that runs for days does not keep every layout edit of every session.
 //! - Every accepted message gets the next sequence number, and the hub's listener sees it
 //!   under the hub's lock, so whoever listens (a log file, live readers) sees messages in
 //!   one order; [`StoreHub::replay`] says up to which number its history goes, so that a
 //!   reader can join history and live messages without a gap or a repeat.
 
+mod blueprints;
+
 use std::sync::Arc;
 
 use parking_lot::Mutex;
+
+pub use blueprints::{
+    COMPACT_FLOOR as BLUEPRINT_COMPACT_FLOOR, PER_APPLICATION as BLUEPRINTS_PER_APPLICATION,
+};
 
 use crate::rrd::{DecodedLogMsg, LogMsg, RrdError, StoreId, StoreInfo, StoreKind};
 use crate::sanity::{Structure, ensure};
@@ -64,11 +72,8 @@ struct HubState {
     /// In order of arrival.
     recordings: Vec<HubEntry>,
     by_id: ahash::HashMap<StoreId, usize>,
-    /// Every blueprint message, in order of arrival.
-    blueprints: Vec<LogMsg>,
-    blueprint_bytes: u64,
-    /// Stores whose store info said they are not recordings.
-    non_recordings: ahash::HashSet<StoreId>,
+    /// The blueprint messages, bounded.
+    blueprints: blueprints::Blueprints,
     /// The last sequence number given out.
     seq: u64,
 }
@@ -231,14 +236,11 @@ impl StoreHub {
                         state.open(info, msg.clone(), self.empty_store());
                     }
                 } else {
-                    state.non_recordings.insert(info.store_id.clone());
-                    state.keep_blueprint(msg);
+                    state.blueprints.keep(Some(info.store_id), msg);
                 }
             }
             DecodedLogMsg::Chunk { store_id, chunk } => {
-                if state.non_recordings.contains(&store_id) {
-                    state.keep_blueprint(msg);
-                } else if let Some(&index) = state.by_id.get(&store_id) {
+                if let Some(&index) = state.by_id.get(&store_id) {
                     state.recordings[index]
                         .store
                         .insert(Arc::new(chunk))
@@ -255,7 +257,12 @@ impl StoreHub {
                     state.open(info, info_msg, store);
                 }
             }
-            _ => state.keep_blueprint(msg),
+            DecodedLogMsg::BlueprintChunk { store_id } => {
+                state.blueprints.keep(Some(store_id), msg);
+            }
+            DecodedLogMsg::BlueprintActivation => {
+                state.blueprints.keep(msg.activated_blueprint(), msg);
+            }
         }
         state.seq += 1;
         let seq = state.seq;
@@ -349,7 +356,7 @@ impl StoreHub {
         HubReplay {
             seq: state.seq,
             infos,
-            blueprints: state.blueprints.clone(),
+            blueprints: state.blueprints.messages().cloned().collect(),
             chunks: static_chunks.into_iter().chain(temporal_chunks).collect(),
         }
     }
@@ -357,7 +364,7 @@ impl StoreHub {
     /// Heap bytes held: every recording's store, and the blueprint messages.
     pub fn heap_bytes(&self) -> u64 {
         let state = self.state.lock();
-        state.blueprint_bytes
+        state.blueprints.bytes()
             + state
                 .recordings
                 .iter()
@@ -370,7 +377,8 @@ impl StoreHub {
     /// data furthest from the newest), keeping the latest chunk of every (entity,
     /// timeline, component) and all static data, so that latest-at at the newest time
     /// answers as before. It aims a tenth under the limit, so that a stream just over it
-    /// does not collect on every message. Blueprints are never collected.
+    /// does not collect on every message. Blueprints are bounded on their own (module
+    /// docs), not here.
     pub fn collect_garbage(&self, limit: u64) -> HubGcOutcome {
         let stores: Vec<SharedStore> = {
             let state = self.state.lock();
@@ -462,12 +470,7 @@ impl StoreHub {
             entry.store.write(|s: &mut ChunkStore| s.sanity_check())?;
         }
         ensure(
-            state.blueprint_bytes
-                == state
-                    .blueprints
-                    .iter()
-                    .map(|m| m.body().len() as u64)
-                    .sum::<u64>(),
+            state.blueprints.bytes_add_up(),
             Structure::Stats,
             "the hub's blueprint bytes are the sum of its blueprint messages",
         )
@@ -485,11 +488,6 @@ impl HubState {
             store: SharedStore::new(store),
         });
         index
-    }
-
-    fn keep_blueprint(&mut self, msg: &LogMsg) {
-        self.blueprint_bytes += msg.body().len() as u64;
-        self.blueprints.push(msg.clone());
     }
 }
 
