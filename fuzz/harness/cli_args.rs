@@ -10,6 +10,18 @@
 )]
 mod args;
 
+#[path = "../../src/bin/chunkstore/commands/serve/retention.rs"]
+#[allow(
+    dead_code,
+    reason = "the tool's own module: the fuzz target reads what it needs"
+)]
+mod retention;
+/// `chunkstore serve`'s own parser, as the tool arranges it: `args.rs` and `retention.rs`
+/// side by side under a module (this one) that has `parse_bytes`.
+#[path = "../../src/bin/chunkstore/commands/serve/args.rs"]
+mod serve_args;
+use args::parse_bytes;
+
 /// Splits the bytes into arguments at NUL bytes (any bytes, not only UTF-8, as a shell
 /// can pass them).
 pub fn cli_args(bytes: &[u8]) {
@@ -20,6 +32,10 @@ pub fn cli_args(bytes: &[u8]) {
             .split(|&b| b == 0)
             .map(|a| std::ffi::OsStr::from_bytes(a).to_owned()),
     );
+    if argv.get(1).is_some_and(|a| a == "serve") {
+        serve_args(&argv[2..]);
+        return;
+    }
     match args::parse(&argv) {
         Ok(cli) => {
             let _ = cli.load.config();
@@ -51,6 +67,28 @@ pub fn cli_args(bytes: &[u8]) {
                 if let Err(error) = chunkstore::EntityPathFilter::parse(&dataframe.contents) {
                     assert!(!error.to_string().is_empty());
                 }
+            }
+        }
+        Err(error) => {
+            let _ = error.render().to_string();
+        }
+    }
+}
+
+/// `chunkstore serve ARGS`: parsed as the tool does; the retention rules parsed are asked
+/// for every kind of timeline, as the server does once a second.
+fn serve_args(rest: &[std::ffi::OsString]) {
+    use clap::Parser as _;
+    let mut argv = vec![std::ffi::OsString::from("chunkstore serve")];
+    argv.extend(rest.iter().cloned());
+    match serve_args::ServeArgs::try_parse_from(&argv) {
+        Ok(parsed) => {
+            for timeline in [
+                chunkstore::Timeline::sequence("frame"),
+                chunkstore::Timeline::new("log_time", chunkstore::TimeType::TimestampNs),
+                chunkstore::Timeline::new("t", chunkstore::TimeType::DurationNs),
+            ] {
+                let _ = retention::span_of(&parsed.retention, &timeline);
             }
         }
         Err(error) => {
