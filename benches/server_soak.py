@@ -116,10 +116,17 @@ def main():
     errors = []
     stop = threading.Event()
 
+    started = time.time()
+    # Peak RSS in each tenth of the run: a leak shows as a rising series.
+    rss_by_tenth = [0] * 10
+
     def sample():
         nonlocal peak_rss, peak_log
         while not stop.is_set():
-            peak_rss = max(peak_rss, proc.memory_info().rss)
+            rss = proc.memory_info().rss
+            peak_rss = max(peak_rss, rss)
+            tenth = min(9, int((time.time() - started) * 10 / args.seconds))
+            rss_by_tenth[tenth] = max(rss_by_tenth[tenth], rss)
             if os.path.exists(log):
                 peak_log = max(peak_log, os.path.getsize(log))
             time.sleep(0.2)
@@ -187,6 +194,7 @@ def main():
         "bench": "soak", "seconds": args.seconds, "writers": args.writers, "readers": args.readers,
         "limit_mib": args.limit_mib, "rows_ingested": rows,
         "peak_rss_mib": round(peak_rss / 2**20, 1), "peak_over_limit": round(peak_rss / (args.limit_mib << 20), 2),
+        "peak_rss_mib_by_tenth": [round(r / 2**20) for r in rss_by_tenth],
         "peak_log_mib": round(peak_log / 2**20, 1), "log_rewrites": final.get("chunkstore_log_rewrites_total"),
         "gc_runs": final.get("chunkstore_gc_runs_total"),
         "queries": len(latencies), "query_errors": len(errors), "first_errors": errors[:3],

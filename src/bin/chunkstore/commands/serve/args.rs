@@ -48,9 +48,10 @@ pub struct ServeArgs {
     /// read it back on start (a file Rerun wrote works too).
     #[arg(long, value_name = "FILE.rrd")]
     pub persist: Option<PathBuf>,
-    /// Keep the process near this size (e.g. 512MiB, 2GB): the stores get three quarters
-    /// of it, and garbage collection drops their oldest rows first, keeping the latest of
-    /// each column and all static data.
+    /// Keep the process near this size (e.g. 512MiB, 2GB): the stores get what is left
+    /// after the server's working memory (a quarter, at least 128MiB, at most half), and
+    /// garbage collection drops their oldest rows first, keeping the latest of each column
+    /// and all static data.
     #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
     pub memory_limit: Option<u64>,
     /// What a reader (`ReadMessages`: viewers, `rerun --connect`) gets: the history, then

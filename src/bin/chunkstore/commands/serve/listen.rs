@@ -268,7 +268,7 @@ fn error_chain(error: &dyn std::error::Error) -> String {
 /// ends syncs it too; this bounds what a crash loses of streams still open) and applying
 /// `--retention`.
 fn spawn_every_second(state: &Arc<ServerState>) {
-    if state.persist.is_none() && !state.has_retention() {
+    if state.persist.is_none() && !state.has_retention() && state.memory_limit.is_none() {
         return;
     }
     let state = Arc::clone(state);
@@ -287,6 +287,9 @@ fn spawn_every_second(state: &Arc<ServerState>) {
                 if state.has_retention() {
                     state.apply_retention();
                     state.rewrite_log_if_large();
+                }
+                if state.memory_limit.is_some() {
+                    super::allocator::release_free_memory();
                 }
             })
             .await;

@@ -279,8 +279,8 @@ impl Metrics {
         if let Some(budget) = gauges.store_budget {
             gauge(
                 "chunkstore_store_budget_bytes",
-                "What garbage collection keeps the stores under (three quarters of \
-                 --memory-limit).",
+                "What garbage collection keeps the stores under (--memory-limit less the \
+                 server's working memory).",
                 budget,
             );
         }
