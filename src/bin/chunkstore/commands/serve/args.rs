@@ -109,7 +109,7 @@ pub fn parse_addr(text: &str) -> Result<SocketAddr, String> {
     text.parse().or_else(|_| resolve(text))
 }
 
-#[cfg(not(fuzzing))]
+#[cfg(not(any(fuzzing, test)))]
 fn resolve(text: &str) -> Result<SocketAddr, String> {
     use std::net::ToSocketAddrs as _;
     text.to_socket_addrs()
@@ -118,8 +118,9 @@ fn resolve(text: &str) -> Result<SocketAddr, String> {
         .ok_or_else(|| format!("{text:?} names no address"))
 }
 
-/// A fuzzer's arbitrary names would each be a DNS query.
-#[cfg(fuzzing)]
+/// A fuzzer's arbitrary names would each be a DNS query (when fuzzing, and when `cargo
+/// test` replays the fuzzer's corpus).
+#[cfg(any(fuzzing, test))]
 fn resolve(text: &str) -> Result<SocketAddr, String> {
     Err(format!(
         "{text:?} is not an address (names are not resolved when fuzzing)"
