@@ -76,29 +76,31 @@ impl Blueprints {
 
     /// Whether `bytes` is the sum of the bodies kept.
     pub(super) fn bytes_add_up(&self) -> bool {
-        self.bytes
-            == self
-                .messages
-                .iter()
-                .map(|(_, msg)| msg.body().len() as u64)
-                .sum::<u64>()
+        self.bytes == self.summed_bytes()
+    }
+
+    fn summed_bytes(&self) -> u64 {
+        self.messages
+            .iter()
+            .map(|(_, msg)| msg.body().len() as u64)
+            .sum()
     }
 
     /// See the module docs.
     fn compact(&mut self) {
         let kept = self.newest_per_application();
-        let mut latest: ahash::HashMap<StoreId, Option<Vec<LogMsg>>> = kept
-            .iter()
-            .map(|id| {
-                let chunks = self
-                    .messages
-                    .iter()
-                    .filter(|(of, msg)| {
-                        of.as_ref() == Some(id) && msg.kind() == LogMsgKind::ArrowMsg
-                    })
-                    .map(|(_, msg)| msg);
-                (id.clone(), latest_state(id, chunks))
-            })
+        // Each kept blueprint's chunk messages, gathered in one pass.
+        let mut chunks_of: ahash::HashMap<&StoreId, Vec<&LogMsg>> = ahash::HashMap::default();
+        for (of, msg) in &self.messages {
+            if let Some(id) = of.as_ref().filter(|id| kept.contains(*id))
+                && msg.kind() == LogMsgKind::ArrowMsg
+            {
+                chunks_of.entry(id).or_default().push(msg);
+            }
+        }
+        let mut latest: ahash::HashMap<StoreId, Option<Vec<LogMsg>>> = chunks_of
+            .into_iter()
+            .map(|(id, chunks)| (id.clone(), latest_state(id, chunks.into_iter())))
             .collect();
         // The last of each activation command's bytes.
         let mut last_of_body: ahash::HashMap<&[u8], usize> = ahash::HashMap::default();
@@ -141,11 +143,7 @@ impl Blueprints {
             }
         }
         self.messages = compacted;
-        self.bytes = self
-            .messages
-            .iter()
-            .map(|(_, msg)| msg.body().len() as u64)
-            .sum();
+        self.bytes = self.summed_bytes();
         self.compact_above = self.bytes.saturating_mul(2).max(self.floor);
     }
 
