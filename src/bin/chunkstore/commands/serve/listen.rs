@@ -14,6 +14,21 @@ use super::{ReadMode, SHUTDOWN_GRACE, ServerState, flight, http, proxy, web};
 /// How long a TLS client may take to finish its handshake.
 const TLS_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// How long a connection may be silent before the kernel asks whether its peer is still
+/// there: a robot that loses power mid-stream leaves no FIN, and without asking, its write
+/// stream would stay open for as long as the server runs.
+const TCP_KEEPALIVE: Duration = Duration::from_secs(60);
+
+/// The connections `listener` accepts, set up as tonic's own listener sets them up (its
+/// builder's `tcp_nodelay` is ignored for connections handed to it): without
+/// `TCP_NODELAY`, a response's last small write waited for the client's delayed
+/// acknowledgement, and every Flight SQL query took 40 ms more than its work.
+fn connections(listener: tokio::net::TcpListener) -> tonic::transport::server::TcpIncoming {
+    tonic::transport::server::TcpIncoming::from(listener)
+        .with_nodelay(Some(true))
+        .with_keepalive(Some(TCP_KEEPALIVE))
+}
+
 /// How the server listens: [`serve`]'s settings from the command line.
 pub struct Listen {
     pub addr: SocketAddr,
@@ -166,7 +181,7 @@ pub async fn serve(
     // Probes ask without a token: health says nothing about the data.
     let (health, health_service) = tonic_health::server::health_reporter();
     set_health(&health, tonic_health::ServingStatus::Serving).await;
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(listener);
+    let incoming = connections(listener);
     let stopping = Arc::clone(&state);
     let shutdown = async move {
         stop.notified().await;
@@ -185,7 +200,6 @@ pub async fn serve(
     // A browser speaks grpc-web over HTTP/1.1 (or HTTP/2) on the same port: CORS answers
     // its preflights first, then grpc-web calls are translated to gRPC.
     let server = builder
-        .tcp_nodelay(true)
         .initial_stream_window_size(Some(stream_window))
         .initial_connection_window_size(Some(connection_window))
         .accept_http1(true)
@@ -295,4 +309,24 @@ fn spawn_every_second(state: &Arc<ServerState>) {
             .await;
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use futures::StreamExt as _;
+
+    use super::connections;
+
+    #[tokio::test]
+    async fn accepted_connections_send_small_writes_at_once() {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let mut incoming = connections(listener);
+        let _client = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let accepted = incoming.next().await.unwrap().unwrap();
+        assert!(accepted.nodelay().unwrap());
+        let socket = socket2::SockRef::from(&accepted);
+        assert!(socket.keepalive().unwrap());
+        assert_eq!(socket.tcp_keepalive_time().unwrap(), super::TCP_KEEPALIVE);
+    }
 }
