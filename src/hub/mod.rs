@@ -18,6 +18,7 @@ mod blueprints;
 
 use std::sync::Arc;
 
+use arc_swap::ArcSwap;
 use parking_lot::Mutex;
 
 pub use blueprints::{
@@ -64,7 +65,18 @@ pub type HubListener = Box<dyn Fn(u64, &LogMsg) -> Result<(), String> + Send + S
 pub struct StoreHub {
     config: StoreConfig,
     state: Mutex<HubState>,
+    /// The recordings as [`HubState::recordings`] has them, republished under the lock
+    /// whenever one opens or goes: readers ([`StoreHub::recordings`], a query's tables)
+    /// take it without the lock, which a writer holds while its chunk goes in (a merge of
+    /// large chunks, milliseconds).
+    listed: ArcSwap<Vec<Listed>>,
     listener: Option<HubListener>,
+}
+
+/// A recording as readers find it: [`HubEntry`] without the message that announced it.
+struct Listed {
+    info: StoreInfo,
+    store: SharedStore,
 }
 
 #[derive(Default)]
@@ -153,6 +165,7 @@ impl StoreHub {
         Ok(Self {
             config,
             state: Mutex::new(HubState::default()),
+            listed: ArcSwap::default(),
             listener: None,
         })
     }
@@ -210,6 +223,7 @@ impl StoreHub {
         }
         let info_msg = LogMsg::from_store_info(&info);
         state.open(info, info_msg, store);
+        self.publish_listing(&state);
         Ok(())
     }
 
@@ -234,6 +248,7 @@ impl StoreHub {
                 if info.store_id.kind == StoreKind::Recording {
                     if !state.by_id.contains_key(&info.store_id) {
                         state.open(info, msg.clone(), self.empty_store());
+                        self.publish_listing(&state);
                     }
                 } else {
                     state.blueprints.keep(Some(info.store_id), msg);
@@ -255,6 +270,7 @@ impl StoreHub {
                     let info = StoreInfo::new(store_id);
                     let info_msg = LogMsg::from_store_info(&info);
                     state.open(info, info_msg, store);
+                    self.publish_listing(&state);
                 }
             }
             DecodedLogMsg::BlueprintChunk { store_id } => {
@@ -282,6 +298,21 @@ impl StoreHub {
             seq,
             ..HubState::default()
         };
+        self.publish_listing(&state);
+    }
+
+    /// Republishes [`StoreHub::listed`] from `state` (under its lock, so that two
+    /// publications cannot cross).
+    fn publish_listing(&self, state: &HubState) {
+        let listed = state
+            .recordings
+            .iter()
+            .map(|entry| Listed {
+                info: entry.info.clone(),
+                store: entry.store.clone(),
+            })
+            .collect();
+        self.listed.store(Arc::new(listed));
     }
 
     /// A store for a new recording (`StoreHub::new` checked the configuration).
@@ -289,17 +320,22 @@ impl StoreHub {
         ChunkStore::with_config(self.config).unwrap_or_else(|_| ChunkStore::new())
     }
 
-    /// Every recording, in order of arrival, each as a snapshot of now.
+    /// Every recording, in order of arrival, each as a snapshot of now. Never waits for a
+    /// writer.
     pub fn recordings(&self) -> Vec<HubRecording> {
-        let state = self.state.lock();
-        state
-            .recordings
+        self.listed
+            .load()
             .iter()
             .map(|entry| HubRecording {
                 info: entry.info.clone(),
                 snapshot: entry.store.snapshot(),
             })
             .collect()
+    }
+
+    /// Every recording's store, in order of arrival.
+    fn stores(&self) -> Vec<SharedStore> {
+        self.listed.load().iter().map(|e| e.store.clone()).collect()
     }
 
     /// Drops every recording whose recording id is `recording_id` (of any application),
@@ -319,6 +355,7 @@ impl StoreHub {
             .map(|(index, entry)| (entry.info.store_id.clone(), index))
             .collect();
         state.by_id = by_id;
+        self.publish_listing(&state);
         dropped
             .into_iter()
             .map(|entry| entry.info.store_id)
@@ -327,7 +364,7 @@ impl StoreHub {
 
     /// How many recordings the hub holds (blueprints aside).
     pub fn recording_count(&self) -> usize {
-        self.state.lock().recordings.len()
+        self.listed.load().len()
     }
 
     /// The sequence number of the last accepted message (0 before the first).
@@ -380,10 +417,7 @@ impl StoreHub {
     /// does not collect on every message. Blueprints are bounded on their own (module
     /// docs), not here.
     pub fn collect_garbage(&self, limit: u64) -> HubGcOutcome {
-        let stores: Vec<SharedStore> = {
-            let state = self.state.lock();
-            state.recordings.iter().map(|e| e.store.clone()).collect()
-        };
+        let stores = self.stores();
         let bytes_of = |stores: &[SharedStore]| {
             stores
                 .iter()
@@ -418,10 +452,7 @@ impl StoreHub {
     /// from that recording's own newest times, all taken before anything is removed). Blueprints are not touched. Returns the
     /// chunks removed (a chunk partly kept counts, and is replaced by its kept rows).
     pub fn retain_recent(&self, span_of: impl Fn(&Timeline) -> Option<u64>) -> usize {
-        let stores: Vec<SharedStore> = {
-            let state = self.state.lock();
-            state.recordings.iter().map(|e| e.store.clone()).collect()
-        };
+        let stores = self.stores();
         let mut removed = 0;
         for store in &stores {
             let rules: Vec<(Timeline, u64)> = store
@@ -455,6 +486,15 @@ impl StoreHub {
             state.by_id.len() == state.recordings.len(),
             Structure::Store,
             "the hub indexes each recording once",
+        )?;
+        let listed = self.listed.load();
+        ensure(
+            listed.len() == state.recordings.len()
+                && listed.iter().zip(&state.recordings).all(|(listed, entry)| {
+                    listed.info == entry.info && listed.store.is_same_store(&entry.store)
+                }),
+            Structure::Store,
+            "readers find the hub's recordings as it holds them",
         )?;
         for (index, entry) in state.recordings.iter().enumerate() {
             ensure(
@@ -543,6 +583,56 @@ mod tests {
             )
             .build()
             .unwrap()
+    }
+
+    #[test]
+    fn readers_list_recordings_while_a_writer_holds_the_hub() {
+        // The listener runs under the hub's lock: it holds it until the reader is done.
+        let (entered, wait_entered) = std::sync::mpsc::channel();
+        let (release, wait_release) = std::sync::mpsc::channel::<()>();
+        let wait_release = Mutex::new(wait_release);
+        let hub = Arc::new(
+            StoreHub::with_listener(
+                StoreConfig::DEFAULT,
+                Box::new(move |seq, _: &LogMsg| {
+                    if seq == 3 {
+                        entered.send(()).unwrap();
+                        wait_release.lock().recv().unwrap();
+                    }
+                    Ok(())
+                }),
+            )
+            .unwrap(),
+        );
+        let a = StoreId::recording("app", "a");
+        hub.ingest(&LogMsg::from_store_info(&StoreInfo::new(a.clone())))
+            .unwrap();
+        hub.ingest(&LogMsg::from_chunk(&a, &chunk("/x", 1, 1.0), true).unwrap())
+            .unwrap();
+        let writer = {
+            let hub = Arc::clone(&hub);
+            let a = a.clone();
+            std::thread::spawn(move || {
+                hub.ingest(&LogMsg::from_chunk(&a, &chunk("/x", 2, 2.0), true).unwrap())
+            })
+        };
+        wait_entered.recv().unwrap();
+        // The writer is inside the hub, its chunk stored (and published) but not yet
+        // acknowledged.
+        let (listed, wait_listed) = std::sync::mpsc::channel();
+        let reader = Arc::clone(&hub);
+        std::thread::spawn(move || {
+            let recordings = reader.recordings();
+            let _ = listed.send((recordings, reader.recording_count()));
+        });
+        let answer = wait_listed.recv_timeout(std::time::Duration::from_secs(20));
+        release.send(()).unwrap();
+        let (listed, count) = answer.expect("the reader waited for the writer");
+        assert_eq!((listed.len(), count), (1, 1));
+        assert!(listed[0].snapshot.stats().num_rows() >= 1);
+        assert_eq!(writer.join().unwrap().unwrap(), 3);
+        assert_eq!(hub.recordings()[0].snapshot.stats().num_rows(), 2);
+        hub.sanity_check().unwrap();
     }
 
     #[test]
