@@ -9,9 +9,14 @@ once the server acknowledged the stream; the time is from starting the clients t
 acknowledgement. Printed, as JSON lines:
 
 - `ingest`: rows/s and MB/s (bytes of the `.rrd` the same data makes) for 1 and 8 clients
-  into `chunkstore serve`, `chunkstore serve --persist`, and `rerun --serve-grpc`, and the
-  time `chunkstore FILE.rrd stats` takes to load the same data from a file;
-- `sql_latency`: a Flight SQL query's p50/p99 while 8 clients ingest, and idle;
+  into `chunkstore serve`, `chunkstore serve --persist`, and `rerun --serve-grpc`, with the
+  server's CPU seconds (all threads) beside the CPU seconds of `chunkstore --eager FILE.rrd
+  stats` loading the same data from a file (`server_cpu_over_load_cpu`);
+- `sql_latency`: a Flight SQL query's p50/p99 idle and while 8 clients ingest. The server
+  and this script's reader run on one core and the clients on the others (as when they are
+  other machines); the clients first log a history the query reads (frames 1,000 to
+  50,000), then, all starting at once after their imports, newer frames, in waves until as
+  many queries ran during their sending as idle: every query does the same work;
 - `soak`: peak RSS of `chunkstore serve --memory-limit` while 8 clients send several times
   the limit.
 
@@ -35,14 +40,19 @@ import psutil
 CLIENT = r"""
 import sys, numpy as np, rerun as rr
 url, rid, mb = sys.argv[1], sys.argv[2], float(sys.argv[3])
-path = sys.argv[4] if len(sys.argv) > 4 else None
+path = sys.argv[4] if len(sys.argv) > 4 and sys.argv[4] else None
+first_chunk = int(sys.argv[5]) if len(sys.argv) > 5 else 0
 rec = rr.RecordingStream("chunkstore_bench", recording_id=rid)
 rec.set_sinks(rr.FileSink(path)) if path else rec.set_sinks(rr.GrpcSink(url))
 rows_per_chunk = 2000
 # Per chunk: 2000 scalars on 2 timelines, and one 2000-point cloud: about 60 kB.
 chunks = max(1, int(mb * 1e6 / 60_000))
 rng = np.random.default_rng(0)
-for c in range(chunks):
+if len(sys.argv) > 6 and sys.argv[6] == "together":
+    # Started, imported and connected: wait for the others.
+    print("ready", flush=True)
+    sys.stdin.readline()
+for c in range(first_chunk, first_chunk + chunks):
     frames = np.arange(c * rows_per_chunk, (c + 1) * rows_per_chunk)
     rec.send_columns(
         "robot/joint",
@@ -104,14 +114,46 @@ def start_rerun(env):
     return proc
 
 
-def run_clients(script, url, clients, mb_each):
+def run_clients(script, url, clients, mb_each, first_chunk=0, cpus=None):
+    """Runs `clients` SDK processes (on `cpus` only, if given), each logging `mb_each` MB
+    from chunk `first_chunk` on; returns the seconds to the last acknowledgement and the
+    rows sent."""
+    pin = ["taskset", "-c", cpus] if cpus else []
     start = time.perf_counter()
     procs = [
-        subprocess.Popen([sys.executable, script, url, f"bench-{i}", str(mb_each)], stdout=subprocess.PIPE, text=True)
+        subprocess.Popen([*pin, sys.executable, script, url, f"bench-{i}", str(mb_each), "", str(first_chunk)], stdout=subprocess.PIPE, text=True)
         for i in range(clients)
     ]
     rows = sum(int(p.communicate()[0].strip() or 0) for p in procs)
     return time.perf_counter() - start, rows
+
+
+def run_clients_together(script, url, clients, mb_each, first_chunk, cpus):
+    """As `run_clients`, but every client starts sending at once, after all of them have
+    started (eight Python processes take seconds to import the SDK): returns when they
+    began and when the last one's stream was acknowledged."""
+    pin = ["taskset", "-c", cpus] if cpus else []
+    procs = [
+        subprocess.Popen([*pin, sys.executable, script, url, f"bench-{i}", str(mb_each), "", str(first_chunk), "together"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        for i in range(clients)
+    ]
+    for p in procs:
+        assert p.stdout.readline().strip() == "ready"
+    began = time.perf_counter()
+    for p in procs:
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    for p in procs:
+        p.communicate()
+    return began, time.perf_counter()
+
+
+def cpu_seconds_of(args):
+    """Runs `args` to its end; the CPU seconds (user and system, all threads) it took."""
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0, args
+    return usage.ru_utime + usage.ru_stime
 
 
 def main():
@@ -122,6 +164,7 @@ def main():
     parser.add_argument("--soak-limit-mib", type=int, default=256)
     parser.add_argument("--soak-factor", type=float, default=6.0, help="data sent, in multiples of the limit")
     parser.add_argument("--only", default="ingest,sql,soak")
+    parser.add_argument("--queries", type=int, default=200, help="Flight SQL queries timed idle, and at least as many busy")
     args = parser.parse_args()
     binary = os.path.abspath(args.chunkstore)
     work = tempfile.mkdtemp(prefix="chunkstore-bench-")
@@ -146,12 +189,15 @@ def main():
 
         if "ingest" in only:
             loads = []
+            load_cpu = []
             for _ in range(args.rounds):
                 t = time.perf_counter()
                 subprocess.run([binary, data_file, "stats"], check=True, stdout=subprocess.DEVNULL)
                 loads.append(time.perf_counter() - t)
+                load_cpu.append(cpu_seconds_of([binary, "--eager", data_file, "stats"]))
             load_s = min(loads)
-            print(json.dumps({"bench": "ingest", "target": "chunkstore load .rrd", "mb": round(size_mb, 1), "seconds": round(load_s, 3), "mb_per_s": round(size_mb / load_s, 1)}), flush=True)
+            load_cpu_s = min(load_cpu)
+            print(json.dumps({"bench": "ingest", "target": "chunkstore load .rrd", "mb": round(size_mb, 1), "seconds": round(load_s, 3), "mb_per_s": round(size_mb / load_s, 1), "cpu_s": round(load_cpu_s, 3)}), flush=True)
             for clients in (1, 8):
                 for name in ("chunkstore serve", "chunkstore serve --persist", "rerun --serve-grpc"):
                     times = []
@@ -179,50 +225,70 @@ def main():
                         "mb": round(size_mb, 1), "seconds": round(best, 3),
                         "rows_per_s": round(rows / best), "mb_per_s": round(size_mb / best, 1),
                         "server_cpu_s": round(min(cpu), 3),
+                        "server_cpu_over_load_cpu": round(min(cpu) / load_cpu_s, 2),
                     }), flush=True)
 
         if "sql" in only:
             import adbc_driver_flightsql.dbapi as flight_sql
 
-            server = start_chunkstore(binary)
+            # The server (and this process's reader) on one core, the writers on the others,
+            # as when they are other machines: what is measured is what ingest costs the
+            # server's queries, not what eight SDK processes take from a shared machine.
+            cpus = os.cpu_count() or 1
+            server_cpus = "0" if cpus > 1 else None
+            client_cpus = f"1-{cpus - 1}" if cpus > 1 else None
+            if server_cpus:
+                os.sched_setaffinity(0, {0})
+            pin = ["taskset", "-c", server_cpus] if server_cpus else []
+            server = Proc([*pin, binary, "serve", "--addr", "127.0.0.1:0"], ready_line="listening on ")
             flight = server.url.replace("rerun+http://", "grpc://").removesuffix("/proxy")
+            # A range of history: the writers first log it, then, while the queries run,
+            # what comes after it (new times, as a robot streams): every query does the same
+            # work, busy or idle.
             query = "SELECT count(*), avg(\"/robot/joint:Scalars:scalars\"[1]) FROM frame WHERE frame BETWEEN 1000 AND 50000"
+            mb_each = args.mb / 8
+            chunks_each = max(1, int(mb_each * 1e6 / 60_000))
+            run_clients(script, server.url, 8, mb_each, 0, client_cpus)
 
-            def latencies(stop, out):
+            def latencies(stop, out, enough):
+                """Times queries into `out` (as `(began, seconds)` if `enough` is huge)."""
                 with flight_sql.connect(flight) as conn, conn.cursor() as cur:
-                    while not stop.is_set():
+                    while not stop.is_set() and len(out) < enough:
                         t = time.perf_counter()
-                        try:
-                            cur.execute(query)
-                            cur.fetch_arrow_table()
-                        except Exception:  # the table may not exist in the first moments
-                            continue
-                        out.append(time.perf_counter() - t)
+                        cur.execute(query)
+                        cur.fetch_arrow_table()
+                        seconds = time.perf_counter() - t
+                        out.append((t, seconds) if enough == 10**9 else seconds)
 
-            busy = []
-            stop = threading.Event()
-            reader = threading.Thread(target=latencies, args=(stop, busy))
-            reader.start()
-            run_clients(script, server.url, 8, args.mb * 2 / 8)
-            stop.set()
-            reader.join()
             idle = []
+            latencies(threading.Event(), idle, args.queries)
+            # Busy: the queries that began while all eight writers were sending, over
+            # waves of them, until there are as many as idle.
+            timed = []
             stop = threading.Event()
-            reader = threading.Thread(target=latencies, args=(stop, idle))
+            reader = threading.Thread(target=latencies, args=(stop, timed, 10**9))
             reader.start()
-            time.sleep(5)
+            windows = []
+            while sum(1 for began, _ in timed if any(a <= began <= b for a, b in windows)) < args.queries and len(windows) < 50:
+                windows.append(run_clients_together(script, server.url, 8, mb_each, (len(windows) + 1) * chunks_each, client_cpus))
             stop.set()
             reader.join()
             server.stop()
+            os.sched_setaffinity(0, range(cpus))
+            busy = [seconds for began, seconds in timed if any(a <= began <= b for a, b in windows)]
+            sending = sum(b - a for a, b in windows)
+            busy_rows = len(windows) * 8 * chunks_each * 2001
 
             def pct(xs, p):
                 xs = sorted(xs)
                 return xs[min(len(xs) - 1, int(p * len(xs)))] if xs else float("nan")
 
             print(json.dumps({
-                "bench": "sql_latency", "queries_busy": len(busy), "queries_idle": len(idle),
+                "bench": "sql_latency", "pinned": bool(server_cpus), "queries_busy": len(busy), "queries_idle": len(idle),
+                "busy_waves": len(windows), "busy_rows_per_s": round(busy_rows / sending),
                 "busy_p50_ms": round(pct(busy, 0.5) * 1e3, 2), "busy_p99_ms": round(pct(busy, 0.99) * 1e3, 2),
                 "idle_p50_ms": round(pct(idle, 0.5) * 1e3, 2), "idle_p99_ms": round(pct(idle, 0.99) * 1e3, 2),
+                "p99_busy_over_idle": round(pct(busy, 0.99) / pct(idle, 0.99), 2),
             }), flush=True)
 
         if "soak" in only:
