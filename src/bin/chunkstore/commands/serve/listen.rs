@@ -17,7 +17,7 @@ const TLS_HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a connection may be silent before the kernel asks whether its peer is still
 /// there: a robot that loses power mid-stream leaves no FIN, and without asking, its write
 /// stream would stay open for as long as the server runs.
-const TCP_KEEPALIVE: Duration = Duration::from_secs(60);
+const TCP_KEEPALIVE: Duration = Duration::from_mins(1);
 
 /// The connections `listener` accepts, set up as tonic's own listener sets them up (its
 /// builder's `tcp_nodelay` is ignored for connections handed to it): without
