@@ -69,11 +69,13 @@ pub struct StoreHub {
     /// whenever one opens or goes: readers ([`StoreHub::recordings`], a query's tables)
     /// take it without the lock, which a writer holds while its chunk goes in (a merge of
     /// large chunks, milliseconds).
-    listed: ArcSwap<Vec<Listed>>,
+    listed: ArcSwap<Vec<Arc<Listed>>>,
     listener: Option<HubListener>,
 }
 
 /// A recording as readers find it: [`HubEntry`] without the message that announced it.
+/// Shared by the entry and every listing it is in, so that republishing the list on each
+/// new recording copies a pointer per recording, not its store info.
 struct Listed {
     info: StoreInfo,
     store: SharedStore,
@@ -91,6 +93,8 @@ struct HubState {
 }
 
 struct HubEntry {
+    /// What readers find of it ([`StoreHub::recordings`]).
+    listed: Arc<Listed>,
     info: StoreInfo,
     /// The `SetStoreInfo` that announced it (replayed as it came), or one made up when a
     /// chunk came first.
@@ -307,10 +311,7 @@ impl StoreHub {
         let listed = state
             .recordings
             .iter()
-            .map(|entry| Listed {
-                info: entry.info.clone(),
-                store: entry.store.clone(),
-            })
+            .map(|entry| Arc::clone(&entry.listed))
             .collect();
         self.listed.store(Arc::new(listed));
     }
@@ -491,7 +492,9 @@ impl StoreHub {
         ensure(
             listed.len() == state.recordings.len()
                 && listed.iter().zip(&state.recordings).all(|(listed, entry)| {
-                    listed.info == entry.info && listed.store.is_same_store(&entry.store)
+                    Arc::ptr_eq(listed, &entry.listed)
+                        && listed.info == entry.info
+                        && listed.store.is_same_store(&entry.store)
                 }),
             Structure::Store,
             "readers find the hub's recordings as it holds them",
@@ -522,10 +525,15 @@ impl HubState {
     fn open(&mut self, info: StoreInfo, info_msg: LogMsg, store: ChunkStore) -> usize {
         let index = self.recordings.len();
         self.by_id.insert(info.store_id.clone(), index);
+        let store = SharedStore::new(store);
         self.recordings.push(HubEntry {
+            listed: Arc::new(Listed {
+                info: info.clone(),
+                store: store.clone(),
+            }),
             info,
             info_msg,
-            store: SharedStore::new(store),
+            store,
         });
         index
     }
