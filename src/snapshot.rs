@@ -358,7 +358,8 @@ impl SharedStore {
         self.inner.writer.lock().free_retired();
     }
 
-    /// Do `self` and `other` refer to the same store?
+    /// Do `self` and `other` refer to the same store? (The hub's sanity check asks.)
+    #[cfg(feature = "rrd")]
     pub(crate) fn is_same_store(&self, other: &Self) -> bool {
         Arc::ptr_eq(&self.inner, &other.inner)
     }
