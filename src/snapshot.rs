@@ -358,12 +358,6 @@ impl SharedStore {
         self.inner.writer.lock().free_retired();
     }
 
-    /// Do `self` and `other` refer to the same store? (The hub's sanity check asks.)
-    #[cfg(feature = "rrd")]
-    pub(crate) fn is_same_store(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.inner, &other.inner)
-    }
-
     /// A copy of the store as it is now (O(store): its writer's structures are copied;
     /// the chunks are shared), taken between writes.
     pub fn to_store(&self) -> ChunkStore {

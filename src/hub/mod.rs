@@ -93,13 +93,11 @@ struct HubState {
 }
 
 struct HubEntry {
-    /// What readers find of it ([`StoreHub::recordings`]).
-    listed: Arc<Listed>,
-    info: StoreInfo,
+    /// Its store info and store, as readers find them ([`StoreHub::recordings`]).
+    recording: Arc<Listed>,
     /// The `SetStoreInfo` that announced it (replayed as it came), or one made up when a
     /// chunk came first.
     info_msg: LogMsg,
-    store: SharedStore,
 }
 
 /// One recording the hub holds, as of a moment.
@@ -220,6 +218,7 @@ impl StoreHub {
         if let Some(&index) = state.by_id.get(&info.store_id) {
             let chunks: Vec<Arc<Chunk>> = store.chunks_unordered().cloned().collect();
             state.recordings[index]
+                .recording
                 .store
                 .insert_batch(chunks)
                 .map_err(|e| IngestError::Insert(Box::new(e)))?;
@@ -261,6 +260,7 @@ impl StoreHub {
             DecodedLogMsg::Chunk { store_id, chunk } => {
                 if let Some(&index) = state.by_id.get(&store_id) {
                     state.recordings[index]
+                        .recording
                         .store
                         .insert(Arc::new(chunk))
                         .map_err(|e| IngestError::Insert(Box::new(e)))?;
@@ -311,7 +311,7 @@ impl StoreHub {
         let listed = state
             .recordings
             .iter()
-            .map(|entry| Arc::clone(&entry.listed))
+            .map(|entry| Arc::clone(&entry.recording))
             .collect();
         self.listed.store(Arc::new(listed));
     }
@@ -347,19 +347,19 @@ impl StoreHub {
         let mut state = self.state.lock();
         let (dropped, kept): (Vec<HubEntry>, Vec<HubEntry>) = std::mem::take(&mut state.recordings)
             .into_iter()
-            .partition(|entry| &*entry.info.store_id.recording_id == recording_id);
+            .partition(|entry| &*entry.recording.info.store_id.recording_id == recording_id);
         state.recordings = kept;
         let by_id = state
             .recordings
             .iter()
             .enumerate()
-            .map(|(index, entry)| (entry.info.store_id.clone(), index))
+            .map(|(index, entry)| (entry.recording.info.store_id.clone(), index))
             .collect();
         state.by_id = by_id;
         self.publish_listing(&state);
         dropped
             .into_iter()
-            .map(|entry| entry.info.store_id)
+            .map(|entry| entry.recording.info.store_id.clone())
             .collect()
     }
 
@@ -381,14 +381,14 @@ impl StoreHub {
         let mut temporal_chunks = Vec::new();
         for entry in &state.recordings {
             infos.push(entry.info_msg.clone());
-            let snapshot = entry.store.snapshot();
+            let snapshot = entry.recording.store.snapshot();
             for chunk in snapshot.view().chunks() {
                 let chunks = if chunk.is_static() {
                     &mut static_chunks
                 } else {
                     &mut temporal_chunks
                 };
-                chunks.push((entry.info.store_id.clone(), chunk));
+                chunks.push((entry.recording.info.store_id.clone(), chunk));
             }
         }
         HubReplay {
@@ -406,7 +406,7 @@ impl StoreHub {
             + state
                 .recordings
                 .iter()
-                .map(|entry| entry.store.snapshot().stats().heap_bytes)
+                .map(|entry| entry.recording.store.snapshot().stats().heap_bytes)
                 .sum::<u64>()
     }
 
@@ -491,26 +491,28 @@ impl StoreHub {
         let listed = self.listed.load();
         ensure(
             listed.len() == state.recordings.len()
-                && listed.iter().zip(&state.recordings).all(|(listed, entry)| {
-                    Arc::ptr_eq(listed, &entry.listed)
-                        && listed.info == entry.info
-                        && listed.store.is_same_store(&entry.store)
-                }),
+                && listed
+                    .iter()
+                    .zip(&state.recordings)
+                    .all(|(listed, entry)| Arc::ptr_eq(listed, &entry.recording)),
             Structure::Store,
             "readers find the hub's recordings as it holds them",
         )?;
         for (index, entry) in state.recordings.iter().enumerate() {
             ensure(
-                state.by_id.get(&entry.info.store_id) == Some(&index),
+                state.by_id.get(&entry.recording.info.store_id) == Some(&index),
                 Structure::Store,
                 "the hub's index points at the recording of that id",
             )?;
             ensure(
-                entry.info.store_id.kind == StoreKind::Recording,
+                entry.recording.info.store_id.kind == StoreKind::Recording,
                 Structure::Store,
                 "the hub's stores are recordings",
             )?;
-            entry.store.write(|s: &mut ChunkStore| s.sanity_check())?;
+            entry
+                .recording
+                .store
+                .write(|s: &mut ChunkStore| s.sanity_check())?;
         }
         ensure(
             state.blueprints.bytes_add_up(),
@@ -525,15 +527,12 @@ impl HubState {
     fn open(&mut self, info: StoreInfo, info_msg: LogMsg, store: ChunkStore) -> usize {
         let index = self.recordings.len();
         self.by_id.insert(info.store_id.clone(), index);
-        let store = SharedStore::new(store);
         self.recordings.push(HubEntry {
-            listed: Arc::new(Listed {
-                info: info.clone(),
-                store: store.clone(),
+            recording: Arc::new(Listed {
+                info,
+                store: SharedStore::new(store),
             }),
-            info,
             info_msg,
-            store,
         });
         index
     }
