@@ -963,3 +963,53 @@ fn preloaded_sources_are_served_beside_live_recordings() {
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The HTTP/2 settings a server sends first, read with a bare client: the connection
+/// preface and an empty SETTINGS frame, then the server's SETTINGS frame, by identifier.
+fn http2_settings(url: &str) -> Vec<(u16, u32)> {
+    use std::io::{Read as _, Write as _};
+    let host = url.strip_prefix("http://").unwrap();
+    let mut tcp = std::net::TcpStream::connect(host).unwrap();
+    tcp.set_read_timeout(Some(std::time::Duration::from_secs(10)))
+        .unwrap();
+    tcp.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n").unwrap();
+    // Length 0, type 4 (SETTINGS), no flags, stream 0.
+    tcp.write_all(&[0, 0, 0, 4, 0, 0, 0, 0, 0]).unwrap();
+    let mut header = [0u8; 9];
+    tcp.read_exact(&mut header).unwrap();
+    assert_eq!(
+        header[3], 4,
+        "the server's first frame is SETTINGS: {header:?}"
+    );
+    assert_eq!(header[4] & 1, 0, "not an acknowledgement");
+    let len = usize::from(header[0]) << 16 | usize::from(header[1]) << 8 | usize::from(header[2]);
+    let mut payload = vec![0u8; len];
+    tcp.read_exact(&mut payload).unwrap();
+    payload
+        .chunks_exact(6)
+        .map(|s| {
+            (
+                u16::from_be_bytes([s[0], s[1]]),
+                u32::from_be_bytes([s[2], s[3], s[4], s[5]]),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn clients_may_send_frames_of_a_mebibyte_or_of_the_window_under_a_memory_limit() {
+    const MAX_FRAME_SIZE: u16 = 5;
+    let dir = temp_dir("frames");
+    let frame = |args: &[&str]| {
+        let server = Server::start(&dir, args);
+        let settings = http2_settings(&server.url);
+        settings
+            .iter()
+            .find(|(id, _)| *id == MAX_FRAME_SIZE)
+            .map(|(_, value)| *value)
+    };
+    assert_eq!(frame(&[]), Some(1 << 20));
+    // A 16 MiB limit gives streams a 256 KiB window.
+    assert_eq!(frame(&["--memory-limit", "16MiB"]), Some(256 << 10));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -122,6 +122,18 @@ fn announce(local: SocketAddr, read_mode: ReadMode, tls: bool, metrics: Option<S
     }
 }
 
+/// The largest HTTP/2 frame a client may send us, for a stream window: 1 MiB (HTTP/2's
+/// default is 16 KiB), at most the window (a frame cannot be larger than what the client
+/// may send ahead). Fewer, larger frames are fewer reads and wake-ups per message: with
+/// one SDK client sending 82.6 MB, half the context switches (1,003 and 533 against 2,045
+/// and 1,081 over two runs), 3% fewer instructions (callgrind: 1.97 G against 2.03 G), and
+/// `benches/server_ingest.py --only ingest` server CPU over a file load's 1.40–1.69×
+/// against 1.76–1.87× (one client), 1.00–1.09× against 1.09–1.25× (eight), four runs each.
+fn max_frame_size(stream_window: u32) -> u32 {
+    // HTTP/2 allows 16 KiB to 16 MiB - 1.
+    (1 << 20).min(stream_window).max(16 << 10)
+}
+
 /// Serves `state` until `stop` is notified, then stops as the module says.
 pub async fn serve(
     state: Arc<ServerState>,
@@ -202,6 +214,7 @@ pub async fn serve(
     let server = builder
         .initial_stream_window_size(Some(stream_window))
         .initial_connection_window_size(Some(connection_window))
+        .max_frame_size(Some(max_frame_size(stream_window)))
         .accept_http1(true)
         .layer(origins.layer())
         .layer(tonic_web::GrpcWebLayer::new())
@@ -315,7 +328,14 @@ fn spawn_every_second(state: &Arc<ServerState>) {
 mod tests {
     use futures::StreamExt as _;
 
-    use super::connections;
+    use super::{connections, max_frame_size};
+
+    #[test]
+    fn frames_are_a_mebibyte_or_the_window_within_what_http2_allows() {
+        assert_eq!(max_frame_size(2 << 20), 1 << 20);
+        assert_eq!(max_frame_size(256 << 10), 256 << 10);
+        assert_eq!(max_frame_size(1024), 16 << 10);
+    }
 
     #[tokio::test]
     async fn accepted_connections_send_small_writes_at_once() {
